@@ -1,0 +1,319 @@
+//! The lightmap atlas: lightmap texels are the radiosity elements.
+//!
+//! Every patch of a [`Scene`] gets a chart: a `w × h` rectangle of texels in
+//! one atlas texture. Texel centres are placed so that the outermost row and
+//! column of a chart lie *on* the patch's edges (thesis §4.1, "cross-texture
+//! radiosity interpolation"): texel `(a, b)` of a chart sits at patch
+//! parameters `s = a / (w - 1)`, `t = b / (h - 1)`. Two adjacent coplanar
+//! patches therefore own samples at the very same world positions along their
+//! shared edge, compute the same radiosity there, and bilinear filtering
+//! interpolates across the seam without either chart reading the other.
+//!
+//! Because boundary samples sit on the edge, each texel stands for the part
+//! of the patch nearest to it: interior texels cover a full cell
+//! `|u|/(w-1) × |v|/(h-1)`, edge texels half a cell and corner texels a
+//! quarter, so the element areas of a patch sum to exactly its area.
+//! Corner samples are moved inward by [`CORNER_OFFSET`] of a cell along both
+//! axes, so that a corner sample is never on two edges at once (where the
+//! surface it belongs to is ambiguous to a rasterised item buffer).
+//!
+//! Packing: charts are sorted by height (then width) and placed on shelves,
+//! left to right, with [`PADDING`] empty texels between charts and shelves.
+//! The atlas width is the smallest power of two (at least 64) for which the
+//! packing is no taller than it is wide; the height is rounded up to a
+//! multiple of [`HEIGHT_ALIGN`]. Texels that belong to no chart are "not
+//! covered" and carry no element.
+
+use glam::Vec3;
+
+use crate::scene::{Patch, PatchShape, Scene, SceneIssue};
+
+/// Empty texels between neighbouring charts (a gutter for filtering).
+pub const PADDING: u32 = 1;
+/// Atlas height is rounded up to a multiple of this (the tile size used by
+/// the lightmap codec).
+pub const HEIGHT_ALIGN: u32 = 8;
+/// Inward offset of corner samples, as a fraction of the texel spacing.
+pub const CORNER_OFFSET: f32 = 0.05;
+/// Marker in [`Atlas::texel_element`] for a texel that belongs to no chart.
+pub const NO_ELEMENT: u32 = u32::MAX;
+/// Smallest atlas width tried.
+const MIN_WIDTH: u32 = 64;
+
+/// Where a patch lives in the atlas.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Chart {
+    /// Left column of the chart in the atlas.
+    pub x: u32,
+    /// Top row of the chart in the atlas.
+    pub y: u32,
+    /// Texels along the patch's `u` edge (>= 2).
+    pub w: u32,
+    /// Texels along the patch's `v` edge (>= 2).
+    pub h: u32,
+}
+
+/// One radiosity element: a texel of a chart.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Element {
+    /// Patch (surface) id, an index into [`Scene::patches`].
+    pub patch: u32,
+    /// Object id, an index into [`Scene::objects`].
+    pub object: u32,
+    /// Atlas column and row.
+    pub texel: [u32; 2],
+    /// Patch parameters `(s, t)` of the sample, in [0, 1]².
+    pub st: [f32; 2],
+    /// Sample position in object-local space.
+    pub position: Vec3,
+    /// Unit normal in object-local space.
+    pub normal: Vec3,
+    /// Area this element stands for, in object-local units (m²).
+    pub area: f32,
+    /// The bounds of the region it stands for, in patch parameters:
+    /// `[s0, t0, s1, t1]`.
+    pub region: [f32; 4],
+    /// Diffuse reflectance per channel (from the material).
+    pub albedo: Vec3,
+    /// Self-emitted radiant exitance per channel (from the material).
+    pub emission: Vec3,
+}
+
+/// The packed atlas and its elements.
+#[derive(Debug, Clone)]
+pub struct Atlas {
+    pub width: u32,
+    pub height: u32,
+    /// One chart per patch, indexed like [`Scene::patches`].
+    pub charts: Vec<Chart>,
+    /// Elements, grouped by patch in patch order, row-major within a chart.
+    pub elements: Vec<Element>,
+    /// First element of each patch; `patch_elements[p]..patch_elements[p+1]`.
+    pub patch_elements: Vec<u32>,
+    /// Element index per texel (row-major, `width * height`), or
+    /// [`NO_ELEMENT`].
+    pub texel_element: Vec<u32>,
+}
+
+/// Chart sizes and positions without elements: enough to know whether a
+/// scene fits.
+#[derive(Debug, Clone)]
+pub struct Layout {
+    pub width: u32,
+    pub height: u32,
+    pub charts: Vec<Chart>,
+}
+
+/// Texels along an edge of `length` metres at `density` texels per metre.
+fn texels_along(length: f32, density: f32) -> u32 {
+    let cells = (length * density).ceil().max(1.0);
+    // Saturating conversion: absurd densities become an overflow error later.
+    (cells.min(1.0e9) as u32).saturating_add(1)
+}
+
+/// Chart dimensions for one patch.
+fn chart_size(patch: &Patch) -> (u32, u32) {
+    match patch.shape {
+        PatchShape::Quad { u, v, .. } => (
+            texels_along(u.length(), patch.texel_density),
+            texels_along(v.length(), patch.texel_density),
+        ),
+    }
+}
+
+/// Shelf-packs charts of the given sizes into an atlas `width` wide; returns
+/// positions and the packed height.
+fn shelf_pack(sizes: &[(u32, u32)], width: u32) -> Option<(Vec<(u32, u32)>, u32)> {
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    order.sort_by(|&a, &b| {
+        sizes[b]
+            .1
+            .cmp(&sizes[a].1)
+            .then(sizes[b].0.cmp(&sizes[a].0))
+            .then(a.cmp(&b))
+    });
+    let mut pos = vec![(0, 0); sizes.len()];
+    let (mut x, mut y, mut shelf) = (0u32, 0u32, 0u32);
+    for i in order {
+        let (w, h) = sizes[i];
+        if w > width {
+            return None;
+        }
+        if x + w > width {
+            y = y.checked_add(shelf + PADDING)?;
+            x = 0;
+            shelf = 0;
+        }
+        pos[i] = (x, y);
+        x += w + PADDING;
+        shelf = shelf.max(h);
+    }
+    Some((pos, y.checked_add(shelf)?))
+}
+
+/// Plans the atlas for a scene, or explains why it does not fit.
+pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
+    let sizes: Vec<(u32, u32)> = scene.patches.iter().map(chart_size).collect();
+    let max = scene.max_atlas_size;
+    let location = "lightmap".to_string();
+    if let Some((i, (w, h))) = sizes
+        .iter()
+        .enumerate()
+        .find(|(_, (w, h))| *w > max || *h > max)
+    {
+        return Err(SceneIssue {
+            location: format!(
+                "surface #{} \"{}\"",
+                scene.patches[i].surface_index, scene.patches[i].name
+            ),
+            problem: format!(
+                "atlas overflow: this surface alone needs {w} x {h} texels but lightmap.max_atlas_size is {max}; lower its texel_density"
+            ),
+        });
+    }
+    let texels: u64 = sizes
+        .iter()
+        .map(|&(w, h)| u64::from(w + PADDING) * u64::from(h + PADDING))
+        .sum();
+    let mut width = MIN_WIDTH.min(max);
+    loop {
+        if let Some((pos, height)) = shelf_pack(&sizes, width) {
+            let aligned = height.div_ceil(HEIGHT_ALIGN) * HEIGHT_ALIGN;
+            if aligned <= width || (width >= max && aligned <= max) {
+                let charts = sizes
+                    .iter()
+                    .zip(pos)
+                    .map(|(&(w, h), (x, y))| Chart { x, y, w, h })
+                    .collect();
+                return Ok(Layout {
+                    width,
+                    height: aligned.max(HEIGHT_ALIGN),
+                    charts,
+                });
+            }
+        }
+        if width >= max {
+            return Err(SceneIssue {
+                location,
+                problem: format!(
+                    "atlas overflow: {} surfaces need about {texels} texels, which do not fit in {max} x {max} (lightmap.max_atlas_size); lower texel_density or raise max_atlas_size",
+                    scene.patches.len()
+                ),
+            });
+        }
+        width = (width * 2).min(max);
+    }
+}
+
+/// Parameter of sample `a` of `n` along an edge, with the corner offset
+/// applied when `corner` is set.
+fn sample_param(a: u32, n: u32, corner: bool) -> f32 {
+    let cells = (n - 1) as f32;
+    let mut s = a as f32 / cells;
+    if corner {
+        let inward = CORNER_OFFSET / cells;
+        s = if a == 0 { s + inward } else { s - inward };
+    }
+    s
+}
+
+/// The span of patch parameter an element covers along one axis.
+fn region_1d(a: u32, n: u32) -> (f32, f32) {
+    let cells = (n - 1) as f32;
+    let lo = ((a as f32 - 0.5) / cells).max(0.0);
+    let hi = ((a as f32 + 0.5) / cells).min(1.0);
+    (lo, hi)
+}
+
+impl Atlas {
+    /// Charts and packs every patch of the scene and creates its elements.
+    pub fn build(scene: &Scene) -> Result<Atlas, SceneIssue> {
+        let layout = plan(scene)?;
+        let (width, height) = (layout.width, layout.height);
+        let mut texel_element = vec![NO_ELEMENT; (width as usize) * (height as usize)];
+        let mut elements = Vec::new();
+        let mut patch_elements = Vec::with_capacity(scene.patches.len() + 1);
+        for (p, (patch, chart)) in scene.patches.iter().zip(&layout.charts).enumerate() {
+            patch_elements.push(elements.len() as u32);
+            let material = &scene.materials[patch.material as usize];
+            let PatchShape::Quad { origin, u, v } = patch.shape;
+            let normal = patch.shape.normal();
+            let area = patch.shape.area();
+            for b in 0..chart.h {
+                for a in 0..chart.w {
+                    let on_u_edge = a == 0 || a == chart.w - 1;
+                    let on_v_edge = b == 0 || b == chart.h - 1;
+                    let corner = on_u_edge && on_v_edge;
+                    let s = sample_param(a, chart.w, corner);
+                    let t = sample_param(b, chart.h, corner);
+                    let (s0, s1) = region_1d(a, chart.w);
+                    let (t0, t1) = region_1d(b, chart.h);
+                    let texel = [chart.x + a, chart.y + b];
+                    texel_element[(texel[1] * width + texel[0]) as usize] = elements.len() as u32;
+                    elements.push(Element {
+                        patch: p as u32,
+                        object: patch.object,
+                        texel,
+                        st: [s, t],
+                        position: origin + u * s + v * t,
+                        normal,
+                        area: area * (s1 - s0) * (t1 - t0),
+                        region: [s0, t0, s1, t1],
+                        albedo: material.albedo,
+                        emission: material.emission,
+                    });
+                }
+            }
+        }
+        patch_elements.push(elements.len() as u32);
+        Ok(Atlas {
+            width,
+            height,
+            charts: layout.charts,
+            elements,
+            patch_elements,
+            texel_element,
+        })
+    }
+
+    /// The element at atlas texel `(x, y)`, if the texel is covered.
+    pub fn element_at(&self, x: u32, y: u32) -> Option<u32> {
+        if x >= self.width || y >= self.height {
+            return None;
+        }
+        match self.texel_element[(y * self.width + x) as usize] {
+            NO_ELEMENT => None,
+            e => Some(e),
+        }
+    }
+
+    /// The patch (surface) that owns atlas texel `(x, y)`, if any.
+    pub fn patch_at(&self, x: u32, y: u32) -> Option<u32> {
+        self.element_at(x, y)
+            .map(|e| self.elements[e as usize].patch)
+    }
+
+    /// The elements of one patch.
+    pub fn elements_of(&self, patch: u32) -> std::ops::Range<usize> {
+        self.patch_elements[patch as usize] as usize
+            ..self.patch_elements[patch as usize + 1] as usize
+    }
+
+    /// Number of elements on dynamic objects.
+    pub fn dynamic_element_count(&self, scene: &Scene) -> usize {
+        self.elements
+            .iter()
+            .filter(|e| scene.objects[e.object as usize].dynamic)
+            .count()
+    }
+
+    /// Scatters one value per element into a row-major RGB image of the
+    /// atlas; uncovered texels are zero.
+    pub fn to_image(&self, values: &[Vec3]) -> Vec<[f32; 3]> {
+        let mut image = vec![[0.0; 3]; (self.width as usize) * (self.height as usize)];
+        for (e, value) in self.elements.iter().zip(values) {
+            image[(e.texel[1] * self.width + e.texel[0]) as usize] = value.to_array();
+        }
+        image
+    }
+}

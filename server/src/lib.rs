@@ -1,0 +1,13 @@
+//! Lightwire server library: scenes, the lightmap atlas, radiosity solvers
+//! and the bake pipeline behind the `lightwire` command.
+//!
+//! Data flows one way: a scene file is parsed and validated into a
+//! [`scene::Scene`]; [`atlas::Atlas::build`] charts every patch into one
+//! lightmap texture whose texels are the radiosity elements; a solver (today
+//! the CPU [`reference`] solver) computes radiosity per element; [`bake`]
+//! scatters it into the atlas and writes images and metadata.
+
+pub mod atlas;
+pub mod bake;
+pub mod reference;
+pub mod scene;

@@ -1,0 +1,166 @@
+//! The on-disk scene format, exactly as it is written in JSON.
+//!
+//! These types mirror `scenes/scene.schema.json` one to one. They are only
+//! parsed here; [`super::validate`] turns them into a checked
+//! [`super::Scene`]. Keeping the two apart means the rest of the server never
+//! sees a raw, unchecked number from a file.
+
+use serde::Deserialize;
+
+/// Three numbers: a point, a direction or an RGB triple.
+pub type Vec3Json = [f64; 3];
+/// A rotation quaternion written as `[x, y, z, w]`.
+pub type QuatJson = [f64; 4];
+
+/// A whole scene file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// Editors use this to find the schema; ignored by the loader.
+    #[serde(rename = "$schema", default)]
+    pub schema: Option<String>,
+    /// Short identifier, also used as the scene id on the network.
+    pub name: String,
+    /// Free text shown in listings.
+    #[serde(default)]
+    pub description: String,
+    /// How densely surfaces are sampled and how large the atlas may grow.
+    pub lightmap: LightmapJson,
+    /// Named materials referenced by surfaces.
+    pub materials: Vec<MaterialJson>,
+    /// Named dynamic objects (rigid groups). The static world is implicit.
+    #[serde(default)]
+    pub objects: Vec<ObjectJson>,
+    /// Every surface in the scene.
+    pub surfaces: Vec<SurfaceJson>,
+}
+
+/// Lightmap resolution settings for the whole scene.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightmapJson {
+    /// Texels per metre along each surface edge.
+    pub texel_density: f64,
+    /// The atlas may not be wider or taller than this many texels.
+    #[serde(default = "default_max_atlas_size")]
+    pub max_atlas_size: u32,
+}
+
+fn default_max_atlas_size() -> u32 {
+    2048
+}
+
+/// A Lambertian material.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialJson {
+    pub name: String,
+    /// Diffuse reflectance per channel, each in [0, 1).
+    pub albedo: Vec3Json,
+    /// Self-emitted radiant exitance per channel in W/m², each >= 0.
+    #[serde(default)]
+    pub emission: Vec3Json,
+}
+
+/// A dynamic object: a rigid group of surfaces moved by one pose.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectJson {
+    pub name: String,
+    /// The pose the object starts in.
+    #[serde(default)]
+    pub pose: PoseJson,
+}
+
+/// Translation, rotation and uniform scale, applied as scale, then rotate,
+/// then translate.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseJson {
+    #[serde(default)]
+    pub translation: Vec3Json,
+    #[serde(default = "identity_quat")]
+    pub rotation: QuatJson,
+    #[serde(default = "unit_scale")]
+    pub scale: f64,
+}
+
+impl Default for PoseJson {
+    fn default() -> Self {
+        Self {
+            translation: [0.0; 3],
+            rotation: identity_quat(),
+            scale: 1.0,
+        }
+    }
+}
+
+fn identity_quat() -> QuatJson {
+    [0.0, 0.0, 0.0, 1.0]
+}
+
+fn unit_scale() -> f64 {
+    1.0
+}
+
+/// One surface entry. Exactly one geometry key (`quad` or `box`) is present.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurfaceJson {
+    pub name: String,
+    /// Name of the material.
+    pub material: String,
+    /// Name of the dynamic object this surface belongs to; absent for the
+    /// static world. Geometry of a dynamic surface is in object-local space.
+    #[serde(default)]
+    pub object: Option<String>,
+    /// Overrides the scene's texel density for this surface.
+    #[serde(default)]
+    pub texel_density: Option<f64>,
+    /// A parallelogram. Exactly one of `quad` and `box` must be given.
+    #[serde(default)]
+    pub quad: Option<QuadJson>,
+    /// An oriented box expanded into six quads.
+    #[serde(default, rename = "box")]
+    pub box_: Option<BoxJson>,
+}
+
+/// A parallelogram, written either as `origin` plus edges `u` and `v`
+/// (corners origin, origin+u, origin+u+v, origin+v; the front face is the
+/// side `u × v` points to) or as four `corners` in counter-clockwise order
+/// seen from the front, which must form a planar parallelogram.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuadJson {
+    #[serde(default)]
+    pub origin: Option<Vec3Json>,
+    #[serde(default)]
+    pub u: Option<Vec3Json>,
+    #[serde(default)]
+    pub v: Option<Vec3Json>,
+    #[serde(default)]
+    pub corners: Option<[Vec3Json; 4]>,
+}
+
+/// An oriented box, expanded into six quads.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxJson {
+    pub center: Vec3Json,
+    /// Full extent along the box's local x, y and z axes.
+    pub size: Vec3Json,
+    #[serde(default = "identity_quat")]
+    pub rotation: QuatJson,
+    /// `out` for a solid box, `in` for a room seen from inside.
+    #[serde(default)]
+    pub facing: Facing,
+}
+
+/// Which way the faces of a box point.
+#[derive(Debug, Default, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Facing {
+    #[default]
+    Out,
+    In,
+}
