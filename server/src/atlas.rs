@@ -317,3 +317,148 @@ impl Atlas {
         image
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene(text: &str) -> Scene {
+        Scene::parse(text, "test").unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    const TWO_BOXES: &str = r#"{
+        "name": "t",
+        "lightmap": { "texel_density": 7.3 },
+        "materials": [ { "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] } ],
+        "objects": [ { "name": "o", "pose": { "translation": [3, 0, 0] } } ],
+        "surfaces": [
+            { "name": "room", "material": "m", "box": { "center": [0, 0, 0], "size": [2.1, 1.3, 0.7], "facing": "in" } },
+            { "name": "cube", "material": "m", "object": "o", "texel_density": 4, "box": { "center": [0, 0, 0], "size": [0.5, 0.5, 0.5] } }
+        ]
+    }"#;
+
+    #[test]
+    fn element_areas_of_a_patch_sum_to_its_area() {
+        let scene = scene(TWO_BOXES);
+        let atlas = Atlas::build(&scene).expect("fits");
+        for (p, patch) in scene.patches.iter().enumerate() {
+            let sum: f32 = atlas
+                .elements_of(p as u32)
+                .map(|e| atlas.elements[e].area)
+                .sum();
+            let area = patch.shape.area();
+            assert!(
+                (sum - area).abs() < 1e-4 * area,
+                "{}: {sum} vs {area}",
+                patch.name
+            );
+        }
+    }
+
+    #[test]
+    fn boundary_samples_lie_on_patch_edges_and_corners_are_nudged_inward() {
+        let scene = scene(TWO_BOXES);
+        let atlas = Atlas::build(&scene).expect("fits");
+        for e in &atlas.elements {
+            let chart = atlas.charts[e.patch as usize];
+            let (a, b) = (e.texel[0] - chart.x, e.texel[1] - chart.y);
+            let edge_a = a == 0 || a == chart.w - 1;
+            let edge_b = b == 0 || b == chart.h - 1;
+            let [s, t] = e.st;
+            if edge_a && edge_b {
+                assert!(
+                    s > 0.0 && s < 1.0 && t > 0.0 && t < 1.0,
+                    "corner {:?} not inside: {s}, {t}",
+                    e.texel
+                );
+                let cell = 1.0 / (chart.w - 1) as f32;
+                assert!(
+                    s.min(1.0 - s) <= CORNER_OFFSET * cell * 1.001,
+                    "corner moved too far"
+                );
+            } else if edge_a {
+                assert!(s == 0.0 || s == 1.0, "edge sample off the edge: {s}");
+            } else if edge_b {
+                assert!(t == 0.0 || t == 1.0, "edge sample off the edge: {t}");
+            }
+        }
+    }
+
+    #[test]
+    fn texel_and_element_lookups_agree_both_ways() {
+        let scene = scene(TWO_BOXES);
+        let atlas = Atlas::build(&scene).expect("fits");
+        for (i, e) in atlas.elements.iter().enumerate() {
+            assert_eq!(atlas.element_at(e.texel[0], e.texel[1]), Some(i as u32));
+            assert_eq!(atlas.patch_at(e.texel[0], e.texel[1]), Some(e.patch));
+        }
+        let covered = atlas
+            .texel_element
+            .iter()
+            .filter(|&&e| e != NO_ELEMENT)
+            .count();
+        assert_eq!(
+            covered,
+            atlas.elements.len(),
+            "every covered texel has exactly one element"
+        );
+        assert_eq!(atlas.element_at(atlas.width, 0), None);
+    }
+
+    #[test]
+    fn charts_stay_inside_the_atlas_and_keep_their_padding() {
+        let scene = scene(TWO_BOXES);
+        let atlas = Atlas::build(&scene).expect("fits");
+        for (i, a) in atlas.charts.iter().enumerate() {
+            assert!(a.x + a.w <= atlas.width && a.y + a.h <= atlas.height);
+            for b in &atlas.charts[..i] {
+                let apart = a.x + a.w + PADDING <= b.x
+                    || b.x + b.w + PADDING <= a.x
+                    || a.y + a.h + PADDING <= b.y
+                    || b.y + b.h + PADDING <= a.y;
+                assert!(apart, "charts {a:?} and {b:?} overlap or touch");
+            }
+        }
+        assert_eq!(atlas.height % HEIGHT_ALIGN, 0);
+    }
+
+    #[test]
+    fn chart_size_follows_density_with_samples_on_both_ends() {
+        // 2.1 m at 7.3 texels/m: ceil(15.33) = 16 cells, 17 samples.
+        let scene = scene(TWO_BOXES);
+        let atlas = Atlas::build(&scene).expect("fits");
+        let x_face = scene
+            .patches
+            .iter()
+            .position(|p| p.name == "room/+y")
+            .expect("box face");
+        let chart = atlas.charts[x_face];
+        assert_eq!(
+            (chart.w.max(chart.h), chart.w.min(chart.h)),
+            (17, 7),
+            "{chart:?}"
+        );
+        // The dynamic cube uses its own density: 0.5 m at 4/m = 2 cells.
+        let cube = scene
+            .patches
+            .iter()
+            .position(|p| p.name == "cube/+z")
+            .expect("cube face");
+        assert_eq!((atlas.charts[cube].w, atlas.charts[cube].h), (3, 3));
+    }
+
+    #[test]
+    fn a_scene_too_large_for_its_atlas_names_the_problem() {
+        let text = TWO_BOXES.replace(
+            "\"texel_density\": 7.3 }",
+            "\"texel_density\": 7.3, \"max_atlas_size\": 16 }",
+        );
+        let err = Scene::parse(&text, "test")
+            .expect_err("must overflow")
+            .to_string();
+        assert!(
+            err.contains("atlas overflow") && err.contains("surface #0 \"room/"),
+            "{err}"
+        );
+    }
+}

@@ -1,6 +1,6 @@
 //! `lightwire`: the Lightwire server command.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
@@ -87,7 +87,7 @@ fn main() -> ExitCode {
     }
 }
 
-fn load(path: &PathBuf, density_scale: f32) -> Result<(Scene, Atlas)> {
+fn load(path: &Path, density_scale: f32) -> Result<(Scene, Atlas)> {
     let scene = Scene::load_with(path, LoadOptions { density_scale })?;
     let atlas =
         Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;

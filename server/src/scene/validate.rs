@@ -37,7 +37,10 @@ impl Checker {
         if x.is_finite() && y.is_finite() {
             Some(y)
         } else {
-            self.report(location, format!("{what} = {x} is not a finite number"));
+            self.report(
+                location,
+                format!("{what} = {x:e} is not a finite number (single precision holds magnitudes up to 3.4e38)"),
+            );
             None
         }
     }

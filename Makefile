@@ -1,0 +1,52 @@
+# Lightwire: the two commands.
+#
+#   make run   installs what is missing, builds, bakes the default scene
+#   make test  installs what is missing, runs every test
+#
+# System packages are installed with apt (idempotently: only what is
+# missing, and `apt-get update` only when something is).
+
+SHELL := /bin/bash
+CARGO ?= cargo
+SCENE ?= scenes/cornell-large.json
+OUT ?= out/cornell-large
+
+# Debian packages the build and the tests need:
+#   mesa-vulkan-drivers  lavapipe, the software Vulkan driver the GPU solver
+#                        runs on when there is no GPU
+#   libvulkan1           the Vulkan loader
+#   vulkan-tools         vulkaninfo, to say which adapter is there
+#   pkg-config           for -sys crates
+APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config
+
+.PHONY: run test deps check-toolchain build fmt-check clippy
+
+deps: check-toolchain
+	@missing=""; \
+	for p in $(APT_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  if [ "$$(id -u)" -ne 0 ]; then SUDO=sudo; else SUDO=; fi; \
+	  $$SUDO apt-get update -q && \
+	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q --no-install-recommends $$missing; \
+	fi
+
+check-toolchain:
+	@command -v $(CARGO) >/dev/null || { echo "error: cargo not found; install the Rust toolchain (https://rustup.rs)"; exit 1; }
+	@rustup component list --installed 2>/dev/null | grep -q rustfmt || rustup component add rustfmt clippy 2>/dev/null || true
+
+build: deps
+	$(CARGO) build --release --workspace
+
+run: build
+	./target/release/lightwire bake --scene $(SCENE) --solver reference --out $(OUT)
+	@echo
+	@echo "baked $(SCENE): open $(OUT)/lightmap.png (tone-mapped) or $(OUT)/lightmap.exr (linear HDR);"
+	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers."
+
+test: deps
+	$(CARGO) fmt --all -- --check
+	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	$(CARGO) test --workspace

@@ -1,0 +1,230 @@
+//! The `lightwire` command as a user runs it: real processes, real files.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn lightwire(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lightwire"))
+        .args(args)
+        .output()
+        .expect("the lightwire binary runs")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+fn scene_files() -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(repo().join("scenes"))
+        .expect("scenes/ exists")
+        .map(|e| e.expect("readable entry").path())
+        .filter(|p| {
+            p.extension().is_some_and(|x| x == "json")
+                && !p.to_string_lossy().ends_with(".schema.json")
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+/// Every scene shipped in `scenes/` loads, validates and fits its atlas.
+#[test]
+fn every_scene_in_scenes_validates() {
+    let files = scene_files();
+    assert!(files.len() >= 6, "expected the six scenes, found {files:?}");
+    let args: Vec<&str> = std::iter::once("validate")
+        .chain(files.iter().map(|p| p.to_str().expect("utf-8 path")))
+        .collect();
+    let out = lightwire(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout)
+            .lines()
+            .filter(|l| l.contains(": ok: "))
+            .count(),
+        files.len()
+    );
+}
+
+/// The thesis scenes (§5.1) have about the element counts the thesis
+/// reports: within 10% for static elements and 15% for the rotating box
+/// (a box's six faces only allow certain totals).
+#[test]
+fn thesis_scenes_have_the_thesis_element_counts() {
+    let expected = [
+        ("cornell-large.json", 10254, 918),
+        ("cornell-small.json", 10254, 918),
+        ("indirect-light.json", 10296, 318),
+        ("cornell-low.json", 2734, 270),
+    ];
+    for (file, stat, dynamic) in expected {
+        let path = repo().join("scenes").join(file);
+        let out = lightwire(&["validate", path.to_str().expect("utf-8")]);
+        assert!(out.status.success(), "{file}: {}", text(&out.stderr));
+        let line = text(&out.stdout);
+        // "... N static + M dynamic elements"
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let at = |w: &str| -> f64 {
+            let i = words.iter().position(|x| *x == w).expect("count in output");
+            words[i - 1].parse().expect("a number")
+        };
+        let (s, d) = (at("static"), at("dynamic"));
+        assert!(
+            (s - stat as f64).abs() / stat as f64 <= 0.10,
+            "{file}: {s} static elements, thesis {stat}"
+        );
+        assert!(
+            (d - dynamic as f64).abs() / dynamic as f64 <= 0.15,
+            "{file}: {d} dynamic elements, thesis {dynamic}"
+        );
+    }
+}
+
+/// Each bad-scene fixture fails with a non-zero exit code, no panic, and a
+/// message that says what is wrong and where (the expectations live in
+/// `scenes/fixtures/bad/expected.json`).
+#[test]
+fn bad_scenes_fail_with_messages_that_name_problem_and_place() {
+    let dir = repo().join("scenes/fixtures/bad");
+    let expected: serde_json::Map<String, serde_json::Value> = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("expected.json")).expect("expected.json exists"),
+    )
+    .expect("expected.json parses");
+    let fixtures: Vec<String> = std::fs::read_dir(&dir)
+        .expect("fixture dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".json") && n != "expected.json")
+        .collect();
+    assert!(
+        fixtures.len() >= 10,
+        "at least ten error kinds, found {}",
+        fixtures.len()
+    );
+    for name in &fixtures {
+        assert!(
+            expected.contains_key(name),
+            "{name} has no entry in expected.json"
+        );
+    }
+    for (name, needles) in &expected {
+        let path = dir.join(name);
+        let out = lightwire(&["validate", path.to_str().expect("utf-8")]);
+        let stderr = text(&out.stderr);
+        assert_eq!(
+            out.status.code(),
+            Some(1),
+            "{name} must fail cleanly: {stderr}"
+        );
+        assert!(
+            !stderr.contains("panicked") && !stderr.contains("backtrace"),
+            "{name}: {stderr}"
+        );
+        assert!(
+            stderr.contains(name.as_str()),
+            "{name}: the message names the file: {stderr}"
+        );
+        for needle in needles.as_array().expect("a list of substrings") {
+            let needle = needle.as_str().expect("a string");
+            assert!(
+                stderr.contains(needle),
+                "{name}: expected {needle:?} in:\n{stderr}"
+            );
+        }
+    }
+}
+
+/// A bake writes all four outputs, and they agree with each other.
+#[test]
+fn bake_writes_exr_png_atlas_and_stats() {
+    let out_dir = std::env::temp_dir().join(format!("lightwire-bake-test-{}", std::process::id()));
+    let scene = repo().join("scenes/plates.json");
+    let out = lightwire(&[
+        "bake",
+        "--scene",
+        scene.to_str().expect("utf-8"),
+        "--solver",
+        "reference",
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("form factors"),
+        "progress is shown on stderr"
+    );
+
+    let read_json = |name: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join(name)).expect("written"))
+            .expect("valid JSON")
+    };
+    let stats = read_json("stats.json");
+    let atlas = read_json("atlas.json");
+    assert_eq!(stats["solver"], "reference");
+    assert!(stats["residual_fraction"].as_f64().expect("number") < 1e-4);
+    assert_eq!(atlas["surfaces"].as_array().expect("list").len(), 2);
+    let (w, h) = (
+        atlas["width"].as_u64().expect("w"),
+        atlas["height"].as_u64().expect("h"),
+    );
+
+    // The EXR is readable by a standard OpenEXR reader, has the atlas size,
+    // and the emitting plate (albedo 0) shows exactly its emission.
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        out_dir.join("lightmap.exr"),
+        |size, _| vec![vec![[0.0f32; 3]; size.width()]; size.height()],
+        |rows: &mut Vec<Vec<[f32; 3]>>, at, (r, g, b, _a): (f32, f32, f32, f32)| {
+            rows[at.y()][at.x()] = [r, g, b]
+        },
+    )
+    .expect("lightmap.exr is valid OpenEXR");
+    let rows = image.layer_data.channel_data.pixels;
+    assert_eq!((rows[0].len() as u64, rows.len() as u64), (w, h));
+    let brightest = rows
+        .iter()
+        .flatten()
+        .map(|p| p[0].max(p[1]).max(p[2]))
+        .fold(0.0f32, f32::max);
+    assert!(
+        (brightest - 1.0).abs() < 1e-6,
+        "the emitter's radiosity is its emission, got {brightest}"
+    );
+    let png = image::open(out_dir.join("lightmap.png")).expect("lightmap.png decodes");
+    assert_eq!((u64::from(png.width()), u64::from(png.height())), (w, h));
+    std::fs::remove_dir_all(&out_dir).ok();
+}
+
+/// User errors on the command line are reported without a panic.
+#[test]
+fn command_line_errors_are_clear() {
+    let missing = lightwire(&[
+        "bake",
+        "--scene",
+        "/nonexistent/scene.json",
+        "--out",
+        "/tmp/x",
+    ]);
+    assert_eq!(missing.status.code(), Some(1));
+    let stderr = text(&missing.stderr);
+    assert!(
+        stderr.contains("/nonexistent/scene.json") && stderr.contains("cannot read"),
+        "{stderr}"
+    );
+
+    let plates = repo().join("scenes/plates.json");
+    let bad_scale = lightwire(&[
+        "validate",
+        "--density-scale",
+        "0",
+        plates.to_str().expect("utf-8"),
+    ]);
+    assert_ne!(bad_scale.status.code(), Some(0));
+    assert!(
+        text(&bad_scale.stderr).contains("density scale"),
+        "{}",
+        text(&bad_scale.stderr)
+    );
+}

@@ -1,0 +1,64 @@
+//! `scenes/scene.schema.json` lets editors validate scene files. It must
+//! agree with the loader: every shipped scene passes it, and the fixtures
+//! whose problem is a matter of shape (not of geometry or cross-references)
+//! fail it.
+
+use std::path::PathBuf;
+
+fn scenes_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes")
+}
+
+fn read_json(path: &PathBuf) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn validator() -> jsonschema::Validator {
+    jsonschema::validator_for(&read_json(&scenes_dir().join("scene.schema.json")))
+        .expect("the schema is a valid JSON Schema")
+}
+
+#[test]
+fn every_shipped_scene_satisfies_the_schema() {
+    let validator = validator();
+    let mut checked = 0;
+    for entry in std::fs::read_dir(scenes_dir()).expect("scenes/") {
+        let path = entry.expect("entry").path();
+        let name = path.to_string_lossy().into_owned();
+        if !name.ends_with(".json") || name.ends_with(".schema.json") {
+            continue;
+        }
+        let scene = read_json(&path);
+        let errors: Vec<String> = validator
+            .iter_errors(&scene)
+            .map(|e| e.to_string())
+            .collect();
+        assert!(errors.is_empty(), "{name}: {errors:?}");
+        checked += 1;
+    }
+    assert!(checked >= 6);
+}
+
+#[test]
+fn fixtures_with_shape_errors_fail_the_schema() {
+    let validator = validator();
+    for name in [
+        "albedo-out-of-range.json",
+        "negative-emission.json",
+        "unknown-field.json",
+        "missing-field.json",
+        "both-shapes.json",
+        "no-shape.json",
+        "bad-scale.json",
+        "bad-texel-density.json",
+        "bad-max-atlas-size.json",
+        "non-finite-number.json",
+    ] {
+        let fixture = read_json(&scenes_dir().join("fixtures/bad").join(name));
+        assert!(
+            !validator.is_valid(&fixture),
+            "{name} should fail the schema"
+        );
+    }
+}
