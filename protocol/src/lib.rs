@@ -1,10 +1,50 @@
-//! Lightwire wire protocol.
+//! Lightwire wire protocol: message types, the bincode codec, and the
+//! lightmap tile codec.
 //!
-//! This crate will hold the message types, the bincode codec and the golden
-//! vectors (see PROTOCOL.md). It must never depend on tokio or wgpu, so that
-//! any client — a game, a load tester, a browser via its JavaScript twin —
-//! can share it.
+//! # Data flow
+//!
+//! A client opens a WebSocket and sends [`ClientMessage::Hello`]. The server
+//! answers with [`ServerMessage::Welcome`] (its role decision and the
+//! [`SceneInfo`] a thin client needs to draw), then a
+//! [`ServerMessage::Keyframe`] that carries every tile of the current
+//! lightmap, then a [`ServerMessage::Delta`] for every version it publishes.
+//! Each WebSocket binary frame holds exactly one message, encoded by
+//! [`encode_client`] / [`encode_server`] and decoded by [`decode_client`] /
+//! [`decode_server`] (bincode 2, one fixed configuration: see [`codec`]).
+//!
+//! On the server, a [`lightmap::Encoder`] quantizes each solver output
+//! (RGB9E5 by default), compares it tile by tile with what it last published,
+//! and emits a [`Delta`] for the tiles that changed by more than its epsilon.
+//! On the client, a [`lightmap::Lightmap`] applies keyframes and deltas. The
+//! encoder keeps exactly the state a client reconstructs, so both sides hold
+//! bit-identical texels at every version.
+//!
+//! PROTOCOL.md at the repository root documents every byte; the golden
+//! vectors in `protocol/tests/vectors/` pin them.
+//!
+//! This crate must never depend on tokio or wgpu, so that every client — a
+//! game, a load tester, the dashboard's JavaScript twin — can share it.
+
+pub mod codec;
+pub mod error_code;
+pub mod lightmap;
+pub mod messages;
+
+pub use codec::{DecodeError, decode_client, decode_server, encode_client, encode_server};
+pub use error_code::ErrorCode;
+pub use messages::{
+    ClientMessage, Delta, Keyframe, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, Pose, Role,
+    SceneInfo, ServerMessage, Stats, SurfaceInfo, Tile,
+};
 
 /// The protocol version a peer announces in its handshake. Bumped on any
 /// incompatible change to PROTOCOL.md.
 pub const PROTOCOL_VERSION: u16 = 1;
+
+/// The largest encoded message, in bytes, that a decoder accepts. Larger
+/// frames are rejected with [`DecodeError::TooLarge`] before any parsing, so
+/// a peer cannot make us allocate more than a bounded amount per frame.
+pub const MAX_FRAME_BYTES: usize = 8 * 1024 * 1024;
+
+/// The default edge length of a lightmap tile, in texels.
+pub const DEFAULT_TILE_SIZE: u16 = 8;

@@ -1,0 +1,297 @@
+//! The message types, exactly as they travel. Field order here *is* the wire
+//! order (bincode writes fields in declaration order), and variant order is
+//! the wire discriminant: never reorder, only append — and bump
+//! [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION) for anything else.
+
+use bincode::{Decode, Encode};
+use serde::{Deserialize, Serialize};
+
+use crate::ErrorCode;
+
+/// What a token lets a connection do. Decided by the server, announced in
+/// [`ServerMessage::Welcome`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode, Serialize, Deserialize)]
+pub enum Role {
+    /// Watches lightmaps and stats; may not send transforms (wire value 0).
+    Viewer,
+    /// A viewer that may also move dynamic objects (wire value 1).
+    Driver,
+    /// A driver that may also use administrative endpoints (wire value 2).
+    Admin,
+}
+
+/// A rigid transform with uniform scale: `p' = translation + rotation * (scale * p)`.
+#[derive(Clone, Copy, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct Pose {
+    /// World-space translation.
+    pub translation: [f32; 3],
+    /// Unit quaternion, in the order x, y, z, w.
+    pub rotation: [f32; 4],
+    /// Uniform scale, strictly positive.
+    pub scale: f32,
+}
+
+impl Pose {
+    /// The identity pose.
+    pub const IDENTITY: Pose = Pose {
+        translation: [0.0; 3],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+        scale: 1.0,
+    };
+
+    /// Largest accepted deviation of `|rotation|` from 1.
+    pub const ROTATION_TOLERANCE: f64 = 1e-3;
+
+    /// Checks what the codec cannot: every number finite, the rotation a unit
+    /// quaternion within [`Pose::ROTATION_TOLERANCE`], the scale positive.
+    /// The server answers a failing transform with
+    /// [`ErrorCode::InvalidPose`] and the returned reason.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        if !self.translation.iter().all(|v| v.is_finite()) {
+            return Err("translation is not finite");
+        }
+        if !self.rotation.iter().all(|v| v.is_finite()) {
+            return Err("rotation is not finite");
+        }
+        if !self.scale.is_finite() {
+            return Err("scale is not finite");
+        }
+        if self.scale <= 0.0 {
+            return Err("scale is not positive");
+        }
+        let norm = self
+            .rotation
+            .iter()
+            .map(|&v| f64::from(v) * f64::from(v))
+            .sum::<f64>()
+            .sqrt();
+        if (norm - 1.0).abs() > Self::ROTATION_TOLERANCE {
+            return Err("rotation is not a unit quaternion (|q| differs from 1 by more than 1e-3)");
+        }
+        Ok(())
+    }
+}
+
+impl Default for Pose {
+    fn default() -> Self {
+        Pose::IDENTITY
+    }
+}
+
+/// "Object `object` at transform sequence number `seq`": what a published
+/// frame reflects, so a driver can measure transform-to-light latency.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode, Serialize, Deserialize)]
+pub struct ObjectSeq {
+    /// Index into [`SceneInfo::objects`].
+    pub object: u32,
+    /// The latest transform sequence number of that object that the frame includes.
+    pub seq: u64,
+}
+
+/// Messages a client sends. Wire discriminants: Hello 0, Transform 1, Resync 2, Ping 3.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub enum ClientMessage {
+    /// First message of every connection.
+    Hello {
+        /// Must equal [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION), else the
+        /// server answers [`ErrorCode::UnsupportedVersion`] and closes.
+        protocol_version: u16,
+        /// Free-form client name and version, for logs.
+        client: String,
+        /// Access token; `None` in development mode.
+        token: Option<String>,
+        /// Capability bits; v1 defines none (send 0, ignore unknown bits).
+        capabilities: u32,
+    },
+    /// Move a dynamic object (drivers and admins only).
+    Transform {
+        /// Index into [`SceneInfo::objects`]; must be a dynamic object.
+        object: u32,
+        /// Per-object sequence number, strictly increasing; the latest wins.
+        seq: u64,
+        /// The new pose; see [`Pose::validate`].
+        pose: Pose,
+        /// The client's clock when it sent this, in microseconds; echoed
+        /// nowhere, useful to the client's own latency bookkeeping and logs.
+        client_time_us: u64,
+    },
+    /// "My lightmap is not at the version you think": ask for a fresh keyframe.
+    Resync {
+        /// The version the client holds, if any (for logs and metrics).
+        have_version: Option<u64>,
+    },
+    /// Liveness / round-trip probe; answered by [`ServerMessage::Pong`].
+    Ping {
+        /// Echoed verbatim.
+        nonce: u64,
+    },
+}
+
+/// Messages the server sends. Wire discriminants: Welcome 0, Keyframe 1,
+/// Delta 2, Stats 3, Error 4, Pong 5.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub enum ServerMessage {
+    /// Answer to a successful Hello; always followed by a Keyframe.
+    Welcome {
+        /// The server's [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION).
+        protocol_version: u16,
+        /// Free-form server name and version, for logs.
+        server: String,
+        /// What this connection may do.
+        role: Role,
+        /// Capability bits; v1 defines none.
+        capabilities: u32,
+        /// Everything a thin client needs to draw the scene.
+        scene: SceneInfo,
+    },
+    /// A whole lightmap.
+    Keyframe(Keyframe),
+    /// The tiles that changed from `base_version` to `version`.
+    Delta(Delta),
+    /// Solver and service statistics, for dashboards.
+    Stats(Stats),
+    /// Something the client sent was refused.
+    Error {
+        /// Machine-readable reason; see [`ErrorCode`].
+        code: ErrorCode,
+        /// Human-readable detail.
+        message: String,
+    },
+    /// Answer to [`ClientMessage::Ping`].
+    Pong {
+        /// The ping's nonce.
+        nonce: u64,
+    },
+}
+
+/// The scene as a thin client sees it: atlas layout, objects, materials, and
+/// the quads to draw with their place in the atlas.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct SceneInfo {
+    /// Scene identifier (the `{id}` of `/ws/scenes/{id}`).
+    pub id: String,
+    /// Lightmap width in texels.
+    pub atlas_width: u32,
+    /// Lightmap height in texels.
+    pub atlas_height: u32,
+    /// Tile edge length in texels (default [`DEFAULT_TILE_SIZE`](crate::DEFAULT_TILE_SIZE)).
+    pub tile_size: u16,
+    /// Pixel format of every tile payload.
+    pub format: PixelFormat,
+    /// Objects; [`ObjectSeq::object`] and [`SurfaceInfo::object`] index this.
+    pub objects: Vec<ObjectInfo>,
+    /// Materials; [`SurfaceInfo::material`] indexes this.
+    pub materials: Vec<MaterialInfo>,
+    /// Quads to draw.
+    pub surfaces: Vec<SurfaceInfo>,
+}
+
+/// One object of the scene.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct ObjectInfo {
+    /// Name from the scene file.
+    pub name: String,
+    /// Whether drivers may move it.
+    pub dynamic: bool,
+    /// Its pose when the Welcome was built.
+    pub pose: Pose,
+}
+
+/// One material of the scene.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct MaterialInfo {
+    /// Name from the scene file.
+    pub name: String,
+    /// Diffuse reflectance, linear RGB in [0, 1).
+    pub albedo: [f32; 3],
+    /// Emitted radiosity, linear RGB, >= 0.
+    pub emission: [f32; 3],
+}
+
+/// One quad: geometry in object space plus its rectangle in the atlas.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct SurfaceInfo {
+    /// Name from the scene file.
+    pub name: String,
+    /// Index into [`SceneInfo::objects`].
+    pub object: u32,
+    /// Index into [`SceneInfo::materials`].
+    pub material: u32,
+    /// The four corners in object-local coordinates, in winding order.
+    pub corners: [[f32; 3]; 4],
+    /// Atlas rectangle: x, y, width, height in texels.
+    pub rect: [u32; 4],
+}
+
+/// How a texel is stored in a tile payload.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode, Serialize, Deserialize)]
+pub enum PixelFormat {
+    /// 4 bytes per texel: shared-exponent RGB, see [`crate::lightmap::rgb9e5_encode`] (wire value 0).
+    Rgb9e5,
+    /// 8 bytes per texel: IEEE half floats R, G, B, A (A = 1) (wire value 1).
+    Rgba16f,
+}
+
+impl PixelFormat {
+    /// Bytes per texel in a (decompressed) tile payload.
+    pub const fn bytes_per_texel(self) -> usize {
+        match self {
+            PixelFormat::Rgb9e5 => 4,
+            PixelFormat::Rgba16f => 8,
+        }
+    }
+}
+
+/// Every tile of one lightmap version.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct Keyframe {
+    /// The version this keyframe is.
+    pub version: u64,
+    /// Latest transform seq per object included in this version.
+    pub reflected: Vec<ObjectSeq>,
+    /// All tiles, each index exactly once (any order).
+    pub tiles: Vec<Tile>,
+}
+
+/// The tiles that changed between two versions.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct Delta {
+    /// Apply only onto exactly this version.
+    pub base_version: u64,
+    /// The version after applying; greater than `base_version`.
+    pub version: u64,
+    /// Transform seqs newly included since `base_version` (latest per object).
+    pub reflected: Vec<ObjectSeq>,
+    /// Changed tiles only, each index at most once.
+    pub tiles: Vec<Tile>,
+}
+
+/// One tile's pixels.
+#[derive(Clone, Debug, PartialEq, Eq, Encode, Decode, Serialize, Deserialize)]
+pub struct Tile {
+    /// Row-major tile index: `tile_y * tiles_x + tile_x`.
+    pub index: u32,
+    /// One zstd frame; decompresses to the tile's texels, row-major, tile
+    /// clipped at the atlas border, each texel little-endian in the
+    /// scene's [`PixelFormat`].
+    pub data: Vec<u8>,
+}
+
+/// Solver and service statistics for one tick.
+#[derive(Clone, Copy, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct Stats {
+    /// The latest published lightmap version.
+    pub version: u64,
+    /// Unshot power over total emitted power (0 = converged).
+    pub unshot_fraction: f32,
+    /// Wall time of the last tick, milliseconds.
+    pub tick_ms: f32,
+    /// Time spent in the solver during the last tick, milliseconds.
+    pub solve_ms: f32,
+    /// Time spent redistributing for moved objects during the last tick, milliseconds.
+    pub redistribution_ms: f32,
+    /// Connected clients on this scene.
+    pub clients: u32,
+    /// Server clock, microseconds since the Unix epoch.
+    pub server_time_us: u64,
+}

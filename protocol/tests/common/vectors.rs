@@ -1,0 +1,281 @@
+//! The golden vectors: each message spelled out by hand here, its bytes
+//! committed in `tests/vectors/NAME.bin` and described in
+//! `tests/vectors/manifest.json`. `tests/golden_vectors.rs` checks both
+//! directions; `examples/gen_vectors.rs` rewrites the files after an
+//! intentional protocol change (and PROTOCOL_VERSION bump).
+//!
+//! Tile payloads are literal bytes (zstd frames holding one raw block), so
+//! the vectors do not depend on the zstd version that would compress them.
+
+#![allow(dead_code)]
+
+use lightwire_protocol::*;
+
+/// Which decoder a vector is for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Msg {
+    Client(ClientMessage),
+    Server(ServerMessage),
+}
+
+impl Msg {
+    pub fn encode(&self) -> Vec<u8> {
+        match self {
+            Msg::Client(m) => encode_client(m),
+            Msg::Server(m) => encode_server(m),
+        }
+    }
+
+    pub fn decode_like(&self, bytes: &[u8]) -> Result<Msg, DecodeError> {
+        match self {
+            Msg::Client(_) => decode_client(bytes).map(Msg::Client),
+            Msg::Server(_) => decode_server(bytes).map(Msg::Server),
+        }
+    }
+
+    pub fn direction(&self) -> &'static str {
+        match self {
+            Msg::Client(_) => "client",
+            Msg::Server(_) => "server",
+        }
+    }
+
+    pub fn to_json(&self) -> serde_json::Value {
+        match self {
+            Msg::Client(m) => serde_json::to_value(m).unwrap(),
+            Msg::Server(m) => serde_json::to_value(m).unwrap(),
+        }
+    }
+}
+
+pub struct Vector {
+    pub name: &'static str,
+    pub description: &'static str,
+    pub msg: Msg,
+}
+
+pub fn hex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+pub fn to_hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+/// The 3x2 RGB9E5 lightmap (tile size 2) of the keyframe and delta vectors.
+pub const ATLAS: (u32, u32, u16) = (3, 2, 2);
+
+/// Tile 0 (2x2 texels) of the keyframe: row 0 = (1, 0.5, 0.25), (0, 0, 0);
+/// row 1 = (2, 2, 2), (65408, 0, 0).
+pub const KEY_TILE0: &str = "28b52ffd201081000000010181000000000001028cff0100f8";
+/// Tile 1 (clipped to 1x2 texels) of the keyframe: (0.125, 0.0625, 1), (3, 0, 0).
+pub const KEY_TILE1: &str = "28b52ffd20084100002020008480010088";
+/// Tile 1 in the delta: (1, 1, 1), (0, 0, 0).
+pub const DELTA_TILE1: &str = "28b52ffd20084100000001028400000000";
+
+/// The decoded texels, row-major, after the keyframe.
+pub const KEY_RGB: [[f32; 3]; 6] = [
+    [1.0, 0.5, 0.25],
+    [0.0, 0.0, 0.0],
+    [0.125, 0.0625, 1.0],
+    [2.0, 2.0, 2.0],
+    [65408.0, 0.0, 0.0],
+    [3.0, 0.0, 0.0],
+];
+
+/// The decoded texels, row-major, after keyframe then delta.
+pub const DELTA_RGB: [[f32; 3]; 6] = [
+    [1.0, 0.5, 0.25],
+    [0.0, 0.0, 0.0],
+    [1.0, 1.0, 1.0],
+    [2.0, 2.0, 2.0],
+    [65408.0, 0.0, 0.0],
+    [0.0, 0.0, 0.0],
+];
+
+const QUARTER_TURN_Y: [f32; 4] = [
+    0.0,
+    std::f32::consts::FRAC_1_SQRT_2,
+    0.0,
+    std::f32::consts::FRAC_1_SQRT_2,
+];
+
+pub fn keyframe() -> Keyframe {
+    Keyframe {
+        version: 1,
+        reflected: vec![ObjectSeq { object: 0, seq: 7 }],
+        tiles: vec![
+            Tile {
+                index: 0,
+                data: hex(KEY_TILE0),
+            },
+            Tile {
+                index: 1,
+                data: hex(KEY_TILE1),
+            },
+        ],
+    }
+}
+
+pub fn delta() -> Delta {
+    Delta {
+        base_version: 1,
+        version: 2,
+        reflected: vec![ObjectSeq {
+            object: 0,
+            seq: 300,
+        }],
+        tiles: vec![Tile {
+            index: 1,
+            data: hex(DELTA_TILE1),
+        }],
+    }
+}
+
+pub fn scene() -> SceneInfo {
+    SceneInfo {
+        id: "cornell".into(),
+        atlas_width: 3,
+        atlas_height: 2,
+        tile_size: 2,
+        format: PixelFormat::Rgb9e5,
+        objects: vec![ObjectInfo {
+            name: "box".into(),
+            dynamic: true,
+            pose: Pose::IDENTITY,
+        }],
+        materials: vec![MaterialInfo {
+            name: "light".into(),
+            albedo: [0.5, 0.5, 0.5],
+            emission: [1.0, 1.0, 1.0],
+        }],
+        surfaces: vec![SurfaceInfo {
+            name: "top".into(),
+            object: 0,
+            material: 0,
+            corners: [
+                [0.0, 1.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [1.0, 1.0, 1.0],
+                [0.0, 1.0, 1.0],
+            ],
+            rect: [0, 0, 3, 2],
+        }],
+    }
+}
+
+pub fn all() -> Vec<Vector> {
+    use ClientMessage as C;
+    use ServerMessage as S;
+    vec![
+        Vector {
+            name: "client_hello",
+            description: "Hello with a token: protocol 1, client \"lw/1\", token \"t0k\", no capabilities",
+            msg: Msg::Client(C::Hello {
+                protocol_version: PROTOCOL_VERSION,
+                client: "lw/1".into(),
+                token: Some("t0k".into()),
+                capabilities: 0,
+            }),
+        },
+        Vector {
+            name: "client_hello_no_token",
+            description: "Hello in development mode (token None); capabilities 0x1_0000 shows a 4-byte varint",
+            msg: Msg::Client(C::Hello {
+                protocol_version: PROTOCOL_VERSION,
+                client: "lw/1".into(),
+                token: None,
+                capabilities: 0x1_0000,
+            }),
+        },
+        Vector {
+            name: "client_transform",
+            description: "Transform object 2 to seq 300 (3-byte varint): translate (1, -0.5, 2.25), quarter turn about +y, scale 1, client time 1.7e15 us (9-byte varint)",
+            msg: Msg::Client(C::Transform {
+                object: 2,
+                seq: 300,
+                pose: Pose {
+                    translation: [1.0, -0.5, 2.25],
+                    rotation: QUARTER_TURN_Y,
+                    scale: 1.0,
+                },
+                client_time_us: 1_700_000_000_000_000,
+            }),
+        },
+        Vector {
+            name: "client_resync_none",
+            description: "Resync from a client that holds no lightmap",
+            msg: Msg::Client(C::Resync { have_version: None }),
+        },
+        Vector {
+            name: "client_resync_some",
+            description: "Resync from a client at version 42",
+            msg: Msg::Client(C::Resync {
+                have_version: Some(42),
+            }),
+        },
+        Vector {
+            name: "client_ping",
+            description: "Ping with nonce 0xDEADBEEF (5-byte varint)",
+            msg: Msg::Client(C::Ping { nonce: 0xDEAD_BEEF }),
+        },
+        Vector {
+            name: "server_welcome",
+            description: "Welcome as a driver to scene \"cornell\": 3x2 RGB9E5 atlas, tile size 2, one dynamic object, one material, one surface",
+            msg: Msg::Server(S::Welcome {
+                protocol_version: PROTOCOL_VERSION,
+                server: "lightwire/0.1".into(),
+                role: Role::Driver,
+                capabilities: 0,
+                scene: scene(),
+            }),
+        },
+        Vector {
+            name: "server_keyframe",
+            description: "Keyframe version 1 of the 3x2 atlas: tile 0 (2x2) and tile 1 (clipped to 1x2), reflecting object 0 at seq 7",
+            msg: Msg::Server(S::Keyframe(keyframe())),
+        },
+        Vector {
+            name: "server_delta",
+            description: "Delta 1 -> 2 onto server_keyframe: tile 1 only, reflecting object 0 at seq 300",
+            msg: Msg::Server(S::Delta(delta())),
+        },
+        Vector {
+            name: "server_stats",
+            description: "Stats for version 2",
+            msg: Msg::Server(S::Stats(Stats {
+                version: 2,
+                unshot_fraction: 0.125,
+                tick_ms: 16.5,
+                solve_ms: 10.25,
+                redistribution_ms: 2.0,
+                clients: 3,
+                server_time_us: 1_700_000_000_000_123,
+            })),
+        },
+        Vector {
+            name: "server_error",
+            description: "Error Forbidden (5): a viewer sent a Transform",
+            msg: Msg::Server(S::Error {
+                code: ErrorCode::Forbidden,
+                message: "viewer may not send Transform".into(),
+            }),
+        },
+        Vector {
+            name: "server_error_unknown_code",
+            description: "Error with code 1000, unknown to v1: decodes to ErrorCode::Other(1000) (3-byte varint)",
+            msg: Msg::Server(S::Error {
+                code: ErrorCode::Other(1000),
+                message: "future".into(),
+            }),
+        },
+        Vector {
+            name: "server_pong",
+            description: "Pong echoing nonce 0xDEADBEEF",
+            msg: Msg::Server(S::Pong { nonce: 0xDEAD_BEEF }),
+        },
+    ]
+}

@@ -1,0 +1,112 @@
+//! Golden vectors: the committed bytes in `tests/vectors/` are the protocol.
+//! Every vector must decode to the value written by hand in
+//! `common/vectors.rs`, and that value must encode to the identical bytes.
+//! A codec change that alters any byte fails here; regenerate with
+//! `cargo run -p lightwire-protocol --example gen_vectors` only together
+//! with a PROTOCOL_VERSION bump and a PROTOCOL.md update.
+
+mod common;
+
+use std::path::PathBuf;
+
+use common::vectors::{self, ATLAS, DELTA_RGB, KEY_RGB, hex, to_hex};
+use lightwire_protocol::lightmap::Lightmap;
+use lightwire_protocol::*;
+
+fn vector_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/vectors")
+}
+
+fn read_vector(name: &str) -> Vec<u8> {
+    let path = vector_dir().join(format!("{name}.bin"));
+    std::fs::read(&path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()))
+}
+
+#[test]
+fn every_vector_decodes_to_its_value_and_reencodes_to_the_same_bytes() {
+    for v in vectors::all() {
+        let bytes = read_vector(v.name);
+        let decoded = v
+            .msg
+            .decode_like(&bytes)
+            .unwrap_or_else(|e| panic!("{}: {e}", v.name));
+        assert_eq!(decoded, v.msg, "{}: decoded value differs", v.name);
+        assert_eq!(
+            to_hex(&decoded.encode()),
+            to_hex(&bytes),
+            "{}: re-encoding the decoded value changes the bytes",
+            v.name
+        );
+        assert_eq!(
+            to_hex(&v.msg.encode()),
+            to_hex(&bytes),
+            "{}: encoding the expected value differs from the committed vector",
+            v.name
+        );
+    }
+}
+
+#[test]
+fn manifest_lists_every_vector_with_its_bytes() {
+    let text = std::fs::read_to_string(vector_dir().join("manifest.json")).unwrap();
+    let manifest: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(manifest["protocol_version"], u64::from(PROTOCOL_VERSION));
+    let entries = manifest["vectors"].as_array().unwrap();
+    let all = vectors::all();
+    assert_eq!(
+        entries.len(),
+        all.len(),
+        "manifest and vectors::all() disagree"
+    );
+    for (entry, v) in entries.iter().zip(&all) {
+        assert_eq!(entry["name"], v.name);
+        assert_eq!(entry["decoder"], v.msg.direction());
+        assert_eq!(entry["message"], v.msg.to_json(), "{}", v.name);
+        assert_eq!(
+            entry["hex"].as_str().unwrap(),
+            to_hex(&read_vector(v.name)),
+            "{}: manifest hex differs from the .bin file",
+            v.name
+        );
+    }
+}
+
+/// A few vectors spelled out byte by byte, as PROTOCOL.md explains them.
+#[test]
+fn layout_by_hand() {
+    // Ping: variant 3, nonce 0xDEADBEEF as varint tag 0xFC + u32 LE.
+    assert_eq!(read_vector("client_ping"), hex("03fcefbeadde"));
+    // Resync: variant 2, Option tag 1, 42.
+    assert_eq!(read_vector("client_resync_some"), hex("02012a"));
+    // Hello: variant 0, version 1, "lw/1", Some("t0k"), capabilities 0.
+    assert_eq!(
+        read_vector("client_hello"),
+        hex(concat!(
+            "00", "01", "04", "6c772f31", "01", "03", "74306b", "00"
+        ))
+    );
+    // Error: variant 4, code 1000 as varint 0xFB + u16 LE, "future".
+    assert_eq!(
+        read_vector("server_error_unknown_code"),
+        hex(concat!("04", "fbe803", "06", "667574757265"))
+    );
+}
+
+#[test]
+fn keyframe_and_delta_vectors_reconstruct_known_texels() {
+    let (w, h, ts) = ATLAS;
+    let mut client = Lightmap::new(w, h, ts, PixelFormat::Rgb9e5);
+    let ServerMessage::Keyframe(k) = decode_server(&read_vector("server_keyframe")).unwrap() else {
+        panic!("server_keyframe is not a Keyframe")
+    };
+    client.apply_keyframe(&k).unwrap();
+    assert_eq!(client.version, 1);
+    assert_eq!(client.to_rgb(), KEY_RGB.to_vec());
+
+    let ServerMessage::Delta(d) = decode_server(&read_vector("server_delta")).unwrap() else {
+        panic!("server_delta is not a Delta")
+    };
+    client.apply_delta(&d).unwrap();
+    assert_eq!(client.version, 2);
+    assert_eq!(client.to_rgb(), DELTA_RGB.to_vec());
+}

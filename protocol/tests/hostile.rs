@@ -1,0 +1,318 @@
+//! Whatever arrives, decoding and applying return errors, never panic, and
+//! never change state on error.
+
+mod common;
+
+use common::vectors;
+use lightwire_protocol::lightmap::{ApplyError, Encoder, Lightmap};
+use lightwire_protocol::*;
+use proptest::prelude::*;
+
+#[test]
+fn empty_frame_is_malformed() {
+    let e = decode_client(&[]).unwrap_err();
+    assert!(
+        matches!(e, DecodeError::Malformed(ref s) if s.contains("at byte 0 of 0")),
+        "{e}"
+    );
+}
+
+#[test]
+fn every_truncation_of_every_vector_is_an_error() {
+    for v in vectors::all() {
+        let bytes = v.msg.encode();
+        for cut in 0..bytes.len() {
+            let r = v.msg.decode_like(&bytes[..cut]);
+            assert!(
+                matches!(r, Err(DecodeError::Malformed(_))),
+                "{} cut at {cut}: {r:?}",
+                v.name
+            );
+        }
+    }
+}
+
+#[test]
+fn trailing_bytes_are_an_error_that_says_where() {
+    let mut bytes = encode_client(&ClientMessage::Ping { nonce: 1 });
+    bytes.extend_from_slice(&[0, 0]);
+    let e = decode_client(&bytes).unwrap_err();
+    assert_eq!(
+        e,
+        DecodeError::TrailingBytes {
+            message: "ClientMessage",
+            consumed: 2,
+            len: 4
+        }
+    );
+    assert_eq!(
+        e.to_string(),
+        "ClientMessage ends at byte 2 but the frame has 4 bytes (2 trailing)"
+    );
+    assert_eq!(e.code(), ErrorCode::BadFrame);
+}
+
+#[test]
+fn oversized_frames_are_refused_before_parsing() {
+    let bytes = vec![0u8; MAX_FRAME_BYTES + 1];
+    let e = decode_server(&bytes).unwrap_err();
+    assert_eq!(
+        e,
+        DecodeError::TooLarge {
+            len: MAX_FRAME_BYTES + 1,
+            max: MAX_FRAME_BYTES
+        }
+    );
+    assert_eq!(e.code(), ErrorCode::TooLarge);
+}
+
+#[test]
+fn unknown_discriminants_are_named() {
+    let e = decode_client(&[9]).unwrap_err();
+    assert!(e.to_string().contains("unknown discriminant 9"), "{e}");
+    // Welcome with role 7
+    let mut bytes = vectors::all()
+        .into_iter()
+        .find(|v| v.name == "server_welcome")
+        .unwrap()
+        .msg
+        .encode();
+    // variant 0, version 1, "lightwire/0.1" (1 + 13 bytes): role is byte 16
+    assert_eq!(bytes[16], 1);
+    bytes[16] = 7;
+    let e = decode_server(&bytes).unwrap_err();
+    assert!(e.to_string().contains("at byte 17"), "{e}");
+}
+
+#[test]
+fn huge_length_claims_fail_without_allocating_them() {
+    // Hello whose client string claims u64::MAX bytes.
+    let e =
+        decode_client(&[0, 1, 0xfd, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff]).unwrap_err();
+    assert!(matches!(e, DecodeError::Malformed(_)), "{e}");
+    // Keyframe claiming 2^32 tiles (would be 128 GiB of Tile slots).
+    let e = decode_server(&[1, 0, 0, 0xfd, 0, 0, 0, 0, 1, 0, 0, 0]).unwrap_err();
+    assert!(e.to_string().contains("decode budget"), "{e}");
+    // Delta whose first tile claims 8 MiB of data in a 12-byte frame.
+    let e = decode_server(&[2, 0, 1, 0, 1, 0, 0xfc, 0, 0, 0x80, 0]).unwrap_err();
+    assert!(matches!(e, DecodeError::Malformed(_)), "{e}");
+}
+
+#[test]
+fn over_long_varints_are_accepted_but_never_written() {
+    // Ping nonce 5 spelled with a 2-byte varint: bincode 2.0.1 accepts it.
+    let m = decode_client(&[3, 0xfb, 5, 0]).unwrap();
+    assert_eq!(m, ClientMessage::Ping { nonce: 5 });
+    assert_eq!(encode_client(&m), vec![3, 5]);
+}
+
+#[test]
+fn a_large_legitimate_keyframe_decodes() {
+    // 300k tiny tiles: bincode claims 32 bytes per Tile slot, far more than
+    // the wire size; the decode budget must still admit it.
+    let tiles = (0..300_000u32)
+        .map(|index| Tile {
+            index,
+            data: vec![0; 9],
+        })
+        .collect();
+    let msg = ServerMessage::Keyframe(Keyframe {
+        version: 1,
+        reflected: vec![],
+        tiles,
+    });
+    let bytes = encode_server(&msg);
+    assert!(bytes.len() <= MAX_FRAME_BYTES);
+    assert_eq!(decode_server(&bytes).unwrap(), msg);
+}
+
+fn published() -> (Encoder, Lightmap, Delta) {
+    let mut e = Encoder::new(16, 16, 8, PixelFormat::Rgb9e5, 0.0);
+    let mut client = Lightmap::new(16, 16, 8, PixelFormat::Rgb9e5);
+    client
+        .apply_delta(&e.publish(&vec![[0.5, 0.25, 1.0]; 256], vec![]))
+        .unwrap();
+    let next = e.publish(&vec![[2.0, 0.25, 1.0]; 256], vec![]);
+    (e, client, next)
+}
+
+fn rejects(client: &mut Lightmap, d: &Delta, expected: ApplyError) {
+    let before = client.clone();
+    assert_eq!(client.apply_delta(d), Err(expected.clone()));
+    assert_eq!(*client, before, "state changed on {expected}");
+}
+
+#[test]
+fn bad_tiles_are_rejected_atomically() {
+    let (_, mut client, good) = published();
+    assert_eq!(good.tiles.len(), 4);
+
+    let mut d = good.clone();
+    d.tiles[3].index = 4;
+    rejects(
+        &mut client,
+        &d,
+        ApplyError::TileOutOfRange { index: 4, count: 4 },
+    );
+
+    let mut d = good.clone();
+    d.tiles[3].index = 0;
+    rejects(&mut client, &d, ApplyError::DuplicateTile { index: 0 });
+
+    // A valid zstd frame of the wrong size (last tile, after three good ones).
+    let mut d = good.clone();
+    d.tiles[3].data = zstd::bulk::compress(&[0u8; 255], 3).unwrap();
+    rejects(
+        &mut client,
+        &d,
+        ApplyError::TileLength {
+            index: 3,
+            expected: 256,
+            got: 255,
+        },
+    );
+
+    // A zip bomb: 64 MiB of zeros in a few KiB.
+    let mut d = good.clone();
+    d.tiles[3].data = zstd::bulk::compress(&vec![0u8; 64 << 20], 19).unwrap();
+    assert!(d.tiles[3].data.len() < 64 << 10);
+    rejects(
+        &mut client,
+        &d,
+        ApplyError::TileLength {
+            index: 3,
+            expected: 256,
+            got: 64 << 20,
+        },
+    );
+
+    // Garbage payload.
+    let mut d = good.clone();
+    d.tiles[3].data = vec![1, 2, 3];
+    let before = client.clone();
+    assert!(matches!(
+        client.apply_delta(&d),
+        Err(ApplyError::Decompress { index: 3, .. })
+    ));
+    assert_eq!(client, before);
+
+    let mut d = good.clone();
+    d.version = d.base_version;
+    rejects(
+        &mut client,
+        &d,
+        ApplyError::NotIncreasing {
+            base: 1,
+            version: 1,
+        },
+    );
+
+    client.apply_delta(&good).unwrap();
+}
+
+#[test]
+fn frames_without_a_declared_size_cannot_overflow_the_tile() {
+    let (_, mut client, good) = published();
+    // zstd frame without content size: stream-compress 1 MiB.
+    let mut enc = zstd::stream::Encoder::new(Vec::new(), 3).unwrap();
+    enc.include_contentsize(false).unwrap();
+    std::io::Write::write_all(&mut enc, &vec![7u8; 1 << 20]).unwrap();
+    let data = enc.finish().unwrap();
+    assert!(matches!(
+        zstd::zstd_safe::get_frame_content_size(&data),
+        Ok(None)
+    ));
+    let mut d = good.clone();
+    d.tiles[0].data = data;
+    rejects(
+        &mut client,
+        &d,
+        ApplyError::TileLength {
+            index: 0,
+            expected: 256,
+            got: 257,
+        },
+    );
+}
+
+#[test]
+fn incomplete_keyframes_are_rejected() {
+    let (e, mut client, _) = published();
+    let mut k = e.keyframe();
+    k.tiles.pop();
+    let before = client.clone();
+    assert_eq!(
+        client.apply_keyframe(&k),
+        Err(ApplyError::MissingTiles {
+            expected: 4,
+            got: 3
+        })
+    );
+    assert_eq!(client, before);
+}
+
+#[test]
+fn hostile_scene_layouts_are_refused() {
+    let mut s = vectors::scene();
+    s.tile_size = 0;
+    assert!(matches!(
+        Lightmap::for_scene(&s),
+        Err(ApplyError::Layout(_))
+    ));
+    let mut s = vectors::scene();
+    s.atlas_width = u32::MAX;
+    s.atlas_height = u32::MAX;
+    assert!(matches!(
+        Lightmap::for_scene(&s),
+        Err(ApplyError::Layout(_))
+    ));
+    assert!(Lightmap::for_scene(&vectors::scene()).is_ok());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..256)) {
+        let _ = decode_client(&bytes);
+        let _ = decode_server(&bytes);
+    }
+
+    #[test]
+    fn mutated_vectors_never_panic(i in 0usize..13, pos in any::<prop::sample::Index>(), byte in any::<u8>(), cut in any::<prop::sample::Index>()) {
+        let all = vectors::all();
+        let v = &all[i % all.len()];
+        let mut bytes = v.msg.encode();
+        let p = pos.index(bytes.len());
+        bytes[p] = byte;
+        let c = cut.index(bytes.len() + 1);
+        if let Ok(m) = v.msg.decode_like(&bytes[..c]) {
+            // Whatever decodes re-encodes to a frame that decodes to the
+            // same encoding (not necessarily the same bytes: bincode accepts
+            // over-long varints, and encoders always write the shortest).
+            let again = m.encode();
+            prop_assert_eq!(m.decode_like(&again).unwrap().encode(), again);
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
+    #[test]
+    fn random_tiles_never_panic_and_never_partially_apply(
+        tiles in proptest::collection::vec((0u32..6, proptest::collection::vec(any::<u8>(), 0..40)), 0..6)
+    ) {
+        let (_, mut client, _) = published();
+        let before = client.clone();
+        let d = Delta {
+            base_version: 1,
+            version: 2,
+            reflected: vec![],
+            tiles: tiles.into_iter().map(|(index, data)| Tile { index, data }).collect(),
+        };
+        if client.apply_delta(&d).is_err() {
+            prop_assert_eq!(client, before);
+        }
+    }
+}
