@@ -5,9 +5,12 @@
 //! [`scene::Scene`]; [`atlas::Atlas::build`] charts every patch into one
 //! lightmap texture whose texels are the radiosity elements; a solver (today
 //! the CPU [`reference`] solver) computes radiosity per element; [`bake`]
-//! scatters it into the atlas and writes images and metadata.
+//! scatters it into the atlas and writes images and metadata. [`service`]
+//! runs the same pipeline continuously behind HTTP and WebSocket
+//! (`lightwire serve`).
 
 pub mod atlas;
 pub mod bake;
 pub mod reference;
 pub mod scene;
+pub mod service;

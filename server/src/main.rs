@@ -46,6 +46,30 @@ enum Command {
         #[arg(long, default_value_t = 1e-4)]
         tolerance: f64,
     },
+    /// Serve scenes over HTTP and WebSocket: live lightmaps, REST, metrics.
+    Serve {
+        /// Scene files to serve (repeatable; each scene's name is its id).
+        #[arg(long = "scene", num_args = 1.., action = clap::ArgAction::Append)]
+        scenes: Vec<PathBuf>,
+        /// Address to listen on [default: 127.0.0.1:8080].
+        #[arg(long)]
+        listen: Option<std::net::SocketAddr>,
+        /// TOML config file (flags override it, it overrides defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Serve without authentication: every client is an admin.
+        #[arg(long)]
+        dev: bool,
+        /// Ticks per second per scene [default: 60].
+        #[arg(long)]
+        tick_hz: Option<f64>,
+        /// Solver time per tick in milliseconds [default: 8].
+        #[arg(long)]
+        budget_ms: Option<f64>,
+        /// Multiply every texel density [default: 1].
+        #[arg(long)]
+        density_scale: Option<f32>,
+    },
     /// Check scene files and print what they contain.
     Validate {
         /// Scene files.
@@ -77,6 +101,23 @@ fn main() -> ExitCode {
             scenes,
             density_scale,
         } => validate_command(&scenes, density_scale),
+        Command::Serve {
+            scenes,
+            listen,
+            config,
+            dev,
+            tick_hz,
+            budget_ms,
+            density_scale,
+        } => serve_command(ServeFlags {
+            scenes,
+            listen,
+            config,
+            dev,
+            tick_hz,
+            budget_ms,
+            density_scale,
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -215,4 +256,99 @@ fn bake_command(
         stats.seconds
     );
     Ok(())
+}
+
+struct ServeFlags {
+    scenes: Vec<PathBuf>,
+    listen: Option<std::net::SocketAddr>,
+    config: Option<PathBuf>,
+    dev: bool,
+    tick_hz: Option<f64>,
+    budget_ms: Option<f64>,
+    density_scale: Option<f32>,
+}
+
+fn serve_command(flags: ServeFlags) -> Result<()> {
+    use lightwire_server::service::{self, Config};
+
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let mut config = match &flags.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    config.apply_env(std::env::vars())?;
+    if !flags.scenes.is_empty() {
+        config.scenes = flags.scenes;
+    }
+    if let Some(listen) = flags.listen {
+        config.listen = listen;
+    }
+    config.dev_mode |= flags.dev;
+    if let Some(v) = flags.tick_hz {
+        config.tick_hz = v;
+    }
+    if let Some(v) = flags.budget_ms {
+        config.budget_ms = v;
+    }
+    if let Some(v) = flags.density_scale {
+        config.density_scale = v;
+    }
+    config.validate()?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(config.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", config.listen))?;
+        let addr = listener.local_addr()?;
+        config.listen = addr;
+        if config.dev_mode && config.tokens.is_empty() {
+            tracing::warn!(
+                "DEVELOPMENT MODE: no tokens; every client is an admin and may move objects"
+            );
+            eprintln!(
+                "*** DEVELOPMENT MODE: no authentication. Do not expose {addr} to a network. ***"
+            );
+        }
+        // The line tools and tests wait for: where to connect.
+        println!("lightwire listening on http://{addr} (dashboard: http://{addr}/)");
+        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        tokio::spawn(async move {
+            wait_for_signal().await;
+            tracing::info!("shutting down: finishing ticks, closing connections");
+            let _ = stop_tx.send(true);
+        });
+        service::serve(config, listener, stop_rx).await
+    })
+}
+
+/// Resolves on SIGINT or SIGTERM.
+async fn wait_for_signal() {
+    let ctrl_c = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = ctrl_c => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = ctrl_c.await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = ctrl_c.await;
+    }
 }

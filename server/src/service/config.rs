@@ -1,0 +1,252 @@
+//! Service configuration: a TOML file, overridden by environment
+//! variables, overridden by command-line flags.
+//!
+//! ```toml
+//! listen = "127.0.0.1:8080"
+//! scenes = ["scenes/cornell-low.json"]
+//! tick_hz = 60
+//! budget_ms = 8.0
+//! density_scale = 1.0
+//! dev_mode = false                    # no tokens: everyone is admin (loud)
+//! allowed_origins = ["https://dash.example"]
+//! max_message_bytes = 4096
+//! transforms_per_second = 120
+//! max_bad_frames = 20
+//! socket_send_buffer = 262144         # SO_SNDBUF per connection, bytes
+//! [tokens]
+//! viewer = ["v-secret"]
+//! driver = ["d-secret"]
+//! admin = ["a-secret"]
+//! ```
+//!
+//! Environment: `LIGHTWIRE_LISTEN`, `LIGHTWIRE_DEV=1`,
+//! `LIGHTWIRE_SEND_BUFFER=<bytes>`, and
+//! `LIGHTWIRE_TOKENS="viewer:abc,driver:def,admin:ghi"` (added to the
+//! file's tokens).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use serde::Deserialize;
+
+/// Tokens per role.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Tokens {
+    #[serde(default)]
+    pub viewer: Vec<String>,
+    #[serde(default)]
+    pub driver: Vec<String>,
+    #[serde(default)]
+    pub admin: Vec<String>,
+}
+
+impl Tokens {
+    pub fn is_empty(&self) -> bool {
+        self.viewer.is_empty() && self.driver.is_empty() && self.admin.is_empty()
+    }
+}
+
+/// The whole configuration of one `lightwire serve` process.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Address to listen on.
+    pub listen: SocketAddr,
+    /// Scene files to serve; each scene's `name` is its id.
+    pub scenes: Vec<PathBuf>,
+    /// Ticks per second of each scene's loop.
+    pub tick_hz: f64,
+    /// Solver time per tick, milliseconds.
+    pub budget_ms: f64,
+    /// Multiplies every texel density (coarser or finer lightmaps).
+    pub density_scale: f32,
+    /// Serve without tokens; every client is an admin. Loud on purpose.
+    pub dev_mode: bool,
+    /// Browser origins allowed to open WebSockets, besides the server's
+    /// own (`http://<listen>`, `http://localhost:<port>`). Requests without
+    /// an `Origin` header (non-browser clients) are not affected.
+    pub allowed_origins: Vec<String>,
+    /// Largest client frame accepted, bytes.
+    pub max_message_bytes: usize,
+    /// Sustained transforms per second per connection (burst: twice that).
+    pub transforms_per_second: f64,
+    /// Invalid frames a connection may send before it is closed.
+    pub max_bad_frames: u32,
+    /// Seconds a client has to send `Hello` after connecting.
+    pub hello_timeout_secs: f64,
+    /// Change threshold for sending a tile (see the protocol's epsilon rule).
+    pub epsilon: f32,
+    /// Kernel send buffer per connection, bytes (SO_SNDBUF; 0 = OS default).
+    pub socket_send_buffer: usize,
+    pub tokens: Tokens,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            listen: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            scenes: Vec::new(),
+            tick_hz: 60.0,
+            budget_ms: 8.0,
+            density_scale: 1.0,
+            dev_mode: false,
+            allowed_origins: Vec::new(),
+            max_message_bytes: 4096,
+            transforms_per_second: 120.0,
+            max_bad_frames: 20,
+            hello_timeout_secs: 5.0,
+            epsilon: 1.0 / 256.0,
+            socket_send_buffer: 256 * 1024,
+            tokens: Tokens::default(),
+        }
+    }
+}
+
+impl Config {
+    /// Reads a TOML config file.
+    pub fn from_file(path: &std::path::Path) -> Result<Config> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config file {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("invalid config file {}", path.display()))
+    }
+
+    /// Applies `LIGHTWIRE_*` environment variables from `vars`.
+    pub fn apply_env(&mut self, vars: impl Iterator<Item = (String, String)>) -> Result<()> {
+        for (key, value) in vars {
+            match key.as_str() {
+                "LIGHTWIRE_LISTEN" => {
+                    self.listen = value.parse().with_context(|| {
+                        format!("LIGHTWIRE_LISTEN={value:?} is not an address like 127.0.0.1:8080")
+                    })?;
+                }
+                "LIGHTWIRE_SEND_BUFFER" => {
+                    self.socket_send_buffer = value.parse().with_context(|| {
+                        format!("LIGHTWIRE_SEND_BUFFER={value:?} is not a byte count")
+                    })?;
+                }
+                "LIGHTWIRE_DEV" => self.dev_mode = matches!(value.as_str(), "1" | "true" | "yes"),
+                "LIGHTWIRE_TOKENS" => {
+                    for entry in value.split(',').filter(|e| !e.trim().is_empty()) {
+                        let Some((role, token)) = entry.trim().split_once(':') else {
+                            bail!("LIGHTWIRE_TOKENS entry {entry:?} must look like role:token");
+                        };
+                        let list = match role {
+                            "viewer" => &mut self.tokens.viewer,
+                            "driver" => &mut self.tokens.driver,
+                            "admin" => &mut self.tokens.admin,
+                            other => bail!(
+                                "LIGHTWIRE_TOKENS: unknown role {other:?} (viewer, driver or admin)"
+                            ),
+                        };
+                        list.push(token.to_string());
+                    }
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks values that would otherwise fail later or silently.
+    pub fn validate(&self) -> Result<()> {
+        if self.scenes.is_empty() {
+            bail!(
+                "no scenes to serve: pass --scene FILE (repeatable) or set `scenes` in the config file"
+            );
+        }
+        if !(self.tick_hz.is_finite() && self.tick_hz > 0.0 && self.tick_hz <= 1000.0) {
+            bail!("tick_hz = {} must be in (0, 1000]", self.tick_hz);
+        }
+        if !(self.budget_ms.is_finite() && self.budget_ms > 0.0) {
+            bail!("budget_ms = {} must be > 0", self.budget_ms);
+        }
+        if !(self.density_scale.is_finite() && self.density_scale > 0.0) {
+            bail!("density_scale = {} must be > 0", self.density_scale);
+        }
+        if !(self.transforms_per_second.is_finite() && self.transforms_per_second > 0.0) {
+            bail!(
+                "transforms_per_second = {} must be > 0",
+                self.transforms_per_second
+            );
+        }
+        if self.max_message_bytes < 64 {
+            bail!(
+                "max_message_bytes = {} is too small for a Hello frame",
+                self.max_message_bytes
+            );
+        }
+        if !(self.epsilon.is_finite() && self.epsilon >= 0.0) {
+            bail!("epsilon = {} must be >= 0", self.epsilon);
+        }
+        if self.tokens.is_empty() && !self.dev_mode {
+            bail!(
+                "no tokens configured: set [tokens] in the config file or LIGHTWIRE_TOKENS=role:token,..., or pass --dev for an unauthenticated development server"
+            );
+        }
+        Ok(())
+    }
+
+    /// Tick period.
+    pub fn tick(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64(1.0 / self.tick_hz)
+    }
+
+    /// Solver budget per tick.
+    pub fn budget(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64(self.budget_ms / 1000.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn environment_tokens_are_parsed_and_bad_ones_rejected() {
+        let mut c = Config::default();
+        c.apply_env(
+            [(
+                "LIGHTWIRE_TOKENS".to_string(),
+                "viewer:a, driver:b,admin:c".to_string(),
+            )]
+            .into_iter(),
+        )
+        .expect("valid");
+        assert_eq!(
+            (
+                c.tokens.viewer[0].as_str(),
+                c.tokens.driver[0].as_str(),
+                c.tokens.admin[0].as_str()
+            ),
+            ("a", "b", "c")
+        );
+        let err = c
+            .apply_env([("LIGHTWIRE_TOKENS".to_string(), "root:x".to_string())].into_iter())
+            .expect_err("unknown role");
+        assert!(err.to_string().contains("unknown role"), "{err}");
+    }
+
+    #[test]
+    fn a_server_without_tokens_needs_dev_mode() {
+        let mut c = Config {
+            scenes: vec!["x.json".into()],
+            ..Config::default()
+        };
+        assert!(
+            c.validate()
+                .expect_err("no tokens")
+                .to_string()
+                .contains("--dev")
+        );
+        c.dev_mode = true;
+        c.validate().expect("dev mode is allowed without tokens");
+    }
+
+    #[test]
+    fn config_files_reject_unknown_keys() {
+        let err = toml::from_str::<Config>("listne = \"1.2.3.4:5\"").expect_err("typo");
+        assert!(err.to_string().contains("listne"), "{err}");
+    }
+}

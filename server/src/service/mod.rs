@@ -1,0 +1,108 @@
+//! The streaming service: `lightwire serve`.
+//!
+//! Data flow, one way:
+//!
+//! 1. [`session`] tasks (one per WebSocket) decode client frames. A driver's
+//!    `Transform` is validated and stored in its scene's [`runtime::Inbox`]:
+//!    one slot per dynamic object, the latest `seq` wins, so the inbox can
+//!    never grow.
+//! 2. Each scene has a tick thread ([`runtime`]) that owns the solver. Every
+//!    tick it drains the inbox, hands new poses to the solver, runs solver
+//!    work within the tick budget, and when the solver has a complete state
+//!    it quantizes and encodes it once ([`lightwire_protocol::lightmap::Encoder`])
+//!    into a [`publication::Publication`].
+//! 3. Publications go out through a `tokio::sync::watch` channel, which
+//!    holds only the newest one. Each session's writer sends the delta if
+//!    the client holds exactly its base version, otherwise a keyframe. A
+//!    client that reads slowly therefore skips versions instead of queueing
+//!    them: per-client memory is one publication reference plus the socket
+//!    buffer, whatever the client does.
+//!
+//! [`http`] serves the REST endpoints, metrics and the WebSocket upgrade;
+//! [`config`] merges the config file, flags and environment; [`auth`] maps
+//! tokens to roles.
+
+pub mod auth;
+pub mod config;
+pub mod http;
+pub mod live;
+pub mod metrics;
+pub mod publication;
+pub mod runtime;
+pub mod session;
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+
+pub use config::Config;
+
+/// Everything the HTTP handlers and sessions share.
+pub struct AppState {
+    pub config: Config,
+    pub scenes: BTreeMap<String, Arc<runtime::SceneRuntime>>,
+    pub metrics: Arc<metrics::Metrics>,
+    pub auth: auth::Auth,
+    /// Flips to `true` when the server begins a graceful shutdown.
+    pub shutdown: watch::Receiver<bool>,
+}
+
+/// Loads every scene, starts its tick thread, and serves HTTP until
+/// `shutdown` flips. Returns after the tick threads have finished their
+/// current tick and every session has sent its close frame.
+pub async fn serve(
+    config: Config,
+    listener: TcpListener,
+    shutdown: watch::Receiver<bool>,
+) -> Result<()> {
+    let metrics = Arc::new(metrics::Metrics::new());
+    let auth = auth::Auth::from_config(&config)?;
+    let mut scenes = BTreeMap::new();
+    for path in &config.scenes {
+        let runtime =
+            runtime::SceneRuntime::start(path, &config, metrics.clone(), shutdown.clone())
+                .with_context(|| format!("starting scene {}", path.display()))?;
+        let id = runtime.info.id.clone();
+        if scenes.insert(id.clone(), runtime).is_some() {
+            anyhow::bail!("two scene files are both named \"{id}\"; scene names must be unique");
+        }
+    }
+    let state = Arc::new(AppState {
+        config,
+        scenes,
+        metrics,
+        auth,
+        shutdown: shutdown.clone(),
+    });
+    let app = http::router(state.clone());
+    let mut stop = shutdown.clone();
+    // Bound the kernel's send buffer per connection too: a client that
+    // stops reading then holds at most this much in the kernel, and the
+    // server notices it is slow (and skips it forward) sooner.
+    let send_buffer = state.config.socket_send_buffer;
+    let listener =
+        axum::serve::ListenerExt::tap_io(listener, move |tcp: &mut tokio::net::TcpStream| {
+            let _ = tcp.set_nodelay(true);
+            if send_buffer > 0 {
+                if let Err(e) = socket2::SockRef::from(&*tcp).set_send_buffer_size(send_buffer) {
+                    tracing::warn!("cannot set SO_SNDBUF to {send_buffer}: {e}");
+                }
+            }
+        });
+    axum::serve(
+        listener,
+        app.into_make_service_with_connect_info::<std::net::SocketAddr>(),
+    )
+    .with_graceful_shutdown(async move {
+        let _ = stop.wait_for(|s| *s).await;
+    })
+    .await
+    .context("HTTP server failed")?;
+    for runtime in state.scenes.values() {
+        runtime.join();
+    }
+    Ok(())
+}

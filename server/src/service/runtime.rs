@@ -1,0 +1,355 @@
+//! One scene's tick loop, on its own thread.
+//!
+//! The thread owns the solver (it may block: a GPU queue wait, a CPU
+//! re-solve) and the lightmap [`Encoder`]. Per tick (thesis §4.5.3: work is
+//! cut into slices that fit a budget, readers only see complete states):
+//!
+//! 1. drain the [`Inbox`]: the newest pose per object, in seq order;
+//! 2. if any pose changed, hand all poses to the solver and remember which
+//!    seqs they carry;
+//! 3. run solver work for the tick budget;
+//! 4. if the solver completed a state, scatter it into the atlas, encode it
+//!    once and publish it (the newest publication replaces the previous
+//!    one in a `watch` channel, echoing the seqs that state reflects);
+//! 5. update stats and metrics, sleep to the next tick (ticks missed while
+//!    the solver ran long are skipped, not caught up).
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use anyhow::{Context, Result};
+use glam::{Quat, Vec3};
+use lightwire_protocol::lightmap::Encoder;
+use lightwire_protocol::{
+    DEFAULT_TILE_SIZE, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, Pose as WirePose,
+    SceneInfo, Stats, SurfaceInfo,
+};
+use tokio::sync::watch;
+
+use super::config::Config;
+use super::live::{LiveSolver, ReferenceLive};
+use super::metrics::Metrics;
+use super::publication::Publication;
+use crate::atlas::Atlas;
+use crate::reference::MAX_ELEMENTS;
+use crate::scene::{LoadOptions, Pose, Scene};
+
+/// A pose waiting for the tick loop.
+#[derive(Debug, Clone, Copy)]
+pub struct PendingPose {
+    pub seq: u64,
+    pub pose: Pose,
+}
+
+/// Poses from drivers, one slot per object: the newest seq wins, so the
+/// inbox holds at most one pose per dynamic object however fast drivers
+/// send.
+pub struct Inbox {
+    slots: Mutex<Vec<Option<PendingPose>>>,
+    /// Highest seq accepted per object (also for already-drained slots), so
+    /// a stale transform is recognised after its successor was consumed.
+    accepted: Mutex<Vec<u64>>,
+}
+
+/// Why the inbox refused a transform.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Offer {
+    Accepted,
+    /// `seq` is not newer than the last accepted one for this object.
+    Stale {
+        latest: u64,
+    },
+}
+
+impl Inbox {
+    fn new(objects: usize) -> Self {
+        Self {
+            slots: Mutex::new(vec![None; objects]),
+            accepted: Mutex::new(vec![0; objects]),
+        }
+    }
+
+    /// Offers a validated pose for `object` (an index that exists).
+    pub fn offer(&self, object: usize, seq: u64, pose: Pose) -> Offer {
+        let mut accepted = self.accepted.lock().unwrap_or_else(|p| p.into_inner());
+        if seq <= accepted[object] {
+            return Offer::Stale {
+                latest: accepted[object],
+            };
+        }
+        accepted[object] = seq;
+        drop(accepted);
+        self.slots.lock().unwrap_or_else(|p| p.into_inner())[object] =
+            Some(PendingPose { seq, pose });
+        Offer::Accepted
+    }
+
+    fn drain(&self) -> Vec<(usize, PendingPose)> {
+        let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
+        slots
+            .iter_mut()
+            .enumerate()
+            .filter_map(|(i, s)| s.take().map(|p| (i, p)))
+            .collect()
+    }
+}
+
+/// A running scene: its description, inbox, and publication channels.
+pub struct SceneRuntime {
+    /// What clients need to draw the scene.
+    pub info: SceneInfo,
+    pub scene: Scene,
+    pub atlas: Atlas,
+    pub inbox: Inbox,
+    /// The newest complete lightmap version (`None` until the first solve).
+    pub publications: watch::Receiver<Option<Arc<Publication>>>,
+    /// Statistics of the newest tick.
+    pub stats: watch::Receiver<Stats>,
+    /// Connected WebSocket clients.
+    pub clients: AtomicU32,
+    /// The first complete state has been published.
+    pub ready: AtomicBool,
+    thread: Mutex<Option<JoinHandle<()>>>,
+}
+
+/// Converts a wire pose (already validated) to a scene pose.
+pub fn from_wire(p: &WirePose) -> Pose {
+    Pose {
+        translation: Vec3::from_array(p.translation),
+        rotation: Quat::from_array(p.rotation).normalize(),
+        scale: p.scale,
+    }
+}
+
+/// Converts a scene pose to a wire pose.
+pub fn to_wire(p: &Pose) -> WirePose {
+    WirePose {
+        translation: p.translation.to_array(),
+        rotation: p.rotation.to_array(),
+        scale: p.scale,
+    }
+}
+
+/// Describes a scene for clients.
+pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
+    SceneInfo {
+        id: scene.name.clone(),
+        atlas_width: atlas.width,
+        atlas_height: atlas.height,
+        tile_size: DEFAULT_TILE_SIZE,
+        format: PixelFormat::Rgb9e5,
+        objects: scene
+            .objects
+            .iter()
+            .map(|o| ObjectInfo {
+                name: o.name.clone(),
+                dynamic: o.dynamic,
+                pose: to_wire(&o.initial_pose),
+            })
+            .collect(),
+        materials: scene
+            .materials
+            .iter()
+            .map(|m| MaterialInfo {
+                name: m.name.clone(),
+                albedo: m.albedo.to_array(),
+                emission: m.emission.to_array(),
+            })
+            .collect(),
+        surfaces: scene
+            .patches
+            .iter()
+            .zip(&atlas.charts)
+            .map(|(p, c)| SurfaceInfo {
+                name: p.name.clone(),
+                object: p.object,
+                material: p.material,
+                corners: p.shape.corners().map(|c| c.to_array()),
+                rect: [c.x, c.y, c.w, c.h],
+            })
+            .collect(),
+    }
+}
+
+fn now_us() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_micros() as u64)
+        .unwrap_or(0)
+}
+
+impl SceneRuntime {
+    /// Loads a scene and starts its tick thread.
+    pub fn start(
+        path: &Path,
+        config: &Config,
+        metrics: Arc<Metrics>,
+        shutdown: watch::Receiver<bool>,
+    ) -> Result<Arc<Self>> {
+        let scene = Scene::load_with(
+            path,
+            LoadOptions {
+                density_scale: config.density_scale,
+            },
+        )?;
+        let atlas =
+            Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
+        if atlas.elements.len() > MAX_ELEMENTS {
+            anyhow::bail!(
+                "{} has {} elements; the reference solver serves at most {MAX_ELEMENTS} (use --density-scale)",
+                path.display(),
+                atlas.elements.len()
+            );
+        }
+        let info = scene_info(&scene, &atlas);
+        let solver: Box<dyn LiveSolver> =
+            Box::new(ReferenceLive::new(scene.clone(), atlas.clone()));
+        let (pub_tx, pub_rx) = watch::channel(None);
+        let (stats_tx, stats_rx) = watch::channel(Stats {
+            version: 0,
+            unshot_fraction: 1.0,
+            tick_ms: 0.0,
+            solve_ms: 0.0,
+            redistribution_ms: 0.0,
+            clients: 0,
+            server_time_us: now_us(),
+        });
+        let runtime = Arc::new(SceneRuntime {
+            inbox: Inbox::new(scene.objects.len()),
+            info,
+            scene,
+            atlas,
+            publications: pub_rx,
+            stats: stats_rx,
+            clients: AtomicU32::new(0),
+            ready: AtomicBool::new(false),
+            thread: Mutex::new(None),
+        });
+        let tick = TickLoop {
+            runtime: runtime.clone(),
+            solver,
+            encoder: Encoder::new(
+                runtime.atlas.width,
+                runtime.atlas.height,
+                DEFAULT_TILE_SIZE,
+                PixelFormat::Rgb9e5,
+                config.epsilon,
+            ),
+            poses: runtime.scene.initial_poses(),
+            seqs: vec![0; runtime.scene.objects.len()],
+            publications: pub_tx,
+            stats: stats_tx,
+            metrics,
+            shutdown,
+            period: config.tick(),
+            budget: config.budget(),
+        };
+        let handle = std::thread::Builder::new()
+            .name(format!("tick-{}", runtime.info.id))
+            .spawn(move || tick.run())
+            .context("spawning the tick thread")?;
+        *runtime.thread.lock().unwrap_or_else(|p| p.into_inner()) = Some(handle);
+        Ok(runtime)
+    }
+
+    /// Waits for the tick thread to finish (after shutdown).
+    pub fn join(&self) {
+        let handle = self.thread.lock().unwrap_or_else(|p| p.into_inner()).take();
+        if let Some(h) = handle {
+            if h.join().is_err() {
+                tracing::error!(scene = %self.info.id, "tick thread panicked");
+            }
+        }
+    }
+
+    /// The newest publication, if any.
+    pub fn latest(&self) -> Option<Arc<Publication>> {
+        self.publications.borrow().clone()
+    }
+}
+
+struct TickLoop {
+    runtime: Arc<SceneRuntime>,
+    solver: Box<dyn LiveSolver>,
+    encoder: Encoder,
+    poses: Vec<Pose>,
+    /// Latest seq per object handed to the solver.
+    seqs: Vec<u64>,
+    publications: watch::Sender<Option<Arc<Publication>>>,
+    stats: watch::Sender<Stats>,
+    metrics: Arc<Metrics>,
+    shutdown: watch::Receiver<bool>,
+    period: Duration,
+    budget: Duration,
+}
+
+impl TickLoop {
+    fn run(mut self) {
+        let id = self.runtime.info.id.clone();
+        tracing::info!(scene = %id, solver = self.solver.name(), elements = self.runtime.atlas.elements.len(), "tick loop started");
+        let mut next = Instant::now();
+        // Seqs the solver's current work reflects (set when poses change).
+        let mut solving: Vec<u64> = self.seqs.clone();
+        let mut published_seqs: Vec<u64> = vec![0; self.seqs.len()];
+        while !*self.shutdown.borrow() {
+            let started = Instant::now();
+            let drained = self.runtime.inbox.drain();
+            if !drained.is_empty() {
+                for (object, pending) in drained {
+                    self.poses[object] = pending.pose;
+                    self.seqs[object] = pending.seq;
+                }
+                self.solver.set_poses(&self.poses);
+                solving = self.seqs.clone();
+            }
+            let report = self.solver.step(self.budget);
+            if report.completed {
+                let image = self.runtime.atlas.to_image(self.solver.radiosity());
+                // Echo the seqs newly reflected since the previous version.
+                let reflected: Vec<ObjectSeq> = solving
+                    .iter()
+                    .zip(&published_seqs)
+                    .enumerate()
+                    .filter(|(_, (now, before))| now > before)
+                    .map(|(object, (seq, _))| ObjectSeq {
+                        object: object as u32,
+                        seq: *seq,
+                    })
+                    .collect();
+                published_seqs = solving.clone();
+                let delta = self.encoder.publish(&image, reflected);
+                let keyframe = self.encoder.keyframe();
+                self.metrics.versions_published.inc();
+                let _ = self
+                    .publications
+                    .send(Some(Arc::new(Publication::new(keyframe, delta))));
+                self.runtime.ready.store(true, Ordering::Release);
+            }
+            let tick_time = started.elapsed();
+            self.metrics.ticks.inc();
+            self.metrics
+                .observe_tick(tick_time, report.solve, report.redistribution);
+            let _ = self.stats.send(Stats {
+                version: self.encoder.state().version,
+                unshot_fraction: report.unshot_fraction as f32,
+                tick_ms: tick_time.as_secs_f32() * 1000.0,
+                solve_ms: report.solve.as_secs_f32() * 1000.0,
+                redistribution_ms: report.redistribution.as_secs_f32() * 1000.0,
+                clients: self.runtime.clients.load(Ordering::Relaxed),
+                server_time_us: now_us(),
+            });
+            next += self.period;
+            let now = Instant::now();
+            if next > now {
+                std::thread::sleep(next - now);
+            } else {
+                // Ran long (a blocking re-solve): skip the missed ticks.
+                next = now;
+            }
+        }
+        tracing::info!(scene = %id, "tick loop stopped");
+    }
+}

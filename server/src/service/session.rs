@@ -1,0 +1,445 @@
+//! One WebSocket connection.
+//!
+//! Order on the wire: the client sends `Hello` (within the hello timeout);
+//! the server answers `Welcome`, then a `Keyframe` as soon as a version
+//! exists, then a `Delta` per version for as long as the client keeps up.
+//!
+//! Two halves run concurrently:
+//!
+//! - the **reader** decodes client frames, checks them (role, object,
+//!   pose, seq, rate) and hands accepted poses to the scene's inbox;
+//!   anything invalid earns an `Error` frame with a code, and after
+//!   `max_bad_frames` of those the connection is closed (1008);
+//! - the **writer** owns the socket's sink. It waits for the newest
+//!   publication and sends the delta if the client holds exactly its base,
+//!   else a keyframe. While a send is blocked on a slow client, newer
+//!   publications simply replace older ones in the watch channel, so
+//!   nothing queues. Control frames from the reader (errors, pongs) go
+//!   through a small bounded channel and are dropped, counted, when it is
+//!   full.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{CloseFrame, Message, WebSocket};
+use bytes::Bytes;
+use futures_util::stream::SplitSink;
+use futures_util::{SinkExt, StreamExt};
+use lightwire_protocol::{
+    ClientMessage, ErrorCode, PROTOCOL_VERSION, Role, ServerMessage, decode_client, encode_server,
+};
+use tokio::sync::{mpsc, watch};
+
+use super::AppState;
+use super::auth::may_drive;
+use super::runtime::{Offer, SceneRuntime, from_wire};
+
+/// Close code for policy violations (RFC 6455 §7.4.1).
+const CLOSE_POLICY: u16 = 1008;
+/// Close code when the server goes away.
+const CLOSE_GOING_AWAY: u16 = 1001;
+/// Close code for a protocol error.
+const CLOSE_PROTOCOL: u16 = 1002;
+/// Control frames (errors, pongs) waiting for the writer.
+const CONTROL_QUEUE: usize = 32;
+/// How often the writer sends `Stats`.
+const STATS_PERIOD: Duration = Duration::from_millis(250);
+/// A send that takes longer than this means the client stopped reading
+/// for good; the connection is dropped.
+const WRITE_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Identifies the server in `Welcome`.
+pub const SERVER_NAME: &str = concat!("lightwire/", env!("CARGO_PKG_VERSION"));
+
+type Sink = SplitSink<WebSocket, Message>;
+
+/// What the reader asks of the writer.
+enum Control {
+    Frame(Bytes),
+    Resync,
+}
+
+fn error_frame(code: ErrorCode, message: impl Into<String>) -> Bytes {
+    Bytes::from(encode_server(&ServerMessage::Error {
+        code,
+        message: message.into(),
+    }))
+}
+
+async fn close(sink: &mut Sink, code: u16, reason: &str) {
+    let frame = CloseFrame {
+        code,
+        reason: reason.into(),
+    };
+    let _ = tokio::time::timeout(
+        Duration::from_secs(2),
+        sink.send(Message::Close(Some(frame))),
+    )
+    .await;
+}
+
+/// Runs one connection to completion. `header_token` is a token presented
+/// on the HTTP upgrade (header or query); `Hello.token` takes precedence.
+pub async fn run(
+    socket: WebSocket,
+    state: Arc<AppState>,
+    scene: Arc<SceneRuntime>,
+    header_token: Option<String>,
+) {
+    let (mut sink, mut stream) = socket.split();
+    let metrics = state.metrics.clone();
+
+    // Handshake: the first frame must be a Hello with our version.
+    let hello_timeout = Duration::from_secs_f64(state.config.hello_timeout_secs);
+    let first = tokio::time::timeout(hello_timeout, stream.next()).await;
+    let (token, client_name) = match first {
+        Ok(Some(Ok(Message::Binary(bytes)))) => match decode_client(&bytes) {
+            Ok(ClientMessage::Hello {
+                protocol_version,
+                client,
+                token,
+                ..
+            }) => {
+                if protocol_version != PROTOCOL_VERSION {
+                    metrics.bad_frame("unsupported_version");
+                    let frame = error_frame(
+                        ErrorCode::UnsupportedVersion,
+                        format!(
+                            "this server speaks protocol {PROTOCOL_VERSION}, the client sent {protocol_version}"
+                        ),
+                    );
+                    let _ = sink.send(Message::Binary(frame)).await;
+                    close(&mut sink, CLOSE_PROTOCOL, "unsupported protocol version").await;
+                    return;
+                }
+                (token.or(header_token), client)
+            }
+            Ok(_) => {
+                metrics.bad_frame("no_hello");
+                let frame = error_frame(
+                    ErrorCode::ProtocolViolation,
+                    "the first frame must be Hello",
+                );
+                let _ = sink.send(Message::Binary(frame)).await;
+                close(&mut sink, CLOSE_PROTOCOL, "expected Hello").await;
+                return;
+            }
+            Err(e) => {
+                metrics.bad_frame("malformed");
+                let _ = sink
+                    .send(Message::Binary(error_frame(
+                        ErrorCode::BadFrame,
+                        e.to_string(),
+                    )))
+                    .await;
+                close(&mut sink, CLOSE_PROTOCOL, "malformed Hello").await;
+                return;
+            }
+        },
+        Ok(Some(Ok(_))) => {
+            metrics.bad_frame("text");
+            let frame = error_frame(
+                ErrorCode::ProtocolViolation,
+                "frames must be binary; the first must be Hello",
+            );
+            let _ = sink.send(Message::Binary(frame)).await;
+            close(&mut sink, CLOSE_PROTOCOL, "expected a binary Hello").await;
+            return;
+        }
+        Ok(_) => return, // closed or errored before saying anything
+        Err(_) => {
+            metrics.bad_frame("hello_timeout");
+            close(&mut sink, CLOSE_POLICY, "no Hello in time").await;
+            return;
+        }
+    };
+    let Some(role) = state.auth.role(token.as_deref()) else {
+        metrics.bad_frame("unauthorized");
+        let frame = error_frame(ErrorCode::Unauthorized, "missing or unknown token");
+        let _ = sink.send(Message::Binary(frame)).await;
+        close(&mut sink, CLOSE_POLICY, "unauthorized").await;
+        return;
+    };
+    let welcome = encode_server(&ServerMessage::Welcome {
+        protocol_version: PROTOCOL_VERSION,
+        server: if state.auth.dev_mode() {
+            format!("{SERVER_NAME} (DEVELOPMENT MODE: no authentication)")
+        } else {
+            SERVER_NAME.to_string()
+        },
+        role,
+        capabilities: 0,
+        scene: scene.info.clone(),
+    });
+    if sink
+        .send(Message::Binary(Bytes::from(welcome)))
+        .await
+        .is_err()
+    {
+        return;
+    }
+    tracing::debug!(scene = %scene.info.id, client = %client_name, ?role, "client joined");
+    scene.clients.fetch_add(1, Ordering::Relaxed);
+    metrics.clients.inc();
+
+    let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
+    let (close_tx, close_rx) = watch::channel(None::<(u16, String)>);
+    let reader = tokio::spawn(read_loop(
+        stream,
+        state.clone(),
+        scene.clone(),
+        role,
+        control_tx,
+        close_tx,
+    ));
+    write_loop(sink, state.clone(), scene.clone(), control_rx, close_rx).await;
+    reader.abort();
+
+    scene.clients.fetch_sub(1, Ordering::Relaxed);
+    metrics.clients.dec();
+    tracing::debug!(scene = %scene.info.id, client = %client_name, "client left");
+}
+
+/// Token bucket for transforms.
+struct RateLimit {
+    capacity: f64,
+    tokens: f64,
+    per_second: f64,
+    last: Instant,
+}
+
+impl RateLimit {
+    fn new(per_second: f64) -> Self {
+        Self {
+            capacity: 2.0 * per_second,
+            tokens: 2.0 * per_second,
+            per_second,
+            last: Instant::now(),
+        }
+    }
+
+    fn allow(&mut self) -> bool {
+        let now = Instant::now();
+        self.tokens =
+            (self.tokens + (now - self.last).as_secs_f64() * self.per_second).min(self.capacity);
+        self.last = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+async fn read_loop(
+    mut stream: futures_util::stream::SplitStream<WebSocket>,
+    state: Arc<AppState>,
+    scene: Arc<SceneRuntime>,
+    role: Role,
+    control: mpsc::Sender<Control>,
+    close: watch::Sender<Option<(u16, String)>>,
+) {
+    let metrics = state.metrics.clone();
+    let mut bad = 0u32;
+    let mut rate = RateLimit::new(state.config.transforms_per_second);
+    while let Some(message) = stream.next().await {
+        let reply = match message {
+            Ok(Message::Binary(bytes)) => {
+                handle(&bytes, &state, &scene, role, &mut rate, &control).await
+            }
+            Ok(Message::Text(_)) => Err((
+                ErrorCode::ProtocolViolation,
+                "text",
+                "frames must be binary".to_string(),
+            )),
+            Ok(Message::Close(_)) | Err(_) => break,
+            Ok(_) => Ok(()), // ping/pong handled by the WebSocket layer
+        };
+        if let Err((code, kind, message)) = reply {
+            metrics.bad_frame(kind);
+            if control
+                .try_send(Control::Frame(error_frame(code, message)))
+                .is_err()
+            {
+                metrics.bad_frame("error_frame_dropped");
+            }
+            // Rate limiting and stale seqs are a client's timing, not
+            // abuse; everything else counts toward closing.
+            if !matches!(code, ErrorCode::RateLimited | ErrorCode::StaleSeq) {
+                bad += 1;
+                if bad >= state.config.max_bad_frames {
+                    metrics.connections_closed_for_abuse.inc();
+                    let _ = close.send(Some((CLOSE_POLICY, format!("{bad} invalid frames"))));
+                    break;
+                }
+            }
+        }
+    }
+    // The stream ended: tell the writer to stop too.
+    if close.borrow().is_none() {
+        let _ = close.send(Some((1000, String::new())));
+    }
+}
+
+type Rejection = (ErrorCode, &'static str, String);
+
+async fn handle(
+    bytes: &[u8],
+    state: &AppState,
+    scene: &SceneRuntime,
+    role: Role,
+    rate: &mut RateLimit,
+    control: &mpsc::Sender<Control>,
+) -> Result<(), Rejection> {
+    let message =
+        decode_client(bytes).map_err(|e| (ErrorCode::BadFrame, "malformed", e.to_string()))?;
+    match message {
+        ClientMessage::Transform {
+            object, seq, pose, ..
+        } => {
+            if !may_drive(role) {
+                return Err((
+                    ErrorCode::Forbidden,
+                    "forbidden",
+                    format!("a {role:?} may not move objects"),
+                ));
+            }
+            let index = object as usize;
+            let dynamic = scene.scene.objects.get(index).is_some_and(|o| o.dynamic);
+            if !dynamic {
+                return Err((
+                    ErrorCode::UnknownObject,
+                    "unknown_object",
+                    format!(
+                        "object {object} is not a dynamic object of scene \"{}\"",
+                        scene.info.id
+                    ),
+                ));
+            }
+            pose.validate().map_err(|why| {
+                (
+                    ErrorCode::InvalidPose,
+                    "invalid_pose",
+                    format!("object {object}: {why}"),
+                )
+            })?;
+            if !rate.allow() {
+                return Err((
+                    ErrorCode::RateLimited,
+                    "rate_limited",
+                    format!(
+                        "more than {} transforms per second",
+                        state.config.transforms_per_second
+                    ),
+                ));
+            }
+            match scene.inbox.offer(index, seq, from_wire(&pose)) {
+                Offer::Accepted => Ok(()),
+                Offer::Stale { latest } => Err((
+                    ErrorCode::StaleSeq,
+                    "stale_seq",
+                    format!("seq {seq} for object {object} is not newer than {latest}"),
+                )),
+            }
+        }
+        ClientMessage::Resync { .. } => {
+            let _ = control.try_send(Control::Resync);
+            Ok(())
+        }
+        ClientMessage::Ping { nonce } => {
+            let pong = Bytes::from(encode_server(&ServerMessage::Pong { nonce }));
+            let _ = control.try_send(Control::Frame(pong));
+            Ok(())
+        }
+        ClientMessage::Hello { .. } => Err((
+            ErrorCode::ProtocolViolation,
+            "duplicate_hello",
+            "Hello was already received".into(),
+        )),
+    }
+}
+
+/// Sends one frame, counting it; `false` if the connection is gone.
+async fn send(sink: &mut Sink, state: &AppState, frame: Bytes) -> bool {
+    let len = frame.len() as u64;
+    match tokio::time::timeout(WRITE_TIMEOUT, sink.send(Message::Binary(frame))).await {
+        Ok(Ok(())) => {
+            state.metrics.frames_sent.inc();
+            state.metrics.bytes_sent.inc_by(len);
+            true
+        }
+        _ => false,
+    }
+}
+
+async fn write_loop(
+    mut sink: Sink,
+    state: Arc<AppState>,
+    scene: Arc<SceneRuntime>,
+    mut control: mpsc::Receiver<Control>,
+    mut close_rx: watch::Receiver<Option<(u16, String)>>,
+) {
+    let mut publications = scene.publications.clone();
+    let mut stats = scene.stats.clone();
+    let mut shutdown = state.shutdown.clone();
+    // The version the client holds, as far as we sent it.
+    let mut held: Option<u64> = None;
+    // Start from whatever is already published.
+    publications.mark_changed();
+    let mut stats_timer = tokio::time::interval(STATS_PERIOD);
+    stats_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        tokio::select! {
+            biased;
+            _ = async { shutdown.wait_for(|s| *s).await.map(|_| ()) } => {
+                close(&mut sink, CLOSE_GOING_AWAY, "server shutting down").await;
+                return;
+            }
+            changed = close_rx.changed() => {
+                let request = close_rx.borrow().clone();
+                if changed.is_err() || request.is_some() {
+                    if let Some((code, reason)) = request {
+                        if code != 1000 {
+                            close(&mut sink, code, &reason).await;
+                        }
+                    }
+                    return;
+                }
+            }
+            Some(c) = control.recv() => {
+                let ok = match c {
+                    Control::Frame(frame) => send(&mut sink, &state, frame).await,
+                    Control::Resync => {
+                        held = None;
+                        publications.mark_changed();
+                        true
+                    }
+                };
+                if !ok { return; }
+            }
+            changed = publications.changed() => {
+                if changed.is_err() { return; }
+                let latest = publications.borrow_and_update().clone();
+                let Some(p) = latest else { continue };
+                if held == Some(p.version) { continue; }
+                let frame = if held == Some(p.base_version) {
+                    p.delta_frame()
+                } else {
+                    if let Some(v) = held {
+                        state.metrics.frames_skipped.inc_by(p.version.saturating_sub(v + 1));
+                    }
+                    state.metrics.keyframes_sent.inc();
+                    p.keyframe_frame()
+                };
+                if !send(&mut sink, &state, frame).await { return; }
+                held = Some(p.version);
+            }
+            _ = stats_timer.tick() => {
+                let s = *stats.borrow_and_update();
+                if !send(&mut sink, &state, Bytes::from(encode_server(&ServerMessage::Stats(s)))).await { return; }
+            }
+        }
+    }
+}
