@@ -9,5 +9,7 @@
 
 pub mod atlas;
 pub mod bake;
+pub mod gpu;
+pub mod metrics;
 pub mod reference;
 pub mod scene;

@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 use lightwire_server::atlas::Atlas;
 use lightwire_server::bake::{self, BakeStats};
+use lightwire_server::gpu;
 use lightwire_server::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_server::scene::{LoadOptions, Scene};
 
@@ -41,10 +42,18 @@ enum Command {
         /// Multiply every texel density of the scene by this factor.
         #[arg(long, default_value_t = 1.0)]
         density_scale: f32,
-        /// Stop when one sweep adds less than this fraction of the emitted
-        /// power.
+        /// Reference: stop when one sweep adds less than this fraction of
+        /// the emitted power. Progressive: stop when the unshot power is
+        /// below this fraction of the emitted power.
         #[arg(long, default_value_t = 1e-4)]
         tolerance: f64,
+        /// GPU solvers: use the adapter whose name contains this
+        /// (case-insensitive); default: prefer a discrete GPU.
+        #[arg(long)]
+        adapter: Option<String>,
+        /// Progressive solver: top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 64)]
+        hemicube_resolution: u32,
     },
     /// Check scene files and print what they contain.
     Validate {
@@ -61,6 +70,16 @@ enum Command {
 enum SolverKind {
     /// CPU: analytic form factors, ray-cast visibility, Jacobi iteration.
     Reference,
+    /// GPU: progressive refinement with hemicube item buffers (thesis
+    /// Alg. 4.2).
+    Progressive,
+}
+
+/// Solver settings from the command line.
+struct SolveSettings {
+    tolerance: f64,
+    adapter: Option<String>,
+    hemicube_resolution: u32,
 }
 
 fn main() -> ExitCode {
@@ -72,7 +91,19 @@ fn main() -> ExitCode {
             out,
             density_scale,
             tolerance,
-        } => bake_command(scene, solver, out, density_scale, tolerance),
+            adapter,
+            hemicube_resolution,
+        } => bake_command(
+            scene,
+            solver,
+            out,
+            density_scale,
+            SolveSettings {
+                tolerance,
+                adapter,
+                hemicube_resolution,
+            },
+        ),
         Command::Validate {
             scenes,
             density_scale,
@@ -154,8 +185,9 @@ fn bake_command(
     solver: SolverKind,
     out: PathBuf,
     density_scale: f32,
-    tolerance: f64,
+    settings: SolveSettings,
 ) -> Result<()> {
+    let tolerance = settings.tolerance;
     if !(tolerance > 0.0 && tolerance < 1.0) {
         anyhow::bail!("--tolerance {tolerance} must be between 0 and 1");
     }
@@ -205,6 +237,42 @@ fn bake_command(
                 escaped_power: balance.escaped.element_sum(),
             };
             (solution.radiosity, stats)
+        }
+        SolverKind::Progressive => {
+            let gpu = gpu::Device::new(settings.adapter.as_deref())?;
+            eprintln!("  adapter: {}", gpu.describe());
+            let options = gpu::ProgressiveOptions {
+                hemicube_resolution: settings.hemicube_resolution,
+                ..Default::default()
+            };
+            let solve_started = Instant::now();
+            let mut solver = gpu::ProgressiveSolver::new(&gpu, &scene, &atlas, &poses, options)?;
+            let report = solver.solve(tolerance)?;
+            let values = solver.radiosity()?;
+            let solve_seconds = solve_started.elapsed().as_secs_f64();
+            let balance = solver.energy_balance()?;
+            eprintln!(
+                "  {} shots in {} batches, unshot {:.2e} of emitted power, {:.2} s",
+                report.shots, report.batches, report.unshot_fraction, solve_seconds
+            );
+            let stats = BakeStats {
+                scene: scene.name.clone(),
+                solver: "progressive".into(),
+                elements: atlas.elements.len(),
+                static_elements: atlas.elements.len() - dynamic,
+                dynamic_elements: dynamic,
+                atlas_width: atlas.width,
+                atlas_height: atlas.height,
+                iterations: report.shots as usize,
+                residual_fraction: report.unshot_fraction,
+                seconds: started.elapsed().as_secs_f64(),
+                form_factor_seconds: 0.0,
+                solve_seconds,
+                emitted_power: balance.emitted,
+                absorbed_power: balance.absorbed,
+                escaped_power: (balance.shot - balance.received).max(0.0),
+            };
+            (values, stats)
         }
     };
     bake::write_outputs(&out, &scene, &atlas, &poses, &values, &stats)
