@@ -697,7 +697,23 @@ impl ProgressiveSolver {
         let mut shooters = Vec::with_capacity((gx * gy) as usize);
         // Tiles split the chart's texels; a tile's region is the union of
         // its elements' regions (cell boundaries halfway between samples).
-        let split = |i: u32, g: u32, n: u32| i * n / g;
+        // With three or more tiles along an axis, the outermost texel rows
+        // and columns (the samples on the patch edges) get tiles of their
+        // own: receivers on a neighbouring wall next to the edge take most
+        // of their light from the strip along it (the form factor is
+        // concentrated near r = 0 there), so that strip must shoot its own
+        // unshot radiosity rather than an average with the interior.
+        let split = |i: u32, g: u32, n: u32| {
+            if g >= 3 && n >= 3 {
+                match i {
+                    0 => 0,
+                    i if i >= g => n,
+                    i => 1 + (i - 1) * (n - 2) / (g - 2),
+                }
+            } else {
+                i * n / g
+            }
+        };
         let param = |a: u32, n: u32| ((a as f32 - 0.5) / (n - 1) as f32).clamp(0.0, 1.0);
         for j in 0..gy {
             for i in 0..gx {
