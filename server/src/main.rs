@@ -118,7 +118,7 @@ fn main() -> ExitCode {
     }
 }
 
-fn load(path: &PathBuf, density_scale: f32) -> Result<(Scene, Atlas)> {
+fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
     let scene = Scene::load_with(path, LoadOptions { density_scale })?;
     let atlas =
         Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
@@ -174,7 +174,7 @@ impl reference::Progress for StderrProgress {
         }
     }
     fn iteration(&self, iteration: usize, residual: f64) {
-        if iteration % 10 == 0 || iteration == 1 {
+        if iteration.is_multiple_of(10) || iteration == 1 {
             eprintln!("  sweep {iteration}: residual {residual:.3e} of emitted power");
         }
     }

@@ -251,7 +251,7 @@ impl ProgressiveSolver {
             .min(limits.max_texture_dimension_2d / res);
         let n = atlas.elements.len();
         let element_bytes = (n * std::mem::size_of::<GpuElement>()) as u64;
-        if element_bytes > u64::from(limits.max_storage_buffer_binding_size)
+        if element_bytes > limits.max_storage_buffer_binding_size
             || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
         {
             return Err(GpuError::TooLarge(format!(
