@@ -9,6 +9,7 @@
 
 pub mod atlas;
 pub mod bake;
+pub mod bench;
 pub mod gpu;
 pub mod metrics;
 pub mod reference;

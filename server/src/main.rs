@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 use lightwire_server::atlas::Atlas;
 use lightwire_server::bake::{self, BakeStats};
+use lightwire_server::bench;
 use lightwire_server::gpu;
 use lightwire_server::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_server::scene::{LoadOptions, Scene};
@@ -55,6 +56,11 @@ enum Command {
         #[arg(long, default_value_t = 64)]
         hemicube_resolution: u32,
     },
+    /// Benchmarks (run the release build).
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
+    },
     /// Check scene files and print what they contain.
     Validate {
         /// Scene files.
@@ -63,6 +69,29 @@ enum Command {
         /// Multiply every texel density by this factor.
         #[arg(long, default_value_t = 1.0)]
         density_scale: f32,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Time to 10%, 1% and 0.1% unshot power, shots per second, and the
+    /// reference solver on the same atlas, per scene.
+    Solve {
+        /// Scene files; default: the four thesis scenes in scenes/.
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+        /// Top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 64)]
+        hemicube_resolution: u32,
     },
 }
 
@@ -108,6 +137,22 @@ fn main() -> ExitCode {
             scenes,
             density_scale,
         } => validate_command(&scenes, density_scale),
+        Command::Bench {
+            what:
+                BenchCommand::Solve {
+                    scenes,
+                    density_scale,
+                    json,
+                    adapter,
+                    hemicube_resolution,
+                },
+        } => bench_solve_command(
+            scenes,
+            density_scale,
+            json,
+            adapter.as_deref(),
+            hemicube_resolution,
+        ),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -282,5 +327,62 @@ fn bake_command(
         out.display(),
         stats.seconds
     );
+    Ok(())
+}
+
+fn bench_solve_command(
+    mut scenes: Vec<PathBuf>,
+    density_scale: f32,
+    json: Option<PathBuf>,
+    adapter: Option<&str>,
+    hemicube_resolution: u32,
+) -> Result<()> {
+    if scenes.is_empty() {
+        scenes = [
+            "cornell-small",
+            "cornell-low",
+            "cornell-large",
+            "indirect-light",
+        ]
+        .iter()
+        .map(|name| PathBuf::from(format!("scenes/{name}.json")))
+        .collect();
+    }
+    let gpu = gpu::Device::new(adapter)?;
+    eprintln!("adapter: {}", gpu.describe());
+    let options = gpu::ProgressiveOptions {
+        hemicube_resolution,
+        ..Default::default()
+    };
+    let mut results = Vec::new();
+    let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.3}"));
+    println!(
+        "| scene | elements | solver | s to 10% | s to 1% | s to 0.1% | shots/s | NRMSE vs reference |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
+    for path in &scenes {
+        let result = bench::solve_scene(&gpu, path, density_scale, options)
+            .with_context(|| format!("benchmarking {}", path.display()))?;
+        for s in &result.solvers {
+            let t: Vec<Option<f64>> = s.seconds_to.values().copied().collect();
+            // BTreeMap orders "0.001" < "0.01" < "0.1"; print 10% first.
+            println!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                result.scene,
+                result.elements,
+                s.name,
+                fmt(t[2]),
+                fmt(t[1]),
+                fmt(t[0]),
+                s.shots_per_second.map_or("-".into(), |v| format!("{v:.0}")),
+                s.nrmse_vs_reference
+                    .map_or("-".into(), |v| format!("{:.2}%", v * 100.0)),
+            );
+        }
+        results.push(result);
+    }
+    if let Some(json) = json {
+        bench::write_json(&json, &results)?;
+    }
     Ok(())
 }
