@@ -55,6 +55,9 @@ enum Command {
         /// Progressive solver: top-face resolution of the hemicubes.
         #[arg(long, default_value_t = 64)]
         hemicube_resolution: u32,
+        /// Progressive solver: write indirect light only (gems §39.4).
+        #[arg(long)]
+        indirect_only: bool,
     },
     /// Benchmarks (run the release build).
     Bench {
@@ -109,6 +112,7 @@ struct SolveSettings {
     tolerance: f64,
     adapter: Option<String>,
     hemicube_resolution: u32,
+    indirect_only: bool,
 }
 
 fn main() -> ExitCode {
@@ -122,6 +126,7 @@ fn main() -> ExitCode {
             tolerance,
             adapter,
             hemicube_resolution,
+            indirect_only,
         } => bake_command(
             scene,
             solver,
@@ -131,6 +136,7 @@ fn main() -> ExitCode {
                 tolerance,
                 adapter,
                 hemicube_resolution,
+                indirect_only,
             },
         ),
         Command::Validate {
@@ -233,6 +239,9 @@ fn bake_command(
     settings: SolveSettings,
 ) -> Result<()> {
     let tolerance = settings.tolerance;
+    if settings.indirect_only && !matches!(solver, SolverKind::Progressive) {
+        anyhow::bail!("--indirect-only needs --solver progressive");
+    }
     if !(tolerance > 0.0 && tolerance < 1.0) {
         anyhow::bail!("--tolerance {tolerance} must be between 0 and 1");
     }
@@ -288,6 +297,7 @@ fn bake_command(
             eprintln!("  adapter: {}", gpu.describe());
             let options = gpu::ProgressiveOptions {
                 hemicube_resolution: settings.hemicube_resolution,
+                indirect_only: settings.indirect_only,
                 ..Default::default()
             };
             let solve_started = Instant::now();

@@ -171,3 +171,40 @@ fn unknown_adapter_name_lists_the_available_ones() {
         other => panic!("expected NoMatchingAdapter, got {other:?}"),
     }
 }
+
+/// Indirect-only output (gems §39.4): total radiosity minus emission minus
+/// the first bounce of the emitted light. Between the plates there is no
+/// second bounce (the emitter reflects nothing), so the indirect light is
+/// zero everywhere; in the Cornell box it is non-negative everywhere, lights
+/// some of it, and is smaller than the total.
+#[test]
+fn indirect_only_output_removes_emission_and_the_first_bounce() {
+    let options = ProgressiveOptions {
+        indirect_only: true,
+        ..ProgressiveOptions::default()
+    };
+    let (scene, atlas) = common::load("plates.json", 1.0);
+    let mut plates = ProgressiveSolver::new(gpu(), &scene, &atlas, &scene.initial_poses(), options)
+        .unwrap_or_else(|e| panic!("{e}"));
+    plates.solve(1e-6).unwrap_or_else(|e| panic!("{e}"));
+    let indirect = plates.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let worst = indirect
+        .iter()
+        .map(|v| v.max_element())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-6, "plates have no indirect light, got {worst}");
+
+    let (scene, atlas) = common::load("cornell-low.json", 0.5);
+    let mut box_ = ProgressiveSolver::new(gpu(), &scene, &atlas, &scene.initial_poses(), options)
+        .unwrap_or_else(|e| panic!("{e}"));
+    box_.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
+    let indirect = box_.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let total = box_.total_radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let sum = |v: &[Vec3]| v.iter().map(|x| f64::from(x.element_sum())).sum::<f64>();
+    let (i, t) = (sum(&indirect), sum(&total));
+    assert!(i > 0.05 * t && i < t, "indirect {i} of total {t}");
+    eprintln!(
+        "cornell-low x0.5: indirect is {:.1}% of total",
+        100.0 * i / t
+    );
+}

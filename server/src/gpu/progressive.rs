@@ -46,8 +46,16 @@ pub struct ProgressiveOptions {
     /// split into `ceil(subdivision * sqrt(A) / r)²` sub-disks (thesis
     /// §4.3.3, adaptive form factor subdivision).
     pub subdivision: f32,
-    /// Upper bound on sub-disks per axis.
+    /// Upper bound on sub-disks per axis; closer shooters use the exact
+    /// (infinitely subdivided) form factor.
     pub max_subdivision: u32,
+    /// Publish indirect light only (gems §39.4): [`ProgressiveSolver::radiosity`]
+    /// returns `B - E - D`, where `D` is the first bounce of the emitted
+    /// light, for clients that draw direct light and shadows themselves.
+    /// Every emitting patch shoots its emission once before anything else;
+    /// `D` is what that delivered. (Emitters that light each other mix a
+    /// little of their received light into `D`.)
+    pub indirect_only: bool,
 }
 
 impl Default for ProgressiveOptions {
@@ -57,6 +65,7 @@ impl Default for ProgressiveOptions {
             max_shooters: 64,
             subdivision: 4.0,
             max_subdivision: 8,
+            indirect_only: false,
         }
     }
 }
@@ -172,6 +181,8 @@ pub struct ProgressiveSolver {
     shots: u64,
     batches: u64,
     shot_power: f64,
+    /// `E + D` per element when publishing indirect light only.
+    direct: Option<Vec<Vec3>>,
 
     radiosity: wgpu::Buffer,
     irradiance: wgpu::Buffer,
@@ -564,6 +575,7 @@ impl ProgressiveSolver {
             shots: 0,
             batches: 0,
             shot_power: 0.0,
+            direct: None,
             radiosity,
             irradiance,
             shooters,
@@ -583,6 +595,9 @@ impl ProgressiveSolver {
         solver.encode_selection(&mut encoder);
         solver.queue.submit([encoder.finish()]);
         solver.selection = solver.read_selection()?;
+        if options.indirect_only {
+            solver.shoot_direct(scene, poses)?;
+        }
         Ok(solver)
     }
 
@@ -638,8 +653,45 @@ impl ProgressiveSolver {
         })
     }
 
-    /// Radiosity B per element (W/m² per channel), in atlas element order.
+    /// Radiosity per element (W/m² per channel), in atlas element order:
+    /// `B`, or `B - E - D` with [`ProgressiveOptions::indirect_only`].
     pub fn radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        let total = self.total_radiosity()?;
+        match &self.direct {
+            None => Ok(total),
+            Some(direct) => Ok(total
+                .iter()
+                .zip(direct)
+                .map(|(b, d)| (*b - *d).max(Vec3::ZERO))
+                .collect()),
+        }
+    }
+
+    /// Shoots every emitting patch once, in patch order, and remembers what
+    /// that delivered (plus the emission itself) as the direct part.
+    fn shoot_direct(&mut self, scene: &Scene, poses: &[Pose]) -> Result<(), GpuError> {
+        let after = self.selection;
+        for (p, patch) in scene.patches.iter().enumerate() {
+            let material = &scene.materials[patch.material as usize];
+            let scale = poses[patch.object as usize].scale;
+            let power = material.emission.element_sum() * patch.shape.area() * scale * scale;
+            if power <= 0.0 {
+                continue;
+            }
+            self.selection = Selection {
+                patch_id: p as u32,
+                power,
+                ..after
+            };
+            self.batch_once()?;
+        }
+        // `B` now holds E plus the first bounce of E.
+        self.direct = Some(self.total_radiosity()?);
+        Ok(())
+    }
+
+    /// Radiosity B per element (W/m² per channel), direct light included.
+    pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
         Ok(self
             .read_vec4(&self.radiosity)?
             .into_iter()
