@@ -62,7 +62,7 @@ impl Default for ProgressiveOptions {
     fn default() -> Self {
         Self {
             hemicube_resolution: 64,
-            max_shooters: 64,
+            max_shooters: 128,
             subdivision: 4.0,
             max_subdivision: 8,
             indirect_only: false,
