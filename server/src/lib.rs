@@ -11,6 +11,9 @@
 
 pub mod atlas;
 pub mod bake;
+pub mod bench;
+pub mod gpu;
+pub mod metrics;
 pub mod reference;
 pub mod scene;
 pub mod service;

@@ -1,6 +1,6 @@
 //! `lightwire`: the Lightwire server command.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
@@ -10,6 +10,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 use lightwire_server::atlas::Atlas;
 use lightwire_server::bake::{self, BakeStats};
+use lightwire_server::bench;
+use lightwire_server::gpu;
 use lightwire_server::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_server::scene::{LoadOptions, Scene};
 
@@ -41,10 +43,26 @@ enum Command {
         /// Multiply every texel density of the scene by this factor.
         #[arg(long, default_value_t = 1.0)]
         density_scale: f32,
-        /// Stop when one sweep adds less than this fraction of the emitted
-        /// power.
+        /// Reference: stop when one sweep adds less than this fraction of
+        /// the emitted power. Progressive: stop when the unshot power is
+        /// below this fraction of the emitted power.
         #[arg(long, default_value_t = 1e-4)]
         tolerance: f64,
+        /// GPU solvers: use the adapter whose name contains this
+        /// (case-insensitive); default: prefer a discrete GPU.
+        #[arg(long)]
+        adapter: Option<String>,
+        /// Progressive solver: top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 64)]
+        hemicube_resolution: u32,
+        /// Progressive solver: write indirect light only (gems §39.4).
+        #[arg(long)]
+        indirect_only: bool,
+    },
+    /// Benchmarks (run the release build).
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
     },
     /// Serve scenes over HTTP and WebSocket: live lightmaps, REST, metrics.
     Serve {
@@ -69,6 +87,12 @@ enum Command {
         /// Multiply every texel density [default: 1].
         #[arg(long)]
         density_scale: Option<f32>,
+        /// Solver per scene [default: progressive].
+        #[arg(long, value_enum)]
+        solver: Option<lightwire_server::service::config::SolverChoice>,
+        /// GPU adapter whose name contains this (default: prefer a discrete GPU).
+        #[arg(long)]
+        adapter: Option<String>,
     },
     /// Check scene files and print what they contain.
     Validate {
@@ -81,10 +105,44 @@ enum Command {
     },
 }
 
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Time to 10%, 1% and 0.1% unshot power, shots per second, and the
+    /// reference solver on the same atlas, per scene.
+    Solve {
+        /// Scene files; default: the four thesis scenes in scenes/.
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+        /// Top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 64)]
+        hemicube_resolution: u32,
+    },
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum SolverKind {
     /// CPU: analytic form factors, ray-cast visibility, Jacobi iteration.
     Reference,
+    /// GPU: progressive refinement with hemicube item buffers (thesis
+    /// Alg. 4.2).
+    Progressive,
+}
+
+/// Solver settings from the command line.
+struct SolveSettings {
+    tolerance: f64,
+    adapter: Option<String>,
+    hemicube_resolution: u32,
+    indirect_only: bool,
 }
 
 fn main() -> ExitCode {
@@ -96,11 +154,41 @@ fn main() -> ExitCode {
             out,
             density_scale,
             tolerance,
-        } => bake_command(scene, solver, out, density_scale, tolerance),
+            adapter,
+            hemicube_resolution,
+            indirect_only,
+        } => bake_command(
+            scene,
+            solver,
+            out,
+            density_scale,
+            SolveSettings {
+                tolerance,
+                adapter,
+                hemicube_resolution,
+                indirect_only,
+            },
+        ),
         Command::Validate {
             scenes,
             density_scale,
         } => validate_command(&scenes, density_scale),
+        Command::Bench {
+            what:
+                BenchCommand::Solve {
+                    scenes,
+                    density_scale,
+                    json,
+                    adapter,
+                    hemicube_resolution,
+                },
+        } => bench_solve_command(
+            scenes,
+            density_scale,
+            json,
+            adapter.as_deref(),
+            hemicube_resolution,
+        ),
         Command::Serve {
             scenes,
             listen,
@@ -109,6 +197,8 @@ fn main() -> ExitCode {
             tick_hz,
             budget_ms,
             density_scale,
+            solver,
+            adapter,
         } => serve_command(ServeFlags {
             scenes,
             listen,
@@ -117,6 +207,8 @@ fn main() -> ExitCode {
             tick_hz,
             budget_ms,
             density_scale,
+            solver,
+            adapter,
         }),
     };
     match result {
@@ -128,7 +220,7 @@ fn main() -> ExitCode {
     }
 }
 
-fn load(path: &Path, density_scale: f32) -> Result<(Scene, Atlas)> {
+fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
     let scene = Scene::load_with(path, LoadOptions { density_scale })?;
     let atlas =
         Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
@@ -184,7 +276,7 @@ impl reference::Progress for StderrProgress {
         }
     }
     fn iteration(&self, iteration: usize, residual: f64) {
-        if iteration % 10 == 0 || iteration == 1 {
+        if iteration.is_multiple_of(10) || iteration == 1 {
             eprintln!("  sweep {iteration}: residual {residual:.3e} of emitted power");
         }
     }
@@ -195,8 +287,12 @@ fn bake_command(
     solver: SolverKind,
     out: PathBuf,
     density_scale: f32,
-    tolerance: f64,
+    settings: SolveSettings,
 ) -> Result<()> {
+    let tolerance = settings.tolerance;
+    if settings.indirect_only && !matches!(solver, SolverKind::Progressive) {
+        anyhow::bail!("--indirect-only needs --solver progressive");
+    }
     if !(tolerance > 0.0 && tolerance < 1.0) {
         anyhow::bail!("--tolerance {tolerance} must be between 0 and 1");
     }
@@ -247,6 +343,43 @@ fn bake_command(
             };
             (solution.radiosity, stats)
         }
+        SolverKind::Progressive => {
+            let gpu = gpu::Device::new(settings.adapter.as_deref())?;
+            eprintln!("  adapter: {}", gpu.describe());
+            let options = gpu::ProgressiveOptions {
+                hemicube_resolution: settings.hemicube_resolution,
+                indirect_only: settings.indirect_only,
+                ..Default::default()
+            };
+            let solve_started = Instant::now();
+            let mut solver = gpu::ProgressiveSolver::new(&gpu, &scene, &atlas, &poses, options)?;
+            let report = solver.solve(tolerance)?;
+            let values = solver.radiosity()?;
+            let solve_seconds = solve_started.elapsed().as_secs_f64();
+            let balance = solver.energy_balance()?;
+            eprintln!(
+                "  {} shots in {} batches, unshot {:.2e} of emitted power, {:.2} s",
+                report.shots, report.batches, report.unshot_fraction, solve_seconds
+            );
+            let stats = BakeStats {
+                scene: scene.name.clone(),
+                solver: "progressive".into(),
+                elements: atlas.elements.len(),
+                static_elements: atlas.elements.len() - dynamic,
+                dynamic_elements: dynamic,
+                atlas_width: atlas.width,
+                atlas_height: atlas.height,
+                iterations: report.shots as usize,
+                residual_fraction: report.unshot_fraction,
+                seconds: started.elapsed().as_secs_f64(),
+                form_factor_seconds: 0.0,
+                solve_seconds,
+                emitted_power: balance.emitted,
+                absorbed_power: balance.absorbed,
+                escaped_power: (balance.shot - balance.received).max(0.0),
+            };
+            (values, stats)
+        }
     };
     bake::write_outputs(&out, &scene, &atlas, &poses, &values, &stats)
         .with_context(|| format!("writing bake of {}", path.display()))?;
@@ -258,6 +391,63 @@ fn bake_command(
     Ok(())
 }
 
+fn bench_solve_command(
+    mut scenes: Vec<PathBuf>,
+    density_scale: f32,
+    json: Option<PathBuf>,
+    adapter: Option<&str>,
+    hemicube_resolution: u32,
+) -> Result<()> {
+    if scenes.is_empty() {
+        scenes = [
+            "cornell-small",
+            "cornell-low",
+            "cornell-large",
+            "indirect-light",
+        ]
+        .iter()
+        .map(|name| PathBuf::from(format!("scenes/{name}.json")))
+        .collect();
+    }
+    let gpu = gpu::Device::new(adapter)?;
+    eprintln!("adapter: {}", gpu.describe());
+    let options = gpu::ProgressiveOptions {
+        hemicube_resolution,
+        ..Default::default()
+    };
+    let mut results = Vec::new();
+    let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.3}"));
+    println!(
+        "| scene | elements | solver | s to 10% | s to 1% | s to 0.1% | shots/s | NRMSE vs reference |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
+    for path in &scenes {
+        let result = bench::solve_scene(&gpu, path, density_scale, options)
+            .with_context(|| format!("benchmarking {}", path.display()))?;
+        for s in &result.solvers {
+            let t: Vec<Option<f64>> = s.seconds_to.values().copied().collect();
+            // BTreeMap orders "0.001" < "0.01" < "0.1"; print 10% first.
+            println!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                result.scene,
+                result.elements,
+                s.name,
+                fmt(t[2]),
+                fmt(t[1]),
+                fmt(t[0]),
+                s.shots_per_second.map_or("-".into(), |v| format!("{v:.0}")),
+                s.nrmse_vs_reference
+                    .map_or("-".into(), |v| format!("{:.2}%", v * 100.0)),
+            );
+        }
+        results.push(result);
+    }
+    if let Some(json) = json {
+        bench::write_json(&json, &results)?;
+    }
+    Ok(())
+}
+
 struct ServeFlags {
     scenes: Vec<PathBuf>,
     listen: Option<std::net::SocketAddr>,
@@ -266,6 +456,8 @@ struct ServeFlags {
     tick_hz: Option<f64>,
     budget_ms: Option<f64>,
     density_scale: Option<f32>,
+    solver: Option<lightwire_server::service::config::SolverChoice>,
+    adapter: Option<String>,
 }
 
 fn serve_command(flags: ServeFlags) -> Result<()> {
@@ -298,6 +490,12 @@ fn serve_command(flags: ServeFlags) -> Result<()> {
     }
     if let Some(v) = flags.density_scale {
         config.density_scale = v;
+    }
+    if let Some(v) = flags.solver {
+        config.solver = v;
+    }
+    if flags.adapter.is_some() {
+        config.adapter = flags.adapter;
     }
     config.validate()?;
     let runtime = tokio::runtime::Builder::new_multi_thread()

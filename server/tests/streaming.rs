@@ -27,13 +27,14 @@ struct Server {
 
 impl Server {
     /// Starts the server on a free port with cornell-low at a coarse
-    /// density (so the CPU solver re-solves in well under a second).
+    /// density (so even the CPU reference solver re-solves in well under a
+    /// second), on the reference solver.
     fn start() -> Server {
-        Self::start_with(&[])
+        Self::start_with(&[], "reference")
     }
 
-    /// [`Server::start`] with extra environment variables.
-    fn start_with(env: &[(&str, &str)]) -> Server {
+    /// [`Server::start`] with extra environment variables and a solver.
+    fn start_with(env: &[(&str, &str)], solver: &str) -> Server {
         let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
         let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
             .args([
@@ -42,6 +43,8 @@ impl Server {
                 "127.0.0.1:0",
                 "--density-scale",
                 "0.5",
+                "--solver",
+                solver,
                 "--scene",
             ])
             .arg(&scene)
@@ -333,7 +336,8 @@ async fn settled_version(server: &Server, seq: u64, watcher: &mut Client) -> u64
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fifty_clients_follow_a_moving_box_bit_exactly_and_a_late_joiner_converges() {
-    let server = Server::start();
+    // The real engine: the GPU progressive solver (lavapipe in CI).
+    let server = Server::start_with(&[], "progressive");
     let url = server.ws_url();
     let mut viewers = Vec::new();
     for _ in 0..50 {
@@ -408,7 +412,7 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
     // A small kernel send buffer, so that the server's sends to the
     // stalled client block within the stall instead of being absorbed by
     // the kernel.
-    let server = Server::start_with(&[("LIGHTWIRE_SEND_BUFFER", "4096")]);
+    let server = Server::start_with(&[("LIGHTWIRE_SEND_BUFFER", "4096")], "reference");
     let url = server.ws_url();
     // The stalled client gets a tiny receive window so the server's writes
     // to it block soon after it stops reading.

@@ -232,7 +232,7 @@ impl ReferenceSolver {
                 .for_each(|(i, (row, point_row))| {
                     fill_row(&elements, &patches, &bvh, i, row, point_row);
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    if d % 256 == 0 || d == n {
+                    if d.is_multiple_of(256) || d == n {
                         progress.form_factors(d, n);
                     }
                 });

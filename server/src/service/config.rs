@@ -4,6 +4,7 @@
 //! ```toml
 //! listen = "127.0.0.1:8080"
 //! scenes = ["scenes/cornell-low.json"]
+//! solver = "progressive"             # or "reference"
 //! tick_hz = 60
 //! budget_ms = 8.0
 //! density_scale = 1.0
@@ -29,6 +30,16 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
+
+/// Which solver a scene's tick loop runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SolverChoice {
+    /// GPU progressive refinement (thesis Alg. 4.2), restarted on moves.
+    Progressive,
+    /// The CPU reference solver, re-solved on moves (small scenes only).
+    Reference,
+}
 
 /// Tokens per role.
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -78,6 +89,10 @@ pub struct Config {
     pub hello_timeout_secs: f64,
     /// Change threshold for sending a tile (see the protocol's epsilon rule).
     pub epsilon: f32,
+    /// Solver per scene.
+    pub solver: SolverChoice,
+    /// GPU adapter name substring (default: prefer a discrete GPU).
+    pub adapter: Option<String>,
     /// Kernel send buffer per connection, bytes (SO_SNDBUF; 0 = OS default).
     pub socket_send_buffer: usize,
     pub tokens: Tokens,
@@ -99,6 +114,8 @@ impl Default for Config {
             hello_timeout_secs: 5.0,
             epsilon: 1.0 / 256.0,
             socket_send_buffer: 256 * 1024,
+            solver: SolverChoice::Progressive,
+            adapter: None,
             tokens: Tokens::default(),
         }
     }

@@ -29,8 +29,8 @@ use lightwire_protocol::{
 };
 use tokio::sync::watch;
 
-use super::config::Config;
-use super::live::{LiveSolver, ReferenceLive};
+use super::config::{Config, SolverChoice};
+use super::live::{GpuLive, LiveSolver, ReferenceLive};
 use super::metrics::Metrics;
 use super::publication::Publication;
 use crate::atlas::Atlas;
@@ -197,16 +197,24 @@ impl SceneRuntime {
         )?;
         let atlas =
             Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
-        if atlas.elements.len() > MAX_ELEMENTS {
-            anyhow::bail!(
-                "{} has {} elements; the reference solver serves at most {MAX_ELEMENTS} (use --density-scale)",
-                path.display(),
-                atlas.elements.len()
-            );
-        }
         let info = scene_info(&scene, &atlas);
-        let solver: Box<dyn LiveSolver> =
-            Box::new(ReferenceLive::new(scene.clone(), atlas.clone()));
+        let solver: Box<dyn LiveSolver> = match config.solver {
+            SolverChoice::Reference => {
+                if atlas.elements.len() > MAX_ELEMENTS {
+                    anyhow::bail!(
+                        "{} has {} elements; the reference solver serves at most {MAX_ELEMENTS} (use --density-scale or --solver progressive)",
+                        path.display(),
+                        atlas.elements.len()
+                    );
+                }
+                Box::new(ReferenceLive::new(scene.clone(), atlas.clone()))
+            }
+            SolverChoice::Progressive => {
+                let device = crate::gpu::Device::new(config.adapter.as_deref())?;
+                tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
+                Box::new(GpuLive::new(device, scene.clone(), atlas.clone())?)
+            }
+        };
         let (pub_tx, pub_rx) = watch::channel(None);
         let (stats_tx, stats_rx) = watch::channel(Stats {
             version: 0,
@@ -291,8 +299,6 @@ impl TickLoop {
         let id = self.runtime.info.id.clone();
         tracing::info!(scene = %id, solver = self.solver.name(), elements = self.runtime.atlas.elements.len(), "tick loop started");
         let mut next = Instant::now();
-        // Seqs the solver's current work reflects (set when poses change).
-        let mut solving: Vec<u64> = self.seqs.clone();
         let mut published_seqs: Vec<u64> = vec![0; self.seqs.len()];
         while !*self.shutdown.borrow() {
             let started = Instant::now();
@@ -302,14 +308,14 @@ impl TickLoop {
                     self.poses[object] = pending.pose;
                     self.seqs[object] = pending.seq;
                 }
-                self.solver.set_poses(&self.poses);
-                solving = self.seqs.clone();
+                self.solver.set_poses(&self.poses, &self.seqs);
             }
             let report = self.solver.step(self.budget);
             if report.completed {
                 let image = self.runtime.atlas.to_image(self.solver.radiosity());
                 // Echo the seqs newly reflected since the previous version.
-                let reflected: Vec<ObjectSeq> = solving
+                let solved = self.solver.reflected().to_vec();
+                let reflected: Vec<ObjectSeq> = solved
                     .iter()
                     .zip(&published_seqs)
                     .enumerate()
@@ -319,7 +325,7 @@ impl TickLoop {
                         seq: *seq,
                     })
                     .collect();
-                published_seqs = solving.clone();
+                published_seqs = solved;
                 let delta = self.encoder.publish(&image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();

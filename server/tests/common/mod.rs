@@ -1,5 +1,8 @@
 //! Helpers shared by the server's integration tests.
 
+// Each test binary compiles this module and uses only some helpers.
+#![allow(dead_code)]
+
 use std::path::PathBuf;
 
 use lightwire_server::atlas::Atlas;

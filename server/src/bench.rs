@@ -1,0 +1,166 @@
+//! `lightwire bench solve`: how fast each solver converges, on one machine,
+//! in one run, so that the numbers are comparable.
+//!
+//! For every scene the progressive GPU solver runs batch by batch and the
+//! wall-clock time is recorded when the unshot power first falls to 10%, 1%
+//! and 0.1% of the emitted power. The reference solver then runs on the same
+//! atlas (when the scene is small enough for its dense matrix); its times to
+//! the same fractions are those at which one Jacobi sweep adds less than
+//! that fraction of the emitted power (form factor time included), the
+//! closest analogue of "unshot power" a Jacobi solver has. The progressive
+//! lightmap at 0.1% is compared with the converged reference by
+//! [`crate::metrics::nrmse`].
+
+use std::path::Path;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use serde::Serialize;
+
+use crate::atlas::Atlas;
+use crate::gpu::{Device, ProgressiveOptions, ProgressiveSolver};
+use crate::metrics::nrmse;
+use crate::reference::{self, ReferenceSolver, SolveOptions};
+use crate::scene::{LoadOptions, Scene};
+
+/// The unshot-power fractions at which times are recorded.
+pub const FRACTIONS: [f64; 3] = [0.1, 0.01, 0.001];
+
+/// One scene's results, in the `--json` shape the issue asks for.
+#[derive(Debug, Serialize)]
+pub struct SceneResult {
+    pub scene: String,
+    pub adapter: String,
+    pub elements: usize,
+    pub solvers: Vec<SolverResult>,
+}
+
+/// One solver's results on one scene.
+#[derive(Debug, Serialize)]
+pub struct SolverResult {
+    pub name: String,
+    /// Seconds until the fraction ("0.1", "0.01", "0.001") was reached;
+    /// `null` if it never was.
+    pub seconds_to: std::collections::BTreeMap<String, Option<f64>>,
+    /// Shooters per second (progressive only).
+    pub shots_per_second: Option<f64>,
+    /// NRMSE against the converged reference solution (`null` when the
+    /// reference could not run).
+    pub nrmse_vs_reference: Option<f64>,
+}
+
+fn seconds_map(times: &[Option<f64>; 3]) -> std::collections::BTreeMap<String, Option<f64>> {
+    FRACTIONS
+        .iter()
+        .zip(times)
+        .map(|(f, t)| (f.to_string(), *t))
+        .collect()
+}
+
+/// Records when the reference solver's sweeps pass each fraction.
+struct SweepClock {
+    started: Instant,
+    times: Mutex<[Option<f64>; 3]>,
+}
+
+impl reference::Progress for SweepClock {
+    fn form_factors(&self, _: usize, _: usize) {}
+    fn iteration(&self, _: usize, residual: f64) {
+        let now = self.started.elapsed().as_secs_f64();
+        if let Ok(mut times) = self.times.lock() {
+            for (t, f) in times.iter_mut().zip(FRACTIONS) {
+                if t.is_none() && residual <= f {
+                    *t = Some(now);
+                }
+            }
+        }
+    }
+}
+
+/// Benchmarks one scene file.
+pub fn solve_scene(
+    gpu: &Device,
+    path: &Path,
+    density_scale: f32,
+    options: ProgressiveOptions,
+) -> Result<SceneResult> {
+    let scene = Scene::load_with(path, LoadOptions { density_scale })?;
+    let atlas =
+        Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
+    let poses = scene.initial_poses();
+
+    // Progressive: setup (upload, pipeline compilation) is not counted.
+    let mut solver = ProgressiveSolver::new(gpu, &scene, &atlas, &poses, options)?;
+    let started = Instant::now();
+    let mut times = [None; 3];
+    let mut shots = 0;
+    loop {
+        let fraction = solver.unshot_fraction();
+        let now = started.elapsed().as_secs_f64();
+        for (t, f) in times.iter_mut().zip(FRACTIONS) {
+            if t.is_none() && fraction <= f {
+                *t = Some(now);
+            }
+        }
+        if fraction <= FRACTIONS[2] {
+            break;
+        }
+        let report = solver.step(Duration::ZERO)?;
+        if report.batches == 0 {
+            break; // Nothing left to shoot.
+        }
+        shots += report.shots;
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let progressive = solver.radiosity()?;
+
+    // Reference, when its dense matrix fits.
+    let clock = SweepClock {
+        started: Instant::now(),
+        times: Mutex::new([None; 3]),
+    };
+    let reference = match ReferenceSolver::new(&scene, &atlas, &poses, &clock) {
+        Ok(reference) => Some(reference.solve(
+            SolveOptions {
+                tolerance: FRACTIONS[2],
+                ..SolveOptions::default()
+            },
+            &clock,
+        )),
+        Err(e) => {
+            eprintln!("  {}: reference skipped: {e}", scene.name);
+            None
+        }
+    };
+    let error = reference
+        .as_ref()
+        .and_then(|r| nrmse(&progressive, &r.radiosity));
+    let mut solvers = vec![SolverResult {
+        name: "progressive".into(),
+        seconds_to: seconds_map(&times),
+        shots_per_second: (seconds > 0.0).then(|| shots as f64 / seconds),
+        nrmse_vs_reference: error,
+    }];
+    if reference.is_some() {
+        let times = clock.times.lock().map(|t| *t).unwrap_or([None; 3]);
+        solvers.push(SolverResult {
+            name: "reference".into(),
+            seconds_to: seconds_map(&times),
+            shots_per_second: None,
+            nrmse_vs_reference: Some(0.0),
+        });
+    }
+    Ok(SceneResult {
+        scene: scene.name.clone(),
+        adapter: gpu.describe(),
+        elements: atlas.elements.len(),
+        solvers,
+    })
+}
+
+/// Writes results as JSON (one object per scene, in an array).
+pub fn write_json(path: &Path, results: &[SceneResult]) -> Result<()> {
+    let text = serde_json::to_string_pretty(results)?;
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}

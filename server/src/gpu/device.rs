@@ -1,0 +1,136 @@
+//! Adapter selection and device creation.
+
+use std::fmt;
+
+/// Why the GPU could not be used or a GPU operation failed.
+///
+/// The messages are meant for the person running `lightwire`: they say what
+/// to install or which adapter names exist.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter on any backend: the machine has neither a GPU driver nor
+    /// a software rasterizer.
+    #[error(
+        "no GPU adapter found on any backend (Vulkan, GL, Metal, DX12). Install a Vulkan driver; \
+         without a GPU, the software driver lavapipe works: `apt-get install mesa-vulkan-drivers` \
+         (Debian/Ubuntu) or `dnf install mesa-vulkan-drivers` (Fedora)"
+    )]
+    NoAdapter,
+    /// `--adapter NAME` matched none of the adapters present.
+    #[error("no GPU adapter name contains \"{wanted}\"; available: {available}")]
+    NoMatchingAdapter { wanted: String, available: String },
+    /// The adapter refused to create a device.
+    #[error("could not create a device on {adapter}: {message}")]
+    RequestDevice { adapter: String, message: String },
+    /// Mapping a buffer back to the CPU failed (device lost, ...).
+    #[error("reading GPU results back failed: {0}")]
+    Readback(String),
+    /// The problem does not fit the device (too many elements, ...).
+    #[error("{0}")]
+    TooLarge(String),
+}
+
+/// A device and queue on the chosen adapter, with what was chosen.
+///
+/// Solvers clone the (reference-counted) device and queue from here, so one
+/// `Device` can serve several solvers.
+pub struct Device {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    /// Name, backend and type of the adapter, for logs and benchmarks.
+    pub info: wgpu::AdapterInfo,
+    /// The limits the device was created with (the adapter's own).
+    pub limits: wgpu::Limits,
+}
+
+impl fmt::Debug for Device {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Device")
+            .field("adapter", &self.info.name)
+            .field("backend", &self.info.backend)
+            .finish()
+    }
+}
+
+/// Preference order among adapter types: discrete first, software last.
+fn rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
+    let kind = match info.device_type {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    };
+    let backend = match info.backend {
+        wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
+        _ => 1,
+    };
+    (kind, backend)
+}
+
+impl Device {
+    /// Picks an adapter and creates a device with the adapter's limits.
+    ///
+    /// `name` (case-insensitive substring of the adapter name, e.g. from
+    /// `--adapter`) chooses among the adapters; without it a discrete GPU is
+    /// preferred, then integrated, virtual, and software ones (lavapipe),
+    /// and native backends over GL.
+    pub fn new(name: Option<&str>) -> Result<Device, GpuError> {
+        pollster::block_on(Self::new_async(name))
+    }
+
+    async fn new_async(name: Option<&str>) -> Result<Device, GpuError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let mut adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
+        if adapters.is_empty() {
+            return Err(GpuError::NoAdapter);
+        }
+        if let Some(wanted) = name {
+            let needle = wanted.to_lowercase();
+            let available = adapters
+                .iter()
+                .map(|a| {
+                    let i = a.get_info();
+                    format!("\"{}\" ({:?})", i.name, i.backend)
+                })
+                .collect::<Vec<_>>()
+                .join(", ");
+            adapters.retain(|a| a.get_info().name.to_lowercase().contains(&needle));
+            if adapters.is_empty() {
+                return Err(GpuError::NoMatchingAdapter {
+                    wanted: wanted.to_string(),
+                    available,
+                });
+            }
+        }
+        adapters.sort_by_key(|a| rank(&a.get_info()));
+        let adapter = adapters.swap_remove(0);
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("lightwire"),
+                required_features: wgpu::Features::empty(),
+                required_limits: limits.clone(),
+                memory_hints: wgpu::MemoryHints::Performance,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| GpuError::RequestDevice {
+                adapter: info.name.clone(),
+                message: e.to_string(),
+            })?;
+        Ok(Device {
+            device,
+            queue,
+            info,
+            limits,
+        })
+    }
+
+    /// "NAME (BACKEND)", for logs.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.backend)
+    }
+}

@@ -1,0 +1,945 @@
+//! GPU progressive refinement radiosity (thesis Alg. 4.2, gems §39.2).
+//!
+//! One *batch* is one SHOOTINGITERATION of the thesis: the patch with the
+//! most unshot power (found by the previous batch's reduction) is split into
+//! shooters, every shooter gets a hemicube item buffer, and every element
+//! gathers from all shooters at once. See the module doc of [`crate::gpu`]
+//! for the data flow.
+
+use std::time::{Duration, Instant};
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use wgpu::util::DeviceExt;
+
+use super::device::{Device, GpuError};
+use crate::atlas::Atlas;
+use crate::scene::{PatchShape, Pose, Scene};
+
+/// WGSL shared by both shaders, prepended to each.
+const COMMON_WGSL: &str = include_str!("../../../shaders/common.wgsl");
+const HEMICUBE_WGSL: &str = include_str!("../../../shaders/hemicube.wgsl");
+const PROGRESSIVE_WGSL: &str = include_str!("../../../shaders/progressive.wgsl");
+
+/// Hemicube faces per shooter: top and four sides.
+const FACES: u32 = 5;
+/// Patch id of item-buffer pixels that see no surface.
+const NO_PATCH: u32 = u32::MAX;
+/// Receiving points are moved this fraction of the scene's extent off
+/// edges and off their surface (like the reference solver's offset).
+const SURFACE_OFFSET: f32 = 1e-5;
+/// Workgroup size of the per-element and per-shooter compute shaders.
+const WORKGROUP: u32 = 64;
+
+/// Tuning of [`ProgressiveSolver`].
+#[derive(Debug, Clone, Copy)]
+pub struct ProgressiveOptions {
+    /// Top-face resolution of the hemicube item buffers in pixels (thesis
+    /// §4.3.1: with the disk approximation the form factor does not depend
+    /// on it, only visibility does, so it can be low).
+    pub hemicube_resolution: u32,
+    /// Most shooters one patch is split into (thesis §4.3.3); the count
+    /// for a patch grows with the square root of its share of the emitted
+    /// power.
+    pub max_shooters: u32,
+    /// Form-factor subdivision: a shooter of area `A` at distance `r` is
+    /// split into `ceil(subdivision * sqrt(A) / r)²` sub-disks (thesis
+    /// §4.3.3, adaptive form factor subdivision).
+    pub subdivision: f32,
+    /// Upper bound on sub-disks per axis; closer shooters use the exact
+    /// (infinitely subdivided) form factor.
+    pub max_subdivision: u32,
+    /// Publish indirect light only (gems §39.4): [`ProgressiveSolver::radiosity`]
+    /// returns `B - E - D`, where `D` is the first bounce of the emitted
+    /// light, for clients that draw direct light and shadows themselves.
+    /// Every emitting patch shoots its emission once before anything else;
+    /// `D` is what that delivered. (Emitters that light each other mix a
+    /// little of their received light into `D`.)
+    pub indirect_only: bool,
+}
+
+impl Default for ProgressiveOptions {
+    fn default() -> Self {
+        Self {
+            hemicube_resolution: 64,
+            max_shooters: 128,
+            subdivision: 4.0,
+            max_subdivision: 8,
+            indirect_only: false,
+        }
+    }
+}
+
+/// What a call to [`ProgressiveSolver::step`] or `solve` did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// Shooters shot during the call.
+    pub shots: u64,
+    /// Batches (one patch each) during the call.
+    pub batches: u64,
+    /// Unshot power as a fraction of the emitted power, afterwards.
+    pub unshot_fraction: f64,
+}
+
+/// Power bookkeeping (W, summed over the RGB channels).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnergyBalance {
+    /// `Σ A_e E_e`.
+    pub emitted: f64,
+    /// Power taken out of the unshot buffers by shots so far.
+    pub shot: f64,
+    /// Power that arrived at elements: `Σ A_e H_e`.
+    pub received: f64,
+    /// Power absorbed by elements: `Σ A_e (1 - ρ_e) H_e`.
+    pub absorbed: f64,
+    /// Power still waiting to be shot.
+    pub unshot: f64,
+}
+
+/// One element as the shaders see it (`Element` in progressive.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GpuElement {
+    position: [f32; 4],
+    normal: [f32; 4],
+    lookup: [f32; 4],
+    albedo: [f32; 4],
+}
+
+/// One shooter (`Shooter` in common.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GpuShooter {
+    corner: [f32; 4],
+    su: [f32; 4],
+    sv: [f32; 4],
+    eye: [f32; 4],
+    t1: [f32; 4],
+    t2: [f32; 4],
+    n: [f32; 4],
+    tile: [u32; 4],
+}
+
+/// Per-batch constants (`Batch` in common.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BatchUniform {
+    patch_id: u32,
+    shooters: u32,
+    resolution: u32,
+    first_element: u32,
+    chart_w: u32,
+    element_count: u32,
+    near: f32,
+    far: f32,
+    subdivision: f32,
+    max_subdivision: u32,
+    _pad: [u32; 2],
+}
+
+/// The reduction's answer (`Selection` in progressive.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug)]
+struct Selection {
+    patch_id: u32,
+    power: f32,
+    total: f32,
+    _pad: f32,
+}
+
+/// A patch placed in the world, as the CPU needs it to place shooters.
+#[derive(Debug, Clone, Copy)]
+struct WorldPatch {
+    origin: Vec3,
+    u: Vec3,
+    v: Vec3,
+    normal: Vec3,
+    first: u32,
+    w: u32,
+    h: u32,
+}
+
+/// Progressive refinement radiosity on the GPU: elements, B, B^u and the
+/// per-patch unshot power live in GPU buffers for the solver's lifetime;
+/// the CPU only places shooters and reads one 16-byte selection per batch.
+pub struct ProgressiveSolver {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    options: ProgressiveOptions,
+    /// Shooters per batch the item-buffer target can hold.
+    batch_capacity: u32,
+    patches: Vec<WorldPatch>,
+    /// World areas of the elements, for shooter areas and energy sums.
+    areas: Vec<f32>,
+    albedo: Vec<Vec3>,
+    element_count: u32,
+    emitted: f64,
+    near: f32,
+    far: f32,
+    /// Latest selection read back: what the next batch shoots.
+    selection: Selection,
+    shots: u64,
+    batches: u64,
+    shot_power: f64,
+    /// `E + D` per element when publishing indirect light only.
+    direct: Option<Vec<Vec3>>,
+
+    radiosity: wgpu::Buffer,
+    irradiance: wgpu::Buffer,
+    shooters: wgpu::Buffer,
+    batch: wgpu::Buffer,
+    selection_readback: wgpu::Buffer,
+    selection_buffer: wgpu::Buffer,
+    item_view: wgpu::TextureView,
+    depth_view: wgpu::TextureView,
+
+    shooter_energy: (wgpu::ComputePipeline, wgpu::BindGroup),
+    reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
+    patch_power: (wgpu::ComputePipeline, wgpu::BindGroup),
+    select: (wgpu::ComputePipeline, wgpu::BindGroup),
+    hemicube: (wgpu::RenderPipeline, wgpu::BindGroup),
+    triangle_vertices: u32,
+}
+
+/// A compute pipeline with an automatic layout and its bind group.
+fn compute(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    entry: &str,
+    resources: &[(u32, wgpu::BindingResource<'_>)],
+) -> (wgpu::ComputePipeline, wgpu::BindGroup) {
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: None,
+        module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
+        .iter()
+        .map(|(binding, resource)| wgpu::BindGroupEntry {
+            binding: *binding,
+            resource: resource.clone(),
+        })
+        .collect();
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(entry),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    });
+    (pipeline, bind_group)
+}
+
+fn v4(v: Vec3, w: f32) -> [f32; 4] {
+    [v.x, v.y, v.z, w]
+}
+
+impl ProgressiveSolver {
+    /// Uploads the scene at `poses` (one per object) and finds the first
+    /// shooting patch. Every element starts with `B = B^u = E`.
+    pub fn new(
+        gpu: &Device,
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        options: ProgressiveOptions,
+    ) -> Result<Self, GpuError> {
+        let device = gpu.device.clone();
+        let queue = gpu.queue.clone();
+        let limits = &gpu.limits;
+        let res = options.hemicube_resolution.max(1);
+        if FACES * res > limits.max_texture_dimension_2d {
+            return Err(GpuError::TooLarge(format!(
+                "a hemicube resolution of {res} needs a {} pixel wide item buffer; the adapter allows {}",
+                FACES * res,
+                limits.max_texture_dimension_2d
+            )));
+        }
+        let batch_capacity = options
+            .max_shooters
+            .max(1)
+            .min(limits.max_texture_dimension_2d / res);
+        let n = atlas.elements.len();
+        let element_bytes = (n * std::mem::size_of::<GpuElement>()) as u64;
+        if element_bytes > limits.max_storage_buffer_binding_size
+            || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
+        {
+            return Err(GpuError::TooLarge(format!(
+                "{n} elements do not fit the adapter's storage buffer or dispatch limits"
+            )));
+        }
+
+        // World-space patches and elements.
+        let patches: Vec<WorldPatch> = scene
+            .patches
+            .iter()
+            .enumerate()
+            .map(|(p, patch)| {
+                let pose = &poses[patch.object as usize];
+                let PatchShape::Quad { origin, u, v } = patch.shape.transformed(pose);
+                let chart = atlas.charts[p];
+                WorldPatch {
+                    origin,
+                    u,
+                    v,
+                    normal: u.cross(v).normalize(),
+                    first: atlas.patch_elements[p],
+                    w: chart.w,
+                    h: chart.h,
+                }
+            })
+            .collect();
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        let mut triangles: Vec<[f32; 4]> = Vec::with_capacity(patches.len() * 6);
+        for (p, wp) in patches.iter().enumerate() {
+            let id = f32::from_bits(p as u32);
+            let c = [
+                wp.origin,
+                wp.origin + wp.u,
+                wp.origin + wp.u + wp.v,
+                wp.origin + wp.v,
+            ];
+            for corner in c {
+                lo = lo.min(corner);
+                hi = hi.max(corner);
+            }
+            for i in [0, 1, 2, 0, 2, 3] {
+                triangles.push(v4(c[i], id));
+            }
+        }
+        let extent = (hi - lo).length().max(1e-6);
+
+        let mut elements = Vec::with_capacity(n);
+        let mut areas = Vec::with_capacity(n);
+        let mut albedo = Vec::with_capacity(n);
+        let mut emission = Vec::with_capacity(n);
+        let mut emitted = 0.0f64;
+        for e in &atlas.elements {
+            let wp = &patches[e.patch as usize];
+            let scale = poses[e.object as usize].scale;
+            let area = e.area * scale * scale;
+            let [s, t] = e.st;
+            let sample = wp.origin + wp.u * s + wp.v * t;
+            let centre = wp.origin + (wp.u + wp.v) * 0.5;
+            let position = sample
+                + ((centre - sample).normalize_or_zero() + wp.normal) * (extent * SURFACE_OFFSET);
+            // Edge samples look up visibility a quarter cell inside their
+            // own patch, so the item buffer shows their patch, not the
+            // neighbour sharing the edge.
+            let inset = |x: f32, cells: u32| {
+                let q = 0.25 / (cells.max(2) - 1) as f32;
+                x.clamp(q, 1.0 - q)
+            };
+            let lookup = wp.origin + wp.u * inset(s, wp.w) + wp.v * inset(t, wp.h);
+            elements.push(GpuElement {
+                position: v4(position, area),
+                normal: v4(wp.normal, f32::from_bits(e.patch)),
+                lookup: v4(lookup, 0.0),
+                albedo: v4(e.albedo, 0.0),
+            });
+            areas.push(area);
+            albedo.push(e.albedo);
+            emission.push(v4(e.emission, 0.0));
+            emitted += f64::from(area) * f64::from(e.emission.element_sum());
+        }
+        let patch_ranges: Vec<[u32; 4]> = patches
+            .iter()
+            .enumerate()
+            .map(|(p, wp)| [wp.first, atlas.patch_elements[p + 1] - wp.first, wp.w, wp.h])
+            .collect();
+
+        let storage = wgpu::BufferUsages::STORAGE;
+        let init = |label: &str, contents: &[u8], usage: wgpu::BufferUsages| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+        };
+        // Buffers may not be empty; pad with a zero element.
+        let non_empty = |v: Vec<[f32; 4]>| if v.is_empty() { vec![[0.0; 4]] } else { v };
+        let emission = non_empty(emission);
+        if elements.is_empty() {
+            elements.push(GpuElement::zeroed());
+        }
+        let element_buffer = init("elements", bytemuck::cast_slice(&elements), storage);
+        let radiosity = init(
+            "radiosity",
+            bytemuck::cast_slice(&emission),
+            storage | wgpu::BufferUsages::COPY_SRC,
+        );
+        let unshot = init("unshot", bytemuck::cast_slice(&emission), storage);
+        let irradiance = init(
+            "irradiance",
+            bytemuck::cast_slice(&vec![[0.0f32; 4]; emission.len()]),
+            storage | wgpu::BufferUsages::COPY_SRC,
+        );
+        let patch_buffer = init("patches", bytemuck::cast_slice(&patch_ranges), storage);
+        let patch_power = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("patch power"),
+            size: (patches.len().max(1) * 4) as u64,
+            usage: storage,
+            mapped_at_creation: false,
+        });
+        let selection_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("selection"),
+            size: std::mem::size_of::<Selection>() as u64,
+            usage: storage | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let selection_readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("selection readback"),
+            size: std::mem::size_of::<Selection>() as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let shooters = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shooters"),
+            size: u64::from(batch_capacity) * std::mem::size_of::<GpuShooter>() as u64,
+            usage: storage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let energy = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shooter energy"),
+            size: u64::from(batch_capacity) * 16,
+            usage: storage,
+            mapped_at_creation: false,
+        });
+        let batch = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("batch"),
+            size: std::mem::size_of::<BatchUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let triangle_vertices = triangles.len() as u32;
+        let triangles = non_empty(triangles);
+        let triangle_buffer = init(
+            "hemicube triangles",
+            bytemuck::cast_slice(&triangles),
+            storage,
+        );
+
+        let size = wgpu::Extent3d {
+            width: FACES * res,
+            height: res * batch_capacity,
+            depth_or_array_layers: 1,
+        };
+        let item = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("hemicube item buffers"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R32Uint,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let depth = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("hemicube depth"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Depth32Float,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        });
+        let item_view = item.create_view(&Default::default());
+        let depth_view = depth.create_view(&Default::default());
+
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("progressive.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{PROGRESSIVE_WGSL}").into()),
+        });
+        let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("hemicube.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{HEMICUBE_WGSL}").into()),
+        });
+        fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
+            buffer.as_entire_binding()
+        }
+        let shooter_energy = compute(
+            &device,
+            &module,
+            "shooter_energy",
+            &[
+                (0, b(&element_buffer)),
+                (2, b(&unshot)),
+                (7, b(&shooters)),
+                (8, b(&energy)),
+                (9, b(&batch)),
+            ],
+        );
+        let reconstruct = compute(
+            &device,
+            &module,
+            "reconstruct",
+            &[
+                (0, b(&element_buffer)),
+                (1, b(&radiosity)),
+                (2, b(&unshot)),
+                (3, b(&irradiance)),
+                (7, b(&shooters)),
+                (8, b(&energy)),
+                (9, b(&batch)),
+                (10, wgpu::BindingResource::TextureView(&item_view)),
+            ],
+        );
+        let patch_power_pass = compute(
+            &device,
+            &module,
+            "patch_power_main",
+            &[
+                (0, b(&element_buffer)),
+                (2, b(&unshot)),
+                (4, b(&patch_buffer)),
+                (5, b(&patch_power)),
+            ],
+        );
+        let select = compute(
+            &device,
+            &module,
+            "select_shooter",
+            &[(5, b(&patch_power)), (6, b(&selection_buffer))],
+        );
+        let hemicube_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("hemicube"),
+            layout: None,
+            vertex: wgpu::VertexState {
+                module: &hemicube_module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                // Surfaces are opaque from both sides.
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: wgpu::TextureFormat::Depth32Float,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &hemicube_module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: wgpu::TextureFormat::R32Uint,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let hemicube_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("hemicube"),
+            layout: &hemicube_pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: b(&triangle_buffer),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: b(&shooters),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: b(&batch),
+                },
+            ],
+        });
+
+        let mut solver = Self {
+            device,
+            queue,
+            options,
+            batch_capacity,
+            patches,
+            areas,
+            albedo,
+            element_count: n as u32,
+            emitted,
+            near: extent * 1e-4,
+            far: extent * 4.0,
+            selection: Selection::zeroed(),
+            shots: 0,
+            batches: 0,
+            shot_power: 0.0,
+            direct: None,
+            radiosity,
+            irradiance,
+            shooters,
+            batch,
+            selection_readback,
+            selection_buffer,
+            item_view,
+            depth_view,
+            shooter_energy,
+            reconstruct,
+            patch_power: patch_power_pass,
+            select,
+            hemicube: (hemicube_pipeline, hemicube_group),
+            triangle_vertices,
+        };
+        let mut encoder = solver.device.create_command_encoder(&Default::default());
+        solver.encode_selection(&mut encoder);
+        solver.queue.submit([encoder.finish()]);
+        solver.selection = solver.read_selection()?;
+        if options.indirect_only {
+            solver.shoot_direct(scene, poses)?;
+        }
+        Ok(solver)
+    }
+
+    /// Emitted power `Σ A_e E_e` (W, channels summed).
+    pub fn emitted_power(&self) -> f64 {
+        self.emitted
+    }
+
+    /// Unshot power as a fraction of the emitted power.
+    pub fn unshot_fraction(&self) -> f64 {
+        if self.emitted > 0.0 {
+            f64::from(self.selection.total.max(0.0)) / self.emitted
+        } else {
+            0.0
+        }
+    }
+
+    /// Shooters shot since the solver was created.
+    pub fn total_shots(&self) -> u64 {
+        self.shots
+    }
+
+    /// Runs whole batches until `budget` is spent (at least one batch, so
+    /// that every call makes progress) or nothing is left to shoot.
+    pub fn step(&mut self, budget: Duration) -> Result<StepReport, GpuError> {
+        let started = Instant::now();
+        let (shots, batches) = (self.shots, self.batches);
+        loop {
+            if !self.batch_once()? || started.elapsed() >= budget {
+                break;
+            }
+        }
+        Ok(StepReport {
+            shots: self.shots - shots,
+            batches: self.batches - batches,
+            unshot_fraction: self.unshot_fraction(),
+        })
+    }
+
+    /// Runs batches until the unshot power is at most `threshold` of the
+    /// emitted power (or nothing is left to shoot).
+    pub fn solve(&mut self, threshold: f64) -> Result<StepReport, GpuError> {
+        let (shots, batches) = (self.shots, self.batches);
+        while self.unshot_fraction() > threshold {
+            if !self.batch_once()? {
+                break;
+            }
+        }
+        Ok(StepReport {
+            shots: self.shots - shots,
+            batches: self.batches - batches,
+            unshot_fraction: self.unshot_fraction(),
+        })
+    }
+
+    /// Radiosity per element (W/m² per channel), in atlas element order:
+    /// `B`, or `B - E - D` with [`ProgressiveOptions::indirect_only`].
+    pub fn radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        let total = self.total_radiosity()?;
+        match &self.direct {
+            None => Ok(total),
+            Some(direct) => Ok(total
+                .iter()
+                .zip(direct)
+                .map(|(b, d)| (*b - *d).max(Vec3::ZERO))
+                .collect()),
+        }
+    }
+
+    /// Shoots every emitting patch once, in patch order, and remembers what
+    /// that delivered (plus the emission itself) as the direct part.
+    fn shoot_direct(&mut self, scene: &Scene, poses: &[Pose]) -> Result<(), GpuError> {
+        let after = self.selection;
+        for (p, patch) in scene.patches.iter().enumerate() {
+            let material = &scene.materials[patch.material as usize];
+            let scale = poses[patch.object as usize].scale;
+            let power = material.emission.element_sum() * patch.shape.area() * scale * scale;
+            if power <= 0.0 {
+                continue;
+            }
+            self.selection = Selection {
+                patch_id: p as u32,
+                power,
+                ..after
+            };
+            self.batch_once()?;
+        }
+        // `B` now holds E plus the first bounce of E.
+        self.direct = Some(self.total_radiosity()?);
+        Ok(())
+    }
+
+    /// Radiosity B per element (W/m² per channel), direct light included.
+    pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        Ok(self
+            .read_vec4(&self.radiosity)?
+            .into_iter()
+            .map(|v| Vec3::new(v[0], v[1], v[2]))
+            .collect())
+    }
+
+    /// Where the power went so far (reads the irradiance back).
+    pub fn energy_balance(&self) -> Result<EnergyBalance, GpuError> {
+        let h = self.read_vec4(&self.irradiance)?;
+        let (mut received, mut absorbed) = (0.0f64, 0.0f64);
+        for ((hv, a), rho) in h.iter().zip(&self.areas).zip(&self.albedo) {
+            let hv = Vec3::new(hv[0], hv[1], hv[2]);
+            received += f64::from(*a) * f64::from(hv.element_sum());
+            absorbed += f64::from(*a) * f64::from(((Vec3::ONE - *rho) * hv).element_sum());
+        }
+        Ok(EnergyBalance {
+            emitted: self.emitted,
+            shot: self.shot_power,
+            received,
+            absorbed,
+            unshot: f64::from(self.selection.total.max(0.0)),
+        })
+    }
+
+    /// Number of shooters for a patch holding `power` (thesis §4.3.3: the
+    /// more it shoots, the finer it is split), as a grid over its chart.
+    fn shooter_grid(&self, patch: &WorldPatch, power: f64) -> (u32, u32) {
+        let share = if self.emitted > 0.0 {
+            (power / self.emitted).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        let wanted = ((f64::from(self.batch_capacity) * share.sqrt()).ceil() as u32)
+            .clamp(1, self.batch_capacity);
+        let aspect = (patch.u.length() / patch.v.length().max(1e-12)) as f64;
+        let gx = ((f64::from(wanted) * aspect).sqrt().round() as u32).clamp(1, patch.w);
+        let gy = (wanted / gx).clamp(1, patch.h);
+        (gx, gy)
+    }
+
+    /// One SHOOTINGITERATION (thesis Alg. 4.2). Returns false when there
+    /// was nothing to shoot.
+    fn batch_once(&mut self) -> Result<bool, GpuError> {
+        let sel = self.selection;
+        if sel.patch_id as usize >= self.patches.len() || sel.power <= 0.0 {
+            return Ok(false);
+        }
+        let patch = self.patches[sel.patch_id as usize];
+        let (gx, gy) = self.shooter_grid(&patch, f64::from(sel.power));
+        let normal = patch.normal;
+        let t1 = patch.u.normalize();
+        let t2 = normal.cross(t1);
+        let lift = self.near * 2.0;
+        let mut shooters = Vec::with_capacity((gx * gy) as usize);
+        // Tiles split the chart's texels; a tile's region is the union of
+        // its elements' regions (cell boundaries halfway between samples).
+        // With three or more tiles along an axis, the outermost texel rows
+        // and columns (the samples on the patch edges) get tiles of their
+        // own: receivers on a neighbouring wall next to the edge take most
+        // of their light from the strip along it (the form factor is
+        // concentrated near r = 0 there), so that strip must shoot its own
+        // unshot radiosity rather than an average with the interior.
+        let split = |i: u32, g: u32, n: u32| {
+            if g >= 3 && n >= 3 {
+                match i {
+                    0 => 0,
+                    i if i >= g => n,
+                    i => 1 + (i - 1) * (n - 2) / (g - 2),
+                }
+            } else {
+                i * n / g
+            }
+        };
+        let param = |a: u32, n: u32| ((a as f32 - 0.5) / (n - 1) as f32).clamp(0.0, 1.0);
+        for j in 0..gy {
+            for i in 0..gx {
+                let (a0, a1) = (split(i, gx, patch.w), split(i + 1, gx, patch.w));
+                let (b0, b1) = (split(j, gy, patch.h), split(j + 1, gy, patch.h));
+                let (s0, s1) = (param(a0, patch.w), param(a1, patch.w));
+                let (u0, u1) = (param(b0, patch.h), param(b1, patch.h));
+                let corner = patch.origin + patch.u * s0 + patch.v * u0;
+                let su = patch.u * (s1 - s0);
+                let sv = patch.v * (u1 - u0);
+                let mut area = 0.0;
+                for b in b0..b1 {
+                    for a in a0..a1 {
+                        area += self.areas[(patch.first + b * patch.w + a) as usize];
+                    }
+                }
+                let eye = corner + (su + sv) * 0.5 + normal * lift;
+                shooters.push(GpuShooter {
+                    corner: v4(corner, area),
+                    su: v4(su, 0.0),
+                    sv: v4(sv, 0.0),
+                    eye: v4(eye, 0.0),
+                    t1: v4(t1, 0.0),
+                    t2: v4(t2, 0.0),
+                    n: v4(normal, 0.0),
+                    tile: [a0, b0, a1, b1],
+                });
+            }
+        }
+        let count = shooters.len() as u32;
+        let uniform = BatchUniform {
+            patch_id: sel.patch_id,
+            shooters: count,
+            resolution: self.options.hemicube_resolution.max(1),
+            first_element: patch.first,
+            chart_w: patch.w,
+            element_count: self.element_count,
+            near: self.near,
+            far: self.far,
+            subdivision: self.options.subdivision,
+            max_subdivision: self.options.max_subdivision.max(1),
+            _pad: [0; 2],
+        };
+        self.queue
+            .write_buffer(&self.shooters, 0, bytemuck::cast_slice(&shooters));
+        self.queue
+            .write_buffer(&self.batch, 0, bytemuck::bytes_of(&uniform));
+
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.shooter_energy.0);
+            pass.set_bind_group(0, &self.shooter_energy.1, &[]);
+            pass.dispatch_workgroups(count, 1, 1);
+        }
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("hemicubes"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &self.item_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color {
+                            r: f64::from(NO_PATCH),
+                            g: 0.0,
+                            b: 0.0,
+                            a: 0.0,
+                        }),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.hemicube.0);
+            pass.set_bind_group(0, &self.hemicube.1, &[]);
+            let res = uniform.resolution;
+            for slot in 0..count {
+                for face in 0..FACES {
+                    let (x, y) = (face * res, slot * res);
+                    pass.set_viewport(x as f32, y as f32, res as f32, res as f32, 0.0, 1.0);
+                    pass.set_scissor_rect(x, y, res, res);
+                    let instance = slot * FACES + face;
+                    pass.draw(0..self.triangle_vertices, instance..instance + 1);
+                }
+            }
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.reconstruct.0);
+            pass.set_bind_group(0, &self.reconstruct.1, &[]);
+            pass.dispatch_workgroups(self.element_count.div_ceil(WORKGROUP).max(1), 1, 1);
+        }
+        self.encode_selection(&mut encoder);
+        self.queue.submit([encoder.finish()]);
+        self.selection = self.read_selection()?;
+        self.shots += u64::from(count);
+        self.batches += 1;
+        self.shot_power += f64::from(sel.power);
+        Ok(true)
+    }
+
+    /// Per-patch unshot power and the arg-max reduction, then a copy of the
+    /// 16-byte answer for the CPU (gems §39.2.3).
+    fn encode_selection(&self, encoder: &mut wgpu::CommandEncoder) {
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.patch_power.0);
+            pass.set_bind_group(0, &self.patch_power.1, &[]);
+            pass.dispatch_workgroups(self.patches.len().max(1) as u32, 1, 1);
+            pass.set_pipeline(&self.select.0);
+            pass.set_bind_group(0, &self.select.1, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        encoder.copy_buffer_to_buffer(
+            &self.selection_buffer,
+            0,
+            &self.selection_readback,
+            0,
+            std::mem::size_of::<Selection>() as u64,
+        );
+    }
+
+    fn read_selection(&self) -> Result<Selection, GpuError> {
+        let bytes = map_read(&self.device, &self.selection_readback)?;
+        Ok(bytemuck::pod_read_unaligned(&bytes))
+    }
+
+    /// Copies a vec4 buffer with one entry per element back to the CPU.
+    fn read_vec4(&self, buffer: &wgpu::Buffer) -> Result<Vec<[f32; 4]>, GpuError> {
+        let size = u64::from(self.element_count.max(1)) * 16;
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let bytes = map_read(&self.device, &staging)?;
+        let mut values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        values.truncate(self.element_count as usize);
+        Ok(values)
+    }
+}
+
+/// Waits for the GPU and copies a mappable buffer's contents out.
+fn map_read(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    buffer.map_async(wgpu::MapMode::Read, .., move |result| {
+        // The receiver outlives the poll below; a send error cannot happen.
+        let _ = tx.send(result);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    let bytes = buffer
+        .get_mapped_range(..)
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .to_vec();
+    buffer.unmap();
+    Ok(bytes)
+}

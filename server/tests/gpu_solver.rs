@@ -1,0 +1,210 @@
+//! The GPU progressive solver against physics with known answers and
+//! against the reference solver. These run on whatever adapter exists
+//! (lavapipe in CI); with no adapter at all they fail with the message
+//! that says what to install, they never skip.
+
+mod common;
+
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use glam::Vec3;
+use lightwire_server::atlas::Atlas;
+use lightwire_server::gpu::{Device, GpuError, ProgressiveOptions, ProgressiveSolver};
+use lightwire_server::metrics::nrmse;
+use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
+use lightwire_server::scene::Scene;
+
+/// One device shared by all tests of this binary.
+fn gpu() -> &'static Device {
+    static DEVICE: OnceLock<Device> = OnceLock::new();
+    DEVICE.get_or_init(|| {
+        let device = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
+        eprintln!("adapter: {}", device.describe());
+        device
+    })
+}
+
+fn solver(scene: &Scene, atlas: &Atlas) -> ProgressiveSolver {
+    ProgressiveSolver::new(
+        gpu(),
+        scene,
+        atlas,
+        &scene.initial_poses(),
+        ProgressiveOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Furnace: a closed box of uniform albedo ρ and self-emission E has
+/// radiosity E/(1-ρ) everywhere. Every element must be within 1%, corner
+/// and edge samples included: this checks that the disk form factors of
+/// all shooters seen from any element sum to one, and that edge samples
+/// see their own patch in the item buffers.
+#[test]
+fn furnace_every_texel_within_one_percent_of_e_over_one_minus_rho() {
+    let (scene, atlas) = common::load("furnace.json", 1.0);
+    let material = &scene.materials[0];
+    let expected = material.emission / (Vec3::ONE - material.albedo);
+    let mut solver = solver(&scene, &atlas);
+    let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.unshot_fraction <= 1e-4, "{report:?}");
+    let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let mut worst = 0.0f32;
+    for (i, v) in b.iter().enumerate() {
+        let error = ((*v - expected) / expected).abs().max_element();
+        worst = worst.max(error);
+        assert!(
+            error < 0.01,
+            "element {i} at texel {:?} (st {:?}): {v} vs {expected}",
+            atlas.elements[i].texel,
+            atlas.elements[i].st
+        );
+    }
+    eprintln!(
+        "furnace: max relative error {worst:.5} after {} shots",
+        report.shots
+    );
+}
+
+/// Two directly opposed, parallel unit squares one unit apart exchange a
+/// form factor of 0.19982. The emitter (E = 1, ρ = 0) shoots once; the
+/// receiver (ρ = 0.5) then holds B = ρ E F, so its area-weighted mean
+/// radiosity divided by ρ E is the form factor (scenes/plates.json).
+#[test]
+fn plates_implied_form_factor_within_two_percent_of_0_19982() {
+    let (scene, atlas) = common::load("plates.json", 1.0);
+    assert_eq!(scene.patches.len(), 2, "plates.json has two patches");
+    let mut solver = solver(&scene, &atlas);
+    solver.solve(1e-6).unwrap_or_else(|e| panic!("{e}"));
+    let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let receiver = atlas.elements_of(1);
+    let area: f64 = receiver
+        .clone()
+        .map(|i| f64::from(atlas.elements[i].area))
+        .sum();
+    let mean: f64 = receiver
+        .map(|i| f64::from(atlas.elements[i].area) * f64::from(b[i].x))
+        .sum::<f64>()
+        / area;
+    let rho = f64::from(scene.materials[1].albedo.x);
+    let f = mean / (rho * 1.0);
+    eprintln!("plates: implied F = {f:.5}");
+    assert!((f - 0.19982).abs() / 0.19982 < 0.02, "F = {f}");
+}
+
+/// On the large Cornell box (at a test density), the progressive solver
+/// agrees with the independent CPU reference solver: NRMSE over covered
+/// texels of the RGB difference, divided by the RMS of the reference, at
+/// most 2%.
+#[test]
+fn cornell_large_nrmse_against_reference_at_most_two_percent() {
+    let (scene, atlas) = common::load("cornell-large.json", 0.35);
+    let reference = ReferenceSolver::new(&scene, &atlas, &scene.initial_poses(), &Silent)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let expected = reference.solve(SolveOptions::default(), &Silent).radiosity;
+    let mut solver = solver(&scene, &atlas);
+    let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let error = nrmse(&b, &expected).unwrap_or_else(|| panic!("lengths must match"));
+    eprintln!(
+        "cornell-large x0.35: {} elements, {} shots, NRMSE {error:.5}",
+        atlas.elements.len(),
+        report.shots
+    );
+    assert!(error <= 0.02, "NRMSE {error}");
+}
+
+/// Energy conservation in an open scene: the unshot power only ever
+/// decreases, no shot delivers more power than it took from the unshot
+/// buffers, and what is absorbed plus what is still unshot never exceeds
+/// what was emitted (the rest escaped through the open front).
+#[test]
+fn energy_is_conserved_and_unshot_power_decreases_monotonically() {
+    let (scene, atlas) = common::load("cornell-low.json", 0.5);
+    let mut solver = solver(&scene, &atlas);
+    let mut last = solver.unshot_fraction();
+    assert!((last - 1.0).abs() < 1e-4, "all power starts unshot: {last}");
+    while last > 1e-3 {
+        // A zero budget runs exactly one batch.
+        let report = solver
+            .step(Duration::ZERO)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(report.batches, 1);
+        assert!(
+            report.unshot_fraction < last,
+            "unshot fraction went from {last} to {}",
+            report.unshot_fraction
+        );
+        last = report.unshot_fraction;
+    }
+    let balance = solver.energy_balance().unwrap_or_else(|e| panic!("{e}"));
+    eprintln!("cornell-low x0.5: {balance:?}");
+    assert!(
+        balance.received <= balance.shot * 1.001,
+        "received {} of {} shot",
+        balance.received,
+        balance.shot
+    );
+    assert!(
+        balance.absorbed + balance.unshot <= balance.emitted * 1.001,
+        "absorbed {} + unshot {} > emitted {}",
+        balance.absorbed,
+        balance.unshot,
+        balance.emitted
+    );
+    assert!(
+        balance.absorbed > 0.5 * balance.emitted,
+        "most light is absorbed in the box: {balance:?}"
+    );
+}
+
+/// `--adapter NAME` with a name no adapter has is an error that lists the
+/// adapters that do exist.
+#[test]
+fn unknown_adapter_name_lists_the_available_ones() {
+    gpu(); // Fails first, with the install hint, if there is no adapter.
+    match Device::new(Some("no-such-adapter-name-xyz")) {
+        Err(GpuError::NoMatchingAdapter { available, .. }) => {
+            assert!(!available.is_empty(), "lists adapters")
+        }
+        other => panic!("expected NoMatchingAdapter, got {other:?}"),
+    }
+}
+
+/// Indirect-only output (gems §39.4): total radiosity minus emission minus
+/// the first bounce of the emitted light. Between the plates there is no
+/// second bounce (the emitter reflects nothing), so the indirect light is
+/// zero everywhere; in the Cornell box it is non-negative everywhere, lights
+/// some of it, and is smaller than the total.
+#[test]
+fn indirect_only_output_removes_emission_and_the_first_bounce() {
+    let options = ProgressiveOptions {
+        indirect_only: true,
+        ..ProgressiveOptions::default()
+    };
+    let (scene, atlas) = common::load("plates.json", 1.0);
+    let mut plates = ProgressiveSolver::new(gpu(), &scene, &atlas, &scene.initial_poses(), options)
+        .unwrap_or_else(|e| panic!("{e}"));
+    plates.solve(1e-6).unwrap_or_else(|e| panic!("{e}"));
+    let indirect = plates.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let worst = indirect
+        .iter()
+        .map(|v| v.max_element())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-6, "plates have no indirect light, got {worst}");
+
+    let (scene, atlas) = common::load("cornell-low.json", 0.5);
+    let mut box_ = ProgressiveSolver::new(gpu(), &scene, &atlas, &scene.initial_poses(), options)
+        .unwrap_or_else(|e| panic!("{e}"));
+    box_.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
+    let indirect = box_.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let total = box_.total_radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let sum = |v: &[Vec3]| v.iter().map(|x| f64::from(x.element_sum())).sum::<f64>();
+    let (i, t) = (sum(&indirect), sum(&total));
+    assert!(i > 0.05 * t && i < t, "indirect {i} of total {t}");
+    eprintln!(
+        "cornell-low x0.5: indirect is {:.1}% of total",
+        100.0 * i / t
+    );
+}

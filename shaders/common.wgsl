@@ -1,0 +1,60 @@
+// Shared by hemicube.wgsl and progressive.wgsl: the shooter record and the
+// hemicube face projection. Rasterization (hemicube.wgsl) and the lookup in
+// the reconstruction shader (progressive.wgsl) must use the very same
+// projection, so it lives here once.
+
+// One shooter: a rectangle of elements of the shooting patch (thesis §4.3.3,
+// dynamic shooter subdivision). Mirrors `Shooter` in server/src/gpu/progressive.rs.
+struct Shooter {
+    // xyz: corner of the shooter's region (world), w: its area (m²).
+    corner: vec4<f32>,
+    // Edge vectors of the region (world); w unused.
+    su: vec4<f32>,
+    sv: vec4<f32>,
+    // xyz: hemicube eye (region centre lifted off the surface); w unused.
+    eye: vec4<f32>,
+    // Orthonormal frame of the hemicube: two tangents and the normal.
+    t1: vec4<f32>,
+    t2: vec4<f32>,
+    n: vec4<f32>,
+    // Element tile in chart texels: a0, b0, a1, b1 (half-open).
+    tile: vec4<u32>,
+};
+
+// Per-batch constants. Mirrors `BatchUniform` in progressive.rs.
+struct Batch {
+    patch_id: u32,
+    shooters: u32,
+    resolution: u32,
+    first_element: u32,
+    chart_w: u32,
+    element_count: u32,
+    near: f32,
+    far: f32,
+    // Form-factor subdivision: sub-disks per axis = ceil(subdivision * sqrt(A_s) / r).
+    subdivision: f32,
+    max_subdivision: u32,
+    _pad0: u32,
+    _pad1: u32,
+};
+
+// Right, up and forward axes of hemicube face `face` (0 = top, along the
+// normal; 1..4 = the four sides).
+fn face_axes(s: Shooter, face: u32) -> mat3x3<f32> {
+    let t1 = s.t1.xyz;
+    let t2 = s.t2.xyz;
+    let n = s.n.xyz;
+    switch face {
+        case 0u: { return mat3x3<f32>(t1, t2, n); }
+        case 1u: { return mat3x3<f32>(t2, n, t1); }
+        case 2u: { return mat3x3<f32>(-t2, n, -t1); }
+        case 3u: { return mat3x3<f32>(-t1, n, t2); }
+        default: { return mat3x3<f32>(t1, n, -t2); }
+    }
+}
+
+// Eye-space coordinates (right, up, forward) of world direction `d` in `face`.
+fn face_local(s: Shooter, face: u32, d: vec3<f32>) -> vec3<f32> {
+    let m = face_axes(s, face);
+    return vec3<f32>(dot(d, m[0]), dot(d, m[1]), dot(d, m[2]));
+}
