@@ -1,6 +1,7 @@
 # Lightwire: the two commands.
 #
-#   make run   installs what is missing, builds, bakes the default scene
+#   make run   installs what is missing, builds, serves the default scene
+#   make bake  the same, but bakes the default scene once to $(OUT)
 #   make test  installs what is missing, runs every test
 #
 # System packages are installed with apt (idempotently: only what is
@@ -10,6 +11,7 @@ SHELL := /bin/bash
 CARGO ?= cargo
 SCENE ?= scenes/cornell-large.json
 OUT ?= out/cornell-large
+LISTEN ?= 127.0.0.1:8080
 
 # Debian packages the build and the tests need:
 #   mesa-vulkan-drivers  lavapipe, the software Vulkan driver the GPU solver
@@ -19,7 +21,7 @@ OUT ?= out/cornell-large
 #   pkg-config           for -sys crates
 APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config
 
-.PHONY: run test deps check-toolchain build fmt-check clippy
+.PHONY: run bake test deps check-toolchain build
 
 deps: check-toolchain
 	@missing=""; \
@@ -40,8 +42,13 @@ check-toolchain:
 build: deps
 	$(CARGO) build --release --workspace
 
+# Development mode (no tokens): loud on purpose, bound to loopback.
 run: build
-	./target/release/lightwire bake --scene $(SCENE) --solver reference --out $(OUT)
+	@echo "starting lightwire serve on $(SCENE); open http://$(LISTEN)/ (Ctrl-C stops it)"
+	./target/release/lightwire serve --scene $(SCENE) --listen $(LISTEN) --dev
+
+bake: build
+	./target/release/lightwire bake --scene $(SCENE) --solver progressive --out $(OUT)
 	@echo
 	@echo "baked $(SCENE): open $(OUT)/lightmap.png (tone-mapped) or $(OUT)/lightmap.exr (linear HDR);"
 	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers."

@@ -37,11 +37,12 @@ fn not_found(what: String) -> Response {
     (StatusCode::NOT_FOUND, axum::Json(json!({ "error": what }))).into_response()
 }
 
-fn scene<'a>(state: &'a AppState, id: &str) -> Result<&'a Arc<SceneRuntime>, Response> {
-    state
-        .scenes
-        .get(id)
-        .ok_or_else(|| not_found(format!("no scene \"{id}\"; GET /api/scenes lists them")))
+fn scene<'a>(state: &'a AppState, id: &str) -> Result<&'a Arc<SceneRuntime>, Box<Response>> {
+    state.scenes.get(id).ok_or_else(|| {
+        Box::new(not_found(format!(
+            "no scene \"{id}\"; GET /api/scenes lists them"
+        )))
+    })
 }
 
 async fn readyz(State(state): State<Arc<AppState>>) -> Response {
@@ -98,7 +99,7 @@ async fn list_scenes(State(state): State<Arc<AppState>>) -> Response {
 async fn scene_info(State(state): State<Arc<AppState>>, Path(id): Path<String>) -> Response {
     match scene(&state, &id) {
         Ok(s) => axum::Json(&s.info).into_response(),
-        Err(r) => r,
+        Err(r) => *r,
     }
 }
 
@@ -122,7 +123,7 @@ async fn lightmap_file(
 ) -> Response {
     let s = match scene(&state, &id) {
         Ok(s) => s.clone(),
-        Err(r) => return r,
+        Err(r) => return *r,
     };
     let format = match file.as_str() {
         "lightmap.exr" => image::ImageFormat::OpenExr,
@@ -215,7 +216,7 @@ async fn websocket(
 ) -> Response {
     let s = match scene(&state, &id) {
         Ok(s) => s.clone(),
-        Err(r) => return r,
+        Err(r) => return *r,
     };
     if !origin_allowed(&state, &headers) {
         state.metrics.bad_frame("origin");
