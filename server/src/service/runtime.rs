@@ -24,8 +24,8 @@ use anyhow::{Context, Result};
 use glam::{Quat, Vec3};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::{
-    DEFAULT_TILE_SIZE, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, Pose as WirePose,
-    SceneInfo, Stats, SurfaceInfo,
+    DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat,
+    Pose as WirePose, SceneInfo, Stats, SurfaceInfo,
 };
 use tokio::sync::watch;
 
@@ -197,6 +197,19 @@ impl SceneRuntime {
         )?;
         let atlas =
             Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
+        // A keyframe must fit in one frame: bound it by its uncompressed
+        // size plus per-tile overhead (zstd never grows data much).
+        let texels = u64::from(atlas.width) * u64::from(atlas.height);
+        let tiles = texels.div_ceil(u64::from(DEFAULT_TILE_SIZE) * u64::from(DEFAULT_TILE_SIZE));
+        let worst = texels * PixelFormat::Rgb9e5.bytes_per_texel() as u64 + tiles * 64 + 4096;
+        if worst > MAX_FRAME_BYTES as u64 {
+            anyhow::bail!(
+                "{}: a {}x{} atlas could need {worst} bytes per keyframe, over the protocol's {MAX_FRAME_BYTES}-byte frame limit; lower the texel density",
+                path.display(),
+                atlas.width,
+                atlas.height
+            );
+        }
         let info = scene_info(&scene, &atlas);
         let solver: Box<dyn LiveSolver> = match config.solver {
             SolverChoice::Reference => {
