@@ -236,11 +236,20 @@ async fn websocket(
         .on_upgrade(move |socket| session::run(socket, state, s, token))
 }
 
+/// Escapes text for HTML.
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
 async fn dashboard(State(state): State<Arc<AppState>>) -> Html<String> {
     let scenes: String = state
         .scenes
         .keys()
         .map(|id| {
+            let id = escape(id);
             format!(
                 "<li>{id}: <a href=\"/api/scenes/{id}\">scene info</a>, <a href=\"/api/scenes/{id}/lightmap.png\">lightmap.png</a>, <a href=\"/api/scenes/{id}/lightmap.exr\">lightmap.exr</a>, WebSocket <code>/ws/scenes/{id}</code></li>"
             )
