@@ -65,35 +65,7 @@ enum Command {
         what: BenchCommand,
     },
     /// Serve scenes over HTTP and WebSocket: live lightmaps, REST, metrics.
-    Serve {
-        /// Scene files to serve (repeatable; each scene's name is its id).
-        #[arg(long = "scene", num_args = 1.., action = clap::ArgAction::Append)]
-        scenes: Vec<PathBuf>,
-        /// Address to listen on [default: 127.0.0.1:8080].
-        #[arg(long)]
-        listen: Option<std::net::SocketAddr>,
-        /// TOML config file (flags override it, it overrides defaults).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Serve without authentication: every client is an admin.
-        #[arg(long)]
-        dev: bool,
-        /// Ticks per second per scene [default: 60].
-        #[arg(long)]
-        tick_hz: Option<f64>,
-        /// Solver time per tick in milliseconds [default: 8].
-        #[arg(long)]
-        budget_ms: Option<f64>,
-        /// Multiply every texel density [default: 1].
-        #[arg(long)]
-        density_scale: Option<f32>,
-        /// Solver per scene [default: progressive].
-        #[arg(long, value_enum)]
-        solver: Option<lightwire_server::service::config::SolverChoice>,
-        /// GPU adapter whose name contains this (default: prefer a discrete GPU).
-        #[arg(long)]
-        adapter: Option<String>,
-    },
+    Serve(ServeFlags),
     /// Check scene files and print what they contain.
     Validate {
         /// Scene files.
@@ -189,27 +161,7 @@ fn main() -> ExitCode {
             adapter.as_deref(),
             hemicube_resolution,
         ),
-        Command::Serve {
-            scenes,
-            listen,
-            config,
-            dev,
-            tick_hz,
-            budget_ms,
-            density_scale,
-            solver,
-            adapter,
-        } => serve_command(ServeFlags {
-            scenes,
-            listen,
-            config,
-            dev,
-            tick_hz,
-            budget_ms,
-            density_scale,
-            solver,
-            adapter,
-        }),
+        Command::Serve(flags) => serve_command(flags),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -448,15 +400,35 @@ fn bench_solve_command(
     Ok(())
 }
 
+/// Flags of `lightwire serve`.
+#[derive(clap::Args)]
 struct ServeFlags {
+    /// Scene files to serve (repeatable; each scene's name is its id).
+    #[arg(long = "scene", num_args = 1.., action = clap::ArgAction::Append)]
     scenes: Vec<PathBuf>,
+    /// Address to listen on [default: 127.0.0.1:8080].
+    #[arg(long)]
     listen: Option<std::net::SocketAddr>,
+    /// TOML config file (flags override it, it overrides defaults).
+    #[arg(long)]
     config: Option<PathBuf>,
+    /// Serve without authentication: every client is an admin.
+    #[arg(long)]
     dev: bool,
+    /// Ticks per second per scene [default: 60].
+    #[arg(long)]
     tick_hz: Option<f64>,
+    /// Solver time per tick in milliseconds [default: 8].
+    #[arg(long)]
     budget_ms: Option<f64>,
+    /// Multiply every texel density [default: 1].
+    #[arg(long)]
     density_scale: Option<f32>,
+    /// Solver per scene [default: progressive].
+    #[arg(long, value_enum)]
     solver: Option<lightwire_server::service::config::SolverChoice>,
+    /// GPU adapter whose name contains this (default: prefer a discrete GPU).
+    #[arg(long)]
     adapter: Option<String>,
 }
 
