@@ -150,6 +150,19 @@ impl Client {
         Self::hello(ws, token).await
     }
 
+    /// A client on an open socket that has not said `Hello` yet.
+    fn unhandshaken(ws: Ws) -> Client {
+        Client {
+            ws,
+            map: None,
+            role: None,
+            versions: Vec::new(),
+            keyframes: 0,
+            errors: Vec::new(),
+            reflected: Default::default(),
+        }
+    }
+
     async fn hello(mut ws: Ws, token: &str) -> Client {
         let hello = ClientMessage::Hello {
             protocol_version: PROTOCOL_VERSION,
@@ -160,15 +173,7 @@ impl Client {
         ws.send(Message::Binary(encode_client(&hello).into()))
             .await
             .expect("send hello");
-        let mut client = Client {
-            ws,
-            map: None,
-            role: None,
-            versions: Vec::new(),
-            keyframes: 0,
-            errors: Vec::new(),
-            reflected: Default::default(),
-        };
+        let mut client = Client::unhandshaken(ws);
         client.read_one(Duration::from_secs(10)).await;
         assert!(client.role.is_some(), "Welcome is the first frame");
         client
@@ -577,15 +582,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
     let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
         .await
         .expect("connects");
-    let mut intruder = Client {
-        ws,
-        map: None,
-        role: None,
-        versions: Vec::new(),
-        keyframes: 0,
-        errors: Vec::new(),
-        reflected: Default::default(),
-    };
+    let mut intruder = Client::unhandshaken(ws);
     intruder
         .send(&ClientMessage::Hello {
             protocol_version: PROTOCOL_VERSION,
