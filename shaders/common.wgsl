@@ -13,7 +13,8 @@ struct Shooter {
     sv: vec4<f32>,
     // xyz: hemicube eye (region centre lifted off the surface); w unused.
     eye: vec4<f32>,
-    // Orthonormal frame of the hemicube: two tangents and the normal.
+    // Orthonormal frame of the hemicube: two tangents and the normal;
+    // n.w is the bitcast id of the shooting patch.
     t1: vec4<f32>,
     t2: vec4<f32>,
     n: vec4<f32>,
@@ -34,9 +35,30 @@ struct Batch {
     // Form-factor subdivision: sub-disks per axis = ceil(subdivision * sqrt(A_s) / r).
     subdivision: f32,
     max_subdivision: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // Item-buffer slots at or after this one were rendered with the old
+    // poses (the scene before a move); earlier slots with the current ones.
+    // Progressive batches set it past the last slot.
+    old_from_slot: u32,
+    // What a redistribution batch does (MODE_* in redistribute.wgsl); 0 in
+    // progressive batches.
+    mode: u32,
 };
+
+// A patch's elements: first element, element count, chart width, chart height.
+struct PatchRange {
+    first: u32,
+    count: u32,
+    w: u32,
+    h: u32,
+};
+
+// Bits of `object_flags`, one word per scene object.
+// MOVING: the object is in the moved set M of the running redistribution.
+const OBJECT_MOVING: u32 = 1u;
+// ABSENT: the object is removed from the simulation (thesis §4.5.2): it is
+// not rasterized, does not receive and does not shoot.
+const OBJECT_ABSENT: u32 = 2u;
+
 
 // Right, up and forward axes of hemicube face `face` (0 = top, along the
 // normal; 1..4 = the four sides).

@@ -1,12 +1,56 @@
-// Hemicube item buffers (thesis §4.3.2): every patch rasterized as its id
-// into one face viewport of one shooter. The instance index selects the
-// (shooter slot, face) pair: instance = slot * 5 + face. Depth testing keeps
-// the nearest surface; the colour target (R32Uint) keeps its patch id.
+// Hemicubes rasterized at shooters (thesis §4.3.2). The instance index
+// selects the (shooter slot, face) pair: instance = slot * 5 + face.
+//
+// Vertices are stored in object space and placed by their object's pose
+// here, on the GPU: `poses` holds two sets of object matrices, the current
+// poses and the old ones (the scene before a move); slots at or after
+// `batch.old_from_slot` use the old set (thesis §4.4.2 renders a hemicube at
+// the old and at the new position of each shooter). An object whose matrix
+// is zero is absent: its triangles collapse to a point and draw nothing.
+//
+// Two kinds of target:
+//   vs_main/fs_main  item buffers (R32Uint): the nearest patch id.
+//   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
+//                    and the distance from the eye (Rgba16Float), for the
+//                    gathering and cross projection of thesis Alg. 4.4-4.5.
 
-// Triangle corners, 3 per triangle: xyz world position, w = bitcast patch id.
-@group(0) @binding(0) var<storage, read> triangles: array<vec4<f32>>;
+// One vertex of a patch's two triangles: xyz in object space, w = bitcast
+// patch id; st.xy = the patch parameters (s, t) of the corner, st.z =
+// bitcast object id.
+struct Vertex {
+    pos: vec4<f32>,
+    st: vec4<f32>,
+};
+
+@group(0) @binding(0) var<storage, read> vertices: array<Vertex>;
 @group(0) @binding(1) var<storage, read> shooters: array<Shooter>;
 @group(0) @binding(2) var<uniform> batch: Batch;
+@group(0) @binding(3) var<storage, read> poses: array<mat4x4<f32>>;
+@group(0) @binding(4) var<storage, read> radiosity: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read> unshot: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> patches: array<PatchRange>;
+@group(0) @binding(7) var<storage, read> object_flags: array<u32>;
+
+// What fs_rad does with moving objects. Normally they occlude but carry no
+// shot radiosity (R_g(C, M) gathers from the static set only). With
+// Batch.mode == RAD_BACK they are left out altogether, so that a back
+// hemicube sees the static surfaces behind the moving object.
+const RAD_BACK: u32 = 0x10000u;
+
+fn world_position(v: Vertex, slot: u32) -> vec3<f32> {
+    let objects = arrayLength(&poses) / 2u;
+    let base = select(0u, objects, slot >= batch.old_from_slot);
+    let m = poses[base + bitcast<u32>(v.st.z)];
+    return (m * vec4<f32>(v.pos.xyz, 1.0)).xyz;
+}
+
+// Perspective with a 90° frustum: x, y in [-w, w]; depth in [0, 1] between
+// near and far.
+fn project(s: Shooter, face: u32, p: vec3<f32>) -> vec4<f32> {
+    let l = face_local(s, face, p - s.eye.xyz);
+    let z = (l.z - batch.near) * batch.far / (batch.far - batch.near);
+    return vec4<f32>(l.x, l.y, z, l.z);
+}
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
@@ -15,20 +59,57 @@ struct VertexOut {
 
 @vertex
 fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VertexOut {
-    let s = shooters[ii / 5u];
-    let face = ii % 5u;
-    let v = triangles[vi];
-    let l = face_local(s, face, v.xyz - s.eye.xyz);
-    // Perspective with a 90° frustum: x, y in [-w, w]; depth in [0, 1]
-    // between near and far.
-    let z = (l.z - batch.near) * batch.far / (batch.far - batch.near);
+    let slot = ii / 5u;
+    let v = vertices[vi];
     var out: VertexOut;
-    out.clip = vec4<f32>(l.x, l.y, z, l.z);
-    out.id = bitcast<u32>(v.w);
+    out.clip = project(shooters[slot], ii % 5u, world_position(v, slot));
+    out.id = bitcast<u32>(v.pos.w);
     return out;
 }
 
 @fragment
 fn fs_main(in: VertexOut) -> @location(0) u32 {
     return in.id;
+}
+
+struct RadOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) @interpolate(flat) patch_id: u32,
+    @location(1) @interpolate(flat) object: u32,
+    @location(2) st: vec2<f32>,
+    @location(3) offset: vec3<f32>,
+};
+
+@vertex
+fn vs_rad(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> RadOut {
+    let slot = ii / 5u;
+    let s = shooters[slot];
+    let v = vertices[vi];
+    let p = world_position(v, slot);
+    var out: RadOut;
+    out.clip = project(s, ii % 5u, p);
+    out.patch_id = bitcast<u32>(v.pos.w);
+    out.object = bitcast<u32>(v.st.z);
+    out.st = v.st.xy;
+    out.offset = p - s.eye.xyz;
+    return out;
+}
+
+@fragment
+fn fs_rad(in: RadOut) -> @location(0) vec4<f32> {
+    let distance = length(in.offset);
+    if ((object_flags[in.object] & OBJECT_MOVING) != 0u) {
+        if (batch.mode == RAD_BACK) {
+            discard;
+        }
+        return vec4<f32>(0.0, 0.0, 0.0, distance);
+    }
+    // The element nearest to the fragment on its patch's chart (texel
+    // centres lie on the patch edges, thesis §4.1).
+    let p = patches[in.patch_id];
+    let st = clamp(in.st, vec2<f32>(0.0), vec2<f32>(1.0));
+    let a = u32(round(st.x * f32(p.w - 1u)));
+    let b = u32(round(st.y * f32(p.h - 1u)));
+    let e = p.first + b * p.w + a;
+    return vec4<f32>(radiosity[e].rgb - unshot[e].rgb, distance);
 }

@@ -18,19 +18,12 @@ struct Element {
     // xyz: unit normal, w: bitcast patch id.
     normal: vec4<f32>,
     // xyz: point used for the visibility lookup (edge samples nudged into
-    // their own patch), w unused.
+    // their own patch), w: bitcast object id.
     lookup: vec4<f32>,
     // rgb: albedo, w unused.
     albedo: vec4<f32>,
 };
 
-// first element, element count, chart width, chart height.
-struct PatchRange {
-    first: u32,
-    count: u32,
-    w: u32,
-    h: u32,
-};
 
 // patch id, its unshot power, total unshot power, unused.
 struct Selection {
@@ -51,6 +44,28 @@ struct Selection {
 @group(0) @binding(8) var<storage, read_write> energy: array<vec4<f32>>;
 @group(0) @binding(9) var<uniform> batch: Batch;
 @group(0) @binding(10) var item: texture_2d<u32>;
+@group(0) @binding(11) var<storage, read> object_flags: array<u32>;
+// Object matrices: the current set, then the old set (see hemicube.wgsl).
+@group(0) @binding(12) var<storage, read> poses: array<mat4x4<f32>>;
+@group(0) @binding(13) var<storage, read> local_elements: array<LocalElement>;
+@group(0) @binding(14) var<storage, read_write> placed: array<Element>;
+
+// An element in its object's space, as uploaded once; `place_elements`
+// puts it in the world at the current poses.
+struct LocalElement {
+    // xyz: sample point (object space), w: area at scale 1.
+    position: vec4<f32>,
+    // xyz: unit normal (object space), w: bitcast patch id.
+    normal: vec4<f32>,
+    // xyz: visibility lookup point (object space), w: bitcast object id.
+    lookup: vec4<f32>,
+    // rgb: albedo.
+    albedo: vec4<f32>,
+    // xyz: unit direction from the sample towards the patch centre (or
+    // zero), w: the world-space distance samples are moved off edges and
+    // off their surface.
+    nudge: vec4<f32>,
+};
 
 const WG: u32 = 64u;
 const PI: f32 = 3.14159265358979;
@@ -60,6 +75,35 @@ var<workgroup> partial: array<vec3<f32>, 64>;
 var<workgroup> partial_power: array<f32, 256>;
 var<workgroup> partial_id: array<u32, 256>;
 var<workgroup> partial_total: array<f32, 256>;
+
+// Elements of every object placed at its current pose: dynamic objects
+// are transformed here, on the GPU, after each move.
+@compute @workgroup_size(64)
+fn place_elements(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let e = gid.x;
+    if (e >= arrayLength(&local_elements)) {
+        return;
+    }
+    let l = local_elements[e];
+    let m = poses[bitcast<u32>(l.lookup.w)];
+    let scale2 = dot(m[0].xyz, m[0].xyz);
+    let n = normalize((m * vec4<f32>(l.normal.xyz, 0.0)).xyz);
+    let inward = (m * vec4<f32>(l.nudge.xyz, 0.0)).xyz;
+    let len = length(inward);
+    let dir = select(vec3<f32>(0.0), inward / len, len > 0.0);
+    let sample = (m * vec4<f32>(l.position.xyz, 1.0)).xyz;
+    var out: Element;
+    out.position = vec4<f32>(sample + (dir + n) * l.nudge.w, l.position.w * scale2);
+    out.normal = vec4<f32>(n, l.normal.w);
+    out.lookup = vec4<f32>((m * vec4<f32>(l.lookup.xyz, 1.0)).xyz, l.lookup.w);
+    out.albedo = l.albedo;
+    placed[e] = out;
+}
+
+// Whether element `el` belongs to an object removed from the simulation.
+fn absent(el: Element) -> bool {
+    return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_ABSENT) != 0u;
+}
 
 // One workgroup per shooter: B_s^u = Σ A_e B_e^u / A_s over the shooter's
 // tile of elements, stored in the intermediate buffer T (`energy`), and the
@@ -231,7 +275,7 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let el = elements[e];
     let id = bitcast<u32>(el.normal.w);
-    if (id == batch.patch_id) {
+    if (id == batch.patch_id || absent(el)) {
         return; // A planar patch does not see itself.
     }
     let x = el.position.xyz;
@@ -257,15 +301,20 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
-// One workgroup per patch: Σ A_e (B^u_r + B^u_g + B^u_b), the unshot power.
+// One workgroup per patch: Σ A_e (|B^u_r| + |B^u_g| + |B^u_b|), the unshot
+// power. Redistribution leaves negative unshot radiosity (thesis §2.2.5),
+// which must be shot like positive, so magnitudes are summed.
 @compute @workgroup_size(64)
 fn patch_power_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let p = patches[wid.x];
     var acc = 0.0;
     for (var k = lid; k < p.count; k += WG) {
         let idx = p.first + k;
-        let u = unshot[idx].rgb;
-        acc += (u.r + u.g + u.b) * elements[idx].position.w;
+        let el = elements[idx];
+        if (!absent(el)) {
+            let u = abs(unshot[idx].rgb);
+            acc += (u.r + u.g + u.b) * el.position.w;
+        }
     }
     partial[lid] = vec3<f32>(acc, 0.0, 0.0);
     workgroupBarrier();

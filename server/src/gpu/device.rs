@@ -34,6 +34,7 @@ pub enum GpuError {
 ///
 /// Solvers clone the (reference-counted) device and queue from here, so one
 /// `Device` can serve several solvers.
+#[derive(Clone)]
 pub struct Device {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,

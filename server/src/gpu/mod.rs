@@ -33,7 +33,11 @@
 //! compiled into the binary with `include_str!`.
 
 mod device;
+mod dynamic;
 mod progressive;
 
 pub use device::{Device, GpuError};
-pub use progressive::{EnergyBalance, ProgressiveOptions, ProgressiveSolver, StepReport};
+pub use dynamic::{DynamicOptions, DynamicSolver, DynamicStep};
+pub use progressive::{
+    EnergyBalance, Move, ProgressiveOptions, ProgressiveSolver, Redistribution, StepReport,
+};

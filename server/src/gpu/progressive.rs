@@ -20,6 +20,10 @@ use crate::scene::{PatchShape, Pose, Scene};
 const COMMON_WGSL: &str = include_str!("../../../shaders/common.wgsl");
 const HEMICUBE_WGSL: &str = include_str!("../../../shaders/hemicube.wgsl");
 const PROGRESSIVE_WGSL: &str = include_str!("../../../shaders/progressive.wgsl");
+const REDISTRIBUTE_WGSL: &str = include_str!("../../../shaders/redistribute.wgsl");
+
+mod redistribute;
+pub use redistribute::{Move, Redistribution};
 
 /// Hemicube faces per shooter: top and four sides.
 const FACES: u32 = 5;
@@ -56,6 +60,13 @@ pub struct ProgressiveOptions {
     /// `D` is what that delivered. (Emitters that light each other mix a
     /// little of their received light into `D`.)
     pub indirect_only: bool,
+    /// Side length of the cross projection's sampling grid on each moving
+    /// shooter (thesis Alg. 4.5 gridSize).
+    pub cross_grid: u32,
+    /// Top-face resolution of the back hemicubes of shot radiosity used by
+    /// the cross projection (thesis §4.5.2 renders them as low as 16, with
+    /// multisampling as a blur).
+    pub back_resolution: u32,
 }
 
 impl Default for ProgressiveOptions {
@@ -66,6 +77,8 @@ impl Default for ProgressiveOptions {
             subdivision: 4.0,
             max_subdivision: 8,
             indirect_only: false,
+            cross_grid: 4,
+            back_resolution: 16,
         }
     }
 }
@@ -96,14 +109,28 @@ pub struct EnergyBalance {
     pub unshot: f64,
 }
 
-/// One element as the shaders see it (`Element` in progressive.wgsl).
+/// One element in its object's space (`LocalElement` in progressive.wgsl);
+/// `place_elements` derives the world-space `Element` from it and the pose.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GpuElement {
+struct LocalElement {
     position: [f32; 4],
     normal: [f32; 4],
     lookup: [f32; 4],
     albedo: [f32; 4],
+    nudge: [f32; 4],
+}
+
+/// Size of a world-space element (`Element` in progressive.wgsl: position
+/// and area, normal and patch, lookup point and object, albedo).
+const ELEMENT_BYTES: u64 = 64;
+
+/// One patch corner for the hemicube rasterizer (`Vertex` in hemicube.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GpuVertex {
+    pos: [f32; 4],
+    st: [f32; 4],
 }
 
 /// One shooter (`Shooter` in common.wgsl).
@@ -134,7 +161,8 @@ struct BatchUniform {
     far: f32,
     subdivision: f32,
     max_subdivision: u32,
-    _pad: [u32; 2],
+    old_from_slot: u32,
+    mode: u32,
 }
 
 /// The reduction's answer (`Selection` in progressive.wgsl).
@@ -159,17 +187,137 @@ struct WorldPatch {
     h: u32,
 }
 
+impl WorldPatch {
+    fn corners(&self) -> [Vec3; 4] {
+        [
+            self.origin,
+            self.origin + self.u,
+            self.origin + self.u + self.v,
+            self.origin + self.v,
+        ]
+    }
+}
+
+/// Every patch placed at its object's pose; `layout` gives each patch's
+/// first element and chart size.
+fn place_patches(
+    shapes: &[PatchShape],
+    objects: &[u32],
+    layout: &[[u32; 3]],
+    poses: &[Pose],
+) -> Vec<WorldPatch> {
+    shapes
+        .iter()
+        .enumerate()
+        .map(|(p, shape)| {
+            let PatchShape::Quad { origin, u, v } = shape.transformed(&poses[objects[p] as usize]);
+            let [first, w, h] = layout[p];
+            WorldPatch {
+                origin,
+                u,
+                v,
+                normal: u.cross(v).normalize(),
+                first,
+                w,
+                h,
+            }
+        })
+        .collect()
+}
+
+/// World areas of elements: scale-1 areas times their object's scale².
+fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec<f32> {
+    local
+        .iter()
+        .zip(objects)
+        .map(|(a, o)| {
+            let s = poses[*o as usize].scale;
+            a * s * s
+        })
+        .collect()
+}
+
+/// A hemicube render pipeline of hemicube.wgsl: item buffers
+/// (`vs_main`/`fs_main`, R32Uint) or shot radiosity (`vs_rad`/`fs_rad`,
+/// Rgba16Float, optionally multisampled as a blur, thesis §4.5.2).
+fn hemicube_pipeline(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    (vs, fs): (&str, &str),
+    format: wgpu::TextureFormat,
+    samples: u32,
+) -> wgpu::RenderPipeline {
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(fs),
+        layout: None,
+        vertex: wgpu::VertexState {
+            module,
+            entry_point: Some(vs),
+            compilation_options: Default::default(),
+            buffers: &[],
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            // Surfaces are opaque from both sides.
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: wgpu::TextureFormat::Depth32Float,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: wgpu::MultisampleState {
+            count: samples,
+            ..Default::default()
+        },
+        fragment: Some(wgpu::FragmentState {
+            module,
+            entry_point: Some(fs),
+            compilation_options: Default::default(),
+            targets: &[Some(wgpu::ColorTargetState {
+                format,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
 /// Progressive refinement radiosity on the GPU: elements, B, B^u and the
 /// per-patch unshot power live in GPU buffers for the solver's lifetime;
 /// the CPU only places shooters and reads one 16-byte selection per batch.
+///
+/// Objects can move ([`ProgressiveSolver::redistribute`]): elements are kept
+/// in object space and placed at the current poses by a compute pass, and
+/// the hemicube rasterizer places triangles with one of two pose sets (the
+/// current and the old one), so that a redistribution sees the scene before
+/// and after a move.
 pub struct ProgressiveSolver {
     device: wgpu::Device,
     queue: wgpu::Queue,
     options: ProgressiveOptions,
     /// Shooters per batch the item-buffer target can hold.
     batch_capacity: u32,
+    /// Patches in object space (the scene's shapes) and their objects.
+    shapes: Vec<PatchShape>,
+    patch_objects: Vec<u32>,
+    /// First element and chart size of every patch.
+    layout: Vec<[u32; 3]>,
+    /// Patches placed at the current poses.
     patches: Vec<WorldPatch>,
-    /// World areas of the elements, for shooter areas and energy sums.
+    /// The current pose of every object.
+    poses: Vec<Pose>,
+    /// Objects removed from the simulation (thesis §4.5.2).
+    absent: Vec<bool>,
+    /// Element areas at scale 1 and their objects, for shooter areas.
+    local_areas: Vec<f32>,
+    element_objects: Vec<u32>,
+    /// World areas of the elements at the current poses.
     areas: Vec<f32>,
     albedo: Vec<Vec3>,
     element_count: u32,
@@ -192,13 +340,32 @@ pub struct ProgressiveSolver {
     selection_buffer: wgpu::Buffer,
     item_view: wgpu::TextureView,
     depth_view: wgpu::TextureView,
+    /// Object matrices: current set, then old set (zero = absent).
+    pose_buffer: wgpu::Buffer,
+    /// `OBJECT_MOVING` / `OBJECT_ABSENT` per object (common.wgsl).
+    flags_buffer: wgpu::Buffer,
 
     shooter_energy: (wgpu::ComputePipeline, wgpu::BindGroup),
     reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
     patch_power: (wgpu::ComputePipeline, wgpu::BindGroup),
     select: (wgpu::ComputePipeline, wgpu::BindGroup),
+    place: (wgpu::ComputePipeline, wgpu::BindGroup),
     hemicube: (wgpu::RenderPipeline, wgpu::BindGroup),
     triangle_vertices: u32,
+    /// Redistribution passes and targets, built on first use.
+    dynamic: Option<redistribute::DynamicPasses>,
+    /// What `dynamic` is built from.
+    buffers: SharedBuffers,
+}
+
+/// Buffers the redistribution passes bind besides those above.
+struct SharedBuffers {
+    elements: wgpu::Buffer,
+    unshot: wgpu::Buffer,
+    emission: wgpu::Buffer,
+    energy: wgpu::Buffer,
+    patches: wgpu::Buffer,
+    vertices: wgpu::Buffer,
 }
 
 /// A compute pipeline with an automatic layout and its bind group.
@@ -208,14 +375,39 @@ fn compute(
     entry: &str,
     resources: &[(u32, wgpu::BindingResource<'_>)],
 ) -> (wgpu::ComputePipeline, wgpu::BindGroup) {
+    compute_with(device, module, entry, &[], resources)
+}
+
+/// [`compute`] with pipeline-overridable constants.
+fn compute_with(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    entry: &str,
+    constants: &[(&str, f64)],
+    resources: &[(u32, wgpu::BindingResource<'_>)],
+) -> (wgpu::ComputePipeline, wgpu::BindGroup) {
     let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some(entry),
         layout: None,
         module,
         entry_point: Some(entry),
-        compilation_options: Default::default(),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants,
+            ..Default::default()
+        },
         cache: None,
     });
+    let bind_group = bind(device, entry, &pipeline.get_bind_group_layout(0), resources);
+    (pipeline, bind_group)
+}
+
+/// A bind group from (binding, resource) pairs.
+fn bind(
+    device: &wgpu::Device,
+    label: &str,
+    layout: &wgpu::BindGroupLayout,
+    resources: &[(u32, wgpu::BindingResource<'_>)],
+) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
         .iter()
         .map(|(binding, resource)| wgpu::BindGroupEntry {
@@ -223,16 +415,30 @@ fn compute(
             resource: resource.clone(),
         })
         .collect();
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some(entry),
-        layout: &pipeline.get_bind_group_layout(0),
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout,
         entries: &entries,
-    });
-    (pipeline, bind_group)
+    })
 }
 
 fn v4(v: Vec3, w: f32) -> [f32; 4] {
     [v.x, v.y, v.z, w]
+}
+
+/// The object-to-world matrix of a pose.
+fn pose_matrix(pose: &Pose) -> [[f32; 4]; 4] {
+    glam::Mat4::from_scale_rotation_translation(
+        Vec3::splat(pose.scale),
+        pose.rotation,
+        pose.translation,
+    )
+    .to_cols_array_2d()
+}
+
+/// The WGSL sources of the compute passes, in one module.
+fn compute_source() -> String {
+    format!("{COMMON_WGSL}\n{PROGRESSIVE_WGSL}\n{REDISTRIBUTE_WGSL}")
 }
 
 impl ProgressiveSolver {
@@ -243,6 +449,21 @@ impl ProgressiveSolver {
         scene: &Scene,
         atlas: &Atlas,
         poses: &[Pose],
+        options: ProgressiveOptions,
+    ) -> Result<Self, GpuError> {
+        Self::with_absent(gpu, scene, atlas, poses, &[], options)
+    }
+
+    /// Like [`ProgressiveSolver::new`], with the objects flagged in `absent`
+    /// removed from the simulation (for cross redistribution, which solves
+    /// the static scene first and inserts the moving objects afterwards,
+    /// thesis §4.5.2).
+    pub fn with_absent(
+        gpu: &Device,
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        absent: &[bool],
         options: ProgressiveOptions,
     ) -> Result<Self, GpuError> {
         let device = gpu.device.clone();
@@ -256,12 +477,16 @@ impl ProgressiveSolver {
                 limits.max_texture_dimension_2d
             )));
         }
-        let batch_capacity = options
+        // Redistribution batches render two hemicubes per shooter, so the
+        // capacity is even.
+        let batch_capacity = (options
             .max_shooters
-            .max(1)
-            .min(limits.max_texture_dimension_2d / res);
+            .max(2)
+            .min(limits.max_texture_dimension_2d / res)
+            / 2)
+            * 2;
         let n = atlas.elements.len();
-        let element_bytes = (n * std::mem::size_of::<GpuElement>()) as u64;
+        let element_bytes = n as u64 * std::mem::size_of::<LocalElement>() as u64;
         if element_bytes > limits.max_storage_buffer_binding_size
             || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
         {
@@ -269,62 +494,65 @@ impl ProgressiveSolver {
                 "{n} elements do not fit the adapter's storage buffer or dispatch limits"
             )));
         }
+        let object_count = poses.len().max(1);
+        let absent: Vec<bool> = (0..poses.len())
+            .map(|o| absent.get(o).copied().unwrap_or(false))
+            .collect();
 
-        // World-space patches and elements.
-        let patches: Vec<WorldPatch> = scene
-            .patches
+        let shapes: Vec<PatchShape> = scene.patches.iter().map(|p| p.shape).collect();
+        let patch_objects: Vec<u32> = scene.patches.iter().map(|p| p.object).collect();
+        let layout: Vec<[u32; 3]> = atlas
+            .charts
             .iter()
             .enumerate()
-            .map(|(p, patch)| {
-                let pose = &poses[patch.object as usize];
-                let PatchShape::Quad { origin, u, v } = patch.shape.transformed(pose);
-                let chart = atlas.charts[p];
-                WorldPatch {
-                    origin,
-                    u,
-                    v,
-                    normal: u.cross(v).normalize(),
-                    first: atlas.patch_elements[p],
-                    w: chart.w,
-                    h: chart.h,
-                }
-            })
+            .map(|(p, c)| [atlas.patch_elements[p], c.w, c.h])
             .collect();
+        let patches = place_patches(&shapes, &patch_objects, &layout, poses);
+
+        // Scene extent at the given poses, for depth ranges and offsets.
         let mut lo = Vec3::splat(f32::INFINITY);
         let mut hi = Vec3::splat(f32::NEG_INFINITY);
-        let mut triangles: Vec<[f32; 4]> = Vec::with_capacity(patches.len() * 6);
-        for (p, wp) in patches.iter().enumerate() {
-            let id = f32::from_bits(p as u32);
-            let c = [
-                wp.origin,
-                wp.origin + wp.u,
-                wp.origin + wp.u + wp.v,
-                wp.origin + wp.v,
-            ];
-            for corner in c {
+        for wp in &patches {
+            for corner in wp.corners() {
                 lo = lo.min(corner);
                 hi = hi.max(corner);
-            }
-            for i in [0, 1, 2, 0, 2, 3] {
-                triangles.push(v4(c[i], id));
             }
         }
         let extent = (hi - lo).length().max(1e-6);
 
-        let mut elements = Vec::with_capacity(n);
-        let mut areas = Vec::with_capacity(n);
+        // Two triangles per patch, in object space.
+        let mut vertices: Vec<GpuVertex> = Vec::with_capacity(shapes.len() * 6);
+        for (p, shape) in shapes.iter().enumerate() {
+            let PatchShape::Quad { origin, u, v } = *shape;
+            let corners = [
+                (origin, [0.0, 0.0]),
+                (origin + u, [1.0, 0.0]),
+                (origin + u + v, [1.0, 1.0]),
+                (origin + v, [0.0, 1.0]),
+            ];
+            let object = f32::from_bits(patch_objects[p]);
+            for i in [0, 1, 2, 0, 2, 3] {
+                let (c, st) = corners[i];
+                vertices.push(GpuVertex {
+                    pos: v4(c, f32::from_bits(p as u32)),
+                    st: [st[0], st[1], object, 0.0],
+                });
+            }
+        }
+
+        let mut locals = Vec::with_capacity(n);
+        let mut local_areas = Vec::with_capacity(n);
+        let mut element_objects = Vec::with_capacity(n);
         let mut albedo = Vec::with_capacity(n);
         let mut emission = Vec::with_capacity(n);
-        let mut emitted = 0.0f64;
         for e in &atlas.elements {
-            let wp = &patches[e.patch as usize];
-            let scale = poses[e.object as usize].scale;
-            let area = e.area * scale * scale;
+            let p = e.patch as usize;
+            let PatchShape::Quad { origin, u, v } = shapes[p];
+            let chart = atlas.charts[p];
+            let normal = u.cross(v).normalize();
             let [s, t] = e.st;
-            let sample = wp.origin + wp.u * s + wp.v * t;
-            let centre = wp.origin + (wp.u + wp.v) * 0.5;
-            let position = sample
-                + ((centre - sample).normalize_or_zero() + wp.normal) * (extent * SURFACE_OFFSET);
+            let sample = origin + u * s + v * t;
+            let centre = origin + (u + v) * 0.5;
             // Edge samples look up visibility a quarter cell inside their
             // own patch, so the item buffer shows their patch, not the
             // neighbour sharing the edge.
@@ -332,18 +560,31 @@ impl ProgressiveSolver {
                 let q = 0.25 / (cells.max(2) - 1) as f32;
                 x.clamp(q, 1.0 - q)
             };
-            let lookup = wp.origin + wp.u * inset(s, wp.w) + wp.v * inset(t, wp.h);
-            elements.push(GpuElement {
-                position: v4(position, area),
-                normal: v4(wp.normal, f32::from_bits(e.patch)),
-                lookup: v4(lookup, 0.0),
+            let lookup = origin + u * inset(s, chart.w) + v * inset(t, chart.h);
+            locals.push(LocalElement {
+                position: v4(sample, e.area),
+                normal: v4(normal, f32::from_bits(e.patch)),
+                lookup: v4(lookup, f32::from_bits(e.object)),
                 albedo: v4(e.albedo, 0.0),
+                // Receiving points are moved a hair towards the patch centre
+                // and off the surface (like the reference solver's offset).
+                nudge: v4(
+                    (centre - sample).normalize_or_zero(),
+                    extent * SURFACE_OFFSET,
+                ),
             });
-            areas.push(area);
+            local_areas.push(e.area);
+            element_objects.push(e.object);
             albedo.push(e.albedo);
             emission.push(v4(e.emission, 0.0));
-            emitted += f64::from(area) * f64::from(e.emission.element_sum());
         }
+        let areas = world_areas(&local_areas, &element_objects, poses);
+        let emitted: f64 = atlas
+            .elements
+            .iter()
+            .zip(&areas)
+            .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
+            .sum();
         let patch_ranges: Vec<[u32; 4]> = patches
             .iter()
             .enumerate()
@@ -361,16 +602,41 @@ impl ProgressiveSolver {
         // Buffers may not be empty; pad with a zero element.
         let non_empty = |v: Vec<[f32; 4]>| if v.is_empty() { vec![[0.0; 4]] } else { v };
         let emission = non_empty(emission);
-        if elements.is_empty() {
-            elements.push(GpuElement::zeroed());
+        if locals.is_empty() {
+            locals.push(LocalElement::zeroed());
         }
-        let element_buffer = init("elements", bytemuck::cast_slice(&elements), storage);
+        let local_buffer = init("local elements", bytemuck::cast_slice(&locals), storage);
+        let element_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("elements"),
+            size: locals.len() as u64 * ELEMENT_BYTES,
+            usage: storage,
+            mapped_at_creation: false,
+        });
+        // Absent objects start dark: they neither hold nor shoot light.
+        let start: Vec<[f32; 4]> = emission
+            .iter()
+            .zip(
+                atlas
+                    .elements
+                    .iter()
+                    .map(|e| e.object as usize)
+                    .chain(std::iter::once(0)),
+            )
+            .map(|(e, o)| {
+                if absent.get(o).copied().unwrap_or(false) {
+                    [0.0; 4]
+                } else {
+                    *e
+                }
+            })
+            .collect();
         let radiosity = init(
             "radiosity",
-            bytemuck::cast_slice(&emission),
+            bytemuck::cast_slice(&start),
             storage | wgpu::BufferUsages::COPY_SRC,
         );
-        let unshot = init("unshot", bytemuck::cast_slice(&emission), storage);
+        let unshot = init("unshot", bytemuck::cast_slice(&start), storage);
+        let emission_buffer = init("emission", bytemuck::cast_slice(&emission), storage);
         let irradiance = init(
             "irradiance",
             bytemuck::cast_slice(&vec![[0.0f32; 4]; emission.len()]),
@@ -401,9 +667,10 @@ impl ProgressiveSolver {
             usage: storage | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        // The intermediate texture T: up to two values per shooter.
         let energy = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shooter energy"),
-            size: u64::from(batch_capacity) * 16,
+            size: u64::from(batch_capacity) * 2 * 16,
             usage: storage,
             mapped_at_creation: false,
         });
@@ -413,11 +680,25 @@ impl ProgressiveSolver {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let triangle_vertices = triangles.len() as u32;
-        let triangles = non_empty(triangles);
-        let triangle_buffer = init(
-            "hemicube triangles",
-            bytemuck::cast_slice(&triangles),
+        let pose_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("poses"),
+            size: (object_count * 2 * 64) as u64,
+            usage: storage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let flags_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("object flags"),
+            size: (object_count * 4) as u64,
+            usage: storage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let triangle_vertices = vertices.len() as u32;
+        if vertices.is_empty() {
+            vertices.push(GpuVertex::zeroed());
+        }
+        let vertex_buffer = init(
+            "hemicube vertices",
+            bytemuck::cast_slice(&vertices),
             storage,
         );
 
@@ -451,7 +732,7 @@ impl ProgressiveSolver {
 
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("progressive.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{PROGRESSIVE_WGSL}").into()),
+            source: wgpu::ShaderSource::Wgsl(compute_source().into()),
         });
         let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("hemicube.wgsl"),
@@ -485,6 +766,7 @@ impl ProgressiveSolver {
                 (8, b(&energy)),
                 (9, b(&batch)),
                 (10, wgpu::BindingResource::TextureView(&item_view)),
+                (11, b(&flags_buffer)),
             ],
         );
         let patch_power_pass = compute(
@@ -496,6 +778,7 @@ impl ProgressiveSolver {
                 (2, b(&unshot)),
                 (4, b(&patch_buffer)),
                 (5, b(&patch_power)),
+                (11, b(&flags_buffer)),
             ],
         );
         let select = compute(
@@ -504,67 +787,48 @@ impl ProgressiveSolver {
             "select_shooter",
             &[(5, b(&patch_power)), (6, b(&selection_buffer))],
         );
-        let hemicube_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("hemicube"),
-            layout: None,
-            vertex: wgpu::VertexState {
-                module: &hemicube_module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState {
-                topology: wgpu::PrimitiveTopology::TriangleList,
-                // Surfaces are opaque from both sides.
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: wgpu::TextureFormat::Depth32Float,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &hemicube_module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: wgpu::TextureFormat::R32Uint,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        let hemicube_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("hemicube"),
-            layout: &hemicube_pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: b(&triangle_buffer),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: b(&shooters),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: b(&batch),
-                },
+        let place = compute(
+            &device,
+            &module,
+            "place_elements",
+            &[
+                (12, b(&pose_buffer)),
+                (13, b(&local_buffer)),
+                (14, b(&element_buffer)),
             ],
-        });
+        );
+        let hemicube_pipeline = hemicube_pipeline(
+            &device,
+            &hemicube_module,
+            ("vs_main", "fs_main"),
+            wgpu::TextureFormat::R32Uint,
+            1,
+        );
+        let hemicube_group = bind(
+            &device,
+            "hemicube",
+            &hemicube_pipeline.get_bind_group_layout(0),
+            &[
+                (0, b(&vertex_buffer)),
+                (1, b(&shooters)),
+                (2, b(&batch)),
+                (3, b(&pose_buffer)),
+            ],
+        );
 
         let mut solver = Self {
             device,
             queue,
             options,
             batch_capacity,
+            shapes,
+            patch_objects,
+            layout,
             patches,
+            poses: poses.to_vec(),
+            absent,
+            local_areas,
+            element_objects,
             areas,
             albedo,
             element_count: n as u32,
@@ -584,14 +848,30 @@ impl ProgressiveSolver {
             selection_buffer,
             item_view,
             depth_view,
+            pose_buffer,
+            flags_buffer,
             shooter_energy,
             reconstruct,
             patch_power: patch_power_pass,
             select,
+            place,
             hemicube: (hemicube_pipeline, hemicube_group),
             triangle_vertices,
+            dynamic: None,
+            buffers: SharedBuffers {
+                elements: element_buffer,
+                unshot,
+                emission: emission_buffer,
+                energy,
+                patches: patch_buffer,
+                vertices: vertex_buffer,
+            },
         };
+        let current = solver.poses.clone();
+        solver.write_poses(&current, &current, &[]);
+        solver.write_flags(&[]);
         let mut encoder = solver.device.create_command_encoder(&Default::default());
+        solver.encode_place(&mut encoder);
         solver.encode_selection(&mut encoder);
         solver.queue.submit([encoder.finish()]);
         solver.selection = solver.read_selection()?;
@@ -599,6 +879,50 @@ impl ProgressiveSolver {
             solver.shoot_direct(scene, poses)?;
         }
         Ok(solver)
+    }
+
+    /// Writes both pose sets and the object flags: `current` (zero for
+    /// absent objects), `old` (zero for objects absent before), and which
+    /// objects are `moving`.
+    fn write_poses(&self, current: &[Pose], old: &[Pose], old_absent: &[bool]) {
+        let objects = current.len();
+        let mut matrices = vec![[[0.0f32; 4]; 4]; objects.max(1) * 2];
+        for o in 0..objects {
+            if !self.absent[o] {
+                matrices[o] = pose_matrix(&current[o]);
+            }
+            if !old_absent.get(o).copied().unwrap_or(false) {
+                matrices[objects.max(1) + o] = pose_matrix(&old[o]);
+            }
+        }
+        self.queue
+            .write_buffer(&self.pose_buffer, 0, bytemuck::cast_slice(&matrices));
+    }
+
+    /// Writes the per-object flags (`moving` marks the set M).
+    fn write_flags(&self, moving: &[bool]) {
+        let flags: Vec<u32> = (0..self.absent.len().max(1))
+            .map(|o| {
+                let mut f = 0;
+                if moving.get(o).copied().unwrap_or(false) {
+                    f |= 1;
+                }
+                if self.absent.get(o).copied().unwrap_or(false) {
+                    f |= 2;
+                }
+                f
+            })
+            .collect();
+        self.queue
+            .write_buffer(&self.flags_buffer, 0, bytemuck::cast_slice(&flags));
+    }
+
+    /// Places every element at the current poses (`place_elements`).
+    fn encode_place(&self, encoder: &mut wgpu::CommandEncoder) {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&self.place.0);
+        pass.set_bind_group(0, &self.place.1, &[]);
+        pass.dispatch_workgroups(self.element_count.div_ceil(WORKGROUP).max(1), 1, 1);
     }
 
     /// Emitted power `Σ A_e E_e` (W, channels summed).
@@ -718,35 +1042,31 @@ impl ProgressiveSolver {
     }
 
     /// Number of shooters for a patch holding `power` (thesis §4.3.3: the
-    /// more it shoots, the finer it is split), as a grid over its chart.
-    fn shooter_grid(&self, patch: &WorldPatch, power: f64) -> (u32, u32) {
+    /// more it shoots, the finer it is split), as a grid over its chart of
+    /// at most `capacity` shooters.
+    fn shooter_grid(&self, patch: &WorldPatch, power: f64, capacity: u32) -> (u32, u32) {
         let share = if self.emitted > 0.0 {
             (power / self.emitted).clamp(0.0, 1.0)
         } else {
             1.0
         };
-        let wanted = ((f64::from(self.batch_capacity) * share.sqrt()).ceil() as u32)
-            .clamp(1, self.batch_capacity);
+        let wanted = ((f64::from(capacity) * share.sqrt()).ceil() as u32).clamp(1, capacity);
         let aspect = (patch.u.length() / patch.v.length().max(1e-12)) as f64;
         let gx = ((f64::from(wanted) * aspect).sqrt().round() as u32).clamp(1, patch.w);
         let gy = (wanted / gx).clamp(1, patch.h);
         (gx, gy)
     }
 
-    /// One SHOOTINGITERATION (thesis Alg. 4.2). Returns false when there
-    /// was nothing to shoot.
-    fn batch_once(&mut self) -> Result<bool, GpuError> {
-        let sel = self.selection;
-        if sel.patch_id as usize >= self.patches.len() || sel.power <= 0.0 {
-            return Ok(false);
-        }
-        let patch = self.patches[sel.patch_id as usize];
-        let (gx, gy) = self.shooter_grid(&patch, f64::from(sel.power));
-        let normal = patch.normal;
-        let t1 = patch.u.normalize();
-        let t2 = normal.cross(t1);
-        let lift = self.near * 2.0;
-        let mut shooters = Vec::with_capacity((gx * gy) as usize);
+    /// GENERATESHOOTINGPATCHES (thesis Alg. 4.2): patch `patch_id`, placed
+    /// as `patch` (at the current or the old pose, with world element
+    /// areas `areas`), split into a `gx` x `gy` grid of shooters.
+    fn tile_shooters(
+        &self,
+        patch_id: u32,
+        patch: &WorldPatch,
+        areas: &[f32],
+        (gx, gy): (u32, u32),
+    ) -> Vec<GpuShooter> {
         // Tiles split the chart's texels; a tile's region is the union of
         // its elements' regions (cell boundaries halfway between samples).
         // With three or more tiles along an axis, the outermost texel rows
@@ -766,109 +1086,189 @@ impl ProgressiveSolver {
                 i * n / g
             }
         };
-        let param = |a: u32, n: u32| ((a as f32 - 0.5) / (n - 1) as f32).clamp(0.0, 1.0);
+        let mut shooters = Vec::with_capacity((gx * gy) as usize);
         for j in 0..gy {
             for i in 0..gx {
                 let (a0, a1) = (split(i, gx, patch.w), split(i + 1, gx, patch.w));
                 let (b0, b1) = (split(j, gy, patch.h), split(j + 1, gy, patch.h));
-                let (s0, s1) = (param(a0, patch.w), param(a1, patch.w));
-                let (u0, u1) = (param(b0, patch.h), param(b1, patch.h));
-                let corner = patch.origin + patch.u * s0 + patch.v * u0;
-                let su = patch.u * (s1 - s0);
-                let sv = patch.v * (u1 - u0);
-                let mut area = 0.0;
-                for b in b0..b1 {
-                    for a in a0..a1 {
-                        area += self.areas[(patch.first + b * patch.w + a) as usize];
-                    }
-                }
-                let eye = corner + (su + sv) * 0.5 + normal * lift;
-                shooters.push(GpuShooter {
-                    corner: v4(corner, area),
-                    su: v4(su, 0.0),
-                    sv: v4(sv, 0.0),
-                    eye: v4(eye, 0.0),
-                    t1: v4(t1, 0.0),
-                    t2: v4(t2, 0.0),
-                    n: v4(normal, 0.0),
-                    tile: [a0, b0, a1, b1],
-                });
+                shooters.push(self.shooter(patch_id, patch, areas, [a0, b0, a1, b1]));
             }
         }
-        let count = shooters.len() as u32;
-        let uniform = BatchUniform {
-            patch_id: sel.patch_id,
+        shooters
+    }
+
+    /// The shooter covering chart texels `[a0, a1) x [b0, b1)` of a patch.
+    fn shooter(
+        &self,
+        patch_id: u32,
+        patch: &WorldPatch,
+        areas: &[f32],
+        [a0, b0, a1, b1]: [u32; 4],
+    ) -> GpuShooter {
+        let param = |a: u32, n: u32| ((a as f32 - 0.5) / (n.max(2) - 1) as f32).clamp(0.0, 1.0);
+        let normal = patch.normal;
+        let t1 = patch.u.normalize();
+        let t2 = normal.cross(t1);
+        let (s0, s1) = (param(a0, patch.w), param(a1, patch.w));
+        let (u0, u1) = (param(b0, patch.h), param(b1, patch.h));
+        let corner = patch.origin + patch.u * s0 + patch.v * u0;
+        let su = patch.u * (s1 - s0);
+        let sv = patch.v * (u1 - u0);
+        let mut area = 0.0;
+        for b in b0..b1 {
+            for a in a0..a1 {
+                area += areas[(patch.first + b * patch.w + a) as usize];
+            }
+        }
+        let eye = corner + (su + sv) * 0.5 + normal * (self.near * 2.0);
+        GpuShooter {
+            corner: v4(corner, area),
+            su: v4(su, 0.0),
+            sv: v4(sv, 0.0),
+            eye: v4(eye, 0.0),
+            t1: v4(t1, 0.0),
+            t2: v4(t2, 0.0),
+            n: v4(normal, f32::from_bits(patch_id)),
+            tile: [a0, b0, a1, b1],
+        }
+    }
+
+    /// The batch constants for `count` shooters of `patch_id`.
+    fn batch_uniform(
+        &self,
+        patch_id: u32,
+        count: u32,
+        old_from_slot: u32,
+        mode: u32,
+    ) -> BatchUniform {
+        let patch = self.patches.get(patch_id as usize);
+        BatchUniform {
+            patch_id,
             shooters: count,
             resolution: self.options.hemicube_resolution.max(1),
-            first_element: patch.first,
-            chart_w: patch.w,
+            first_element: patch.map_or(0, |p| p.first),
+            chart_w: patch.map_or(0, |p| p.w),
             element_count: self.element_count,
             near: self.near,
             far: self.far,
             subdivision: self.options.subdivision,
             max_subdivision: self.options.max_subdivision.max(1),
-            _pad: [0; 2],
-        };
+            old_from_slot,
+            mode,
+        }
+    }
+
+    /// Rasterizes hemicube slots `0..slots` of the bound shooters into
+    /// `target` (thesis §4.3.2: one large target, a viewport per face per
+    /// shooter, all in one render pass).
+    #[allow(clippy::too_many_arguments)]
+    fn encode_hemicubes(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        (pipeline, group): (&wgpu::RenderPipeline, &wgpu::BindGroup),
+        target: &wgpu::TextureView,
+        resolve: Option<&wgpu::TextureView>,
+        depth: &wgpu::TextureView,
+        clear: wgpu::Color,
+        res: u32,
+        slots: u32,
+    ) {
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("hemicubes"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: target,
+                depth_slice: None,
+                resolve_target: resolve,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(clear),
+                    store: if resolve.is_some() {
+                        wgpu::StoreOp::Discard
+                    } else {
+                        wgpu::StoreOp::Store
+                    },
+                },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: depth,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(1.0),
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, group, &[]);
+        for slot in 0..slots {
+            for face in 0..FACES {
+                let (x, y) = (face * res, slot * res);
+                pass.set_viewport(x as f32, y as f32, res as f32, res as f32, 0.0, 1.0);
+                pass.set_scissor_rect(x, y, res, res);
+                let instance = slot * FACES + face;
+                pass.draw(0..self.triangle_vertices, instance..instance + 1);
+            }
+        }
+    }
+
+    /// Item buffers for slots `0..slots` (cleared to "no patch").
+    fn encode_item_buffers(&self, encoder: &mut wgpu::CommandEncoder, slots: u32) {
+        self.encode_hemicubes(
+            encoder,
+            (&self.hemicube.0, &self.hemicube.1),
+            &self.item_view,
+            None,
+            &self.depth_view,
+            wgpu::Color {
+                r: f64::from(NO_PATCH),
+                g: 0.0,
+                b: 0.0,
+                a: 0.0,
+            },
+            self.options.hemicube_resolution.max(1),
+            slots,
+        );
+    }
+
+    /// A compute pass of one pipeline.
+    fn encode_compute(
+        encoder: &mut wgpu::CommandEncoder,
+        (pipeline, group): &(wgpu::ComputePipeline, wgpu::BindGroup),
+        workgroups: u32,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, group, &[]);
+        pass.dispatch_workgroups(workgroups.max(1), 1, 1);
+    }
+
+    /// One SHOOTINGITERATION (thesis Alg. 4.2). Returns false when there
+    /// was nothing to shoot.
+    fn batch_once(&mut self) -> Result<bool, GpuError> {
+        let sel = self.selection;
+        if sel.patch_id as usize >= self.patches.len() || sel.power <= 0.0 {
+            return Ok(false);
+        }
+        let patch = self.patches[sel.patch_id as usize];
+        let grid = self.shooter_grid(&patch, f64::from(sel.power), self.batch_capacity);
+        let shooters = self.tile_shooters(sel.patch_id, &patch, &self.areas, grid);
+        let count = shooters.len() as u32;
+        let uniform = self.batch_uniform(sel.patch_id, count, u32::MAX, 0);
         self.queue
             .write_buffer(&self.shooters, 0, bytemuck::cast_slice(&shooters));
         self.queue
             .write_buffer(&self.batch, 0, bytemuck::bytes_of(&uniform));
 
         let mut encoder = self.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.shooter_energy.0);
-            pass.set_bind_group(0, &self.shooter_energy.1, &[]);
-            pass.dispatch_workgroups(count, 1, 1);
-        }
-        {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("hemicubes"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &self.item_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color {
-                            r: f64::from(NO_PATCH),
-                            g: 0.0,
-                            b: 0.0,
-                            a: 0.0,
-                        }),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &self.depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_pipeline(&self.hemicube.0);
-            pass.set_bind_group(0, &self.hemicube.1, &[]);
-            let res = uniform.resolution;
-            for slot in 0..count {
-                for face in 0..FACES {
-                    let (x, y) = (face * res, slot * res);
-                    pass.set_viewport(x as f32, y as f32, res as f32, res as f32, 0.0, 1.0);
-                    pass.set_scissor_rect(x, y, res, res);
-                    let instance = slot * FACES + face;
-                    pass.draw(0..self.triangle_vertices, instance..instance + 1);
-                }
-            }
-        }
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.reconstruct.0);
-            pass.set_bind_group(0, &self.reconstruct.1, &[]);
-            pass.dispatch_workgroups(self.element_count.div_ceil(WORKGROUP).max(1), 1, 1);
-        }
+        Self::encode_compute(&mut encoder, &self.shooter_energy, count);
+        self.encode_item_buffers(&mut encoder, count);
+        Self::encode_compute(
+            &mut encoder,
+            &self.reconstruct,
+            self.element_count.div_ceil(WORKGROUP),
+        );
         self.encode_selection(&mut encoder);
         self.queue.submit([encoder.finish()]);
         self.selection = self.read_selection()?;

@@ -1,0 +1,688 @@
+//! Following moved objects by redistributing light instead of solving
+//! again (thesis ch. 3 and 4).
+//!
+//! A move splits the patches into the moved set M and the static set C
+//! (thesis §3.1). The transport that changes is cut into four parts,
+//! R(C, M), R(M, C), R(M, M) and R(C, C) (eq. 3.1.2), and two methods
+//! implement them on the GPU, both built from the progressive solver's
+//! batches (shooters, hemicube item buffers, a reconstruction pass):
+//!
+//! - **Incremental radiosity with reshooting** (thesis §4.4, Alg. 4.3):
+//!   every patch of M shoots its old shot radiosity negated from its old
+//!   position (the first half of R_p(M, C)); M is reset to its emission;
+//!   every patch of C shoots once with a hemicube at the old and at the new
+//!   poses: to M it reshoots its total radiosity (R_p(C, M), eq. 4.4.1), to
+//!   C it shoots by the four visibility cases of Alg. 4.3 (R_p(C, C)).
+//!   Ordinary progressive iterations then do R_p(M, M) and the second half
+//!   of R_p(M, C). Cost: two hemicubes per shooter of every patch.
+//! - **Cross redistribution radiosity** (thesis §3.3, §4.5, Alg. 4.4-4.5):
+//!   only the elements of M get hemicubes: front item buffers at the old
+//!   and new positions, a front hemicube of C's shot radiosity at the new
+//!   position that M gathers from (R_g(C, M)), and back hemicubes of C's
+//!   shot radiosity with depth at both positions, through which every
+//!   element of C sees what M's old position stopped blocking and what its
+//!   new position blocks (the non-incremental cross projection R_x(C, C),
+//!   eq. 3.3.1, with reprojection). Each element of M then shoots its new
+//!   total radiosity and its negated old shot radiosity.
+//!
+//! Cross projection uses C's shot radiosity B^s; it cancels exactly only
+//! while B^s of C does not change. So progressive iterations never run
+//! with M in the scene: [`crate::gpu::DynamicSolver`] removes M (a cross
+//! redistribution to "absent") before refining and inserts it again after
+//! (thesis §4.5.2), and moves in between leave B^s of C untouched.
+//!
+//! A move is a list of [`Job`]s, each one GPU batch; the list can be
+//! interrupted between jobs (thesis §4.5.3) and the state is consistent
+//! only when it is empty, which is what double buffering publishes.
+
+use std::collections::VecDeque;
+use std::fmt;
+use std::str::FromStr;
+
+use glam::Vec3;
+
+use super::{
+    BatchUniform, FACES, GpuError, GpuShooter, ProgressiveSolver, WORKGROUP, WorldPatch, bind,
+    compute_source, compute_with, hemicube_pipeline, place_patches, world_areas,
+};
+use crate::scene::Pose;
+
+/// How the solver follows a move of the dynamic objects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Redistribution {
+    /// Progressive refinement from scratch at the new poses (the baseline).
+    Full,
+    /// Incremental radiosity with reshooting (thesis §4.4, Alg. 4.3).
+    Incremental,
+    /// Cross redistribution radiosity (thesis §4.5, Alg. 4.4-4.5).
+    #[default]
+    Cross,
+}
+
+impl Redistribution {
+    /// Every method, in the order benchmarks list them.
+    pub const ALL: [Redistribution; 3] = [Self::Full, Self::Incremental, Self::Cross];
+
+    /// The name used in scene files, flags and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Full => "full",
+            Self::Incremental => "incremental",
+            Self::Cross => "cross",
+        }
+    }
+}
+
+impl fmt::Display for Redistribution {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Redistribution {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                format!("unknown redistribution method {s:?} (expected full, incremental or cross)")
+            })
+    }
+}
+
+/// `Batch.mode` values of redistribute.wgsl.
+const KIND_NEGATIVE: u32 = 1;
+const KIND_STATIC: u32 = 2;
+const KIND_CROSS: u32 = 3;
+const HAS_NEW: u32 = 0x100;
+const HAS_OLD: u32 = 0x200;
+const RESET_UNSHOT: u32 = 0x400;
+/// `Batch.mode` of a back hemicube pass (hemicube.wgsl `RAD_BACK`).
+const RAD_BACK: u32 = 0x10000;
+/// Samples per pixel of the back hemicubes: multisampling blurs them, which
+/// hides the undersampling of the cross projection (thesis §4.5.2).
+const BACK_SAMPLES: u32 = 4;
+
+/// One GPU batch of a move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Job {
+    /// Incremental: a patch of M shoots its negated old shot radiosity.
+    Negative { patch: u32, shooters: u32 },
+    /// Incremental: a patch of C shoots with old and new hemicubes.
+    Static { patch: u32, shooters: u32 },
+    /// Cross: elements `first..first + count` (texels of one patch of M)
+    /// shoot, one element per shooter.
+    Cross { patch: u32, first: u32, count: u32 },
+}
+
+/// A move in progress: what changed, and the batches still to run.
+#[derive(Debug, Clone)]
+pub struct Move {
+    /// The method this move is redistributed with.
+    pub method: Redistribution,
+    /// Poses and presence before the move.
+    old_poses: Vec<Pose>,
+    old_absent: Vec<bool>,
+    /// The objects in M.
+    moving: Vec<bool>,
+    jobs: VecDeque<Job>,
+    /// Batches run so far.
+    pub batches: u32,
+}
+
+impl Move {
+    /// Batches left.
+    pub fn remaining(&self) -> usize {
+        self.jobs.len()
+    }
+    /// Whether some object changed at all.
+    pub fn is_empty_move(&self) -> bool {
+        !self.moving.iter().any(|m| *m)
+    }
+}
+
+/// Pipelines and targets of the redistribution passes, built on the first
+/// move so that static scenes never pay for them.
+pub(in crate::gpu) struct DynamicPasses {
+    reset: (wgpu::ComputePipeline, wgpu::BindGroup),
+    energy: (wgpu::ComputePipeline, wgpu::BindGroup),
+    gather: (wgpu::ComputePipeline, wgpu::BindGroup),
+    reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
+    rad_front: (wgpu::RenderPipeline, wgpu::BindGroup),
+    rad_back: (wgpu::RenderPipeline, wgpu::BindGroup),
+    back_shooters: wgpu::Buffer,
+    back_batch: wgpu::Buffer,
+    front_view: wgpu::TextureView,
+    back_msaa_view: wgpu::TextureView,
+    back_view: wgpu::TextureView,
+    back_depth_view: wgpu::TextureView,
+}
+
+fn texture(
+    device: &wgpu::Device,
+    label: &str,
+    (width, height): (u32, u32),
+    format: wgpu::TextureFormat,
+    samples: u32,
+    usage: wgpu::TextureUsages,
+) -> wgpu::TextureView {
+    device
+        .create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: samples,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+        .create_view(&Default::default())
+}
+
+impl ProgressiveSolver {
+    fn dynamic_passes(&mut self) -> &DynamicPasses {
+        if self.dynamic.is_none() {
+            self.dynamic = Some(self.build_dynamic_passes());
+        }
+        // Just built when it was missing.
+        self.dynamic.as_ref().expect("dynamic passes exist")
+    }
+
+    fn build_dynamic_passes(&self) -> DynamicPasses {
+        let device = &self.device;
+        let res = self.options.hemicube_resolution.max(1);
+        let back_res = self.options.back_resolution.max(1);
+        let cap = self.batch_capacity;
+        let attach = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let rgba = wgpu::TextureFormat::Rgba16Float;
+        let front_view = texture(
+            device,
+            "front radiosity hemicubes",
+            (FACES * res, res * cap),
+            rgba,
+            1,
+            attach,
+        );
+        let back_size = (FACES * back_res, back_res * cap);
+        let back_msaa_view = texture(
+            device,
+            "back hemicubes (multisampled)",
+            back_size,
+            rgba,
+            BACK_SAMPLES,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let back_view = texture(device, "back hemicubes", back_size, rgba, 1, attach);
+        let back_depth_view = texture(
+            device,
+            "back hemicube depth",
+            back_size,
+            wgpu::TextureFormat::Depth32Float,
+            BACK_SAMPLES,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let back_shooters = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("back shooters"),
+            size: u64::from(cap) * std::mem::size_of::<GpuShooter>() as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let back_batch = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("back batch"),
+            size: std::mem::size_of::<BatchUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let old_shot = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("old shot radiosity"),
+            size: u64::from(self.element_count.max(1)) * 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("back hemicube"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("redistribute.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(compute_source().into()),
+        });
+        let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("hemicube.wgsl (radiosity)"),
+            source: wgpu::ShaderSource::Wgsl(
+                format!("{}\n{}", super::COMMON_WGSL, super::HEMICUBE_WGSL).into(),
+            ),
+        });
+        let bufs = &self.buffers;
+        fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
+            buffer.as_entire_binding()
+        }
+        let grid = [("CROSS_GRID", f64::from(self.options.cross_grid.max(1)))];
+        let reset = compute_with(
+            device,
+            &module,
+            "reset_moving",
+            &[],
+            &[
+                (0, b(&bufs.elements)),
+                (1, b(&self.radiosity)),
+                (2, b(&bufs.unshot)),
+                (9, b(&self.batch)),
+                (11, b(&self.flags_buffer)),
+                (15, b(&bufs.emission)),
+                (16, b(&old_shot)),
+            ],
+        );
+        let energy = compute_with(
+            device,
+            &module,
+            "shooter_energy_dyn",
+            &[],
+            &[
+                (0, b(&bufs.elements)),
+                (1, b(&self.radiosity)),
+                (2, b(&bufs.unshot)),
+                (7, b(&self.shooters)),
+                (8, b(&bufs.energy)),
+                (9, b(&self.batch)),
+                (16, b(&old_shot)),
+            ],
+        );
+        let gather = compute_with(
+            device,
+            &module,
+            "gather_moving",
+            &[],
+            &[
+                (0, b(&bufs.elements)),
+                (1, b(&self.radiosity)),
+                (2, b(&bufs.unshot)),
+                (7, b(&self.shooters)),
+                (8, b(&bufs.energy)),
+                (9, b(&self.batch)),
+                (16, b(&old_shot)),
+                (17, wgpu::BindingResource::TextureView(&front_view)),
+            ],
+        );
+        let reconstruct = compute_with(
+            device,
+            &module,
+            "reconstruct_dyn",
+            &grid,
+            &[
+                (0, b(&bufs.elements)),
+                (1, b(&self.radiosity)),
+                (2, b(&bufs.unshot)),
+                (7, b(&self.shooters)),
+                (8, b(&bufs.energy)),
+                (9, b(&self.batch)),
+                (10, wgpu::BindingResource::TextureView(&self.item_view)),
+                (11, b(&self.flags_buffer)),
+                (18, wgpu::BindingResource::TextureView(&back_view)),
+                (19, wgpu::BindingResource::Sampler(&sampler)),
+                (20, b(&back_shooters)),
+                (21, b(&back_batch)),
+            ],
+        );
+        let rad_group =
+            |pipeline: &wgpu::RenderPipeline, shooters: &wgpu::Buffer, batch: &wgpu::Buffer| {
+                bind(
+                    device,
+                    "radiosity hemicube",
+                    &pipeline.get_bind_group_layout(0),
+                    &[
+                        (0, b(&bufs.vertices)),
+                        (1, b(shooters)),
+                        (2, b(batch)),
+                        (3, b(&self.pose_buffer)),
+                        (4, b(&self.radiosity)),
+                        (5, b(&bufs.unshot)),
+                        (6, b(&bufs.patches)),
+                        (7, b(&self.flags_buffer)),
+                    ],
+                )
+            };
+        let front_pipeline =
+            hemicube_pipeline(device, &hemicube_module, ("vs_rad", "fs_rad"), rgba, 1);
+        let front_group = rad_group(&front_pipeline, &self.shooters, &self.batch);
+        let back_pipeline = hemicube_pipeline(
+            device,
+            &hemicube_module,
+            ("vs_rad", "fs_rad"),
+            rgba,
+            BACK_SAMPLES,
+        );
+        let back_group = rad_group(&back_pipeline, &back_shooters, &back_batch);
+        DynamicPasses {
+            reset,
+            energy,
+            gather,
+            reconstruct,
+            rad_front: (front_pipeline, front_group),
+            rad_back: (back_pipeline, back_group),
+            back_shooters,
+            back_batch,
+            front_view,
+            back_msaa_view,
+            back_view,
+            back_depth_view,
+        }
+    }
+
+    /// The current pose of every object.
+    pub fn poses(&self) -> &[Pose] {
+        &self.poses
+    }
+
+    /// Which objects are currently removed from the simulation.
+    pub fn absent(&self) -> &[bool] {
+        &self.absent
+    }
+
+    /// Starts following a change of poses and/or presence: the objects
+    /// whose pose or presence differs form M. Places M at its new pose on
+    /// the GPU, saves M's shot radiosity and resets M (reshooting), and
+    /// plans the batches of `method` (which must not be `Full`: that is a
+    /// new solver). Run the batches with [`ProgressiveSolver::move_step`].
+    pub fn begin_move(
+        &mut self,
+        poses: &[Pose],
+        absent: &[bool],
+        method: Redistribution,
+    ) -> Result<Move, GpuError> {
+        let objects = self.poses.len();
+        if poses.len() != objects || absent.len() != objects {
+            return Err(GpuError::TooLarge(format!(
+                "a move needs {objects} poses and presence flags, got {} and {}",
+                poses.len(),
+                absent.len()
+            )));
+        }
+        let moving: Vec<bool> = (0..objects)
+            .map(|o| poses[o] != self.poses[o] || absent[o] != self.absent[o])
+            .collect();
+        let old_poses = std::mem::replace(&mut self.poses, poses.to_vec());
+        let old_absent = std::mem::replace(&mut self.absent, absent.to_vec());
+        let mut mv = Move {
+            method,
+            old_poses,
+            old_absent,
+            moving,
+            jobs: VecDeque::new(),
+            batches: 0,
+        };
+        if mv.is_empty_move() {
+            return Ok(mv);
+        }
+        // Total power per patch before the move (one readback), to size
+        // the shooter grids.
+        let radiosity = self.total_radiosity()?;
+        let mut patch_power = vec![0.0f64; self.patches.len()];
+        for (e, b) in radiosity.iter().enumerate() {
+            let p = self.element_patch(e);
+            patch_power[p] += f64::from(self.areas[e]) * f64::from(b.abs().element_sum());
+        }
+
+        self.patches = place_patches(&self.shapes, &self.patch_objects, &self.layout, &self.poses);
+        self.areas = world_areas(&self.local_areas, &self.element_objects, &self.poses);
+        self.write_poses(poses, &mv.old_poses, &mv.old_absent);
+        self.write_flags(&mv.moving);
+        let reset_mode = match method {
+            Redistribution::Incremental => RESET_UNSHOT,
+            _ => 0,
+        };
+        let uniform = self.batch_uniform(u32::MAX, 0, u32::MAX, reset_mode);
+        self.queue
+            .write_buffer(&self.batch, 0, bytemuck::bytes_of(&uniform));
+        self.dynamic_passes();
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        // The reset reads the elements only for their objects, so it may
+        // run after placement.
+        self.encode_place(&mut encoder);
+        if let Some(d) = &self.dynamic {
+            Self::encode_compute(
+                &mut encoder,
+                &d.reset,
+                self.element_count.div_ceil(WORKGROUP),
+            );
+        }
+        self.queue.submit([encoder.finish()]);
+
+        let half = self.batch_capacity / 2;
+        let in_m = |p: usize| mv.moving[self.patch_objects[p] as usize];
+        match method {
+            Redistribution::Incremental => {
+                for (p, power) in patch_power.iter().enumerate() {
+                    if in_m(p) && !mv.old_absent[self.patch_objects[p] as usize] {
+                        mv.jobs.push_back(Job::Negative {
+                            patch: p as u32,
+                            shooters: self.grid_count(p, *power, half),
+                        });
+                    }
+                }
+                let mut statics: Vec<usize> = (0..self.patches.len())
+                    .filter(|&p| !in_m(p) && patch_power[p] > 0.0)
+                    .collect();
+                statics.sort_by(|a, b| patch_power[*b].total_cmp(&patch_power[*a]));
+                for p in statics {
+                    mv.jobs.push_back(Job::Static {
+                        patch: p as u32,
+                        shooters: self.grid_count(p, patch_power[p], half),
+                    });
+                }
+            }
+            Redistribution::Cross | Redistribution::Full => {
+                for p in 0..self.patches.len() {
+                    if !in_m(p) {
+                        continue;
+                    }
+                    let wp = self.patches[p];
+                    let count = wp.w * wp.h;
+                    let mut first = 0;
+                    while first < count {
+                        let n = half.min(count - first);
+                        mv.jobs.push_back(Job::Cross {
+                            patch: p as u32,
+                            first,
+                            count: n,
+                        });
+                        first += n;
+                    }
+                }
+            }
+        }
+        Ok(mv)
+    }
+
+    /// Runs the next batch of `mv`; returns whether batches remain. When
+    /// the last one has run, M is no longer marked and the next shooter is
+    /// selected, so that progressive refinement can continue.
+    pub fn move_step(&mut self, mv: &mut Move) -> Result<bool, GpuError> {
+        if let Some(job) = mv.jobs.pop_front() {
+            self.run_job(mv, job)?;
+            mv.batches += 1;
+        }
+        if mv.jobs.is_empty() {
+            self.write_flags(&[]);
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            self.encode_selection(&mut encoder);
+            self.queue.submit([encoder.finish()]);
+            self.selection = self.read_selection()?;
+            return Ok(false);
+        }
+        Ok(true)
+    }
+
+    /// Runs every batch of `mv`.
+    pub fn finish_move(&mut self, mv: &mut Move) -> Result<(), GpuError> {
+        while self.move_step(mv)? {}
+        Ok(())
+    }
+
+    /// Number of shooters for a patch holding `power`, at most `capacity`.
+    fn grid_count(&self, patch: usize, power: f64, capacity: u32) -> u32 {
+        let (gx, gy) = self.shooter_grid(&self.patches[patch], power, capacity);
+        gx * gy
+    }
+
+    fn element_patch(&self, element: usize) -> usize {
+        // Patches own contiguous element ranges in order.
+        self.patches
+            .partition_point(|p| p.first as usize <= element)
+            .saturating_sub(1)
+    }
+
+    fn run_job(&mut self, mv: &Move, job: Job) -> Result<(), GpuError> {
+        let old_patches = place_patches(
+            &self.shapes,
+            &self.patch_objects,
+            &self.layout,
+            &mv.old_poses,
+        );
+        let old_areas = world_areas(&self.local_areas, &self.element_objects, &mv.old_poses);
+        let res = self.options.hemicube_resolution.max(1);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        match job {
+            Job::Negative { patch, shooters } => {
+                let wp = old_patches[patch as usize];
+                let grid = self.shooter_grid_for_count(&wp, shooters);
+                let list = self.tile_shooters(patch, &wp, &old_areas, grid);
+                let n = list.len() as u32;
+                self.upload(&list, self.batch_uniform(patch, n, 0, KIND_NEGATIVE));
+                let d = self.dynamic.as_ref().expect("built in begin_move");
+                Self::encode_compute(&mut encoder, &d.energy, n);
+                self.encode_item_buffers(&mut encoder, n);
+                Self::encode_compute(
+                    &mut encoder,
+                    &d.reconstruct,
+                    self.element_count.div_ceil(WORKGROUP),
+                );
+            }
+            Job::Static { patch, shooters } => {
+                let wp = self.patches[patch as usize];
+                let grid = self.shooter_grid_for_count(&wp, shooters);
+                let mut list = self.tile_shooters(patch, &wp, &self.areas, grid);
+                let n = list.len() as u32;
+                list.extend_from_within(..);
+                self.upload(&list, self.batch_uniform(patch, n, n, KIND_STATIC));
+                let d = self.dynamic.as_ref().expect("built in begin_move");
+                Self::encode_compute(&mut encoder, &d.energy, n);
+                self.encode_item_buffers(&mut encoder, 2 * n);
+                Self::encode_compute(
+                    &mut encoder,
+                    &d.reconstruct,
+                    self.element_count.div_ceil(WORKGROUP),
+                );
+            }
+            Job::Cross {
+                patch,
+                first,
+                count,
+            } => {
+                let object = self.patch_objects[patch as usize] as usize;
+                let has_new = !self.absent[object];
+                let has_old = !mv.old_absent[object];
+                let new_wp = self.patches[patch as usize];
+                let old_wp = old_patches[patch as usize];
+                let mut list = Vec::with_capacity(2 * count as usize);
+                for (wp, areas) in [(&new_wp, &self.areas), (&old_wp, &old_areas)] {
+                    for i in first..first + count {
+                        let (a, b) = (i % wp.w, i / wp.w);
+                        let mut s = self.shooter(patch, wp, areas, [a, b, a + 1, b + 1]);
+                        s.eye[3] = f32::from_bits(wp.first + i);
+                        list.push(s);
+                    }
+                }
+                let back: Vec<GpuShooter> = list.iter().map(|s| self.back_shooter(s)).collect();
+                let mut mode = KIND_CROSS;
+                if has_new {
+                    mode |= HAS_NEW;
+                }
+                if has_old {
+                    mode |= HAS_OLD;
+                }
+                self.upload(&list, self.batch_uniform(patch, count, count, mode));
+                let mut back_uniform = self.batch_uniform(patch, count, count, RAD_BACK);
+                back_uniform.resolution = self.options.back_resolution.max(1);
+                let d = self.dynamic.as_ref().expect("built in begin_move");
+                self.queue
+                    .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&back));
+                self.queue
+                    .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
+                self.encode_item_buffers(&mut encoder, 2 * count);
+                let clear = wgpu::Color::TRANSPARENT;
+                if has_new {
+                    self.encode_hemicubes(
+                        &mut encoder,
+                        (&d.rad_front.0, &d.rad_front.1),
+                        &d.front_view,
+                        None,
+                        &self.depth_view,
+                        clear,
+                        res,
+                        count,
+                    );
+                }
+                self.encode_hemicubes(
+                    &mut encoder,
+                    (&d.rad_back.0, &d.rad_back.1),
+                    &d.back_msaa_view,
+                    Some(&d.back_view),
+                    &d.back_depth_view,
+                    clear,
+                    back_uniform.resolution,
+                    2 * count,
+                );
+                Self::encode_compute(&mut encoder, &d.gather, count);
+                Self::encode_compute(
+                    &mut encoder,
+                    &d.reconstruct,
+                    self.element_count.div_ceil(WORKGROUP),
+                );
+            }
+        }
+        self.queue.submit([encoder.finish()]);
+        Ok(())
+    }
+
+    /// A grid of about `count` shooters over a patch.
+    fn shooter_grid_for_count(&self, patch: &WorldPatch, count: u32) -> (u32, u32) {
+        let aspect = (patch.u.length() / patch.v.length().max(1e-12)) as f64;
+        let gx = ((f64::from(count.max(1)) * aspect).sqrt().round() as u32).clamp(1, patch.w);
+        let gy = (count.max(1) / gx).clamp(1, patch.h);
+        (gx, gy)
+    }
+
+    /// The hemicube on the back of a shooter: the eye below the surface,
+    /// looking along -n (thesis Alg. 4.4 lines 10-11).
+    fn back_shooter(&self, s: &GpuShooter) -> GpuShooter {
+        let n = Vec3::from_slice(&s.n[..3]);
+        let corner = Vec3::from_slice(&s.corner[..3]);
+        let su = Vec3::from_slice(&s.su[..3]);
+        let sv = Vec3::from_slice(&s.sv[..3]);
+        let eye = corner + (su + sv) * 0.5 - n * (self.near * 2.0);
+        let t2 = Vec3::from_slice(&s.t2[..3]);
+        GpuShooter {
+            eye: super::v4(eye, 0.0),
+            t2: super::v4(-t2, 0.0),
+            n: super::v4(-n, s.n[3]),
+            ..*s
+        }
+    }
+
+    fn upload(&self, shooters: &[GpuShooter], uniform: BatchUniform) {
+        self.queue
+            .write_buffer(&self.shooters, 0, bytemuck::cast_slice(shooters));
+        self.queue
+            .write_buffer(&self.batch, 0, bytemuck::bytes_of(&uniform));
+    }
+}

@@ -1,0 +1,323 @@
+// Redistribution after dynamic objects move (thesis ch. 3, §4.4, §4.5).
+// Appended to common.wgsl + progressive.wgsl, whose bindings and helpers
+// (`visible`, `form_factor`, `absent`) it uses.
+//
+// The moved set M is marked OBJECT_MOVING in `object_flags`; the static
+// set C is everything else. `elements` hold the NEW positions. Shot
+// radiosity is B^s = B - B^u.
+//
+// Entry points:
+//   reset_moving         save B^s of M into `old_shot`, then reset B of M to
+//                        its emission (reshooting, thesis §4.4.1, §4.5.1).
+//   shooter_energy_dyn   the intermediate texture T for incremental batches.
+//   gather_moving        R_g(C, M): each element of M gathers the shot
+//                        radiosity of C from its front hemicube (thesis
+//                        Alg. 4.5 GATHERRADIOSITY), and fills T.
+//   reconstruct_dyn      every element receives the batch's redistribution:
+//                        INCREMENTALRECONSTRUCTIONSHADER (Alg. 4.3) or
+//                        CROSSPROJECTIONRECONSTRUCTIONSHADER (Alg. 4.5).
+
+@group(0) @binding(15) var<storage, read> emission: array<vec4<f32>>;
+@group(0) @binding(16) var<storage, read_write> old_shot: array<vec4<f32>>;
+@group(0) @binding(17) var front_rad: texture_2d<f32>;
+@group(0) @binding(18) var back_rad: texture_2d<f32>;
+@group(0) @binding(19) var back_sampler: sampler;
+@group(0) @binding(20) var<storage, read> back_shooters: array<Shooter>;
+@group(0) @binding(21) var<uniform> back: Batch;
+
+// Batch.mode: the kind in the low byte, flags above.
+const KIND_MASK: u32 = 0xffu;
+// Incremental, Alg. 4.3 line 4: M shoots its negated old shot radiosity to
+// C from its old position. Slots 0..n: old hemicubes.
+const KIND_NEGATIVE: u32 = 1u;
+// Incremental, Alg. 4.3 lines 7-19: a patch of C shoots; slots 0..n: new
+// hemicubes, n..2n: old hemicubes of the same shooters. T holds B^u in
+// energy[k] and B^s in energy[n + k].
+const KIND_STATIC: u32 = 2u;
+// Cross redistribution, Alg. 4.4-4.5: elements of M shoot; slots 0..n: new
+// position, n..2n: old position. T holds the new total radiosity in
+// energy[k] and the negated old shot radiosity in energy[n + k].
+const KIND_CROSS: u32 = 3u;
+// The new position exists (M is inserted or moved, not removed).
+const HAS_NEW: u32 = 0x100u;
+// The old position exists (M is removed or moved, not inserted).
+const HAS_OLD: u32 = 0x200u;
+// reset_moving: keep the emission as unshot radiosity (incremental: it is
+// shot again by the progressive iterations that follow).
+const RESET_UNSHOT: u32 = 0x400u;
+
+// Side length of the cross projection's sampling grid on a shooter (thesis
+// Alg. 4.5 gridSize, 4 by default).
+override CROSS_GRID: u32 = 4u;
+
+fn is_moving(el: Element) -> bool {
+    return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_MOVING) != 0u;
+}
+
+@compute @workgroup_size(64)
+fn reset_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let e = gid.x;
+    if (e >= batch.element_count || !is_moving(elements[e])) {
+        return;
+    }
+    old_shot[e] = radiosity[e] - unshot[e];
+    radiosity[e] = emission[e];
+    unshot[e] = select(vec4<f32>(0.0), emission[e], (batch.mode & RESET_UNSHOT) != 0u);
+}
+
+// One workgroup per shooter of an incremental batch: area-weighted averages
+// over the shooter's tile (GENERATESHOOTINGPATCHES with the radiosity type
+// of Alg. 4.3: negated old shot radiosity for M, shot and unshot for C).
+@compute @workgroup_size(64)
+fn shooter_energy_dyn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+    let s = shooters[wid.x];
+    let kind = batch.mode & KIND_MASK;
+    let tw = s.tile.z - s.tile.x;
+    let count = tw * (s.tile.w - s.tile.y);
+    var first = vec3<f32>(0.0);
+    var second = vec3<f32>(0.0);
+    var area = 0.0;
+    for (var k = lid; k < count; k += WG) {
+        let idx = batch.first_element + (s.tile.y + k / tw) * batch.chart_w + s.tile.x + k % tw;
+        let a = elements[idx].position.w;
+        area += a;
+        if (kind == KIND_NEGATIVE) {
+            first -= old_shot[idx].rgb * a;
+        } else {
+            first += unshot[idx].rgb * a;
+            second += (radiosity[idx].rgb - unshot[idx].rgb) * a;
+            unshot[idx] = vec4<f32>(0.0);
+        }
+    }
+    partial[lid] = first;
+    partial_power[lid] = area;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial[lid] += partial[lid + stride];
+            partial_power[lid] += partial_power[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    let total_area = max(partial_power[0], 1e-30);
+    if (lid == 0u) {
+        energy[wid.x] = vec4<f32>(partial[0] / total_area, 0.0);
+    }
+    workgroupBarrier();
+    partial[lid] = second;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial[lid] += partial[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if (lid == 0u) {
+        energy[batch.shooters + wid.x] = vec4<f32>(partial[0] / total_area, 0.0);
+    }
+}
+
+// Delta form factor of hemicube pixel `px` of `face` (thesis §2.2.2): the
+// top face weighs a pixel at (x, y, 1) by 1/(π (x²+y²+1)²), a side face at
+// (x, y, 1) with y towards the normal by y/(π (x²+y²+1)²), zero below the
+// horizon; dA = (2/res)².
+fn delta_form_factor(face: u32, px: vec2<u32>, res: u32) -> f32 {
+    let r = f32(res);
+    let x = (f32(px.x) + 0.5) / r * 2.0 - 1.0;
+    let y = 1.0 - (f32(px.y) + 0.5) / r * 2.0;
+    let d = x * x + y * y + 1.0;
+    let da = 4.0 / (r * r);
+    if (face == 0u) {
+        return da / (PI * d * d);
+    }
+    return max(y, 0.0) * da / (PI * d * d);
+}
+
+// One workgroup per element of M (one shooter each): gather the shot
+// radiosity of C seen from the new position (thesis Alg. 4.5 lines 23-27),
+// B += ρ H; then T = (new total radiosity, negated old shot radiosity) and
+// the element's unshot radiosity is cleared, since it shoots everything
+// (Alg. 4.4 lines 13-14).
+@compute @workgroup_size(64)
+fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+    let k = wid.x;
+    let s = shooters[k];
+    let e = bitcast<u32>(s.eye.w);
+    let has_new = (batch.mode & HAS_NEW) != 0u;
+    let res = batch.resolution;
+    var acc = vec3<f32>(0.0);
+    if (has_new) {
+        let per_face = res * res;
+        for (var p = lid; p < 5u * per_face; p += WG) {
+            let face = p / per_face;
+            let q = p % per_face;
+            let px = vec2<u32>(q % res, q / res);
+            let texel = vec2<i32>(i32(face * res + px.x), i32(k * res + px.y));
+            acc += textureLoad(front_rad, texel, 0).rgb * delta_form_factor(face, px, res);
+        }
+    }
+    partial[lid] = acc;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial[lid] += partial[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if (lid == 0u) {
+        var total = vec4<f32>(0.0);
+        if (has_new) {
+            let b = radiosity[e] + vec4<f32>(elements[e].albedo.rgb * partial[0], 0.0);
+            radiosity[e] = b;
+            unshot[e] = vec4<f32>(0.0);
+            total = b;
+        }
+        energy[k] = total;
+        energy[batch.shooters + k] = select(vec4<f32>(0.0), -old_shot[e], (batch.mode & HAS_OLD) != 0u);
+    }
+}
+
+// Shot radiosity of the static set seen through back hemicube `slot` in
+// world direction `d` from its eye (bilinear; clamped inside the face so
+// that neighbouring faces do not bleed in), and in .a the distance.
+fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
+    let x = dot(d, b.t1.xyz);
+    let y = dot(d, b.t2.xyz);
+    let z = dot(d, b.n.xyz);
+    var face = 0u;
+    if (z < max(abs(x), abs(y))) {
+        if (abs(x) >= abs(y)) {
+            face = select(2u, 1u, x > 0.0);
+        } else {
+            face = select(4u, 3u, y > 0.0);
+        }
+    }
+    let l = face_local(b, face, d);
+    if (l.z <= 0.0) {
+        return vec4<f32>(0.0);
+    }
+    let res = f32(back.resolution);
+    let ndc = l.xy / l.z;
+    let p = clamp(vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res), vec2<f32>(0.5), vec2<f32>(res - 0.5));
+    let size = vec2<f32>(textureDimensions(back_rad));
+    let uv = (vec2<f32>(f32(face) * res, f32(slot) * res) + p) / size;
+    return textureSampleLevel(back_rad, back_sampler, uv, 0.0);
+}
+
+// P(C, j, i) of thesis eq. 3.3.2 by the non-incremental cross projection
+// (thesis §4.5.2, Alg. 4.5 PROJECTEDRADIOSITY and REPROJECT): rays from the
+// receiver `x` through a CROSS_GRID² grid on the shooter sample the back
+// hemicube of shot radiosity; each ray's direction is corrected for the
+// hemicube's different origin with the depth found along a parallel ray.
+fn projected_radiosity(slot: u32, s: Shooter, x: vec3<f32>) -> vec3<f32> {
+    let b = back_shooters[slot];
+    var acc = vec3<f32>(0.0);
+    let g = f32(CROSS_GRID);
+    for (var j = 0u; j < CROSS_GRID; j++) {
+        for (var i = 0u; i < CROSS_GRID; i++) {
+            let cell = s.corner.xyz + s.su.xyz * ((f32(i) + 0.5) / g) + s.sv.xyz * ((f32(j) + 0.5) / g);
+            let r = normalize(cell - x);
+            let depth = sample_back(slot, b, r).a;
+            let p = cell + r * depth;
+            acc += sample_back(slot, b, p - b.eye.xyz).rgb;
+        }
+    }
+    return acc / (g * g);
+}
+
+// One thread per element: what this batch redistributes to it.
+@compute @workgroup_size(64)
+fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let e = gid.x;
+    if (e >= batch.element_count) {
+        return;
+    }
+    let el = elements[e];
+    if (absent(el)) {
+        return;
+    }
+    let id = bitcast<u32>(el.normal.w);
+    let moving = is_moving(el);
+    let kind = batch.mode & KIND_MASK;
+    let n = batch.shooters;
+    let x = el.position.xyz;
+    let nx = el.normal.xyz;
+    let d = el.lookup.xyz;
+    var h = vec3<f32>(0.0);
+    if (kind == KIND_NEGATIVE) {
+        // R_p(M, C), first part: -B^s_M with the old form factors.
+        if (moving) {
+            return;
+        }
+        for (var k = 0u; k < n; k++) {
+            let s = shooters[k];
+            if (dot(x - s.corner.xyz, s.n.xyz) > 0.0 && visible(k, s, d - s.eye.xyz, id)) {
+                h += energy[k].rgb * form_factor(s, x, nx);
+            }
+        }
+    } else if (kind == KIND_STATIC) {
+        if (id == batch.patch_id) {
+            return;
+        }
+        for (var k = 0u; k < n; k++) {
+            let s = shooters[k];
+            if (dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
+                continue;
+            }
+            let dir = d - s.eye.xyz;
+            let seen_new = visible(k, s, dir, id);
+            var r = vec3<f32>(0.0);
+            if (moving) {
+                // R_p(C, M) by reshooting: the total radiosity (eq. 4.4.1).
+                if (seen_new) {
+                    r = energy[k].rgb + energy[n + k].rgb;
+                }
+            } else {
+                // R_p(C, C): the four visibility cases of Alg. 4.3 lines 25-33.
+                let seen_old = visible(n + k, s, dir, id);
+                if (seen_old && seen_new) {
+                    r = energy[k].rgb;
+                } else if (seen_new) {
+                    r = energy[k].rgb + energy[n + k].rgb;
+                } else if (seen_old) {
+                    r = -energy[n + k].rgb;
+                } else {
+                    continue;
+                }
+            }
+            h += r * form_factor(s, x, nx);
+        }
+    } else if (kind == KIND_CROSS) {
+        let has_new = (batch.mode & HAS_NEW) != 0u;
+        let has_old = (batch.mode & HAS_OLD) != 0u;
+        for (var k = 0u; k < n; k++) {
+            if (has_new) {
+                let s = shooters[k];
+                if (bitcast<u32>(s.n.w) != id && dot(x - s.corner.xyz, s.n.xyz) > 0.0
+                    && visible(k, s, d - s.eye.xyz, id)) {
+                    // R_p(M, C) and R_p(M, M) with the new total radiosity;
+                    // for C also -P(C, j', i) of eq. 3.3.1 (new occlusion).
+                    var r = energy[k].rgb;
+                    if (!moving) {
+                        r -= projected_radiosity(k, s, x);
+                    }
+                    h += r * form_factor(s, x, nx);
+                }
+            }
+            if (has_old && !moving) {
+                let s = shooters[n + k];
+                if (dot(x - s.corner.xyz, s.n.xyz) > 0.0 && visible(n + k, s, d - s.eye.xyz, id)) {
+                    // -B^s_j with the old form factor, plus P(C, j, i)
+                    // (light the old position no longer blocks).
+                    let r = energy[n + k].rgb + projected_radiosity(n + k, s, x);
+                    h += r * form_factor(s, x, nx);
+                }
+            }
+        }
+    }
+    if (any(h != vec3<f32>(0.0))) {
+        let db = vec4<f32>(el.albedo.rgb * h, 0.0);
+        radiosity[e] += db;
+        unshot[e] += db;
+    }
+}
