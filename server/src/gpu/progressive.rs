@@ -17,7 +17,7 @@ use crate::atlas::Atlas;
 use crate::scene::{PatchShape, Pose, Scene};
 
 /// WGSL shared by both shaders, prepended to each.
-const COMMON_WGSL: &str = include_str!("../../../shaders/common.wgsl");
+pub(super) const COMMON_WGSL: &str = include_str!("../../../shaders/common.wgsl");
 const HEMICUBE_WGSL: &str = include_str!("../../../shaders/hemicube.wgsl");
 const PROGRESSIVE_WGSL: &str = include_str!("../../../shaders/progressive.wgsl");
 const REDISTRIBUTE_WGSL: &str = include_str!("../../../shaders/redistribute.wgsl");
@@ -26,14 +26,14 @@ mod redistribute;
 pub use redistribute::{Move, Redistribution};
 
 /// Hemicube faces per shooter: top and four sides.
-const FACES: u32 = 5;
+pub(super) const FACES: u32 = 5;
 /// Patch id of item-buffer pixels that see no surface.
 const NO_PATCH: u32 = u32::MAX;
 /// Receiving points are moved this fraction of the scene's extent off
 /// edges and off their surface (like the reference solver's offset).
-const SURFACE_OFFSET: f32 = 1e-5;
+pub(super) const SURFACE_OFFSET: f32 = 1e-5;
 /// Workgroup size of the per-element and per-shooter compute shaders.
-const WORKGROUP: u32 = 64;
+pub(super) const WORKGROUP: u32 = 64;
 
 /// Tuning of [`ProgressiveSolver`].
 #[derive(Debug, Clone, Copy)]
@@ -136,15 +136,15 @@ struct GpuVertex {
 /// One shooter (`Shooter` in common.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GpuShooter {
-    corner: [f32; 4],
-    su: [f32; 4],
-    sv: [f32; 4],
-    eye: [f32; 4],
-    t1: [f32; 4],
-    t2: [f32; 4],
-    n: [f32; 4],
-    tile: [u32; 4],
+pub(super) struct GpuShooter {
+    pub(super) corner: [f32; 4],
+    pub(super) su: [f32; 4],
+    pub(super) sv: [f32; 4],
+    pub(super) eye: [f32; 4],
+    pub(super) t1: [f32; 4],
+    pub(super) t2: [f32; 4],
+    pub(super) n: [f32; 4],
+    pub(super) tile: [u32; 4],
 }
 
 /// Per-batch constants (`Batch` in common.wgsl).
@@ -177,18 +177,18 @@ struct Selection {
 
 /// A patch placed in the world, as the CPU needs it to place shooters.
 #[derive(Debug, Clone, Copy)]
-struct WorldPatch {
-    origin: Vec3,
-    u: Vec3,
-    v: Vec3,
-    normal: Vec3,
-    first: u32,
-    w: u32,
-    h: u32,
+pub(super) struct WorldPatch {
+    pub(super) origin: Vec3,
+    pub(super) u: Vec3,
+    pub(super) v: Vec3,
+    pub(super) normal: Vec3,
+    pub(super) first: u32,
+    pub(super) w: u32,
+    pub(super) h: u32,
 }
 
 impl WorldPatch {
-    fn corners(&self) -> [Vec3; 4] {
+    pub(super) fn corners(&self) -> [Vec3; 4] {
         [
             self.origin,
             self.origin + self.u,
@@ -200,7 +200,7 @@ impl WorldPatch {
 
 /// Every patch placed at its object's pose; `layout` gives each patch's
 /// first element and chart size.
-fn place_patches(
+pub(super) fn place_patches(
     shapes: &[PatchShape],
     objects: &[u32],
     layout: &[[u32; 3]],
@@ -226,7 +226,7 @@ fn place_patches(
 }
 
 /// World areas of elements: scale-1 areas times their object's scale².
-fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec<f32> {
+pub(super) fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec<f32> {
     local
         .iter()
         .zip(objects)
@@ -369,7 +369,7 @@ struct SharedBuffers {
 }
 
 /// A compute pipeline with an automatic layout and its bind group.
-fn compute(
+pub(super) fn compute(
     device: &wgpu::Device,
     module: &wgpu::ShaderModule,
     entry: &str,
@@ -402,7 +402,7 @@ fn compute_with(
 }
 
 /// A bind group from (binding, resource) pairs.
-fn bind(
+pub(super) fn bind(
     device: &wgpu::Device,
     label: &str,
     layout: &wgpu::BindGroupLayout,
@@ -422,7 +422,7 @@ fn bind(
     })
 }
 
-fn v4(v: Vec3, w: f32) -> [f32; 4] {
+pub(super) fn v4(v: Vec3, w: f32) -> [f32; 4] {
     [v.x, v.y, v.z, w]
 }
 
@@ -1324,7 +1324,7 @@ impl ProgressiveSolver {
 }
 
 /// Waits for the GPU and copies a mappable buffer's contents out.
-fn map_read(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+pub(super) fn map_read(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
     let (tx, rx) = std::sync::mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, .., move |result| {
         // The receiver outlives the poll below; a send error cannot happen.
