@@ -34,10 +34,12 @@
 
 mod device;
 mod dynamic;
+mod gather;
 mod progressive;
 
 pub use device::{Device, GpuError};
 pub use dynamic::{DynamicOptions, DynamicSolver, DynamicStep};
+pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};
 pub use progressive::{
     EnergyBalance, Move, ProgressiveOptions, ProgressiveSolver, Redistribution, StepReport,
 };
