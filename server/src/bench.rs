@@ -7,9 +7,12 @@
 //! atlas (when the scene is small enough for its dense matrix); its times to
 //! the same fractions are those at which one Jacobi sweep adds less than
 //! that fraction of the emitted power (form factor time included), the
-//! closest analogue of "unshot power" a Jacobi solver has. The progressive
-//! lightmap at 0.1% is compared with the converged reference by
-//! [`crate::metrics::nrmse`].
+//! closest analogue of "unshot power" a Jacobi solver has. The gather GPU
+//! solver (thesis Alg. 4.1) is Jacobi too, one bounce per sweep, and is
+//! timed the same way: when the power changed by its last completed bounce,
+//! `Σ A_i |ΔB_i|`, first falls to each fraction of the emitted power. The
+//! progressive and gather lightmaps at 0.1% are compared with the converged
+//! reference by [`crate::metrics::nrmse`].
 
 use std::path::Path;
 use std::sync::Mutex;
@@ -19,7 +22,7 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 
 use crate::atlas::Atlas;
-use crate::gpu::{Device, ProgressiveOptions, ProgressiveSolver};
+use crate::gpu::{Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver};
 use crate::metrics::nrmse;
 use crate::reference::{self, ReferenceSolver, SolveOptions};
 use crate::scene::{LoadOptions, Scene};
@@ -43,7 +46,8 @@ pub struct SolverResult {
     /// Seconds until the fraction ("0.1", "0.01", "0.001") was reached;
     /// `null` if it never was.
     pub seconds_to: std::collections::BTreeMap<String, Option<f64>>,
-    /// Shooters per second (progressive only).
+    /// Progressive: shooters per second. Gather: hemicubes (elements
+    /// gathered) per second. Reference: `null`.
     pub shots_per_second: Option<f64>,
     /// NRMSE against the converged reference solution (`null` when the
     /// reference could not run).
@@ -78,12 +82,22 @@ impl reference::Progress for SweepClock {
     }
 }
 
-/// Benchmarks one scene file.
+/// Records the first time `fraction` is at most each of [`FRACTIONS`].
+fn record(times: &mut [Option<f64>; 3], fraction: f64, now: f64) {
+    for (t, f) in times.iter_mut().zip(FRACTIONS) {
+        if t.is_none() && fraction <= f {
+            *t = Some(now);
+        }
+    }
+}
+
+/// Benchmarks one scene file: progressive, reference, gather.
 pub fn solve_scene(
     gpu: &Device,
     path: &Path,
     density_scale: f32,
     options: ProgressiveOptions,
+    gather_options: GatherOptions,
 ) -> Result<SceneResult> {
     let scene = Scene::load_with(path, LoadOptions { density_scale })?;
     let atlas =
@@ -97,12 +111,7 @@ pub fn solve_scene(
     let mut shots = 0;
     loop {
         let fraction = solver.unshot_fraction();
-        let now = started.elapsed().as_secs_f64();
-        for (t, f) in times.iter_mut().zip(FRACTIONS) {
-            if t.is_none() && fraction <= f {
-                *t = Some(now);
-            }
-        }
+        record(&mut times, fraction, started.elapsed().as_secs_f64());
         if fraction <= FRACTIONS[2] {
             break;
         }
@@ -151,6 +160,31 @@ pub fn solve_scene(
             nrmse_vs_reference: Some(0.0),
         });
     }
+
+    // Gather: setup is not counted either; bounce by bounce.
+    let mut solver = GatherSolver::new(gpu, &scene, &atlas, &poses, gather_options)?;
+    let started = Instant::now();
+    let mut times = [None; 3];
+    while solver.change_fraction() > FRACTIONS[2]
+        && solver.total_bounces() < u64::from(gather_options.max_bounces)
+    {
+        let report = solver.bounce()?;
+        record(
+            &mut times,
+            report.change_fraction,
+            started.elapsed().as_secs_f64(),
+        );
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let gather = solver.radiosity()?;
+    solvers.push(SolverResult {
+        name: "gather".into(),
+        seconds_to: seconds_map(&times),
+        shots_per_second: (seconds > 0.0).then(|| solver.total_hemicubes() as f64 / seconds),
+        nrmse_vs_reference: reference
+            .as_ref()
+            .and_then(|r| nrmse(&gather, &r.radiosity)),
+    });
     Ok(SceneResult {
         scene: scene.name.clone(),
         adapter: gpu.describe(),

@@ -45,17 +45,19 @@ enum Command {
         density_scale: f32,
         /// Reference: stop when one sweep adds less than this fraction of
         /// the emitted power. Progressive: stop when the unshot power is
-        /// below this fraction of the emitted power.
+        /// below this fraction of the emitted power. Gather: stop when one
+        /// bounce changes less than this fraction of the emitted power.
         #[arg(long, default_value_t = 1e-4)]
         tolerance: f64,
         /// GPU solvers: use the adapter whose name contains this
         /// (case-insensitive); default: prefer a discrete GPU.
         #[arg(long)]
         adapter: Option<String>,
-        /// Progressive solver: top-face resolution of the hemicubes.
-        #[arg(long, default_value_t = 64)]
-        hemicube_resolution: u32,
-        /// Progressive solver: write indirect light only (gems §39.4).
+        /// GPU solvers: top-face resolution of the hemicubes [default: 64
+        /// for progressive, 32 for gather].
+        #[arg(long)]
+        hemicube_resolution: Option<u32>,
+        /// GPU solvers: write indirect light only (gems §39.4).
         #[arg(long)]
         indirect_only: bool,
     },
@@ -79,8 +81,10 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchCommand {
-    /// Time to 10%, 1% and 0.1% unshot power, shots per second, and the
-    /// reference solver on the same atlas, per scene.
+    /// Per scene: the progressive solver's time to 10%, 1% and 0.1%
+    /// unshot power and shots per second; the reference and the gather
+    /// solver on the same atlas, timed to the same fractions of power
+    /// changed per sweep or bounce; NRMSE against the reference.
     Solve {
         /// Scene files; default: the four thesis scenes in scenes/.
         #[arg(long = "scene")]
@@ -94,9 +98,12 @@ enum BenchCommand {
         /// Use the adapter whose name contains this.
         #[arg(long)]
         adapter: Option<String>,
-        /// Top-face resolution of the hemicubes.
+        /// Progressive solver: top-face resolution of the hemicubes.
         #[arg(long, default_value_t = 64)]
         hemicube_resolution: u32,
+        /// Gather solver: top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 32)]
+        gather_resolution: u32,
     },
 }
 
@@ -107,13 +114,16 @@ enum SolverKind {
     /// GPU: progressive refinement with hemicube item buffers (thesis
     /// Alg. 4.2).
     Progressive,
+    /// GPU: gather radiosity, a radiosity hemicube per element and bounce
+    /// (thesis Alg. 4.1).
+    Gather,
 }
 
 /// Solver settings from the command line.
 struct SolveSettings {
     tolerance: f64,
     adapter: Option<String>,
-    hemicube_resolution: u32,
+    hemicube_resolution: Option<u32>,
     indirect_only: bool,
 }
 
@@ -153,13 +163,14 @@ fn main() -> ExitCode {
                     json,
                     adapter,
                     hemicube_resolution,
+                    gather_resolution,
                 },
         } => bench_solve_command(
             scenes,
             density_scale,
             json,
             adapter.as_deref(),
-            hemicube_resolution,
+            (hemicube_resolution, gather_resolution),
         ),
         Command::Serve(flags) => serve_command(flags),
     };
@@ -242,8 +253,8 @@ fn bake_command(
     settings: SolveSettings,
 ) -> Result<()> {
     let tolerance = settings.tolerance;
-    if settings.indirect_only && !matches!(solver, SolverKind::Progressive) {
-        anyhow::bail!("--indirect-only needs --solver progressive");
+    if settings.indirect_only && matches!(solver, SolverKind::Reference) {
+        anyhow::bail!("--indirect-only needs --solver progressive or gather");
     }
     if !(tolerance > 0.0 && tolerance < 1.0) {
         anyhow::bail!("--tolerance {tolerance} must be between 0 and 1");
@@ -298,10 +309,13 @@ fn bake_command(
         SolverKind::Progressive => {
             let gpu = gpu::Device::new(settings.adapter.as_deref())?;
             eprintln!("  adapter: {}", gpu.describe());
+            let defaults = gpu::ProgressiveOptions::default();
             let options = gpu::ProgressiveOptions {
-                hemicube_resolution: settings.hemicube_resolution,
+                hemicube_resolution: settings
+                    .hemicube_resolution
+                    .unwrap_or(defaults.hemicube_resolution),
                 indirect_only: settings.indirect_only,
-                ..Default::default()
+                ..defaults
             };
             let solve_started = Instant::now();
             let mut solver = gpu::ProgressiveSolver::new(&gpu, &scene, &atlas, &poses, options)?;
@@ -332,6 +346,51 @@ fn bake_command(
             };
             (values, stats)
         }
+        SolverKind::Gather => {
+            let gpu = gpu::Device::new(settings.adapter.as_deref())?;
+            eprintln!("  adapter: {}", gpu.describe());
+            let defaults = gpu::GatherOptions::default();
+            let options = gpu::GatherOptions {
+                hemicube_resolution: settings
+                    .hemicube_resolution
+                    .unwrap_or(defaults.hemicube_resolution),
+                indirect_only: settings.indirect_only,
+                ..defaults
+            };
+            let solve_started = Instant::now();
+            let mut solver = gpu::GatherSolver::new(&gpu, &scene, &atlas, &poses, options)?;
+            let report = solver.solve(tolerance)?;
+            let values = solver.radiosity()?;
+            let solve_seconds = solve_started.elapsed().as_secs_f64();
+            let balance = solver.energy_balance()?;
+            eprintln!(
+                "  {} bounces ({} hemicubes at {}x{}), last bounce changed {:.2e} of emitted power, {:.2} s",
+                report.bounces,
+                report.hemicubes,
+                solver.hemicube_resolution(),
+                solver.hemicube_resolution(),
+                report.change_fraction,
+                solve_seconds
+            );
+            let stats = BakeStats {
+                scene: scene.name.clone(),
+                solver: "gather".into(),
+                elements: atlas.elements.len(),
+                static_elements: atlas.elements.len() - dynamic,
+                dynamic_elements: dynamic,
+                atlas_width: atlas.width,
+                atlas_height: atlas.height,
+                iterations: report.bounces as usize,
+                residual_fraction: report.change_fraction,
+                seconds: started.elapsed().as_secs_f64(),
+                form_factor_seconds: 0.0,
+                solve_seconds,
+                emitted_power: balance.emitted,
+                absorbed_power: balance.absorbed,
+                escaped_power: (balance.emitted - balance.absorbed).max(0.0),
+            };
+            (values, stats)
+        }
     };
     bake::write_outputs(&out, &scene, &atlas, &poses, &values, &stats)
         .with_context(|| format!("writing bake of {}", path.display()))?;
@@ -348,7 +407,7 @@ fn bench_solve_command(
     density_scale: f32,
     json: Option<PathBuf>,
     adapter: Option<&str>,
-    hemicube_resolution: u32,
+    (hemicube_resolution, gather_resolution): (u32, u32),
 ) -> Result<()> {
     if scenes.is_empty() {
         scenes = [
@@ -367,6 +426,10 @@ fn bench_solve_command(
         hemicube_resolution,
         ..Default::default()
     };
+    let gather_options = gpu::GatherOptions {
+        hemicube_resolution: gather_resolution,
+        ..Default::default()
+    };
     let mut results = Vec::new();
     let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.3}"));
     println!(
@@ -374,7 +437,7 @@ fn bench_solve_command(
     );
     println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
     for path in &scenes {
-        let result = bench::solve_scene(&gpu, path, density_scale, options)
+        let result = bench::solve_scene(&gpu, path, density_scale, options, gather_options)
             .with_context(|| format!("benchmarking {}", path.display()))?;
         for s in &result.solvers {
             let t: Vec<Option<f64>> = s.seconds_to.values().copied().collect();
