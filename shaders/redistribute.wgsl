@@ -288,30 +288,44 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
             h += r * form_factor(s, x, nx);
         }
     } else if (kind == KIND_CROSS) {
+        // Slots: [0, n) new front, [n, 2n) new back, [2n, 3n) old front,
+        // [3n, 4n) old back hemicubes of the same n moving elements.
         let has_new = (batch.mode & HAS_NEW) != 0u;
         let has_old = (batch.mode & HAS_OLD) != 0u;
         for (var k = 0u; k < n; k++) {
-            if (has_new) {
-                let s = shooters[k];
-                if (bitcast<u32>(s.n.w) != id && dot(x - s.corner.xyz, s.n.xyz) > 0.0
-                    && visible(k, s, d - s.eye.xyz, id)) {
-                    // R_p(M, C) and R_p(M, M) with the new total radiosity;
-                    // for C also -P(C, j', i) of eq. 3.3.1 (new occlusion).
-                    var r = energy[k].rgb;
-                    if (!moving) {
-                        r -= projected_radiosity(k, s, x);
-                    }
-                    h += r * form_factor(s, x, nx);
+            for (var side = 0u; side < 4u; side++) {
+                let q = side * n + k;
+                let new_pose = side < 2u;
+                let front = (side & 1u) == 0u;
+                if ((new_pose && !has_new) || (!new_pose && !has_old)) {
+                    continue;
                 }
-            }
-            if (has_old && !moving) {
-                let s = shooters[n + k];
-                if (dot(x - s.corner.xyz, s.n.xyz) > 0.0 && visible(n + k, s, d - s.eye.xyz, id)) {
-                    // -B^s_j with the old form factor, plus P(C, j, i)
-                    // (light the old position no longer blocks).
-                    let r = energy[n + k].rgb + projected_radiosity(n + k, s, x);
-                    h += r * form_factor(s, x, nx);
+                // A moving element receives only what the front of the new
+                // position shoots (R_p(M, M)); its own patch never.
+                if (moving && !(new_pose && front)) {
+                    continue;
                 }
+                let s = shooters[q];
+                if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0
+                    || !visible(q, s, d - s.eye.xyz, id)) {
+                    continue;
+                }
+                var r = vec3<f32>(0.0);
+                if (new_pose && front) {
+                    // R_p(M, C) and R_p(M, M) with the new total radiosity.
+                    r = energy[k].rgb;
+                } else if (front) {
+                    // -B^s_j with the old form factor (R_p(M, C)).
+                    r = energy[n + k].rgb;
+                }
+                if (!moving) {
+                    // R_x(C, C), eq. 3.3.1: -P(C, j', i) for the light the
+                    // new position blocks, +P(C, j, i) for what the old one
+                    // no longer blocks; from either side of the patch.
+                    let p = projected_radiosity(q, s, x);
+                    r += select(p, -p, new_pose);
+                }
+                h += r * form_factor(s, x, nx);
             }
         }
     }

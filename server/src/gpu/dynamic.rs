@@ -47,6 +47,19 @@ pub struct DynamicOptions {
     /// Unshot fractions of the emitted power at which full and incremental
     /// states are published, and to which refinement continues (the last).
     pub publish_at: [f64; 2],
+    /// Incremental only: every this many moves, the move is followed by a
+    /// full recompute instead (0: never). Incremental redistribution is
+    /// exact in theory (thesis §4.4) but each move leaves a little
+    /// discretization error (shooter tiles and item-buffer visibility of
+    /// the take-back differ from those of the original shots) and that
+    /// error random-walks: on cornell-low we measured an NRMSE against a
+    /// from-scratch solve of 0.3% after one move, 0.8% after 10, 1.5%
+    /// after 25, 2.1% after 50 and 4.8% after 200 moves. On this kind of
+    /// scene a full recompute costs about as much as one incremental move
+    /// (thesis Table 5.2 shows the same for the Cornell scenes), so
+    /// re-anchoring every 10 moves keeps the error near its one-move level
+    /// for about 10% more work.
+    pub reanchor_every: u32,
     /// The progressive solver underneath.
     pub progressive: ProgressiveOptions,
 }
@@ -56,6 +69,7 @@ impl Default for DynamicOptions {
         Self {
             method: Redistribution::default(),
             publish_at: [1e-2, 1e-3],
+            reanchor_every: 10,
             progressive: ProgressiveOptions::default(),
         }
     }
@@ -111,6 +125,8 @@ pub struct DynamicSolver {
     static_unshot: f64,
     /// Completed states so far.
     versions: u64,
+    /// Incremental moves since the last full solve.
+    since_anchor: u32,
 }
 
 impl DynamicSolver {
@@ -159,6 +175,7 @@ impl DynamicSolver {
             next_level: 0,
             static_unshot: 1.0,
             versions: 0,
+            since_anchor: 0,
         })
     }
 
@@ -375,8 +392,16 @@ impl DynamicSolver {
             self.reflected = self.working.clone();
             return Ok(());
         }
-        match self.options.method {
+        let mut method = self.options.method;
+        if method == Redistribution::Incremental {
+            self.since_anchor += 1;
+            if self.options.reanchor_every > 0 && self.since_anchor >= self.options.reanchor_every {
+                method = Redistribution::Full;
+            }
+        }
+        match method {
             Redistribution::Full => {
+                self.since_anchor = 0;
                 self.solver = ProgressiveSolver::new(
                     &self.gpu,
                     &self.scene,

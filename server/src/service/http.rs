@@ -1,5 +1,6 @@
 //! HTTP routes: health, readiness, metrics, the REST API, lightmap
-//! snapshots, the WebSocket upgrade and the dashboard.
+//! snapshots, the WebSocket upgrade and the dashboard (its embedded files
+//! are in [`super::dashboard`]).
 
 use std::collections::HashMap;
 use std::io::Cursor;
@@ -10,19 +11,21 @@ use std::sync::atomic::Ordering;
 use axum::Router;
 use axum::extract::{ConnectInfo, Path, Query, State, WebSocketUpgrade};
 use axum::http::{HeaderMap, StatusCode, header};
-use axum::response::{Html, IntoResponse, Response};
+use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use lightwire_protocol::lightmap::Lightmap;
 use serde_json::json;
 
 use super::AppState;
+use super::dashboard;
 use super::runtime::SceneRuntime;
 use super::session;
 
 /// Builds the router.
 pub fn router(state: Arc<AppState>) -> Router {
     Router::new()
-        .route("/", get(dashboard))
+        .route("/", get(dashboard::index))
+        .route("/dashboard/{*path}", get(dashboard::file))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/readyz", get(readyz))
         .route("/metrics", get(metrics))
@@ -234,28 +237,4 @@ async fn websocket(
         .max_message_size(max)
         .max_frame_size(max)
         .on_upgrade(move |socket| session::run(socket, state, s, token))
-}
-
-/// Escapes text for HTML.
-fn escape(text: &str) -> String {
-    text.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
-
-async fn dashboard(State(state): State<Arc<AppState>>) -> Html<String> {
-    let scenes: String = state
-        .scenes
-        .keys()
-        .map(|id| {
-            let id = escape(id);
-            format!(
-                "<li>{id}: <a href=\"/api/scenes/{id}\">scene info</a>, <a href=\"/api/scenes/{id}/lightmap.png\">lightmap.png</a>, <a href=\"/api/scenes/{id}/lightmap.exr\">lightmap.exr</a>, WebSocket <code>/ws/scenes/{id}</code></li>"
-            )
-        })
-        .collect();
-    Html(format!(
-        "<!doctype html><meta charset=utf-8><title>Lightwire</title><h1>Lightwire</h1><p>The live dashboard is not built yet; these endpoints are.</p><ul>{scenes}</ul><p><a href=\"/metrics\">metrics</a> · <a href=\"/readyz\">readyz</a> · <a href=\"/api/scenes\">scenes</a></p>"
-    ))
 }

@@ -19,11 +19,13 @@
 //!    buffer, whatever the client does.
 //!
 //! [`http`] serves the REST endpoints, metrics and the WebSocket upgrade;
+//! [`dashboard`] the web dashboard's files, embedded in the binary;
 //! [`config`] merges the config file, flags and environment; [`auth`] maps
 //! tokens to roles.
 
 pub mod auth;
 pub mod config;
+pub mod dashboard;
 pub mod http;
 pub mod live;
 pub mod metrics;

@@ -457,7 +457,10 @@ impl ProgressiveSolver {
         }
         self.queue.submit([encoder.finish()]);
 
+        // Incremental batches hold two hemicubes per shooter, cross batches
+        // four (front and back, at the new and the old position).
         let half = self.batch_capacity / 2;
+        let quarter = (self.batch_capacity / 4).max(1);
         let in_m = |p: usize| mv.moving[self.patch_objects[p] as usize];
         match method {
             Redistribution::Incremental => {
@@ -489,7 +492,7 @@ impl ProgressiveSolver {
                     let count = wp.w * wp.h;
                     let mut first = 0;
                     while first < count {
-                        let n = half.min(count - first);
+                        let n = quarter.min(count - first);
                         mv.jobs.push_back(Job::Cross {
                             patch: p as u32,
                             first,
@@ -593,16 +596,29 @@ impl ProgressiveSolver {
                 let has_old = !mv.old_absent[object];
                 let new_wp = self.patches[patch as usize];
                 let old_wp = old_patches[patch as usize];
-                let mut list = Vec::with_capacity(2 * count as usize);
+                // Slots: [new front, new back, old front, old back], n each.
+                // The back hemicubes make the moving patches two-sided
+                // occluders for the cross projection: a static element
+                // behind a moving patch (inside a closed object, e.g. the
+                // floor under a box resting on it) loses the light the
+                // patch blocks from its front side.
+                let mut list = Vec::with_capacity(4 * count as usize);
                 for (wp, areas) in [(&new_wp, &self.areas), (&old_wp, &old_areas)] {
-                    for i in first..first + count {
-                        let (a, b) = (i % wp.w, i / wp.w);
-                        let mut s = self.shooter(patch, wp, areas, [a, b, a + 1, b + 1]);
-                        s.eye[3] = f32::from_bits(wp.first + i);
-                        list.push(s);
-                    }
+                    let front: Vec<GpuShooter> = (first..first + count)
+                        .map(|i| {
+                            let (a, b) = (i % wp.w, i / wp.w);
+                            let mut s = self.shooter(patch, wp, areas, [a, b, a + 1, b + 1]);
+                            s.eye[3] = f32::from_bits(wp.first + i);
+                            s
+                        })
+                        .collect();
+                    let back: Vec<GpuShooter> = front.iter().map(|s| self.flipped(s)).collect();
+                    list.extend(front);
+                    list.extend(back);
                 }
-                let back: Vec<GpuShooter> = list.iter().map(|s| self.back_shooter(s)).collect();
+                // The see-through radiosity hemicubes look the other way:
+                // what a patch hides from a receiver lies on its far side.
+                let through: Vec<GpuShooter> = list.iter().map(|s| self.flipped(s)).collect();
                 let mut mode = KIND_CROSS;
                 if has_new {
                     mode |= HAS_NEW;
@@ -610,15 +626,15 @@ impl ProgressiveSolver {
                 if has_old {
                     mode |= HAS_OLD;
                 }
-                self.upload(&list, self.batch_uniform(patch, count, count, mode));
-                let mut back_uniform = self.batch_uniform(patch, count, count, RAD_BACK);
+                self.upload(&list, self.batch_uniform(patch, count, 2 * count, mode));
+                let mut back_uniform = self.batch_uniform(patch, count, 2 * count, RAD_BACK);
                 back_uniform.resolution = self.options.back_resolution.max(1);
                 let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.queue
-                    .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&back));
+                    .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&through));
                 self.queue
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
-                self.encode_item_buffers(&mut encoder, 2 * count);
+                self.encode_item_buffers(&mut encoder, 4 * count);
                 let clear = wgpu::Color::TRANSPARENT;
                 if has_new {
                     self.encode_hemicubes(
@@ -640,7 +656,7 @@ impl ProgressiveSolver {
                     &d.back_depth_view,
                     clear,
                     back_uniform.resolution,
-                    2 * count,
+                    4 * count,
                 );
                 Self::encode_compute(&mut encoder, &d.gather, count);
                 Self::encode_compute(
@@ -662,9 +678,10 @@ impl ProgressiveSolver {
         (gx, gy)
     }
 
-    /// The hemicube on the back of a shooter: the eye below the surface,
-    /// looking along -n (thesis Alg. 4.4 lines 10-11).
-    fn back_shooter(&self, s: &GpuShooter) -> GpuShooter {
+    /// The hemicube on the other side of a shooter: the eye as far behind
+    /// the surface as it was in front, looking along -n (thesis Alg. 4.4
+    /// lines 10-11 place one on the back). Flipping twice gives the front.
+    fn flipped(&self, s: &GpuShooter) -> GpuShooter {
         let n = Vec3::from_slice(&s.n[..3]);
         let corner = Vec3::from_slice(&s.corner[..3]);
         let su = Vec3::from_slice(&s.su[..3]);
@@ -672,7 +689,7 @@ impl ProgressiveSolver {
         let eye = corner + (su + sv) * 0.5 - n * (self.near * 2.0);
         let t2 = Vec3::from_slice(&s.t2[..3]);
         GpuShooter {
-            eye: super::v4(eye, 0.0),
+            eye: super::v4(eye, s.eye[3]),
             t2: super::v4(-t2, 0.0),
             n: super::v4(-n, s.n[3]),
             ..*s

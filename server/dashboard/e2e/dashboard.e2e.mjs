@@ -1,0 +1,240 @@
+// End-to-end test of the dashboard in a real browser: Debian's headless
+// Chromium, driven by Playwright (`playwright-core`, which never downloads a
+// browser), WebGL2 on SwiftShader (no GPU here).
+//
+//   node e2e/dashboard.e2e.mjs --url http://127.0.0.1:PORT/ --artifacts DIR
+//
+// The server must already run (in development mode, so the page may drive);
+// `server/tests/dashboard.rs` starts one and runs this script. Checks, in
+// order, each a contract of issue 7:
+//
+//  1. the page loads and no console error, page error, failed request or
+//     HTTP error response happens at any time (checked again at the end);
+//  2. the WebSocket connects (Welcome received, role allows driving);
+//  3. the convergence chart gets at least three points;
+//  4. the atlas view is not blank;
+//  5. the 3D view draws pixels other than its background;
+//  6. after the test drags the dynamic box across the 3D view with the
+//     mouse, a newer lightmap version arrives that reflects the drag's last
+//     transform, and the atlas image changes.
+//
+// Screenshots go to the artifacts directory (before and after the move).
+// Exits 0 if every check passed, 1 otherwise, printing what failed.
+
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { parseArgs } from 'node:util';
+
+import { chromium } from 'playwright-core';
+
+const { values: args } = parseArgs({
+  options: {
+    url: { type: 'string' },
+    artifacts: { type: 'string', default: 'target/dashboard-artifacts' },
+    chromium: { type: 'string', default: process.env.CHROMIUM ?? '/usr/bin/chromium' },
+    timeout: { type: 'string', default: '90' },
+  },
+});
+if (!args.url) {
+  console.error('usage: node e2e/dashboard.e2e.mjs --url http://HOST:PORT/ [--artifacts DIR] [--chromium PATH]');
+  process.exit(2);
+}
+if (!fs.existsSync(args.chromium)) {
+  console.error(`no Chromium at ${args.chromium}: install the Debian package \`chromium\` (make test does)`);
+  process.exit(2);
+}
+const TIMEOUT_MS = Number(args.timeout) * 1000;
+fs.mkdirSync(args.artifacts, { recursive: true });
+
+const started = Date.now();
+const elapsed = () => `${((Date.now() - started) / 1000).toFixed(1)}s`;
+const results = [];
+const problems = []; // console errors and the like, any time
+function check(name, ok, detail) {
+  results.push({ name, ok, detail });
+  console.log(`${ok ? 'ok  ' : 'FAIL'} ${name}${detail ? ` — ${detail}` : ''} [${elapsed()}]`);
+  return ok;
+}
+
+const userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'lightwire-chromium-'));
+const context = await chromium.launchPersistentContext(userDataDir, {
+  executablePath: args.chromium,
+  headless: true,
+  viewport: { width: 1400, height: 1000 },
+  // Chromium complains on stderr without a runtime directory; give it one.
+  env: { ...process.env, XDG_RUNTIME_DIR: userDataDir },
+  args: [
+    '--headless',
+    '--no-sandbox',
+    '--disable-gpu',
+    '--disable-quic',
+    '--no-first-run',
+    '--disable-background-networking',
+    '--disable-component-update',
+    '--disable-sync',
+    // WebGL2 without a GPU: ANGLE on SwiftShader's software Vulkan.
+    '--use-angle=swiftshader',
+    '--enable-unsafe-swiftshader',
+  ],
+});
+
+let exitCode = 1;
+try {
+  const page = context.pages()[0] ?? (await context.newPage());
+  page.setDefaultTimeout(TIMEOUT_MS);
+  page.on('console', (m) => {
+    if (m.type() === 'error') problems.push(`console error: ${m.text()}`);
+  });
+  page.on('pageerror', (e) => problems.push(`page error: ${e.message}`));
+  page.on('requestfailed', (r) => {
+    // A WebSocket closed by the server at teardown is not a failure of the page.
+    if (r.resourceType() !== 'websocket') problems.push(`request failed: ${r.url()} ${r.failure()?.errorText}`);
+  });
+  page.on('response', (r) => {
+    if (r.status() >= 400) problems.push(`HTTP ${r.status()} for ${r.url()}`);
+  });
+  const snapshot = () => page.evaluate(() => window.lightwire.snapshot());
+  const waitFor = async (what, predicate, arg) => {
+    try {
+      await page.waitForFunction(predicate, arg, { timeout: TIMEOUT_MS, polling: 100 });
+      return true;
+    } catch {
+      console.log(`timed out waiting for ${what}: ${JSON.stringify(await snapshot())}`);
+      return false;
+    }
+  };
+
+  // 1. Load.
+  const response = await page.goto(args.url, { waitUntil: 'load' });
+  check('page loads', response?.ok() === true, `HTTP ${response?.status()}`);
+  const csp = response?.headers()['content-security-policy'] ?? '';
+  check('the page forbids other origins (CSP)', csp.includes("default-src 'self'"), csp);
+  await page.waitForFunction(() => window.lightwire !== undefined);
+
+  // 2. WebSocket.
+  const connected = await waitFor('Welcome', () => window.lightwire.snapshot().state === 'connected');
+  let snap = await snapshot();
+  check('WebSocket connects and the server welcomes the page', connected, `scene ${snap.scene}, role ${snap.role}`);
+  check('WebGL2 works (SwiftShader in headless Chromium)', !!snap.renderer, snap.renderer);
+  check('development mode lets the page drive', ['Driver', 'Admin'].includes(snap.role), snap.role);
+
+  // 3. Chart.
+  const points = await waitFor('three chart points', () => window.lightwire.snapshot().chartPoints >= 3);
+  snap = await snapshot();
+  check('the convergence chart gets at least three points', points, `${snap.chartPoints} points`);
+
+  // Let the first solve converge, so that later changes are the move's: the
+  // version must stand still for 2 s (the solver publishes while it shoots).
+  const settled = await waitFor(
+    'the lightmap to settle',
+    () => {
+      const s = window.lightwire.snapshot();
+      const w = (window.__settle ??= { version: -1, since: 0 });
+      if (s.version !== w.version || !s.hasLightmap) {
+        w.version = s.version;
+        w.since = performance.now();
+        return false;
+      }
+      return performance.now() - w.since > 2000;
+    },
+  );
+  snap = await snapshot();
+  check('a first lightmap arrives and settles', settled && snap.version > 0, `version ${snap.version}`);
+  await page.waitForTimeout(300); // a couple of animation frames
+
+  // 4. Atlas not blank.
+  const atlas = await page.evaluate(() => {
+    const c = document.getElementById('atlas');
+    const data = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    window.__atlasBefore = data;
+    let lit = 0;
+    for (let i = 0; i < data.length; i += 4) if (data[i] + data[i + 1] + data[i + 2] > 24) lit++;
+    return { width: c.width, height: c.height, lit, fraction: lit / (c.width * c.height) };
+  });
+  check('the atlas view is not blank', atlas.fraction > 0.05, `${atlas.width}x${atlas.height}, ${(atlas.fraction * 100).toFixed(1)}% of texels lit`);
+
+  // 5. 3D view draws.
+  const readView = () =>
+    page.evaluate(() => {
+      const gl = document.getElementById('view');
+      const c = document.createElement('canvas');
+      c.width = gl.width;
+      c.height = gl.height;
+      const ctx = c.getContext('2d');
+      ctx.drawImage(gl, 0, 0);
+      const data = ctx.getImageData(0, 0, c.width, c.height).data;
+      const bg = [0.07, 0.08, 0.1].map((v) => Math.round(v * 255));
+      let drawn = 0;
+      for (let i = 0; i < data.length; i += 4) {
+        if (Math.abs(data[i] - bg[0]) + Math.abs(data[i + 1] - bg[1]) + Math.abs(data[i + 2] - bg[2]) > 12) drawn++;
+      }
+      return { width: c.width, height: c.height, fraction: drawn / (c.width * c.height) };
+    });
+  const view = await readView();
+  check('the 3D view draws non-background pixels', view.fraction > 0.1, `${view.width}x${view.height}, ${(view.fraction * 100).toFixed(1)}% not background`);
+
+  await page.screenshot({ path: path.join(args.artifacts, 'dashboard-before.png'), fullPage: true });
+  await page.locator('#view').screenshot({ path: path.join(args.artifacts, 'view-before.png') });
+  await page.locator('#atlas').screenshot({ path: path.join(args.artifacts, 'atlas-before.png') });
+
+  // 6. Drag the box with the mouse, as a person would.
+  const versionBefore = snap.version;
+  const box = snap.dynamicObjects[0];
+  check('the scene has a dynamic object', box !== undefined, `object ${box}`);
+  const from = await page.evaluate((i) => window.lightwire.objectScreenPoint(i), box);
+  const to = { x: from.x + 140, y: from.y + 25 };
+  await page.mouse.move(from.x, from.y);
+  await page.mouse.down();
+  for (let k = 1; k <= 12; k++) {
+    await page.mouse.move(from.x + ((to.x - from.x) * k) / 12, from.y + ((to.y - from.y) * k) / 12);
+    await page.waitForTimeout(40);
+  }
+  await page.mouse.up();
+  await page.waitForTimeout(100); // the last transform leaves after the throttle period
+  snap = await snapshot();
+  const seq = snap.lastSentSeq;
+  const moved = await page.evaluate((i) => window.lightwire.objectScreenPoint(i), box);
+  check('dragging the box moves it and sends transforms', seq > 0 && Math.hypot(moved.x - from.x, moved.y - from.y) > 50, `seq ${seq}, box now at (${moved.x.toFixed(0)}, ${moved.y.toFixed(0)}), was (${from.x.toFixed(0)}, ${from.y.toFixed(0)})`);
+
+  const reflected = await waitFor(
+    'a version reflecting the move',
+    ([object, s]) => (window.lightwire.snapshot().reflected[object] ?? 0) >= s,
+    [box, seq],
+  );
+  await page.waitForTimeout(300); // let the frame loop redraw
+  snap = await snapshot();
+  check(
+    'the lightmap version increases and reflects the last transform',
+    reflected && snap.version > versionBefore,
+    `version ${versionBefore} -> ${snap.version}, reflected seq ${snap.reflected[box]}, move -> light ${snap.latencyMs?.toFixed(0)} ms`,
+  );
+  const diff = await page.evaluate(() => {
+    const c = document.getElementById('atlas');
+    const now = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    const before = window.__atlasBefore;
+    let changed = 0;
+    for (let i = 0; i < now.length; i += 4) {
+      if (Math.abs(now[i] - before[i]) + Math.abs(now[i + 1] - before[i + 1]) + Math.abs(now[i + 2] - before[i + 2]) > 6) changed++;
+    }
+    return { changed, fraction: changed / (c.width * c.height) };
+  });
+  check('the atlas changes after the move', diff.changed > 50, `${diff.changed} texels (${(diff.fraction * 100).toFixed(1)}%) changed`);
+
+  await page.screenshot({ path: path.join(args.artifacts, 'dashboard-after.png'), fullPage: true });
+  await page.locator('#view').screenshot({ path: path.join(args.artifacts, 'view-after.png') });
+  await page.locator('#atlas').screenshot({ path: path.join(args.artifacts, 'atlas-after.png') });
+
+  snap = await snapshot();
+  check('the server refused nothing and every frame decoded', snap.errors.length === 0 && snap.counters.decodeErrors === 0, JSON.stringify({ errors: snap.errors, counters: snap.counters }));
+  check('no console errors, page errors or failed requests', problems.length === 0, problems.join('; ') || 'none');
+  exitCode = results.every((r) => r.ok) ? 0 : 1;
+} catch (e) {
+  check('the test ran to its end', false, e.stack ?? String(e));
+} finally {
+  await context.close().catch(() => {});
+  fs.rmSync(userDataDir, { recursive: true, force: true });
+}
+const failed = results.filter((r) => !r.ok).length;
+console.log(`dashboard e2e: ${results.length - failed} passed, ${failed} failed in ${elapsed()}; screenshots in ${args.artifacts}`);
+process.exit(failed ? 1 : exitCode);
