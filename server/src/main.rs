@@ -490,6 +490,10 @@ struct ServeFlags {
     /// Solver per scene [default: progressive].
     #[arg(long, value_enum)]
     solver: Option<lightwire_server::service::config::SolverChoice>,
+    /// GPU solver: how moves are followed, full | incremental | cross
+    /// [default: cross] (per scene: `scene_redistribution` in the config).
+    #[arg(long)]
+    redistribution: Option<lightwire_server::gpu::Redistribution>,
     /// GPU adapter whose name contains this (default: prefer a discrete GPU).
     #[arg(long)]
     adapter: Option<String>,
@@ -528,6 +532,9 @@ fn serve_command(flags: ServeFlags) -> Result<()> {
     }
     if let Some(v) = flags.solver {
         config.solver = v;
+    }
+    if let Some(v) = flags.redistribution {
+        config.redistribution = v;
     }
     if flags.adapter.is_some() {
         config.adapter = flags.adapter;

@@ -5,6 +5,10 @@
 //! listen = "127.0.0.1:8080"
 //! scenes = ["scenes/cornell-low.json"]
 //! solver = "progressive"             # or "reference"
+//! redistribution = "cross"            # how the GPU solver follows moves:
+//!                                     # full | incremental | cross
+//! [scene_redistribution]              # per scene id, overrides the above
+//! cornell-low = "incremental"
 //! tick_hz = 60
 //! budget_ms = 8.0
 //! density_scale = 1.0
@@ -35,7 +39,8 @@ use serde::Deserialize;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum SolverChoice {
-    /// GPU progressive refinement (thesis Alg. 4.2), restarted on moves.
+    /// GPU progressive refinement (thesis Alg. 4.2); moves are followed by
+    /// the configured redistribution method.
     Progressive,
     /// The CPU reference solver, re-solved on moves (small scenes only).
     Reference,
@@ -91,6 +96,11 @@ pub struct Config {
     pub epsilon: f32,
     /// Solver per scene.
     pub solver: SolverChoice,
+    /// How the GPU solver follows moved objects, for every scene not named
+    /// in `scene_redistribution`.
+    pub redistribution: crate::gpu::Redistribution,
+    /// Per scene id: how its moves are followed.
+    pub scene_redistribution: std::collections::BTreeMap<String, crate::gpu::Redistribution>,
     /// GPU adapter name substring (default: prefer a discrete GPU).
     pub adapter: Option<String>,
     /// Kernel send buffer per connection, bytes (SO_SNDBUF; 0 = OS default).
@@ -115,6 +125,8 @@ impl Default for Config {
             epsilon: 1.0 / 256.0,
             socket_send_buffer: 256 * 1024,
             solver: SolverChoice::Progressive,
+            redistribution: crate::gpu::Redistribution::default(),
+            scene_redistribution: Default::default(),
             adapter: None,
             tokens: Tokens::default(),
         }

@@ -135,140 +135,79 @@ impl LiveSolver for ReferenceLive {
     }
 }
 
-/// The GPU progressive solver (thesis Alg. 4.2), restarted from scratch
-/// when poses change (the "full recompute" baseline of the dynamic-objects
-/// work). Poses that arrive before the running solve has published are
-/// held back (latest wins) and start the next solve, so a fast stream of
-/// poses can never starve publication. Work is sliced: each `step` runs whole batches for about the
-/// tick budget. A state is published when the unshot power first falls
-/// below each of [`GpuLive::PUBLISH_AT`]; spare budget after that keeps
-/// refining toward the last level.
+/// The GPU solver session ([`crate::gpu::DynamicSolver`]): progressive
+/// refinement (thesis Alg. 4.2) that follows moves by the configured
+/// method (full recompute, incremental or cross redistribution), with poses
+/// coalesced while a unit of work runs (latest wins) and work sliced into
+/// GPU batches that fit the tick budget (thesis §4.5.3). A state is read
+/// back and handed to the tick loop only when the session reports it
+/// complete (double buffering): at each of the publication levels of
+/// [`crate::gpu::DynamicOptions::publish_at`] and after each
+/// redistribution.
 pub struct GpuLive {
-    device: crate::gpu::Device,
-    scene: Scene,
-    atlas: Atlas,
-    options: crate::gpu::ProgressiveOptions,
-    solver: crate::gpu::ProgressiveSolver,
-    poses: Vec<Pose>,
-    /// Seqs of the poses being solved, and of the published state.
-    seqs: Vec<u64>,
-    reflected: Vec<u64>,
-    /// Poses (and seqs) waiting for the running solve to publish.
-    pending: Option<(Vec<Pose>, Vec<u64>)>,
+    session: crate::gpu::DynamicSolver,
+    /// The last complete state and the seqs it reflects.
     radiosity: Vec<Vec3>,
-    /// Index into `PUBLISH_AT` of the next level to publish at.
-    next_level: usize,
-    /// Time spent since the last pose change (redistribution).
-    since_move: bool,
+    reflected: Vec<u64>,
+    name: &'static str,
 }
 
 impl GpuLive {
-    /// Unshot fractions at which a new complete state is published.
-    pub const PUBLISH_AT: [f64; 2] = [1e-2, 1e-3];
-
     pub fn new(
         device: crate::gpu::Device,
         scene: Scene,
         atlas: Atlas,
+        method: crate::gpu::Redistribution,
     ) -> Result<Self, crate::gpu::GpuError> {
-        let options = crate::gpu::ProgressiveOptions::default();
         let poses = scene.initial_poses();
-        let solver = crate::gpu::ProgressiveSolver::new(&device, &scene, &atlas, &poses, options)?;
+        let options = crate::gpu::DynamicOptions {
+            method,
+            ..Default::default()
+        };
+        let session = crate::gpu::DynamicSolver::new(&device, &scene, &atlas, &poses, options)?;
         Ok(Self {
             radiosity: vec![Vec3::ZERO; atlas.elements.len()],
-            seqs: vec![0; poses.len()],
             reflected: vec![0; poses.len()],
-            pending: None,
-            device,
-            scene,
-            atlas,
-            options,
-            solver,
-            poses,
-            next_level: 0,
-            since_move: false,
+            name: method.name(),
+            session,
         })
     }
 }
 
 impl LiveSolver for GpuLive {
     fn name(&self) -> &'static str {
-        "progressive"
+        self.name
     }
 
     fn set_poses(&mut self, poses: &[Pose], seqs: &[u64]) {
-        self.pending = Some((poses.to_vec(), seqs.to_vec()));
+        self.session.set_poses(poses, seqs);
     }
 
     fn step(&mut self, budget: Duration) -> StepReport {
         let started = Instant::now();
-        // Start the next solve once the running one has published.
-        if self.next_level > 0 {
-            if let Some((poses, seqs)) = self.pending.take() {
-                if poses == self.poses {
-                    self.seqs = seqs;
-                    self.reflected = self.seqs.clone();
-                } else {
-                    match crate::gpu::ProgressiveSolver::new(
-                        &self.device,
-                        &self.scene,
-                        &self.atlas,
-                        &poses,
-                        self.options,
-                    ) {
-                        Ok(solver) => {
-                            self.solver = solver;
-                            self.poses = poses;
-                            self.seqs = seqs;
-                            self.next_level = 0;
-                            self.since_move = true;
-                        }
-                        Err(e) => {
-                            tracing::error!("GPU solver could not restart for new poses: {e}")
-                        }
-                    }
-                }
-            }
-        }
         let mut completed = false;
-        if self.next_level < Self::PUBLISH_AT.len() {
-            match self.solver.step(budget) {
-                Ok(report) => {
-                    let mut crossed = false;
-                    while self.next_level < Self::PUBLISH_AT.len()
-                        && report.unshot_fraction <= Self::PUBLISH_AT[self.next_level]
-                    {
-                        self.next_level += 1;
-                        crossed = true;
-                    }
-                    if crossed {
-                        match self.solver.radiosity() {
-                            Ok(r) => {
-                                self.radiosity = r;
-                                self.reflected = self.seqs.clone();
-                                completed = true;
-                            }
-                            Err(e) => tracing::error!("reading back radiosity failed: {e}"),
+        let mut redistribution = Duration::ZERO;
+        match self.session.step(budget) {
+            Ok(step) => {
+                redistribution = step.redistribution;
+                if step.completed {
+                    match self.session.radiosity() {
+                        Ok(r) => {
+                            self.radiosity = r;
+                            self.reflected = self.session.reflected().to_vec();
+                            completed = true;
                         }
+                        Err(e) => tracing::error!("reading back radiosity failed: {e}"),
                     }
                 }
-                Err(e) => tracing::error!("GPU solver step failed: {e}"),
             }
-        }
-        let spent = started.elapsed();
-        let redistribution = if self.since_move {
-            spent
-        } else {
-            Duration::ZERO
-        };
-        if completed {
-            self.since_move = false;
+            Err(e) => tracing::error!("GPU solver step failed: {e}"),
         }
         StepReport {
             completed,
-            unshot_fraction: self.solver.unshot_fraction(),
+            unshot_fraction: self.session.unshot_fraction(),
             redistribution,
-            solve: spent,
+            solve: started.elapsed(),
         }
     }
 

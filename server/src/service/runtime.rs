@@ -225,7 +225,13 @@ impl SceneRuntime {
             SolverChoice::Progressive => {
                 let device = crate::gpu::Device::new(config.adapter.as_deref())?;
                 tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
-                Box::new(GpuLive::new(device, scene.clone(), atlas.clone())?)
+                let method = config
+                    .scene_redistribution
+                    .get(&scene.name)
+                    .copied()
+                    .unwrap_or(config.redistribution);
+                tracing::info!(scene = %scene.name, %method, "redistribution");
+                Box::new(GpuLive::new(device, scene.clone(), atlas.clone(), method)?)
             }
         };
         let (pub_tx, pub_rx) = watch::channel(None);
