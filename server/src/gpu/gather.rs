@@ -685,7 +685,9 @@ impl GatherSolver {
             .collect())
     }
 
-    /// Where the power gathered by the last completed bounce went.
+    /// Where the power gathered by the last completed bounce went (after
+    /// [`GatherSolver::step`] stopped mid-bounce, the elements of the
+    /// passes already run show the running bounce instead).
     pub fn energy_balance(&self) -> Result<GatherBalance, GpuError> {
         let h = self.read_vec4(&self.irradiance)?;
         let (mut received, mut absorbed) = (0.0f64, 0.0f64);
