@@ -96,22 +96,32 @@ pub fn write_exr(path: &Path, width: u32, height: u32, pixels: &[[f32; 3]]) -> R
     .with_context(|| format!("writing {}", path.display()))
 }
 
-/// Maps HDR radiosity to 8-bit sRGB: exposure so that the 95th percentile
-/// of covered texels' luminance maps to 1, then `1 - exp(-x)` and the sRGB
-/// transfer curve.
-pub fn tone_map(pixels: &[[f32; 3]]) -> Vec<u8> {
+/// The exposure white point of an image: the 95th percentile of covered
+/// texels' luminance.
+pub fn white_point(pixels: &[[f32; 3]]) -> f32 {
     let mut lum: Vec<f32> = pixels
         .iter()
         .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2])
         .filter(|l| *l > 0.0)
         .collect();
     lum.sort_by(f32::total_cmp);
-    let white = lum
-        .get(lum.len() * 95 / 100)
+    lum.get(lum.len() * 95 / 100)
         .copied()
         .unwrap_or(1.0)
-        .max(1e-12);
-    let exposure = 1.0 / white;
+        .max(1e-12)
+}
+
+/// Maps HDR radiosity to 8-bit sRGB: exposure so that the 95th percentile
+/// of covered texels' luminance maps to 1 ([`white_point`]), then
+/// `1 - exp(-x)` and the sRGB transfer curve.
+pub fn tone_map(pixels: &[[f32; 3]]) -> Vec<u8> {
+    tone_map_with(pixels, white_point(pixels))
+}
+
+/// [`tone_map`] with a given white point (to show several images, or a
+/// difference image, at one exposure).
+pub fn tone_map_with(pixels: &[[f32; 3]], white: f32) -> Vec<u8> {
+    let exposure = 1.0 / white.max(1e-12);
     let encode = |x: f32| {
         let y = 1.0 - (-x * exposure).exp();
         let s = if y <= 0.003_130_8 {
@@ -126,9 +136,20 @@ pub fn tone_map(pixels: &[[f32; 3]]) -> Vec<u8> {
 
 /// Writes the tone-mapped PNG.
 pub fn write_png(path: &Path, width: u32, height: u32, pixels: &[[f32; 3]]) -> Result<()> {
+    write_png_with(path, width, height, pixels, white_point(pixels))
+}
+
+/// Writes a PNG tone-mapped with a given white point.
+pub fn write_png_with(
+    path: &Path,
+    width: u32,
+    height: u32,
+    pixels: &[[f32; 3]],
+    white: f32,
+) -> Result<()> {
     image::save_buffer(
         path,
-        &tone_map(pixels),
+        &tone_map_with(pixels, white),
         width,
         height,
         image::ColorType::Rgb8,

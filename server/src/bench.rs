@@ -14,6 +14,8 @@
 //! progressive and gather lightmaps at 0.1% are compared with the converged
 //! reference by [`crate::metrics::nrmse`].
 
+pub mod dynamic;
+
 use std::path::Path;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -194,7 +196,7 @@ pub fn solve_scene(
 }
 
 /// Writes results as JSON (one object per scene, in an array).
-pub fn write_json(path: &Path, results: &[SceneResult]) -> Result<()> {
+pub fn write_json<T: Serialize>(path: &Path, results: &[T]) -> Result<()> {
     let text = serde_json::to_string_pretty(results)?;
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }

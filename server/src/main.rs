@@ -105,6 +105,37 @@ enum BenchCommand {
         #[arg(long, default_value_t = 32)]
         gather_resolution: u32,
     },
+    /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
+    /// rotates a few degrees per frame; milliseconds per frame of gather,
+    /// full progressive, incremental and cross redistribution, their NRMSE
+    /// against a high-quality reference, and atlas PNGs with x5 difference
+    /// images.
+    Dynamic {
+        /// Scene files; default: the four thesis scenes in scenes/.
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Frames each redistribution method follows.
+        #[arg(long, default_value_t = 10)]
+        frames: u32,
+        /// Frames the gather solver follows (it solves from scratch).
+        #[arg(long, default_value_t = 2)]
+        gather_frames: u32,
+        /// Rotation of the box per frame, degrees.
+        #[arg(long, default_value_t = 2.0)]
+        degrees: f32,
+        /// Directory for the images (a subdirectory per scene).
+        #[arg(long, default_value = "bench-out/dynamic")]
+        out: PathBuf,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -171,6 +202,32 @@ fn main() -> ExitCode {
             json,
             adapter.as_deref(),
             (hemicube_resolution, gather_resolution),
+        ),
+        Command::Bench {
+            what:
+                BenchCommand::Dynamic {
+                    scenes,
+                    density_scale,
+                    frames,
+                    gather_frames,
+                    degrees,
+                    out,
+                    json,
+                    adapter,
+                },
+        } => bench_dynamic_command(
+            scenes,
+            bench::dynamic::Settings {
+                frames,
+                gather_frames,
+                degrees_per_frame: degrees,
+                density_scale,
+                progressive: gpu::ProgressiveOptions::default(),
+                gather: gpu::GatherOptions::default(),
+                out,
+            },
+            json,
+            adapter.as_deref(),
         ),
         Command::Serve(flags) => serve_command(flags),
     };
@@ -402,6 +459,61 @@ fn bake_command(
     Ok(())
 }
 
+/// The four thesis scenes (§5.1), the default of the benchmarks.
+fn thesis_scenes() -> Vec<PathBuf> {
+    [
+        "cornell-small",
+        "cornell-low",
+        "cornell-large",
+        "indirect-light",
+    ]
+    .iter()
+    .map(|name| PathBuf::from(format!("scenes/{name}.json")))
+    .collect()
+}
+
+fn bench_dynamic_command(
+    mut scenes: Vec<PathBuf>,
+    settings: bench::dynamic::Settings,
+    json: Option<PathBuf>,
+    adapter: Option<&str>,
+) -> Result<()> {
+    if scenes.is_empty() {
+        scenes = thesis_scenes();
+    }
+    let gpu = gpu::Device::new(adapter)?;
+    eprintln!("adapter: {}", gpu.describe());
+    let mut results = Vec::new();
+    println!(
+        "| scene | elements (dynamic) | method | ms/frame (median) | min | max | NRMSE vs reference |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    for path in &scenes {
+        let result = bench::dynamic::dynamic_scene(&gpu, path, &settings)
+            .with_context(|| format!("benchmarking {}", path.display()))?;
+        for m in &result.methods {
+            println!(
+                "| {} | {} ({}) | {} | {:.1} | {:.1} | {:.1} | {:.2}% vs {} |",
+                result.scene,
+                result.elements,
+                result.dynamic_elements,
+                m.name,
+                m.ms_per_frame,
+                m.ms_min,
+                m.ms_max,
+                m.nrmse * 100.0,
+                result.reference
+            );
+        }
+        results.push(result);
+    }
+    eprintln!("images: {}", settings.out.display());
+    if let Some(json) = json {
+        bench::write_json(&json, &results)?;
+    }
+    Ok(())
+}
+
 fn bench_solve_command(
     mut scenes: Vec<PathBuf>,
     density_scale: f32,
@@ -410,15 +522,7 @@ fn bench_solve_command(
     (hemicube_resolution, gather_resolution): (u32, u32),
 ) -> Result<()> {
     if scenes.is_empty() {
-        scenes = [
-            "cornell-small",
-            "cornell-low",
-            "cornell-large",
-            "indirect-light",
-        ]
-        .iter()
-        .map(|name| PathBuf::from(format!("scenes/{name}.json")))
-        .collect();
+        scenes = thesis_scenes();
     }
     let gpu = gpu::Device::new(adapter)?;
     eprintln!("adapter: {}", gpu.describe());
