@@ -398,13 +398,6 @@ const driver = {
       : this.canDrive
         ? 'Drag the outlined object in the 3D view to slide it, shift-drag to turn it; or use the sliders.'
         : `Your role (${role}) may watch but not move objects: connect with a driver token.`;
-    if (view?.bounds) {
-      ui.x.min = view.bounds.lo[0];
-      ui.x.max = view.bounds.hi[0];
-      ui.z.min = view.bounds.lo[2];
-      ui.z.max = view.bounds.hi[2];
-      ui.x.step = ui.z.step = (view.bounds.hi[0] - view.bounds.lo[0]) / 200;
-    }
     this.syncSliders();
   },
 
@@ -412,11 +405,17 @@ const driver = {
     return Number(ui.object.value);
   },
 
-  /** Slider values from the selected object's pose. */
+  /** Slider ranges and values from the selected object's pose. */
   syncSliders() {
     const i = this.selected();
     const pose = view?.pose(i) ?? this.scene?.objects[i]?.pose;
     if (!pose) return;
+    if (view?.bounds) {
+      const range = view.translationRange(i);
+      [ui.x.min, ui.x.max] = range.x;
+      [ui.z.min, ui.z.max] = range.z;
+      ui.x.step = ui.z.step = Math.max(range.x[1] - range.x[0], range.z[1] - range.z[0], 1e-3) / 200;
+    }
     ui.x.value = pose.translation[0];
     ui.z.value = pose.translation[2];
     const q0 = this.initial[i].rotation;

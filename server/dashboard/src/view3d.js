@@ -234,6 +234,7 @@ export class View3D {
       const indices = [];
       const lo = [Infinity, Infinity, Infinity];
       const hi = [-Infinity, -Infinity, -Infinity];
+      let reach = 0; // farthest corner from the local y axis
       surfaces.forEach((s, k) => {
         const [x, y, w, h] = s.rect;
         // Corner -> centre of the chart's corner texel, in [0, 1] UVs.
@@ -249,6 +250,7 @@ export class View3D {
         ];
         s.corners.forEach((c, i) => {
           vertices.push(...c, ...uvs[i]);
+          reach = Math.max(reach, Math.hypot(c[0], c[2]));
           for (let a = 0; a < 3; a++) {
             lo[a] = Math.min(lo[a], c[a]);
             hi[a] = Math.max(hi[a], c[a]);
@@ -288,6 +290,7 @@ export class View3D {
         lineCount: lines.length / 3,
         lo,
         hi,
+        reach,
       };
     });
     // Frame the static geometry.
@@ -315,6 +318,20 @@ export class View3D {
     this.camera.yaw = 0;
     this.camera.pitch = 0.12;
     this.needsDraw = true;
+  }
+
+  /** Where a dynamic object's translation may go on x and z: inside the
+   * static geometry's bounds, kept far enough from them that the object,
+   * turned any way about y, does not poke through a wall. */
+  translationRange(index) {
+    const o = this.objects[index];
+    const r = o ? o.reach * o.pose.scale : 0;
+    const range = (a) => {
+      const lo = this.bounds.lo[a] + r;
+      const hi = this.bounds.hi[a] - r;
+      return lo <= hi ? [lo, hi] : [(lo + hi) / 2, (lo + hi) / 2];
+    };
+    return { x: range(0), z: range(2) };
   }
 
   /** Sets an object's pose (from a drag here, or the app). */
@@ -516,9 +533,9 @@ export class View3D {
         const hit = this.planeHit(e.clientX, e.clientY, d.pose.translation[1]);
         if (!hit || !d.hit) return;
         const t = add(d.pose.translation, sub(hit, d.hit));
-        const { lo, hi } = this.bounds;
-        t[0] = Math.max(lo[0], Math.min(hi[0], t[0]));
-        t[2] = Math.max(lo[2], Math.min(hi[2], t[2]));
+        const range = this.translationRange(d.object);
+        t[0] = Math.max(range.x[0], Math.min(range.x[1], t[0]));
+        t[2] = Math.max(range.z[0], Math.min(range.z[1], t[2]));
         this.setDragged(d.object, { ...d.pose, translation: t });
       } else {
         const rotation = quatMul(quatYaw(dx * 0.01), d.pose.rotation);
