@@ -341,6 +341,7 @@ class Connection {
     if (this.closedByUs) return;
     const why = e.reason ? `: ${e.reason}` : '';
     if (this.fatal || e.code === 1008) {
+      ui.driveHint.textContent = `Not connected (${e.code}${why}).`;
       logEvent(`disconnected (${e.code}${why}); press Connect to retry`, 'warn');
       return;
     }
@@ -537,6 +538,8 @@ function connect() {
   if (!id) return;
   const params = new URLSearchParams(location.search);
   params.set('scene', id);
+  // The token stays in the field, not in the address bar (history, screenshots).
+  params.delete('token');
   history.replaceState(null, '', `?${params}`);
   conn = new Connection(id, ui.token.value.trim());
   updateStatus();

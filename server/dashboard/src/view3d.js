@@ -314,7 +314,7 @@ export class View3D {
     }
     this.bounds = { lo, hi };
     this.camera.target = scale3(add(lo, hi), 0.5);
-    this.camera.distance = Math.hypot(...sub(hi, lo)) * 0.95;
+    this.camera.distance = Math.hypot(...sub(hi, lo)) * 1.05;
     this.camera.yaw = 0;
     this.camera.pitch = 0.12;
     this.needsDraw = true;
