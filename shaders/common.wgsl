@@ -75,6 +75,21 @@ fn face_axes(s: Shooter, face: u32) -> mat3x3<f32> {
     }
 }
 
+// The hemicube face of shooter `s` that world direction `d` from its eye
+// falls on (0 = top, 1..4 = sides; see `face_axes`).
+fn face_of(s: Shooter, d: vec3<f32>) -> u32 {
+    let x = dot(d, s.t1.xyz);
+    let y = dot(d, s.t2.xyz);
+    let z = dot(d, s.n.xyz);
+    if (z >= max(abs(x), abs(y))) {
+        return 0u;
+    }
+    if (abs(x) >= abs(y)) {
+        return select(2u, 1u, x > 0.0);
+    }
+    return select(4u, 3u, y > 0.0);
+}
+
 // Eye-space coordinates (right, up, forward) of world direction `d` in `face`.
 fn face_local(s: Shooter, face: u32, d: vec3<f32>) -> vec3<f32> {
     let m = face_axes(s, face);

@@ -139,17 +139,7 @@ fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
 // "general observations"): an element whose sample sits on an edge shared
 // with another patch must still see its own patch.
 fn visible(slot: u32, s: Shooter, d: vec3<f32>, id: u32) -> bool {
-    let x = dot(d, s.t1.xyz);
-    let y = dot(d, s.t2.xyz);
-    let z = dot(d, s.n.xyz);
-    var face = 0u;
-    if (z < max(abs(x), abs(y))) {
-        if (abs(x) >= abs(y)) {
-            face = select(2u, 1u, x > 0.0);
-        } else {
-            face = select(4u, 3u, y > 0.0);
-        }
-    }
+    let face = face_of(s, d);
     let l = face_local(s, face, d);
     if (l.z <= 0.0) {
         return false;

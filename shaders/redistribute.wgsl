@@ -181,17 +181,7 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
 // world direction `d` from its eye (bilinear; clamped inside the face so
 // that neighbouring faces do not bleed in), and in .a the distance.
 fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
-    let x = dot(d, b.t1.xyz);
-    let y = dot(d, b.t2.xyz);
-    let z = dot(d, b.n.xyz);
-    var face = 0u;
-    if (z < max(abs(x), abs(y))) {
-        if (abs(x) >= abs(y)) {
-            face = select(2u, 1u, x > 0.0);
-        } else {
-            face = select(4u, 3u, y > 0.0);
-        }
-    }
+    let face = face_of(b, d);
     let l = face_local(b, face, d);
     if (l.z <= 0.0) {
         return vec4<f32>(0.0);
