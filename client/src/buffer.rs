@@ -43,6 +43,21 @@ impl Frame {
     pub fn version(&self) -> u64 {
         self.lightmap.version
     }
+
+    /// FNV-1a (64-bit) of the quantized texel bytes: equal checksums mean
+    /// (with overwhelming likelihood) bit-identical lightmaps. Load reports
+    /// use it to show that every viewer ended on the server's state without
+    /// shipping whole lightmaps.
+    pub fn checksum(&self) -> u64 {
+        fnv1a64(&self.lightmap.texels)
+    }
+}
+
+/// FNV-1a, 64-bit (the offset basis and prime of the FNV reference).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
 }
 
 /// What a successful apply produced.
@@ -265,6 +280,14 @@ mod tests {
         buf.apply_delta(&d2).expect("the right delta still applies");
         let last = buf.apply_delta(&d3).expect("and the next one").frame;
         assert_eq!(last.lightmap.texels, enc.state().texels);
+    }
+
+    #[test]
+    fn fnv1a64_matches_the_reference_vectors() {
+        // From the FNV reference test suite.
+        assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a64(b"a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a64(b"foobar"), 0x8594_4171_f739_67e8);
     }
 
     #[test]

@@ -1,10 +1,52 @@
 //! `lightwire-client`: watch, drive, view and load-test a Lightwire server.
+//!
+//! Every subcommand takes the server as `URL [--scene ID]`: the server's
+//! base address (`http://127.0.0.1:8080`, as `lightwire serve` prints it)
+//! plus `--scene`, or the WebSocket URL `ws://HOST:PORT/ws/scenes/ID`.
+//! The token comes from `--token` or `LIGHTWIRE_TOKEN` (none for a `--dev`
+//! server). Exit codes: 0 success, 1 a `load` limit was missed, 2 an
+//! error (bad arguments, script, connection).
 
-fn main() -> std::process::ExitCode {
-    eprintln!(
-        "lightwire-client {} (protocol {}): no subcommands yet; the streaming server does not exist yet",
-        env!("CARGO_PKG_VERSION"),
-        lightwire_client::PROTOCOL_VERSION
-    );
-    std::process::ExitCode::FAILURE
+mod cli;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "lightwire-client",
+    version,
+    about = "Watch, drive, view and load-test a Lightwire server"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// A live line: version, convergence, frames/s, bytes/s, latency.
+    Watch(cli::watch::WatchArgs),
+    /// Move a dynamic object along a transform script.
+    Drive(cli::drive::DriveArgs),
+    /// Many viewers and drivers at once; a JSON report; limits.
+    Load(cli::load::LoadArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Watch(args) => cli::watch::run(args).map(|()| true),
+        Command::Drive(args) => cli::drive::run(args).map(|()| true),
+        Command::Load(args) => cli::load::run(args),
+    };
+    match result {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(1),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
 }

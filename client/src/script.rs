@@ -39,7 +39,7 @@
 use std::path::Path;
 
 use glam::{Quat, Vec3};
-use lightwire_protocol::Pose;
+use lightwire_protocol::{Pose, SceneInfo};
 use serde::Deserialize;
 
 /// Why a script was refused: the file and where in it.
@@ -307,6 +307,56 @@ impl Script {
                 )
             }
         }
+    }
+}
+
+impl Script {
+    /// Samples the script (100 Hz over one period, or its length) and says
+    /// when the object's surfaces first leave the bounding box of the scene's
+    /// static surfaces (the room), if they do.
+    pub fn leaves_the_room(&self, scene: &SceneInfo, object: u32) -> Option<String> {
+        let world = |pose: &Pose, p: [f32; 3]| {
+            Vec3::from_array(pose.translation)
+                + Quat::from_array(pose.rotation).normalize() * (pose.scale * Vec3::from_array(p))
+        };
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for s in &scene.surfaces {
+            let Some(owner) = scene.objects.get(s.object as usize) else {
+                continue;
+            };
+            if owner.dynamic {
+                continue;
+            }
+            for c in s.corners {
+                let p = world(&owner.pose, c);
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+        if !lo.is_finite() || !hi.is_finite() {
+            return None;
+        }
+        let slack = 1e-3 * (hi - lo).length();
+        let corners: Vec<[f32; 3]> = scene
+            .surfaces
+            .iter()
+            .filter(|s| s.object == object)
+            .flat_map(|s| s.corners)
+            .collect();
+        let steps = (self.duration() * 100.0).ceil().clamp(1.0, 100_000.0) as usize;
+        for i in 0..=steps {
+            let t = self.duration() * i as f64 / steps as f64;
+            let pose = self.pose_at(t);
+            for &c in &corners {
+                let p = world(&pose, c);
+                if p.cmplt(lo - slack).any() || p.cmpgt(hi + slack).any() {
+                    return Some(format!(
+                        "at t = {t:.2} s a corner of the object is at {p}, outside the room's bounds {lo} .. {hi}"
+                    ));
+                }
+            }
+        }
+        None
     }
 }
 

@@ -1,0 +1,660 @@
+//! `lightwire-client load`: many viewers, a few drivers, one report.
+//!
+//! 1. **Connect** `--drivers K` driver and `--viewers N` viewer clients
+//!    (at most `--connect-concurrency` handshakes at a time). A failed
+//!    connection is a *connect error*; the run goes on without it.
+//! 2. **Drive** for `--duration D`: every driver samples the script at
+//!    `--rate` poses/s on a shared clock. Driver `i` moves dynamic object
+//!    `i mod M` (M dynamic objects in the scene); drivers of the same
+//!    object share one seq source and are staggered by `1/(rate * K_obj)`
+//!    so their poses interleave. Every client shares one [`LatencyBook`],
+//!    so each viewer measures the transform-to-delivery latency of every
+//!    driver's pose: send → the viewer has applied the version that echoes
+//!    the seq.
+//! 3. **Settle**: the drivers stop; the run waits until the server's
+//!    version (from `Stats`) has not changed for `--quiet` and every
+//!    viewer holds it, or `--settle-timeout` passes. Each viewer's final
+//!    version and lightmap checksum (FNV-1a of its texels) go into the
+//!    report, so a test can compare them with the server's state.
+//! 4. **Report** (`--report FILE`, JSON; a summary on stderr) and exit
+//!    code: 0, or 1 when `--max-p99-ms` or `--max-errors` is missed.
+//!
+//! Errors (what `--max-errors` counts): connect errors, disconnects,
+//! failed reconnects, server frames that do not decode or apply, server
+//! `Error` frames (except `StaleSeq`), refused poses, and viewers not on
+//! the final version after settling. `StaleSeq` refusals are reported
+//! separately: when two drivers move one object, a pose overtaken by the
+//! other driver's newer one is refused by design ("latest seq wins").
+//! Rates (frames/s, bytes/s, poses/s) are measured over the drive phase
+//! only; latency samples include the settle phase (the last poses'
+//! deliveries).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use hdrhistogram::Histogram;
+use lightwire_client::latency::{LatencyBook, SeqSource};
+use lightwire_client::script::Script;
+use lightwire_client::{Client, ClientError, Counters, Endpoint, ErrorCode, Event, Frame, Options};
+use serde::Serialize;
+use tokio::sync::{Semaphore, watch};
+use tokio::task::JoinSet;
+
+use super::{ServerArgs, ms, parse_duration, parse_rate, pick_object};
+
+/// Error messages kept verbatim in the report (the rest are counted).
+const MAX_MESSAGES: usize = 20;
+
+/// Arguments of `load`.
+#[derive(clap::Args, Debug)]
+pub struct LoadArgs {
+    #[command(flatten)]
+    pub server: ServerArgs,
+    /// The transform script the drivers replay.
+    #[arg(long)]
+    pub script: PathBuf,
+    /// Concurrent viewer connections.
+    #[arg(long, default_value_t = 10)]
+    pub viewers: usize,
+    /// Concurrent driver connections.
+    #[arg(long, default_value_t = 1)]
+    pub drivers: usize,
+    /// How long the drivers drive (e.g. 20s, 2m).
+    #[arg(long, value_parser = parse_duration, default_value = "10s")]
+    pub duration: Duration,
+    /// Poses per second per driver.
+    #[arg(long, value_parser = parse_rate, default_value = "30")]
+    pub rate: f64,
+    /// Where to write the JSON report.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Fail (exit 1) if the p99 transform-to-delivery latency exceeds this.
+    #[arg(long)]
+    pub max_p99_ms: Option<f64>,
+    /// Fail (exit 1) if there are more errors than this.
+    #[arg(long)]
+    pub max_errors: Option<u64>,
+    /// The object the drivers move (default: the script's `object`, else
+    /// every dynamic object, drivers spread over them).
+    #[arg(long)]
+    pub object: Option<String>,
+    /// Token for viewers (default: --token / LIGHTWIRE_TOKEN).
+    #[arg(long)]
+    pub viewer_token: Option<String>,
+    /// Handshakes in flight at once while connecting.
+    #[arg(long, default_value_t = 32)]
+    pub connect_concurrency: usize,
+    /// The server counts as settled when its version has not changed for this long.
+    #[arg(long, value_parser = parse_duration, default_value = "1500ms")]
+    pub quiet: Duration,
+    /// Give up waiting for the viewers to settle after this long.
+    #[arg(long, value_parser = parse_duration, default_value = "60s")]
+    pub settle_timeout: Duration,
+}
+
+/// Latency percentiles in milliseconds.
+#[derive(Debug, Serialize)]
+pub struct LatencyReport {
+    /// Deliveries measured (viewer x transform).
+    pub samples: u64,
+    pub p50_ms: f64,
+    pub p95_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+    pub mean_ms: f64,
+}
+
+/// One viewer's end state.
+#[derive(Debug, Serialize)]
+pub struct ViewerFinal {
+    /// The version it held at the end (`null`: it never got a keyframe).
+    pub version: Option<u64>,
+    /// FNV-1a 64 of its texel bytes, hex.
+    pub checksum: Option<String>,
+}
+
+/// The JSON report.
+#[derive(Debug, Serialize)]
+pub struct Report {
+    pub url: String,
+    pub scene: String,
+    pub script: String,
+    pub viewers: usize,
+    pub drivers: usize,
+    pub duration_s: f64,
+    pub rate_hz: f64,
+    /// Connections that could not be opened at the start.
+    pub connect_errors: u64,
+    /// Everything `--max-errors` counts (see the module docs).
+    pub errors: u64,
+    pub error_breakdown: BTreeMap<&'static str, u64>,
+    /// The first error messages, verbatim.
+    pub error_messages: Vec<String>,
+    /// Poses refused because another driver's newer pose was first.
+    pub stale_seqs: u64,
+    pub resyncs: u64,
+    pub reconnects: u64,
+    /// All binary frames viewers received during the drive phase, per second.
+    pub frames_per_s: f64,
+    pub frames_per_s_per_viewer: f64,
+    /// Lightmap versions applied by viewers, per second per viewer.
+    pub versions_per_s_per_viewer: f64,
+    pub bytes_per_s: f64,
+    pub bytes_per_s_per_viewer: f64,
+    pub poses_sent: u64,
+    pub poses_per_s: f64,
+    /// Transform (driver send) to delivery (viewer applied).
+    pub latency: LatencyReport,
+    /// The server's version after settling (from `Stats`).
+    pub final_version: Option<u64>,
+    pub settled: bool,
+    pub settle_s: f64,
+    pub viewers_on_final_version: usize,
+    /// Distinct lightmap checksums among viewers on the final version.
+    pub final_checksums: Vec<String>,
+    pub viewer_final: Vec<ViewerFinal>,
+    /// Limits that were missed.
+    pub failures: Vec<String>,
+    pub passed: bool,
+}
+
+/// Runs `load`; `Ok(false)` when a limit was missed.
+pub fn run(args: LoadArgs) -> Result<bool> {
+    let script = Script::load(&args.script)?;
+    if args.viewers == 0 && args.drivers == 0 {
+        bail!("--viewers and --drivers are both 0: nothing to do");
+    }
+    let report = super::runtime()?.block_on(load(&args, script))?;
+    let text = serde_json::to_string_pretty(&report).context("encoding the report")?;
+    if let Some(path) = &args.report {
+        std::fs::write(path, format!("{text}\n"))
+            .with_context(|| format!("writing the report to {}", path.display()))?;
+    }
+    eprintln!(
+        "load: {} viewers, {} drivers, {:.0} s: {} errors ({} connect), {:.0} frames/s, {:.1} KiB/s, latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples), {} resyncs, {} stale; final version {:?}, {} of {} viewers on it{}",
+        report.viewers,
+        report.drivers,
+        report.duration_s,
+        report.errors,
+        report.connect_errors,
+        report.frames_per_s,
+        report.bytes_per_s / 1024.0,
+        report.latency.p50_ms,
+        report.latency.p95_ms,
+        report.latency.p99_ms,
+        report.latency.max_ms,
+        report.latency.samples,
+        report.resyncs,
+        report.stale_seqs,
+        report.final_version,
+        report.viewers_on_final_version,
+        report.viewers,
+        if report.settled { "" } else { " (NOT settled)" }
+    );
+    for m in &report.error_messages {
+        eprintln!("  error: {m}");
+    }
+    for f in &report.failures {
+        eprintln!("FAILED: {f}");
+    }
+    Ok(report.passed)
+}
+
+/// What every client task shares.
+struct Shared {
+    latency: Mutex<Histogram<u64>>,
+    /// Highest `Stats.version` seen by anyone.
+    server_version: AtomicU64,
+    errors: Mutex<Errors>,
+}
+
+#[derive(Default)]
+struct Errors {
+    counts: BTreeMap<&'static str, u64>,
+    messages: Vec<String>,
+}
+
+impl Shared {
+    fn error(&self, kind: &'static str, message: String) {
+        let mut e = self.errors.lock().unwrap_or_else(|p| p.into_inner());
+        *e.counts.entry(kind).or_default() += 1;
+        if e.messages.len() < MAX_MESSAGES {
+            e.messages.push(message);
+        }
+    }
+}
+
+/// The phases of a run, in order; client tasks snapshot their counters
+/// when one begins.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Phase {
+    Connecting = 0,
+    Driving = 1,
+    Settling = 2,
+    Stopped = 3,
+}
+
+/// What a driver task needs.
+struct Driving {
+    object: u32,
+    script: Arc<Script>,
+    /// The script's time zero.
+    clock: Instant,
+    /// The first pose of this driver (staggered per object).
+    first: tokio::time::Instant,
+    period: Duration,
+}
+
+/// What a client task hands back.
+struct Finished {
+    client: Client,
+    viewer: bool,
+    /// Counters when each phase began (`Connecting` = at spawn).
+    marks: [Counters; 4],
+}
+
+/// Reads a client's events until the run stops, recording latency and
+/// errors; a driver also sends its poses during the drive phase.
+async fn client_task(
+    mut client: Client,
+    shared: Arc<Shared>,
+    mut phase: watch::Receiver<Phase>,
+    driving: Option<Driving>,
+) -> Finished {
+    let viewer = driving.is_none();
+    let mut marks: [Option<Counters>; 4] = [Some(client.counters()), None, None, None];
+    let mut poses = driving.as_ref().map(|d| {
+        let mut i = tokio::time::interval_at(d.first, d.period);
+        i.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        i
+    });
+    loop {
+        tokio::select! {
+            changed = phase.changed() => {
+                let now = *phase.borrow_and_update();
+                marks[now as usize] = Some(client.counters());
+                if changed.is_err() || now == Phase::Stopped {
+                    break;
+                }
+            }
+            _ = async {
+                match poses.as_mut() {
+                    Some(p) => { p.tick().await; }
+                    None => std::future::pending::<()>().await,
+                }
+            } => {
+                if let Some(d) = driving.as_ref().filter(|_| *phase.borrow() == Phase::Driving) {
+                    let t = d.clock.elapsed().as_secs_f64();
+                    if let Err(e) = client.send_pose(d.object, d.script.pose_at(t)) {
+                        shared.error("pose_refused_locally", e.to_string());
+                    }
+                }
+            }
+            event = client.next_event() => match event {
+                Some(Event::Version(v)) if viewer => {
+                    let mut h = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
+                    for l in v.delivered.iter().filter_map(|d| d.latency) {
+                        h.saturating_record(l.as_micros() as u64);
+                    }
+                }
+                Some(Event::Stats(s)) => {
+                    shared.server_version.fetch_max(s.version, Ordering::Relaxed);
+                }
+                // Reported from the counters: by design when drivers share an object.
+                Some(Event::ServerError { code: ErrorCode::StaleSeq | ErrorCode::RateLimited, .. }) => {}
+                Some(Event::ServerError { code, message }) => {
+                    shared.error("server_error", format!("{}: server error {code}: {message}", client.endpoint()));
+                }
+                Some(Event::Error(e)) => shared.error(error_kind(&e), e.to_string()),
+                Some(Event::Disconnected(e)) => shared.error("disconnect", e.to_string()),
+                Some(Event::Lagged { dropped }) => {
+                    shared.error("events_dropped", format!("{}: {dropped} events dropped (the load tester fell behind)", client.endpoint()));
+                }
+                Some(Event::Closed(Some(e))) => {
+                    shared.error("closed", e.to_string());
+                    // Wait for the end of the run so the marks stay in order.
+                    let _ = phase.wait_for(|p| *p == Phase::Stopped).await;
+                    break;
+                }
+                Some(Event::Closed(None)) | None => {
+                    let _ = phase.wait_for(|p| *p == Phase::Stopped).await;
+                    break;
+                }
+                Some(_) => {}
+            },
+        }
+    }
+    // A phase this task did not see begin (it ended early, or two phases
+    // began between two polls) gets the previous phase's counters.
+    let mut filled = [Counters::default(); 4];
+    let mut last = Counters::default();
+    for (slot, mark) in filled.iter_mut().zip(marks) {
+        last = mark.unwrap_or(last);
+        *slot = last;
+    }
+    Finished {
+        client,
+        viewer,
+        marks: filled,
+    }
+}
+
+fn error_kind(e: &ClientError) -> &'static str {
+    match e {
+        ClientError::Decode { .. } | ClientError::Protocol { .. } => "bad_frame",
+        ClientError::Apply { .. } => "apply_failed",
+        ClientError::Connect { .. } | ClientError::Handshake { .. } => "reconnect_failed",
+        _ => "other",
+    }
+}
+
+/// Opens `count` connections, `concurrency` handshakes at a time, in order.
+async fn connect_all(
+    endpoint: &Endpoint,
+    options: &Options,
+    count: usize,
+    concurrency: &Arc<Semaphore>,
+) -> Vec<Result<Client, ClientError>> {
+    let mut set = JoinSet::new();
+    for i in 0..count {
+        let endpoint = endpoint.clone();
+        let options = options.clone();
+        let permits = concurrency.clone();
+        set.spawn(async move {
+            let _permit = permits.acquire_owned().await;
+            (i, Client::connect_with(endpoint, options).await)
+        });
+    }
+    let mut results: Vec<Option<Result<Client, ClientError>>> = (0..count).map(|_| None).collect();
+    while let Some(joined) = set.join_next().await {
+        if let Ok((i, r)) = joined {
+            results[i] = Some(r);
+        }
+    }
+    results
+        .into_iter()
+        .map(|r| r.unwrap_or(Err(ClientError::Closed)))
+        .collect()
+}
+
+/// Sum of `f` over the counters at phase `to` minus at phase `from`.
+fn delta(done: &[&Finished], from: Phase, to: Phase, f: impl Fn(&Counters) -> u64) -> u64 {
+    done.iter()
+        .map(|d| f(&d.marks[to as usize]).saturating_sub(f(&d.marks[from as usize])))
+        .sum()
+}
+
+async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
+    let endpoint = args.server.endpoint()?;
+    let driver_token = args.server.token();
+    let viewer_token = args.viewer_token.clone().or_else(|| driver_token.clone());
+    // One book: every viewer looks up every driver's send times. One seq
+    // source: seqs increase across all drivers, hence per object too.
+    let base = Options {
+        event_capacity: 1024,
+        latency: Arc::new(LatencyBook::new(
+            ((args.rate * args.drivers as f64 * 120.0) as usize).clamp(4096, 1 << 20),
+        )),
+        seqs: Arc::new(SeqSource::new()),
+        ..Options::default()
+    };
+    let shared = Arc::new(Shared {
+        latency: Mutex::new(
+            Histogram::new_with_bounds(1, 60_000_000, 3).context("latency histogram")?,
+        ),
+        server_version: AtomicU64::new(0),
+        errors: Mutex::new(Errors::default()),
+    });
+    let permits = Arc::new(Semaphore::new(args.connect_concurrency.max(1)));
+
+    // 1. Connect.
+    let mut connect_errors = 0u64;
+    let driver_options = Options {
+        token: driver_token,
+        client_name: "lightwire-client load driver".into(),
+        ..base.clone()
+    };
+    let mut drivers = Vec::new();
+    for r in connect_all(&endpoint, &driver_options, args.drivers, &permits).await {
+        match r {
+            Ok(c) if c.role() == lightwire_client::Role::Viewer => bail!(
+                "{endpoint}: the token grants the viewer role; drivers need a driver or admin token"
+            ),
+            Ok(c) => drivers.push(c),
+            // A bad token or a missing scene will not get better.
+            Err(e) if e.is_permanent() => bail!("driver: {e}"),
+            Err(e) => {
+                connect_errors += 1;
+                shared.error("connect", format!("driver: {e}"));
+            }
+        }
+    }
+    let viewer_options = Options {
+        token: viewer_token,
+        client_name: "lightwire-client load viewer".into(),
+        ..base.clone()
+    };
+    let mut viewers = Vec::new();
+    for r in connect_all(&endpoint, &viewer_options, args.viewers, &permits).await {
+        match r {
+            Ok(c) => viewers.push(c),
+            Err(e) => {
+                connect_errors += 1;
+                shared.error("connect", format!("viewer: {e}"));
+            }
+        }
+    }
+    let Some(scene) = drivers.first().or(viewers.first()).map(|c| c.scene()) else {
+        bail!("{endpoint}: no connection could be opened");
+    };
+
+    // Which object each driver moves; drivers of one object are staggered
+    // evenly over one pose period.
+    let objects: Vec<u32> = match args.object.as_deref().or(script.object.as_deref()) {
+        Some(name) => vec![pick_object(&scene, Some(name), None)?],
+        None => scene
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.dynamic)
+            .map(|(i, _)| i as u32)
+            .collect(),
+    };
+    if !drivers.is_empty() && objects.is_empty() {
+        bail!("scene \"{}\" has no dynamic object to drive", scene.id);
+    }
+    let period = Duration::from_secs_f64(1.0 / args.rate);
+    let script = Arc::new(script);
+    let (phase_tx, phase_rx) = watch::channel(Phase::Connecting);
+    let start = tokio::time::Instant::now() + Duration::from_millis(200);
+    let clock = Instant::now() + Duration::from_millis(200);
+    let viewer_frames: Vec<watch::Receiver<Option<Arc<Frame>>>> =
+        viewers.iter().map(|v| v.subscribe()).collect();
+    let mut tasks = JoinSet::new();
+    let n_drivers = drivers.len();
+    for (i, client) in drivers.into_iter().enumerate() {
+        let object = objects[i % objects.len()];
+        let sharing = (0..n_drivers)
+            .filter(|j| j % objects.len() == i % objects.len())
+            .count();
+        let rank = i / objects.len();
+        let driving = Driving {
+            object,
+            script: script.clone(),
+            clock,
+            first: start + period.mul_f64(rank as f64 / sharing as f64),
+            period,
+        };
+        tasks.spawn(client_task(
+            client,
+            shared.clone(),
+            phase_rx.clone(),
+            Some(driving),
+        ));
+    }
+    let n_viewers = viewers.len();
+    for v in viewers {
+        tasks.spawn(client_task(v, shared.clone(), phase_rx.clone(), None));
+    }
+
+    // 2. Drive.
+    tokio::time::sleep_until(start).await;
+    let _ = phase_tx.send(Phase::Driving);
+    tokio::time::sleep_until(start + args.duration).await;
+    let _ = phase_tx.send(Phase::Settling);
+    let drive_secs = args.duration.as_secs_f64();
+
+    // 3. Settle: the server's version stops changing and every viewer has it.
+    let settle_started = Instant::now();
+    let mut last_version = shared.server_version.load(Ordering::Relaxed);
+    let mut last_change = Instant::now();
+    let settled = loop {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let v = shared.server_version.load(Ordering::Relaxed);
+        if v != last_version {
+            last_version = v;
+            last_change = Instant::now();
+        }
+        let all_there = viewer_frames
+            .iter()
+            .all(|f| f.borrow().as_ref().is_some_and(|f| f.version() == v));
+        if last_change.elapsed() >= args.quiet && all_there {
+            break true;
+        }
+        if settle_started.elapsed() >= args.settle_timeout {
+            break false;
+        }
+    };
+    let settle_secs = settle_started.elapsed().as_secs_f64();
+    let final_version = (last_version > 0).then_some(last_version);
+
+    // 4. Collect.
+    let _ = phase_tx.send(Phase::Stopped);
+    let mut finished = Vec::new();
+    while let Some(joined) = tasks.join_next().await {
+        match joined {
+            Ok(f) => finished.push(f),
+            Err(e) => shared.error("task", format!("a client task failed: {e}")),
+        }
+    }
+    let viewers_done: Vec<&Finished> = finished.iter().filter(|f| f.viewer).collect();
+    let drivers_done: Vec<&Finished> = finished.iter().filter(|f| !f.viewer).collect();
+    let all_done: Vec<&Finished> = finished.iter().collect();
+    let mut viewer_final = Vec::with_capacity(viewer_frames.len());
+    let mut on_final = 0;
+    let mut checksums = std::collections::BTreeSet::new();
+    for f in &viewer_frames {
+        let frame = f.borrow().clone();
+        let version = frame.as_ref().map(|f| f.version());
+        let checksum = frame.as_ref().map(|f| format!("{:016x}", f.checksum()));
+        if version.is_some() && version == final_version {
+            on_final += 1;
+            checksums.extend(checksum.clone());
+        }
+        viewer_final.push(ViewerFinal { version, checksum });
+    }
+    if on_final < n_viewers {
+        shared.error(
+            "not_on_final_version",
+            format!(
+                "{} of {n_viewers} viewers do not hold the server's final version {final_version:?} after settling",
+                n_viewers - on_final
+            ),
+        );
+    }
+    let (c, d, s) = (Phase::Connecting, Phase::Driving, Phase::Settling);
+    let frames = delta(&viewers_done, d, s, |c| c.frames);
+    let bytes = delta(&viewers_done, d, s, |c| c.bytes);
+    let versions = delta(&viewers_done, d, s, |c| c.keyframes + c.deltas);
+    let poses = delta(&drivers_done, d, s, |c| c.poses_sent);
+    let total = |f: fn(&Counters) -> u64| delta(&all_done, c, Phase::Stopped, f);
+    let (stale_seqs, resyncs, reconnects, rate_limited) = (
+        total(|c| c.stale_seqs),
+        total(|c| c.resyncs),
+        total(|c| c.reconnects),
+        total(|c| c.rate_limited),
+    );
+    let closing: Vec<_> = finished.into_iter().map(|f| f.client.close()).collect();
+    let _ = tokio::time::timeout(
+        Duration::from_secs(10),
+        futures_util::future::join_all(closing),
+    )
+    .await;
+
+    let errors = shared.errors.lock().unwrap_or_else(|p| p.into_inner());
+    let mut breakdown = errors.counts.clone();
+    if rate_limited > 0 {
+        breakdown.insert("rate_limited", rate_limited);
+    }
+    let total_errors: u64 = breakdown.values().sum();
+    let h = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
+    let latency = LatencyReport {
+        samples: h.len(),
+        p50_ms: ms(h.value_at_quantile(0.5)),
+        p95_ms: ms(h.value_at_quantile(0.95)),
+        p99_ms: ms(h.value_at_quantile(0.99)),
+        max_ms: ms(h.max()),
+        mean_ms: (h.mean() / 10.0).round() / 100.0,
+    };
+    let mut failures = Vec::new();
+    if let Some(limit) = args.max_p99_ms {
+        if latency.samples == 0 {
+            failures.push(format!(
+                "--max-p99-ms {limit}: no latency was measured (no driver pose reached a viewer)"
+            ));
+        } else if latency.p99_ms > limit {
+            failures.push(format!(
+                "p99 latency {:.1} ms exceeds --max-p99-ms {limit}",
+                latency.p99_ms
+            ));
+        }
+    }
+    if let Some(limit) = args.max_errors {
+        if total_errors > limit {
+            failures.push(format!("{total_errors} errors exceed --max-errors {limit}"));
+        }
+    }
+    let per_viewer = |x: f64| {
+        if n_viewers == 0 {
+            0.0
+        } else {
+            x / n_viewers as f64
+        }
+    };
+    Ok(Report {
+        url: endpoint.ws_url(),
+        scene: scene.id.clone(),
+        script: args.script.display().to_string(),
+        viewers: args.viewers,
+        drivers: args.drivers,
+        duration_s: drive_secs,
+        rate_hz: args.rate,
+        connect_errors,
+        errors: total_errors,
+        error_breakdown: breakdown,
+        error_messages: errors.messages.clone(),
+        stale_seqs,
+        resyncs,
+        reconnects,
+        frames_per_s: frames as f64 / drive_secs,
+        frames_per_s_per_viewer: per_viewer(frames as f64 / drive_secs),
+        versions_per_s_per_viewer: per_viewer(versions as f64 / drive_secs),
+        bytes_per_s: bytes as f64 / drive_secs,
+        bytes_per_s_per_viewer: per_viewer(bytes as f64 / drive_secs),
+        poses_sent: poses,
+        poses_per_s: poses as f64 / drive_secs,
+        latency,
+        final_version,
+        settled,
+        settle_s: settle_secs,
+        viewers_on_final_version: on_final,
+        final_checksums: checksums.into_iter().collect(),
+        viewer_final,
+        passed: failures.is_empty(),
+        failures,
+    })
+}
