@@ -7,7 +7,8 @@
 //! the CPU [`reference`] solver) computes radiosity per element; [`bake`]
 //! scatters it into the atlas and writes images and metadata. [`service`]
 //! runs the same pipeline continuously behind HTTP and WebSocket
-//! (`lightwire serve`).
+//! (`lightwire serve`); [`relay`] fans a solver's streams out to many
+//! viewers (`lightwire relay`).
 
 pub mod atlas;
 pub mod bake;
@@ -15,5 +16,6 @@ pub mod bench;
 pub mod gpu;
 pub mod metrics;
 pub mod reference;
+pub mod relay;
 pub mod scene;
 pub mod service;

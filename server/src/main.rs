@@ -68,6 +68,11 @@ enum Command {
     },
     /// Serve scenes over HTTP and WebSocket: live lightmaps, REST, metrics.
     Serve(ServeFlags),
+    /// Relay scenes of solvers to many viewers: subscribes to each upstream
+    /// scene as a client and serves it with the same protocol, forwarding
+    /// drivers' transforms; keeps serving the last version while an
+    /// upstream is down.
+    Relay(RelayFlags),
     /// Check scene files and print what they contain.
     Validate {
         /// Scene files.
@@ -230,6 +235,7 @@ fn main() -> ExitCode {
             adapter.as_deref(),
         ),
         Command::Serve(flags) => serve_command(flags),
+        Command::Relay(flags) => relay_command(flags),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -671,6 +677,87 @@ fn serve_command(flags: ServeFlags) -> Result<()> {
             let _ = stop_tx.send(true);
         });
         service::serve(config, listener, stop_rx).await
+    })
+}
+
+/// Flags of `lightwire relay`. Tokens for its own clients come from the
+/// config file or `LIGHTWIRE_TOKENS`, as for `serve`; the token it presents
+/// upstream from `upstream_token` or `LIGHTWIRE_UPSTREAM_TOKEN` (not a
+/// flag, so that it does not show in `ps`).
+#[derive(clap::Args)]
+struct RelayFlags {
+    /// A solver scene to relay: ws://HOST:PORT/ws/scenes/ID (repeatable;
+    /// served here under the same path).
+    #[arg(long = "upstream", num_args = 1.., action = clap::ArgAction::Append)]
+    upstreams: Vec<String>,
+    /// Address to listen on [default: 127.0.0.1:8080].
+    #[arg(long)]
+    listen: Option<std::net::SocketAddr>,
+    /// TOML config file, the same format as `serve`'s (flags override it,
+    /// it overrides defaults).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// No authentication for the relay's own clients: every client is an
+    /// admin (the upstream still checks the relay's upstream token).
+    #[arg(long)]
+    dev: bool,
+}
+
+/// Logs to stderr, `RUST_LOG` or `info`.
+fn init_logging() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+fn relay_command(flags: RelayFlags) -> Result<()> {
+    use lightwire_server::service::Config;
+
+    init_logging();
+    let mut config = match &flags.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    config.apply_env(std::env::vars())?;
+    if !flags.upstreams.is_empty() {
+        config.upstreams = flags.upstreams;
+    }
+    if let Some(listen) = flags.listen {
+        config.listen = listen;
+    }
+    config.dev_mode |= flags.dev;
+    config.validate_relay()?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(config.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", config.listen))?;
+        let addr = listener.local_addr()?;
+        config.listen = addr;
+        if config.dev_mode && config.tokens.is_empty() {
+            eprintln!(
+                "*** DEVELOPMENT MODE: no authentication. Do not expose {addr} to a network. ***"
+            );
+        }
+        // The line tools and tests wait for: where to connect.
+        println!(
+            "lightwire relay listening on http://{addr} (relaying {})",
+            config.upstreams.join(", ")
+        );
+        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        tokio::spawn(async move {
+            wait_for_signal().await;
+            tracing::info!("shutting down: closing connections");
+            let _ = stop_tx.send(true);
+        });
+        lightwire_server::relay::relay(config, listener, stop_rx).await
     })
 }
 

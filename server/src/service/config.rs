@@ -1,5 +1,8 @@
 //! Service configuration: a TOML file, overridden by environment
-//! variables, overridden by command-line flags.
+//! variables, overridden by command-line flags. `lightwire serve` and
+//! `lightwire relay` read the same format (one file can configure both:
+//! each ignores the other's keys), so that a deployment keeps one
+//! ConfigMap and one token Secret.
 //!
 //! ```toml
 //! listen = "127.0.0.1:8080"
@@ -18,6 +21,9 @@
 //! transforms_per_second = 120
 //! max_bad_frames = 20
 //! socket_send_buffer = 262144         # SO_SNDBUF per connection, bytes
+//! # lightwire relay only:
+//! upstreams = ["ws://solver-0:8080/ws/scenes/cornell-low"]
+//! upstream_token = "d-secret"          # presented to the solver
 //! [tokens]
 //! viewer = ["v-secret"]
 //! driver = ["d-secret"]
@@ -25,9 +31,10 @@
 //! ```
 //!
 //! Environment: `LIGHTWIRE_LISTEN`, `LIGHTWIRE_DEV=1`,
-//! `LIGHTWIRE_SEND_BUFFER=<bytes>`, and
+//! `LIGHTWIRE_SEND_BUFFER=<bytes>`,
 //! `LIGHTWIRE_TOKENS="viewer:abc,driver:def,admin:ghi"` (added to the
-//! file's tokens).
+//! file's tokens), and for the relay `LIGHTWIRE_UPSTREAM=url,url` (replaces
+//! the file's `upstreams`) and `LIGHTWIRE_UPSTREAM_TOKEN`.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -106,6 +113,13 @@ pub struct Config {
     /// Kernel send buffer per connection, bytes (SO_SNDBUF; 0 = OS default).
     pub socket_send_buffer: usize,
     pub tokens: Tokens,
+    /// `lightwire relay`: the solver scenes it relays, one WebSocket URL
+    /// each (`ws://HOST:PORT/ws/scenes/ID`; `http://` means the same).
+    pub upstreams: Vec<String>,
+    /// `lightwire relay`: the token it presents to its solvers. A driver or
+    /// admin token lets it forward its own drivers' transforms; with a
+    /// viewer token the relay is read-only and refuses transforms.
+    pub upstream_token: Option<String>,
 }
 
 impl Default for Config {
@@ -129,6 +143,8 @@ impl Default for Config {
             scene_redistribution: Default::default(),
             adapter: None,
             tokens: Tokens::default(),
+            upstreams: Vec::new(),
+            upstream_token: None,
         }
     }
 }
@@ -156,6 +172,17 @@ impl Config {
                     })?;
                 }
                 "LIGHTWIRE_DEV" => self.dev_mode = matches!(value.as_str(), "1" | "true" | "yes"),
+                "LIGHTWIRE_UPSTREAM" => {
+                    self.upstreams = value
+                        .split(',')
+                        .map(str::trim)
+                        .filter(|u| !u.is_empty())
+                        .map(str::to_string)
+                        .collect();
+                }
+                "LIGHTWIRE_UPSTREAM_TOKEN" => {
+                    self.upstream_token = Some(value).filter(|t| !t.is_empty());
+                }
                 "LIGHTWIRE_TOKENS" => {
                     for entry in value.split(',').filter(|e| !e.trim().is_empty()) {
                         let Some((role, token)) = entry.trim().split_once(':') else {
@@ -178,13 +205,30 @@ impl Config {
         Ok(())
     }
 
-    /// Checks values that would otherwise fail later or silently.
+    /// Checks a `lightwire serve` configuration: values that would
+    /// otherwise fail later or silently.
     pub fn validate(&self) -> Result<()> {
         if self.scenes.is_empty() {
             bail!(
                 "no scenes to serve: pass --scene FILE (repeatable) or set `scenes` in the config file"
             );
         }
+        self.validate_sessions()
+    }
+
+    /// Checks a `lightwire relay` configuration (the upstream URLs
+    /// themselves are parsed by the relay, which names the bad one).
+    pub fn validate_relay(&self) -> Result<()> {
+        if self.upstreams.is_empty() {
+            bail!(
+                "no upstreams to relay: pass --upstream ws://SOLVER:PORT/ws/scenes/ID (repeatable), set LIGHTWIRE_UPSTREAM or `upstreams` in the config file"
+            );
+        }
+        self.validate_sessions()
+    }
+
+    /// Checks what both servers need: session limits and tokens.
+    fn validate_sessions(&self) -> Result<()> {
         if !(self.tick_hz.is_finite() && self.tick_hz > 0.0 && self.tick_hz <= 1000.0) {
             bail!("tick_hz = {} must be in (0, 1000]", self.tick_hz);
         }

@@ -16,10 +16,11 @@ use axum::routing::get;
 use lightwire_protocol::lightmap::Lightmap;
 use serde_json::json;
 
-use super::AppState;
 use super::dashboard;
+use super::feed::Feed;
 use super::runtime::SceneRuntime;
 use super::session;
+use super::{AppState, Shared};
 
 /// Builds the router.
 pub fn router(state: Arc<AppState>) -> Router {
@@ -52,7 +53,7 @@ async fn readyz(State(state): State<Arc<AppState>>) -> Response {
     let pending: Vec<&String> = state
         .scenes
         .iter()
-        .filter(|(_, s)| !s.ready.load(Ordering::Acquire))
+        .filter(|(_, s)| !s.feed.ready.load(Ordering::Acquire))
         .map(|(id, _)| id)
         .collect();
     if pending.is_empty() {
@@ -72,7 +73,7 @@ async fn metrics(State(state): State<Arc<AppState>>) -> Response {
             header::CONTENT_TYPE,
             "application/openmetrics-text; version=1.0.0; charset=utf-8",
         )],
-        state.metrics.render(),
+        state.shared.metrics.render(),
     )
         .into_response()
 }
@@ -82,17 +83,17 @@ async fn list_scenes(State(state): State<Arc<AppState>>) -> Response {
         .scenes
         .values()
         .map(|s| {
-            let stats = *s.stats.borrow();
+            let stats = *s.feed.stats.borrow();
             json!({
                 "id": s.info.id,
                 "description": s.scene.description,
                 "elements": s.atlas.elements.len(),
                 "atlas": { "width": s.info.atlas_width, "height": s.info.atlas_height },
                 "objects": s.info.objects.iter().filter(|o| o.dynamic).map(|o| &o.name).collect::<Vec<_>>(),
-                "ready": s.ready.load(Ordering::Acquire),
+                "ready": s.feed.ready.load(Ordering::Acquire),
                 "version": stats.version,
                 "unshot_fraction": stats.unshot_fraction,
-                "clients": s.clients.load(Ordering::Relaxed),
+                "clients": s.feed.clients.load(Ordering::Relaxed),
             })
         })
         .collect();
@@ -101,7 +102,7 @@ async fn list_scenes(State(state): State<Arc<AppState>>) -> Response {
 
 async fn scene_info(State(state): State<Arc<AppState>>, Path(id): Path<String>) -> Response {
     match scene(&state, &id) {
-        Ok(s) => axum::Json(&s.info).into_response(),
+        Ok(s) => axum::Json(&*s.info).into_response(),
         Err(r) => *r,
     }
 }
@@ -188,7 +189,7 @@ async fn lightmap_file(
 }
 
 /// Whether a browser `Origin` may open a WebSocket here.
-fn origin_allowed(state: &AppState, headers: &HeaderMap) -> bool {
+fn origin_allowed(state: &Shared, headers: &HeaderMap) -> bool {
     let Some(origin) = headers.get(header::ORIGIN) else {
         return true; // not a browser
     };
@@ -221,9 +222,40 @@ async fn websocket(
         Ok(s) => s.clone(),
         Err(r) => return *r,
     };
-    if !origin_allowed(&state, &headers) {
-        state.metrics.bad_frame("origin");
+    tracing::debug!(%peer, scene = %id, "websocket upgrade");
+    upgrade_websocket(
+        state.shared.clone(),
+        s.feed.clone(),
+        &headers,
+        &query,
+        upgrade,
+    )
+}
+
+/// Upgrades a request for `feed`'s WebSocket into a [`session`], after the
+/// checks every server (solver or relay) makes: the browser origin, and
+/// that the scene's description is known (a relay that has not reached its
+/// upstream yet answers 503, so clients retry). The token may come on the
+/// upgrade (`Authorization: Bearer`, `?token=`); `Hello.token` wins.
+pub fn upgrade_websocket(
+    shared: Arc<Shared>,
+    feed: Arc<Feed>,
+    headers: &HeaderMap,
+    query: &HashMap<String, String>,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    if !origin_allowed(&shared, headers) {
+        shared.metrics.bad_frame("origin");
         return (StatusCode::FORBIDDEN, "origin not allowed\n").into_response();
+    }
+    if feed.info().is_none() {
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            axum::Json(json!({
+                "error": format!("scene \"{}\" is not available yet; retry", feed.id)
+            })),
+        )
+            .into_response();
     }
     let token = headers
         .get(header::AUTHORIZATION)
@@ -231,10 +263,9 @@ async fn websocket(
         .and_then(|v| v.strip_prefix("Bearer "))
         .map(str::to_string)
         .or_else(|| query.get("token").cloned());
-    tracing::debug!(%peer, scene = %id, "websocket upgrade");
-    let max = state.config.max_message_bytes;
+    let max = shared.config.max_message_bytes;
     upgrade
         .max_message_size(max)
         .max_frame_size(max)
-        .on_upgrade(move |socket| session::run(socket, state, s, token))
+        .on_upgrade(move |socket| session::run(socket, shared, feed, token))
 }

@@ -29,6 +29,8 @@ pub struct Metrics {
     /// Versions a slow client never received (it got a newer keyframe).
     pub frames_skipped: Counter,
     pub keyframes_sent: Counter,
+    /// Merged deltas sent to clients a few versions behind.
+    pub catch_up_deltas_sent: Counter,
     pub bad_frames: Family<BadFrameLabels, Counter>,
     pub connections_closed_for_abuse: Counter,
 }
@@ -54,6 +56,7 @@ impl Metrics {
             frames_sent: Counter::default(),
             frames_skipped: Counter::default(),
             keyframes_sent: Counter::default(),
+            catch_up_deltas_sent: Counter::default(),
             bad_frames: Family::default(),
             connections_closed_for_abuse: Counter::default(),
             registry: Registry::default(),
@@ -101,6 +104,11 @@ impl Metrics {
             m.keyframes_sent.clone(),
         );
         registry.register(
+            "catch_up_deltas_sent",
+            "Merged deltas sent to clients a few versions behind (instead of a keyframe)",
+            m.catch_up_deltas_sent.clone(),
+        );
+        registry.register(
             "bad_frames",
             "Invalid client frames, by kind",
             m.bad_frames.clone(),
@@ -111,6 +119,12 @@ impl Metrics {
             m.connections_closed_for_abuse.clone(),
         );
         Self { registry, ..m }
+    }
+
+    /// The registry, to add metrics of another part (the relay's) before
+    /// the metrics are shared.
+    pub fn registry_mut(&mut self) -> &mut Registry {
+        &mut self.registry
     }
 
     /// Records the timings of one tick.

@@ -3,7 +3,7 @@
 //! Data flow, one way:
 //!
 //! 1. [`session`] tasks (one per WebSocket) decode client frames. A driver's
-//!    `Transform` is validated and stored in its scene's [`runtime::Inbox`]:
+//!    `Transform` is validated and stored in its scene's [`inbox::Inbox`]:
 //!    one slot per dynamic object, the latest `seq` wins, so the inbox can
 //!    never grow.
 //! 2. Each scene has a tick thread ([`runtime`]) that owns the solver. Every
@@ -13,10 +13,15 @@
 //!    into a [`publication::Publication`].
 //! 3. Publications go out through a `tokio::sync::watch` channel, which
 //!    holds only the newest one. Each session's writer sends the delta if
-//!    the client holds exactly its base version, otherwise a keyframe. A
-//!    client that reads slowly therefore skips versions instead of queueing
-//!    them: per-client memory is one publication reference plus the socket
-//!    buffer, whatever the client does.
+//!    the client holds exactly its base version, a merged delta if it is a
+//!    few versions behind, otherwise a keyframe. A client that reads slowly
+//!    therefore skips versions instead of queueing them: per-client memory
+//!    is one publication reference plus the socket buffer, whatever the
+//!    client does.
+//!
+//! Sessions see a scene only as a [`feed::Feed`] (description, inbox,
+//! publications, stats), which is how `lightwire relay` (`crate::relay`)
+//! serves its copy of a solver's scene with the same session code.
 //!
 //! [`http`] serves the REST endpoints, metrics and the WebSocket upgrade;
 //! [`dashboard`] the web dashboard's files, embedded in the binary;
@@ -26,7 +31,9 @@
 pub mod auth;
 pub mod config;
 pub mod dashboard;
+pub mod feed;
 pub mod http;
+pub mod inbox;
 pub mod live;
 pub mod metrics;
 pub mod publication;
@@ -42,14 +49,19 @@ use tokio::sync::watch;
 
 pub use config::Config;
 
-/// Everything the HTTP handlers and sessions share.
-pub struct AppState {
+/// What every session shares, on a solver (`serve`) or a relay.
+pub struct Shared {
     pub config: Config,
-    pub scenes: BTreeMap<String, Arc<runtime::SceneRuntime>>,
     pub metrics: Arc<metrics::Metrics>,
     pub auth: auth::Auth,
     /// Flips to `true` when the server begins a graceful shutdown.
     pub shutdown: watch::Receiver<bool>,
+}
+
+/// Everything the HTTP handlers of `lightwire serve` share.
+pub struct AppState {
+    pub shared: Arc<Shared>,
+    pub scenes: BTreeMap<String, Arc<runtime::SceneRuntime>>,
 }
 
 /// Loads every scene, starts its tick thread, and serves HTTP until
@@ -73,18 +85,42 @@ pub async fn serve(
         }
     }
     let state = Arc::new(AppState {
-        config,
+        shared: Arc::new(Shared {
+            config,
+            metrics,
+            auth,
+            shutdown: shutdown.clone(),
+        }),
         scenes,
-        metrics,
-        auth,
-        shutdown: shutdown.clone(),
     });
     let app = http::router(state.clone());
     let mut stop = shutdown.clone();
-    // Bound the kernel's send buffer per connection too: a client that
-    // stops reading then holds at most this much in the kernel, and the
-    // server notices it is slow (and skips it forward) sooner.
-    let send_buffer = state.config.socket_send_buffer;
+    serve_http(
+        listener,
+        app,
+        state.shared.config.socket_send_buffer,
+        async move {
+            let _ = stop.wait_for(|s| *s).await;
+        },
+    )
+    .await?;
+    for runtime in state.scenes.values() {
+        runtime.join();
+    }
+    Ok(())
+}
+
+/// Serves `app` on `listener` until `stop` resolves; shared by `serve` and
+/// `relay`. Every accepted socket gets `TCP_NODELAY` (frames are latency
+/// bound) and, if `send_buffer > 0`, that `SO_SNDBUF`: a client that stops
+/// reading then holds at most this much in the kernel, and the server
+/// notices it is slow (and skips it forward) sooner.
+pub async fn serve_http(
+    listener: TcpListener,
+    app: axum::Router,
+    send_buffer: usize,
+    stop: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<()> {
     let listener =
         axum::serve::ListenerExt::tap_io(listener, move |tcp: &mut tokio::net::TcpStream| {
             let _ = tcp.set_nodelay(true);
@@ -98,13 +134,7 @@ pub async fn serve(
         listener,
         app.into_make_service_with_connect_info::<std::net::SocketAddr>(),
     )
-    .with_graceful_shutdown(async move {
-        let _ = stop.wait_for(|s| *s).await;
-    })
+    .with_graceful_shutdown(stop)
     .await
-    .context("HTTP server failed")?;
-    for runtime in state.scenes.values() {
-        runtime.join();
-    }
-    Ok(())
+    .context("HTTP server failed")
 }

@@ -4,18 +4,20 @@
 //! re-solve) and the lightmap [`Encoder`]. Per tick (thesis §4.5.3: work is
 //! cut into slices that fit a budget, readers only see complete states):
 //!
-//! 1. drain the [`Inbox`]: the newest pose per object, in seq order;
+//! 1. drain the scene's [`super::inbox::Inbox`]: the newest pose per
+//!    object;
 //! 2. if any pose changed, hand all poses to the solver and remember which
 //!    seqs they carry;
 //! 3. run solver work for the tick budget;
 //! 4. if the solver completed a state, scatter it into the atlas, encode it
-//!    once and publish it (the newest publication replaces the previous
-//!    one in a `watch` channel, echoing the seqs that state reflects);
+//!    once and publish it through a [`Publisher`] (the newest publication
+//!    replaces the previous one in a `watch` channel, echoing the seqs
+//!    that state reflects);
 //! 5. update stats and metrics, sleep to the next tick (ticks missed while
 //!    the solver ran long are skipped, not caught up).
 
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -30,88 +32,23 @@ use lightwire_protocol::{
 use tokio::sync::watch;
 
 use super::config::{Config, SolverChoice};
+use super::feed::Feed;
 use super::live::{GpuLive, LiveSolver, ReferenceLive};
 use super::metrics::Metrics;
-use super::publication::Publication;
+use super::publication::{Publication, Publisher};
 use crate::atlas::Atlas;
 use crate::reference::MAX_ELEMENTS;
 use crate::scene::{LoadOptions, Pose, Scene};
 
-/// A pose waiting for the tick loop.
-#[derive(Debug, Clone, Copy)]
-pub struct PendingPose {
-    pub seq: u64,
-    pub pose: Pose,
-}
-
-/// Poses from drivers, one slot per object: the newest seq wins, so the
-/// inbox holds at most one pose per dynamic object however fast drivers
-/// send.
-pub struct Inbox {
-    slots: Mutex<Vec<Option<PendingPose>>>,
-    /// Highest seq accepted per object (also for already-drained slots), so
-    /// a stale transform is recognised after its successor was consumed.
-    accepted: Mutex<Vec<u64>>,
-}
-
-/// Why the inbox refused a transform.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Offer {
-    Accepted,
-    /// `seq` is not newer than the last accepted one for this object.
-    Stale {
-        latest: u64,
-    },
-}
-
-impl Inbox {
-    fn new(objects: usize) -> Self {
-        Self {
-            slots: Mutex::new(vec![None; objects]),
-            accepted: Mutex::new(vec![0; objects]),
-        }
-    }
-
-    /// Offers a validated pose for `object` (an index that exists).
-    pub fn offer(&self, object: usize, seq: u64, pose: Pose) -> Offer {
-        let mut accepted = self.accepted.lock().unwrap_or_else(|p| p.into_inner());
-        if seq <= accepted[object] {
-            return Offer::Stale {
-                latest: accepted[object],
-            };
-        }
-        accepted[object] = seq;
-        drop(accepted);
-        self.slots.lock().unwrap_or_else(|p| p.into_inner())[object] =
-            Some(PendingPose { seq, pose });
-        Offer::Accepted
-    }
-
-    fn drain(&self) -> Vec<(usize, PendingPose)> {
-        let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
-        slots
-            .iter_mut()
-            .enumerate()
-            .filter_map(|(i, s)| s.take().map(|p| (i, p)))
-            .collect()
-    }
-}
-
-/// A running scene: its description, inbox, and publication channels.
+/// A running scene: its description and the [`Feed`] its sessions serve.
 pub struct SceneRuntime {
-    /// What clients need to draw the scene.
-    pub info: SceneInfo,
+    /// What clients need to draw the scene (the same `Arc` as the feed's,
+    /// and as every publication's `scene`).
+    pub info: Arc<SceneInfo>,
     pub scene: Scene,
     pub atlas: Atlas,
-    pub inbox: Inbox,
-    /// The newest complete lightmap version (`None` until the first solve).
-    pub publications: watch::Receiver<Option<Arc<Publication>>>,
-    /// Statistics of the newest tick.
-    pub stats: watch::Receiver<Stats>,
-    /// Connected WebSocket clients.
-    pub clients: AtomicU32,
-    /// The first complete state has been published.
-    pub ready: AtomicBool,
+    /// Inbox, publications, stats, client count and readiness.
+    pub feed: Arc<Feed>,
     thread: Mutex<Option<JoinHandle<()>>>,
 }
 
@@ -210,7 +147,7 @@ impl SceneRuntime {
                 atlas.height
             );
         }
-        let info = scene_info(&scene, &atlas);
+        let info = Arc::new(scene_info(&scene, &atlas));
         let solver: Box<dyn LiveSolver> = match config.solver {
             SolverChoice::Reference => {
                 if atlas.elements.len() > MAX_ELEMENTS {
@@ -234,7 +171,7 @@ impl SceneRuntime {
                 Box::new(GpuLive::new(device, scene.clone(), atlas.clone(), method)?)
             }
         };
-        let (pub_tx, pub_rx) = watch::channel(None);
+        let (publisher, pub_rx) = Publisher::new();
         let (stats_tx, stats_rx) = watch::channel(Stats {
             version: 0,
             unshot_fraction: 1.0,
@@ -244,15 +181,17 @@ impl SceneRuntime {
             clients: 0,
             server_time_us: now_us(),
         });
+        let feed = Arc::new(Feed::new(
+            info.id.clone(),
+            Some(info.clone()),
+            pub_rx,
+            stats_rx,
+        ));
         let runtime = Arc::new(SceneRuntime {
-            inbox: Inbox::new(scene.objects.len()),
             info,
             scene,
             atlas,
-            publications: pub_rx,
-            stats: stats_rx,
-            clients: AtomicU32::new(0),
-            ready: AtomicBool::new(false),
+            feed,
             thread: Mutex::new(None),
         });
         let tick = TickLoop {
@@ -267,7 +206,7 @@ impl SceneRuntime {
             ),
             poses: runtime.scene.initial_poses(),
             seqs: vec![0; runtime.scene.objects.len()],
-            publications: pub_tx,
+            publisher,
             stats: stats_tx,
             metrics,
             shutdown,
@@ -294,7 +233,7 @@ impl SceneRuntime {
 
     /// The newest publication, if any.
     pub fn latest(&self) -> Option<Arc<Publication>> {
-        self.publications.borrow().clone()
+        self.feed.latest()
     }
 }
 
@@ -305,7 +244,7 @@ struct TickLoop {
     poses: Vec<Pose>,
     /// Latest seq per object handed to the solver.
     seqs: Vec<u64>,
-    publications: watch::Sender<Option<Arc<Publication>>>,
+    publisher: Publisher,
     stats: watch::Sender<Stats>,
     metrics: Arc<Metrics>,
     shutdown: watch::Receiver<bool>,
@@ -321,10 +260,10 @@ impl TickLoop {
         let mut published_seqs: Vec<u64> = vec![0; self.seqs.len()];
         while !*self.shutdown.borrow() {
             let started = Instant::now();
-            let drained = self.runtime.inbox.drain();
+            let drained = self.runtime.feed.inbox.drain();
             if !drained.is_empty() {
                 for (object, pending) in drained {
-                    self.poses[object] = pending.pose;
+                    self.poses[object] = from_wire(&pending.pose);
                     self.seqs[object] = pending.seq;
                 }
                 self.solver.set_poses(&self.poses, &self.seqs);
@@ -348,10 +287,9 @@ impl TickLoop {
                 let delta = self.encoder.publish(&image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();
-                let _ = self
-                    .publications
-                    .send(Some(Arc::new(Publication::new(keyframe, delta))));
-                self.runtime.ready.store(true, Ordering::Release);
+                self.publisher
+                    .publish(self.runtime.info.clone(), keyframe, Some(delta));
+                self.runtime.feed.ready.store(true, Ordering::Release);
             }
             let tick_time = started.elapsed();
             self.metrics.ticks.inc();
@@ -363,7 +301,7 @@ impl TickLoop {
                 tick_ms: tick_time.as_secs_f32() * 1000.0,
                 solve_ms: report.solve.as_secs_f32() * 1000.0,
                 redistribution_ms: report.redistribution.as_secs_f32() * 1000.0,
-                clients: self.runtime.clients.load(Ordering::Relaxed),
+                clients: self.runtime.feed.clients.load(Ordering::Relaxed),
                 server_time_us: now_us(),
             });
             next += self.period;

@@ -12,11 +12,15 @@
 //!   `max_bad_frames` of those the connection is closed (1008);
 //! - the **writer** owns the socket's sink. It waits for the newest
 //!   publication and sends the delta if the client holds exactly its base,
-//!   else a keyframe. While a send is blocked on a slow client, newer
-//!   publications simply replace older ones in the watch channel, so
-//!   nothing queues. Control frames from the reader (errors, pongs) go
-//!   through a small bounded channel and are dropped, counted, when it is
-//!   full.
+//!   a merged delta if it holds one of the few versions before that, else
+//!   a keyframe ([`Publication::frame_for`]). While a send is blocked on a
+//!   slow client, newer publications simply replace older ones in the
+//!   watch channel, so nothing queues. Control frames from the reader
+//!   (errors, pongs) go through a small bounded channel and are dropped,
+//!   counted, when it is full.
+//!
+//! A session serves a [`Feed`]: the same code serves a solver's scene
+//! (`lightwire serve`) and a relay's copy of one (`lightwire relay`).
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -27,13 +31,16 @@ use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, PROTOCOL_VERSION, Role, ServerMessage, decode_client, encode_server,
+    ClientMessage, ErrorCode, PROTOCOL_VERSION, Role, SceneInfo, ServerMessage, decode_client,
+    encode_server,
 };
 use tokio::sync::{mpsc, watch};
 
-use super::AppState;
+use super::Shared;
 use super::auth::may_drive;
-use super::runtime::{Offer, SceneRuntime, from_wire};
+use super::feed::Feed;
+use super::inbox::Offer;
+use super::publication::Publication;
 
 /// Close code for policy violations (RFC 6455 §7.4.1).
 const CLOSE_POLICY: u16 = 1008;
@@ -41,6 +48,13 @@ const CLOSE_POLICY: u16 = 1008;
 const CLOSE_GOING_AWAY: u16 = 1001;
 /// Close code for a protocol error.
 const CLOSE_PROTOCOL: u16 = 1002;
+/// Close code "service restart": the scene's description changed (a
+/// relay's upstream came back with another one); reconnect for a new
+/// `Welcome`.
+const CLOSE_RESTART: u16 = 1012;
+/// Close code "try again later": no scene description yet (a relay that
+/// has not reached its upstream).
+const CLOSE_TRY_AGAIN: u16 = 1013;
 /// Control frames (errors, pongs) waiting for the writer.
 const CONTROL_QUEUE: usize = 32;
 /// How often the writer sends `Stats`.
@@ -83,8 +97,8 @@ async fn close(sink: &mut Sink, code: u16, reason: &str) {
 /// on the HTTP upgrade (header or query); `Hello.token` takes precedence.
 pub async fn run(
     socket: WebSocket,
-    state: Arc<AppState>,
-    scene: Arc<SceneRuntime>,
+    state: Arc<Shared>,
+    feed: Arc<Feed>,
     header_token: Option<String>,
 ) {
     let (mut sink, mut stream) = socket.split();
@@ -161,6 +175,12 @@ pub async fn run(
         close(&mut sink, CLOSE_POLICY, "unauthorized").await;
         return;
     };
+    // The HTTP handler answers 503 before upgrading when there is no
+    // description yet; this covers the race with a relay's scene change.
+    let Some(info) = feed.info() else {
+        close(&mut sink, CLOSE_TRY_AGAIN, "scene not available yet").await;
+        return;
+    };
     let welcome = encode_server(&ServerMessage::Welcome {
         protocol_version: PROTOCOL_VERSION,
         server: if state.auth.dev_mode() {
@@ -170,7 +190,7 @@ pub async fn run(
         },
         role,
         capabilities: 0,
-        scene: scene.info.clone(),
+        scene: (*info).clone(),
     });
     if sink
         .send(Message::Binary(Bytes::from(welcome)))
@@ -179,8 +199,8 @@ pub async fn run(
     {
         return;
     }
-    tracing::debug!(scene = %scene.info.id, client = %client_name, ?role, "client joined");
-    scene.clients.fetch_add(1, Ordering::Relaxed);
+    tracing::debug!(scene = %feed.id, client = %client_name, ?role, "client joined");
+    feed.clients.fetch_add(1, Ordering::Relaxed);
     metrics.clients.inc();
 
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
@@ -188,17 +208,26 @@ pub async fn run(
     let reader = tokio::spawn(read_loop(
         stream,
         state.clone(),
-        scene.clone(),
+        feed.clone(),
+        info.clone(),
         role,
         control_tx,
         close_tx,
     ));
-    write_loop(sink, state.clone(), scene.clone(), control_rx, close_rx).await;
+    write_loop(
+        sink,
+        state.clone(),
+        feed.clone(),
+        info,
+        control_rx,
+        close_rx,
+    )
+    .await;
     reader.abort();
 
-    scene.clients.fetch_sub(1, Ordering::Relaxed);
+    feed.clients.fetch_sub(1, Ordering::Relaxed);
     metrics.clients.dec();
-    tracing::debug!(scene = %scene.info.id, client = %client_name, "client left");
+    tracing::debug!(scene = %feed.id, client = %client_name, "client left");
 }
 
 /// Token bucket for transforms.
@@ -235,8 +264,9 @@ impl RateLimit {
 
 async fn read_loop(
     mut stream: futures_util::stream::SplitStream<WebSocket>,
-    state: Arc<AppState>,
-    scene: Arc<SceneRuntime>,
+    state: Arc<Shared>,
+    feed: Arc<Feed>,
+    info: Arc<SceneInfo>,
     role: Role,
     control: mpsc::Sender<Control>,
     close: watch::Sender<Option<(u16, String)>>,
@@ -247,7 +277,7 @@ async fn read_loop(
     while let Some(message) = stream.next().await {
         let reply = match message {
             Ok(Message::Binary(bytes)) => {
-                handle(&bytes, &state, &scene, role, &mut rate, &control).await
+                handle(&bytes, &state, &feed, &info, role, &mut rate, &control).await
             }
             Ok(Message::Text(_)) => Err((
                 ErrorCode::ProtocolViolation,
@@ -287,8 +317,9 @@ type Rejection = (ErrorCode, &'static str, String);
 
 async fn handle(
     bytes: &[u8],
-    state: &AppState,
-    scene: &SceneRuntime,
+    state: &Shared,
+    feed: &Feed,
+    info: &SceneInfo,
     role: Role,
     rate: &mut RateLimit,
     control: &mpsc::Sender<Control>,
@@ -306,17 +337,22 @@ async fn handle(
                     format!("a {role:?} may not move objects"),
                 ));
             }
+            if let Some(why) = feed.transforms_refused() {
+                return Err((ErrorCode::Forbidden, "forbidden", why));
+            }
             let index = object as usize;
-            let dynamic = scene.scene.objects.get(index).is_some_and(|o| o.dynamic);
-            if !dynamic {
-                return Err((
+            let unknown = || {
+                (
                     ErrorCode::UnknownObject,
                     "unknown_object",
                     format!(
                         "object {object} is not a dynamic object of scene \"{}\"",
-                        scene.info.id
+                        info.id
                     ),
-                ));
+                )
+            };
+            if !info.objects.get(index).is_some_and(|o| o.dynamic) {
+                return Err(unknown());
             }
             pose.validate().map_err(|why| {
                 (
@@ -335,8 +371,9 @@ async fn handle(
                     ),
                 ));
             }
-            match scene.inbox.offer(index, seq, from_wire(&pose)) {
+            match feed.inbox.offer(index, seq, pose) {
                 Offer::Accepted => Ok(()),
+                Offer::UnknownObject => Err(unknown()),
                 Offer::Stale { latest } => Err((
                     ErrorCode::StaleSeq,
                     "stale_seq",
@@ -362,7 +399,7 @@ async fn handle(
 }
 
 /// Sends one frame, counting it; `false` if the connection is gone.
-async fn send(sink: &mut Sink, state: &AppState, frame: Bytes) -> bool {
+async fn send(sink: &mut Sink, state: &Shared, frame: Bytes) -> bool {
     let len = frame.len() as u64;
     match tokio::time::timeout(WRITE_TIMEOUT, sink.send(Message::Binary(frame))).await {
         Ok(Ok(())) => {
@@ -374,17 +411,42 @@ async fn send(sink: &mut Sink, state: &AppState, frame: Bytes) -> bool {
     }
 }
 
+/// What the writer sends a client holding `held` for publication `p`:
+/// `None` if it is up to date, else a delta, merged delta or keyframe.
+fn frame_for(state: &Shared, held: Option<u64>, p: &Publication) -> Option<Bytes> {
+    if held == Some(p.version) {
+        return None;
+    }
+    if let Some(frame) = held.and_then(|h| p.frame_for(h)) {
+        if held != p.base_version {
+            state.metrics.catch_up_deltas_sent.inc();
+        }
+        return Some(frame);
+    }
+    if let Some(v) = held {
+        state
+            .metrics
+            .frames_skipped
+            .inc_by(p.version.saturating_sub(v + 1));
+    }
+    state.metrics.keyframes_sent.inc();
+    Some(p.keyframe_frame())
+}
+
 async fn write_loop(
     mut sink: Sink,
-    state: Arc<AppState>,
-    scene: Arc<SceneRuntime>,
+    state: Arc<Shared>,
+    feed: Arc<Feed>,
+    info: Arc<SceneInfo>,
     mut control: mpsc::Receiver<Control>,
     mut close_rx: watch::Receiver<Option<(u16, String)>>,
 ) {
-    let mut publications = scene.publications.clone();
-    let mut stats = scene.stats.clone();
+    let mut publications = feed.publications.clone();
+    let mut stats = feed.stats.clone();
     let mut shutdown = state.shutdown.clone();
-    // The version the client holds, as far as we sent it.
+    // The version the client holds, as far as we sent it. Versions only
+    // ever increase on one connection (a relay renumbers across upstream
+    // restarts to keep it so), so "holds v" identifies one exact state.
     let mut held: Option<u64> = None;
     // Start from whatever is already published.
     publications.mark_changed();
@@ -423,16 +485,13 @@ async fn write_loop(
                 if changed.is_err() { return; }
                 let latest = publications.borrow_and_update().clone();
                 let Some(p) = latest else { continue };
-                if held == Some(p.version) { continue; }
-                let frame = if held == Some(p.base_version) {
-                    p.delta_frame()
-                } else {
-                    if let Some(v) = held {
-                        state.metrics.frames_skipped.inc_by(p.version.saturating_sub(v + 1));
-                    }
-                    state.metrics.keyframes_sent.inc();
-                    p.keyframe_frame()
-                };
+                if !Arc::ptr_eq(&p.scene, &info) {
+                    // Never send tiles of one scene description to a client
+                    // welcomed with another.
+                    close(&mut sink, CLOSE_RESTART, "the scene changed; reconnect").await;
+                    return;
+                }
+                let Some(frame) = frame_for(&state, held, &p) else { continue };
                 if !send(&mut sink, &state, frame).await { return; }
                 held = Some(p.version);
             }

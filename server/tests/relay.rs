@@ -1,0 +1,557 @@
+//! `lightwire relay` as real processes over real sockets: a solver, two
+//! relays and 500 viewers on loopback.
+//!
+//! The contract under test (issue "Deploy and scale out"):
+//!
+//! - killing one relay, its viewers reconnect to the other within
+//!   [`FAILOVER_BOUND`] and end bit-exact with the solver's version;
+//! - restarting the solver, the relays keep serving the last version
+//!   (readiness stays 200, a late joiner gets it as a keyframe, no viewer
+//!   is disconnected) and resync within [`RESYNC_BOUND`] of the new
+//!   solver's first version, bit-exact, with relay versions that only
+//!   increase although the new solver counts from 1 again;
+//! - no viewer ever receives a delta whose base is not the version it
+//!   holds (every viewer applies every frame to a validating `Lightmap`
+//!   and counts refusals);
+//! - drivers' transforms go through a relay to the solver, and the relay
+//!   checks roles (a viewer's transform is refused at the relay).
+//!
+//! The viewers are lightweight tokio tasks speaking the protocol directly.
+//! The bounds are generous on purpose (CI shares 2 cores with builds); the
+//! measured times are printed.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use lightwire_protocol::lightmap::{ApplyError, Lightmap};
+use lightwire_protocol::{
+    ClientMessage, ErrorCode, PROTOCOL_VERSION, Pose, ServerMessage, decode_server, encode_client,
+};
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+
+const DRIVER_TOKEN: &str = "driver-token-0123";
+const VIEWER_TOKEN: &str = "viewer-token-0123";
+const SCENE: &str = "cornell-low";
+const VIEWERS: usize = 500;
+/// Killing a relay: every one of its viewers is connected to the other
+/// relay and holds its current version within this.
+const FAILOVER_BOUND: Duration = Duration::from_secs(20);
+/// Restarting the solver: every viewer holds the new solver's state within
+/// this after the new solver published its first version.
+const RESYNC_BOUND: Duration = Duration::from_secs(20);
+
+/// A child process, killed on drop.
+struct Proc {
+    child: Child,
+    addr: String,
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Proc {
+    fn spawn(args: &[String], env: &[(&str, String)]) -> Proc {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
+            .args(args)
+            .env("RUST_LOG", "warn")
+            .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("lightwire starts");
+        let stdout = child.stdout.take().expect("piped stdout");
+        let mut line = String::new();
+        BufReader::new(stdout)
+            .read_line(&mut line)
+            .expect("it prints its address");
+        let addr = line
+            .split("http://")
+            .nth(1)
+            .and_then(|rest| rest.split_whitespace().next())
+            .unwrap_or_else(|| panic!("unexpected first line: {line:?}"))
+            .to_string();
+        Proc { child, addr }
+    }
+
+    /// A solver on `listen` (port 0: any) with cornell-low at a coarse
+    /// density on the CPU reference solver, which re-solves a move in well
+    /// under a second.
+    fn solver(listen: &str) -> Proc {
+        let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
+        let args = [
+            "serve",
+            "--listen",
+            listen,
+            "--density-scale",
+            "0.5",
+            "--solver",
+            "reference",
+            "--scene",
+        ]
+        .map(String::from)
+        .into_iter()
+        .chain([scene.display().to_string()])
+        .collect::<Vec<_>>();
+        Proc::spawn(&args, &[("LIGHTWIRE_TOKENS", tokens())])
+    }
+
+    /// A relay of the solver at `upstream`, presenting the driver token.
+    fn relay(upstream: &str) -> Proc {
+        let args = [
+            "relay",
+            "--listen",
+            "127.0.0.1:0",
+            "--upstream",
+            &format!("ws://{upstream}/ws/scenes/{SCENE}"),
+        ]
+        .map(String::from);
+        Proc::spawn(
+            &args,
+            &[
+                ("LIGHTWIRE_TOKENS", tokens()),
+                ("LIGHTWIRE_UPSTREAM_TOKEN", DRIVER_TOKEN.to_string()),
+            ],
+        )
+    }
+
+    fn ws_url(&self) -> String {
+        format!("ws://{}/ws/scenes/{SCENE}", self.addr)
+    }
+}
+
+fn tokens() -> String {
+    format!("driver:{DRIVER_TOKEN},viewer:{VIEWER_TOKEN}")
+}
+
+/// A minimal HTTP/1.1 GET: status and body.
+async fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = TcpStream::connect(addr).await.ok()?;
+    let request = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+    stream.write_all(request.as_bytes()).await.ok()?;
+    let mut response = Vec::new();
+    stream.read_to_end(&mut response).await.ok()?;
+    let text = String::from_utf8_lossy(&response).into_owned();
+    let status = text.split_whitespace().nth(1)?.parse().ok()?;
+    let body = text.split_once("\r\n\r\n")?.1.to_string();
+    Some((status, body))
+}
+
+async fn wait_ready(addr: &str, what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while http_get(addr, "/readyz").await.map(|r| r.0) != Some(200) {
+        assert!(Instant::now() < deadline, "{what} never became ready");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// The relay's view of its scene (from `/api/scenes`).
+async fn relay_status(addr: &str) -> serde_json::Value {
+    let (status, body) = http_get(addr, "/api/scenes").await.expect("relay answers");
+    assert_eq!(status, 200);
+    let list: serde_json::Value = serde_json::from_str(&body).expect("json");
+    list[0].clone()
+}
+
+type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+async fn hello(url: &str, token: &str) -> Option<Ws> {
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.ok()?;
+    let hello = ClientMessage::Hello {
+        protocol_version: PROTOCOL_VERSION,
+        client: "relay-test".into(),
+        token: Some(token.into()),
+        capabilities: 0,
+    };
+    ws.send(Message::Binary(encode_client(&hello).into()))
+        .await
+        .ok()?;
+    Some(ws)
+}
+
+/// The state a protocol client holds right after joining `url`: its
+/// version, its texels and the seq of object 1 it reflects.
+async fn joined_state(url: &str) -> (u64, Vec<u8>, Option<u64>) {
+    let mut ws = hello(url, VIEWER_TOKEN).await.expect("connects");
+    let mut map = None;
+    loop {
+        let frame = tokio::time::timeout(Duration::from_secs(10), ws.next())
+            .await
+            .expect("frames arrive")
+            .expect("open")
+            .expect("ok");
+        let Message::Binary(bytes) = frame else {
+            continue;
+        };
+        match decode_server(&bytes).expect("decodes") {
+            ServerMessage::Welcome { scene, .. } => {
+                map = Some(Lightmap::for_scene(&scene).expect("layout"))
+            }
+            ServerMessage::Keyframe(k) => {
+                let map = map.as_mut().expect("Welcome first");
+                map.apply_keyframe(&k).expect("applies");
+                let seq = k.reflected.iter().find(|r| r.object == 1).map(|r| r.seq);
+                return (k.version, map.texels.clone(), seq);
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Waits until the solver's state reflects `seq` of the box and stays put
+/// for a moment; returns it.
+async fn settled(solver: &Proc, seq: Option<u64>) -> (u64, Vec<u8>) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let (version, texels, reflected) = joined_state(&solver.ws_url()).await;
+        if reflected == seq {
+            tokio::time::sleep(Duration::from_millis(400)).await;
+            let (again, _, _) = joined_state(&solver.ws_url()).await;
+            if again == version {
+                return (version, texels);
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the solver never settled on seq {seq:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// What a viewer task reports, live.
+#[derive(Default)]
+struct ViewerState {
+    /// Index of the relay it is connected to, or `usize::MAX`.
+    relay: AtomicUsize,
+    /// Connections opened (1 = never reconnected).
+    connections: AtomicU32,
+    /// The version it holds (0: none).
+    version: AtomicU64,
+    /// Its texels at that version.
+    texels: Mutex<Vec<u8>>,
+    /// Deltas that did not apply onto the held version. Must stay 0.
+    wrong_base: AtomicU32,
+    /// Frames on one connection whose version did not increase. Must stay 0.
+    not_increasing: AtomicU32,
+    /// Tile or frame errors other than a wrong base. Must stay 0.
+    other_errors: AtomicU32,
+}
+
+/// A viewer: connects to `relays[first]`, and on any loss to the next
+/// relay in turn, applying every frame to a validating `Lightmap`.
+async fn viewer(
+    relays: Arc<Vec<String>>,
+    first: usize,
+    state: Arc<ViewerState>,
+    stop: Arc<AtomicBool>,
+) {
+    let mut index = first;
+    let mut delay = Duration::from_millis(20);
+    state.relay.store(usize::MAX, Ordering::Relaxed);
+    while !stop.load(Ordering::Relaxed) {
+        let Some(mut ws) = hello(&relays[index], VIEWER_TOKEN).await else {
+            index = (index + 1) % relays.len();
+            tokio::time::sleep(delay).await;
+            delay = (delay * 2).min(Duration::from_millis(500));
+            continue;
+        };
+        state.connections.fetch_add(1, Ordering::Relaxed);
+        state.relay.store(index, Ordering::Relaxed);
+        let mut map: Option<Lightmap> = None;
+        let mut last_on_connection = 0u64;
+        while !stop.load(Ordering::Relaxed) {
+            let frame = match tokio::time::timeout(Duration::from_secs(2), ws.next()).await {
+                Ok(Some(Ok(Message::Binary(bytes)))) => bytes,
+                Ok(Some(Ok(Message::Close(_)))) | Ok(None) | Ok(Some(Err(_))) => break,
+                Ok(Some(Ok(_))) | Err(_) => continue,
+            };
+            let Ok(message) = decode_server(&frame) else {
+                state.other_errors.fetch_add(1, Ordering::Relaxed);
+                continue;
+            };
+            let version = match message {
+                ServerMessage::Welcome { scene, .. } => {
+                    map = Lightmap::for_scene(&scene).ok();
+                    continue;
+                }
+                ServerMessage::Keyframe(k) => {
+                    let Some(map) = map.as_mut() else { continue };
+                    if map.apply_keyframe(&k).is_err() {
+                        state.other_errors.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
+                    k.version
+                }
+                ServerMessage::Delta(d) => {
+                    let Some(map) = map.as_mut() else { continue };
+                    match map.apply_delta(&d) {
+                        Ok(()) => d.version,
+                        Err(ApplyError::WrongBase { .. }) => {
+                            state.wrong_base.fetch_add(1, Ordering::Relaxed);
+                            let resync = ClientMessage::Resync {
+                                have_version: Some(map.version),
+                            };
+                            let _ = ws
+                                .send(Message::Binary(encode_client(&resync).into()))
+                                .await;
+                            continue;
+                        }
+                        Err(_) => {
+                            state.other_errors.fetch_add(1, Ordering::Relaxed);
+                            continue;
+                        }
+                    }
+                }
+                _ => continue,
+            };
+            if version <= last_on_connection {
+                state.not_increasing.fetch_add(1, Ordering::Relaxed);
+            }
+            last_on_connection = version;
+            if let Some(map) = map.as_ref() {
+                *state.texels.lock().expect("lock") = map.texels.clone();
+            }
+            state.version.store(version, Ordering::Relaxed);
+        }
+        state.relay.store(usize::MAX, Ordering::Relaxed);
+        index = (index + 1) % relays.len();
+        delay = Duration::from_millis(20);
+    }
+}
+
+/// Waits until every viewer satisfies `ok`, at most `bound` after
+/// `started`; returns the time since `started`.
+async fn all_viewers(
+    viewers: &[Arc<ViewerState>],
+    started: Instant,
+    bound: Duration,
+    what: &str,
+    ok: impl Fn(&ViewerState) -> bool,
+) -> Duration {
+    loop {
+        let pending = viewers.iter().filter(|v| !ok(v)).count();
+        if pending == 0 {
+            return started.elapsed();
+        }
+        assert!(
+            started.elapsed() < bound,
+            "{what}: {pending} of {} viewers still not there after {bound:?}",
+            viewers.len()
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+fn holds(v: &ViewerState, version: u64, texels: &[u8]) -> bool {
+    v.version.load(Ordering::Relaxed) == version && *v.texels.lock().expect("lock") == texels
+}
+
+fn pose_at(step: u32) -> Pose {
+    let angle = step as f32 * 0.3;
+    Pose {
+        translation: [2.78, 0.85, 2.796],
+        rotation: [0.0, (angle / 2.0).sin(), 0.0, (angle / 2.0).cos()],
+        scale: 1.0,
+    }
+}
+
+/// A driver on `url` sends seq `step` and reads the answers for a moment;
+/// returns the error codes it got.
+async fn drive(url: &str, token: &str, step: u32) -> Vec<ErrorCode> {
+    let mut ws = hello(url, token).await.expect("connects");
+    let transform = ClientMessage::Transform {
+        object: 1,
+        seq: u64::from(step),
+        pose: pose_at(step),
+        client_time_us: 0,
+    };
+    ws.send(Message::Binary(encode_client(&transform).into()))
+        .await
+        .expect("send");
+    let mut errors = Vec::new();
+    let until = Instant::now() + Duration::from_millis(600);
+    while let Ok(Some(Ok(frame))) = tokio::time::timeout_at(until.into(), ws.next()).await {
+        if let Message::Binary(bytes) = frame {
+            if let Ok(ServerMessage::Error { code, .. }) = decode_server(&bytes) {
+                errors.push(code);
+            }
+        }
+    }
+    errors
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exactly() {
+    let test_started = Instant::now();
+    let mut solver = Proc::solver("127.0.0.1:0");
+    let solver_addr = solver.addr.clone();
+    wait_ready(&solver.addr, "the solver").await;
+    let relay_a = Proc::relay(&solver_addr);
+    let relay_b = Proc::relay(&solver_addr);
+    wait_ready(&relay_a.addr, "relay A").await;
+    wait_ready(&relay_b.addr, "relay B").await;
+    let relays = Arc::new(vec![relay_a.ws_url(), relay_b.ws_url()]);
+
+    // 500 viewers, alternating between the relays.
+    let stop = Arc::new(AtomicBool::new(false));
+    let spawned = Instant::now();
+    let viewers: Vec<Arc<ViewerState>> = (0..VIEWERS)
+        .map(|_| Arc::new(ViewerState::default()))
+        .collect();
+    let tasks: Vec<_> = viewers
+        .iter()
+        .enumerate()
+        .map(|(i, v)| tokio::spawn(viewer(relays.clone(), i % 2, v.clone(), stop.clone())))
+        .collect();
+    let (v0, texels0) = settled(&solver, None).await;
+    let joined = all_viewers(&viewers, spawned, Duration::from_secs(60), "joining", |v| {
+        holds(v, v0, &texels0)
+    })
+    .await;
+    eprintln!(
+        "{VIEWERS} viewers joined through 2 relays and hold the solver's version {v0} within {joined:?}"
+    );
+
+    // Roles are checked at the relay; a driver's moves reach the solver.
+    assert_eq!(
+        drive(&relays[1], VIEWER_TOKEN, 1).await,
+        vec![ErrorCode::Forbidden],
+        "a viewer may not move objects through a relay"
+    );
+    for step in 1..=3 {
+        assert_eq!(drive(&relays[1], DRIVER_TOKEN, step).await, vec![]);
+    }
+    let (v1, texels1) = settled(&solver, Some(3)).await;
+    assert!(v1 > v0 && texels1 != texels0, "the move changed the light");
+    all_viewers(
+        &viewers,
+        Instant::now(),
+        Duration::from_secs(30),
+        "after the move",
+        |v| holds(v, v1, &texels1),
+    )
+    .await;
+
+    // Kill relay A: its viewers move to relay B.
+    let on_a = viewers
+        .iter()
+        .filter(|v| v.relay.load(Ordering::Relaxed) == 0)
+        .count();
+    assert_eq!(on_a, VIEWERS / 2);
+    let killed = Instant::now();
+    drop(relay_a);
+    let failover = all_viewers(&viewers, killed, FAILOVER_BOUND, "failover", |v| {
+        v.relay.load(Ordering::Relaxed) == 1 && holds(v, v1, &texels1)
+    })
+    .await;
+    eprintln!(
+        "relay A killed: its {on_a} viewers reconnected to relay B and hold version {v1} within {failover:?}"
+    );
+    // And they follow the next move, bit-exact with the solver.
+    assert_eq!(drive(&relays[1], DRIVER_TOKEN, 4).await, vec![]);
+    let (v2, texels2) = settled(&solver, Some(4)).await;
+    all_viewers(
+        &viewers,
+        Instant::now(),
+        Duration::from_secs(30),
+        "after failover",
+        |v| holds(v, v2, &texels2),
+    )
+    .await;
+    let connections_before: Vec<u32> = viewers
+        .iter()
+        .map(|v| v.connections.load(Ordering::Relaxed))
+        .collect();
+
+    // Restart the solver. While it is gone, the relay serves the last
+    // version: it stays ready and a late joiner gets that version.
+    drop(solver);
+    let down = Instant::now();
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while relay_status(&relay_b.addr).await["connected"] != false {
+        assert!(Instant::now() < deadline, "the relay never noticed");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(
+        http_get(&relay_b.addr, "/readyz").await.map(|r| r.0),
+        Some(200),
+        "a relay without its upstream still serves the last version"
+    );
+    let (late_version, late_texels, _) = joined_state(&relays[1]).await;
+    assert_eq!(late_version, v2, "a late joiner gets the last version");
+    assert!(late_texels == texels2, "... bit-exact");
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    solver = Proc::solver(&solver_addr);
+    wait_ready(&solver.addr, "the restarted solver").await;
+    let restarted = Instant::now();
+    // The new run starts from the scene's initial pose and version 1; its
+    // first version is its state until something moves.
+    let (v3, texels3, _) = joined_state(&solver.ws_url()).await;
+    assert!(
+        texels3 != texels2,
+        "the restarted solver lights the box elsewhere"
+    );
+    assert!(
+        v3 < v2,
+        "the new run counts again from 1 (got {v3} after {v2})"
+    );
+    let resync = all_viewers(&viewers, restarted, RESYNC_BOUND, "resync", |v| {
+        v.version.load(Ordering::Relaxed) > v2 && *v.texels.lock().expect("lock") == texels3
+    })
+    .await;
+    assert_eq!(
+        settled(&solver, None).await,
+        (v3, texels3),
+        "no newer version"
+    );
+    eprintln!(
+        "solver restarted ({:?} down): every viewer resynced to the new run's state within {resync:?} of the solver being ready",
+        restarted - down
+    );
+    let status = relay_status(&relay_b.addr).await;
+    assert_eq!(status["connected"], true);
+    assert_eq!(status["upstream_version"].as_u64(), Some(v3));
+    let relay_version = status["version"].as_u64().expect("version");
+    assert!(relay_version > v2, "relay versions never go back");
+    assert!(
+        viewers
+            .iter()
+            .all(|v| v.version.load(Ordering::Relaxed) == relay_version),
+        "every viewer holds the relay's version {relay_version}"
+    );
+    let reconnected = viewers
+        .iter()
+        .zip(&connections_before)
+        .filter(|(v, before)| v.connections.load(Ordering::Relaxed) != **before)
+        .count();
+    assert_eq!(
+        reconnected, 0,
+        "viewers stay connected to the relay while the solver restarts"
+    );
+
+    stop.store(true, Ordering::Relaxed);
+    for t in tasks {
+        let _ = t.await;
+    }
+    let sum = |f: fn(&ViewerState) -> u32| viewers.iter().map(|v| f(v)).sum::<u32>();
+    assert_eq!(
+        sum(|v| v.wrong_base.load(Ordering::Relaxed)),
+        0,
+        "no viewer was ever sent a delta onto a version it did not hold"
+    );
+    assert_eq!(sum(|v| v.not_increasing.load(Ordering::Relaxed)), 0);
+    assert_eq!(sum(|v| v.other_errors.load(Ordering::Relaxed)), 0);
+    eprintln!("wall time {:?}", test_started.elapsed());
+}
