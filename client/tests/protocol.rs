@@ -1,0 +1,473 @@
+//! The client library against a scripted fake server (in-process, real
+//! sockets): each test plays the server's side of PROTOCOL.md frame by
+//! frame and checks what the client does — resync on a delta that does
+//! not fit, nothing applied from a corrupt frame, reconnect with backoff,
+//! permanent refusals, the pose outbox and transform-to-light latency.
+
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use lightwire_client::{Client, ClientError, ErrorCode, Event, Options, Pose, Role};
+use lightwire_protocol::lightmap::Encoder;
+use lightwire_protocol::{
+    ClientMessage, MaterialInfo, ObjectInfo, ObjectSeq, PROTOCOL_VERSION, PixelFormat, SceneInfo,
+    ServerMessage, SurfaceInfo, decode_client, encode_server,
+};
+use tokio::net::{TcpListener, TcpStream};
+use tokio_tungstenite::WebSocketStream;
+use tokio_tungstenite::tungstenite::Message;
+
+const WAIT: Duration = Duration::from_secs(10);
+
+fn scene() -> SceneInfo {
+    SceneInfo {
+        id: "fake".into(),
+        atlas_width: 10,
+        atlas_height: 9,
+        tile_size: 4,
+        format: PixelFormat::Rgb9e5,
+        objects: vec![
+            ObjectInfo {
+                name: "room".into(),
+                dynamic: false,
+                pose: Pose::IDENTITY,
+            },
+            ObjectInfo {
+                name: "box".into(),
+                dynamic: true,
+                pose: Pose::IDENTITY,
+            },
+        ],
+        materials: vec![MaterialInfo {
+            name: "white".into(),
+            albedo: [0.5; 3],
+            emission: [0.0; 3],
+        }],
+        surfaces: vec![SurfaceInfo {
+            name: "floor".into(),
+            object: 0,
+            material: 0,
+            corners: [
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 0.0, 1.0],
+                [0.0, 0.0, 1.0],
+            ],
+            rect: [0, 0, 10, 9],
+        }],
+    }
+}
+
+fn image(value: f32) -> Vec<[f32; 3]> {
+    (0..90)
+        .map(|i| [value + i as f32 * 0.01, value, 0.5])
+        .collect()
+}
+
+fn encoder() -> Encoder {
+    Encoder::new(10, 9, 4, PixelFormat::Rgb9e5, 0.0)
+}
+
+type ServerWs = WebSocketStream<TcpStream>;
+
+/// The fake server's listening socket.
+struct Fake {
+    listener: TcpListener,
+}
+
+impl Fake {
+    async fn new() -> Fake {
+        Fake {
+            listener: TcpListener::bind("127.0.0.1:0").await.expect("bind"),
+        }
+    }
+
+    fn url(&self) -> String {
+        format!(
+            "ws://{}/ws/scenes/fake",
+            self.listener.local_addr().expect("addr")
+        )
+    }
+
+    /// Accepts one WebSocket and reads its Hello; returns the token.
+    async fn accept(&self) -> (ServerWs, Option<String>) {
+        let (tcp, _) = tokio::time::timeout(WAIT, self.listener.accept())
+            .await
+            .expect("the client connects")
+            .expect("accept");
+        let mut ws = tokio_tungstenite::accept_async(tcp).await.expect("upgrade");
+        match recv(&mut ws).await {
+            ClientMessage::Hello {
+                protocol_version,
+                token,
+                ..
+            } => {
+                assert_eq!(protocol_version, PROTOCOL_VERSION);
+                (ws, token)
+            }
+            other => panic!("expected Hello first, got {other:?}"),
+        }
+    }
+
+    /// Accepts and welcomes with `role`.
+    async fn welcome(&self, role: Role) -> ServerWs {
+        let (mut ws, _) = self.accept().await;
+        send(
+            &mut ws,
+            &ServerMessage::Welcome {
+                protocol_version: PROTOCOL_VERSION,
+                server: "fake".into(),
+                role,
+                capabilities: 0,
+                scene: scene(),
+            },
+        )
+        .await;
+        ws
+    }
+}
+
+async fn send(ws: &mut ServerWs, message: &ServerMessage) {
+    ws.send(Message::Binary(encode_server(message).into()))
+        .await
+        .expect("send");
+}
+
+/// The next client message (skipping control frames).
+async fn recv(ws: &mut ServerWs) -> ClientMessage {
+    loop {
+        let frame = tokio::time::timeout(WAIT, ws.next())
+            .await
+            .expect("a client frame in time")
+            .expect("the socket is open")
+            .expect("a frame");
+        if let Message::Binary(bytes) = frame {
+            return decode_client(&bytes).expect("client frames decode");
+        }
+    }
+}
+
+/// Waits for the first event matching `pick`.
+async fn until<T>(client: &mut Client, mut pick: impl FnMut(&Event) -> Option<T>) -> T {
+    let deadline = Instant::now() + WAIT;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let event = tokio::time::timeout(left, client.next_event())
+            .await
+            .expect("the event in time")
+            .expect("the client still runs");
+        if let Some(t) = pick(&event) {
+            return t;
+        }
+    }
+}
+
+#[tokio::test]
+async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
+    let fake = Fake::new().await;
+    let url = fake.url();
+    let (client, ws) = tokio::join!(
+        Client::connect(&url, None, None),
+        fake.welcome(Role::Viewer)
+    );
+    let (mut client, mut ws) = (client.expect("connects"), ws);
+    assert_eq!(client.scene().id, "fake");
+    assert_eq!(client.role(), Role::Viewer);
+
+    let mut enc = encoder();
+    enc.publish(&image(1.0), vec![]);
+    let k1 = enc.keyframe();
+    send(&mut ws, &ServerMessage::Keyframe(k1.clone())).await;
+    let v1 = client.wait_for_version(1, WAIT).await.expect("keyframe 1");
+    assert_eq!(v1.lightmap.texels, enc.state().texels);
+
+    // Garbage: reported with the frame's place, ignored; still version 1.
+    ws.send(Message::Binary(vec![0x02, 0xff, 0xff].into()))
+        .await
+        .expect("send");
+    let decode = until(&mut client, |e| match e {
+        Event::Error(ClientError::Decode { index, len, .. }) => Some((*index, *len)),
+        _ => None,
+    })
+    .await;
+    assert_eq!(
+        decode,
+        (3, 3),
+        "frame #3 (after Welcome, keyframe), 3 bytes"
+    );
+
+    // A delta with a corrupt tile: nothing applied, a resync requested.
+    let d2 = enc.publish(&image(2.0), vec![]);
+    let mut corrupt = d2.clone();
+    corrupt.tiles[0].data = vec![0x28, 0xb5, 0x2f, 0xfd, 0, 0];
+    send(&mut ws, &ServerMessage::Delta(corrupt)).await;
+    let message = until(&mut client, |e| match e {
+        Event::Error(e @ ClientError::Apply { .. }) => Some(e.to_string()),
+        _ => None,
+    })
+    .await;
+    assert!(message.contains("delta 1 -> 2"), "{message}");
+    assert_eq!(
+        recv(&mut ws).await,
+        ClientMessage::Resync {
+            have_version: Some(1)
+        }
+    );
+    let front = client.frame().expect("front");
+    assert_eq!(front.version(), 1);
+    assert_eq!(front.lightmap.texels, v1.lightmap.texels, "front untouched");
+
+    // While waiting for the keyframe, even a fitting delta is ignored.
+    send(&mut ws, &ServerMessage::Delta(d2)).await;
+    // The keyframe of version 3 brings it up to date.
+    enc.publish(&image(3.0), vec![]);
+    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
+    let v3 = client.wait_for_version(3, WAIT).await.expect("keyframe 3");
+    assert_eq!(v3.version(), 3);
+    assert_eq!(v3.lightmap.texels, enc.state().texels);
+    assert_eq!(client.counters().deltas_ignored, 1);
+
+    // A delta whose base is not the held version: Resync, not applied.
+    enc.publish(&image(4.0), vec![]); // version 4: never sent
+    let d5 = enc.publish(&image(5.0), vec![]);
+    send(&mut ws, &ServerMessage::Delta(d5)).await;
+    let (have, base) = until(&mut client, |e| match e {
+        Event::Resync { have, delta_base } => Some((*have, *delta_base)),
+        _ => None,
+    })
+    .await;
+    assert_eq!((have, base), (Some(3), 4));
+    assert_eq!(
+        recv(&mut ws).await,
+        ClientMessage::Resync {
+            have_version: Some(3)
+        }
+    );
+    assert_eq!(client.version(), Some(3));
+    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
+    let v5 = client.wait_for_version(5, WAIT).await.expect("keyframe 5");
+    assert_eq!(
+        v5.lightmap.texels,
+        enc.state().texels,
+        "bit-exact after resync"
+    );
+    let c = client.counters();
+    assert_eq!((c.resyncs, c.decode_errors, c.apply_errors), (2, 1, 1));
+    client.close().await;
+}
+
+#[tokio::test]
+async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
+    let fake = Fake::new().await;
+    let url = fake.url();
+    let (client, ws) = tokio::join!(
+        Client::connect(&url, Some("d"), None),
+        fake.welcome(Role::Driver)
+    );
+    let (mut client, mut ws) = (client.expect("connects"), ws);
+    let mut enc = encoder();
+    enc.publish(&image(1.0), vec![]);
+    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
+    client.wait_for_version(1, WAIT).await.expect("version 1");
+
+    // The server goes away.
+    drop(ws);
+    until(&mut client, |e| {
+        matches!(e, Event::Disconnected(_)).then_some(())
+    })
+    .await;
+    // Poses sent while disconnected wait in the outbox; the newest wins.
+    let pose = |x: f32| Pose {
+        translation: [x, 0.0, 0.0],
+        ..Pose::IDENTITY
+    };
+    let seqs: Vec<u64> = (0..3)
+        .map(|i| client.send_pose(1, pose(i as f32)).expect("queued"))
+        .collect();
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "seqs increase");
+    let (attempt, delay) = until(&mut client, |e| match e {
+        Event::Reconnecting { attempt, delay } => Some((*attempt, *delay)),
+        _ => None,
+    })
+    .await;
+    assert_eq!(attempt, 1);
+    assert!(
+        delay <= Duration::from_millis(120),
+        "first delay ~100 ms: {delay:?}"
+    );
+
+    // The client comes back, says Hello with its token again, and sends
+    // only the newest pose.
+    let (mut ws, token) = fake.accept().await;
+    assert_eq!(token.as_deref(), Some("d"));
+    send(
+        &mut ws,
+        &ServerMessage::Welcome {
+            protocol_version: PROTOCOL_VERSION,
+            server: "fake".into(),
+            role: Role::Driver,
+            capabilities: 0,
+            scene: scene(),
+        },
+    )
+    .await;
+    match recv(&mut ws).await {
+        ClientMessage::Transform {
+            object, seq, pose, ..
+        } => {
+            assert_eq!((object, seq), (1, seqs[2]));
+            assert_eq!(pose.translation, [2.0, 0.0, 0.0]);
+        }
+        other => panic!("expected the queued Transform, got {other:?}"),
+    }
+    // The new session starts from a keyframe; the front catches up.
+    enc.publish(&image(2.0), vec![]);
+    enc.publish(&image(3.0), vec![]);
+    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
+    let v3 = client.wait_for_version(3, WAIT).await.expect("version 3");
+    assert_eq!(v3.lightmap.texels, enc.state().texels);
+    let c = client.counters();
+    assert_eq!((c.reconnects, c.poses_sent, c.poses_coalesced), (1, 1, 2));
+    client.close().await;
+}
+
+#[tokio::test]
+async fn latency_runs_from_sending_a_pose_to_the_version_that_echoes_it() {
+    let fake = Fake::new().await;
+    let url = fake.url();
+    let (client, ws) = tokio::join!(
+        Client::connect(&url, None, None),
+        fake.welcome(Role::Driver)
+    );
+    let (mut client, mut ws) = (client.expect("connects"), ws);
+    let mut enc = encoder();
+    enc.publish(&image(1.0), vec![]);
+    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
+    client.wait_for_version(1, WAIT).await.expect("version 1");
+
+    // What the server would refuse is refused locally, saying why.
+    assert!(matches!(
+        client.send_pose(0, Pose::IDENTITY),
+        Err(ClientError::UnknownObject { .. })
+    ));
+    assert!(matches!(
+        client.send_pose(7, Pose::IDENTITY),
+        Err(ClientError::UnknownObject { .. })
+    ));
+    let bad = Pose {
+        scale: 0.0,
+        ..Pose::IDENTITY
+    };
+    assert!(matches!(
+        client.send_pose(1, bad),
+        Err(ClientError::InvalidPose { object: 1, .. })
+    ));
+
+    let sent = Instant::now();
+    let seq = client
+        .send_pose_named("box", Pose::IDENTITY)
+        .expect("a driver may");
+    let got = match recv(&mut ws).await {
+        ClientMessage::Transform { object, seq, .. } => (object, seq),
+        other => panic!("expected a Transform, got {other:?}"),
+    };
+    assert_eq!(got, (1, seq));
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let d2 = enc.publish(&image(2.0), vec![ObjectSeq { object: 1, seq }]);
+    send(&mut ws, &ServerMessage::Delta(d2)).await;
+    let delivered = until(&mut client, |e| match e {
+        Event::Version(v) if v.version == 2 => Some(v.delivered.clone()),
+        _ => None,
+    })
+    .await;
+    assert_eq!(delivered.len(), 1);
+    assert_eq!((delivered[0].object, delivered[0].seq), (1, seq));
+    let latency = delivered[0].latency.expect("the send time is known");
+    assert!(
+        latency >= Duration::from_millis(50) && latency <= sent.elapsed(),
+        "latency {latency:?} spans the server's 50 ms hold"
+    );
+    assert_eq!(client.frame().expect("front").reflected.get(&1), Some(&seq));
+
+    // A StaleSeq refusal is counted apart from other server errors.
+    send(
+        &mut ws,
+        &ServerMessage::Error {
+            code: ErrorCode::StaleSeq,
+            message: "seq 1 is not newer than 2".into(),
+        },
+    )
+    .await;
+    until(&mut client, |e| {
+        matches!(
+            e,
+            Event::ServerError {
+                code: ErrorCode::StaleSeq,
+                ..
+            }
+        )
+        .then_some(())
+    })
+    .await;
+    let c = client.counters();
+    assert_eq!((c.stale_seqs, c.server_errors), (1, 0));
+    client.close().await;
+}
+
+#[tokio::test]
+async fn a_refused_token_is_permanent_and_a_viewer_may_not_drive() {
+    let fake = Fake::new().await;
+    let url = fake.url();
+    let refuse = async {
+        let (mut ws, token) = fake.accept().await;
+        assert_eq!(token.as_deref(), Some("wrong"));
+        send(
+            &mut ws,
+            &ServerMessage::Error {
+                code: ErrorCode::Unauthorized,
+                message: "missing or unknown token".into(),
+            },
+        )
+        .await;
+    };
+    let (result, ()) = tokio::join!(Client::connect(&url, Some("wrong"), None), refuse);
+    let err = result.err().expect("refused");
+    assert!(err.is_permanent(), "{err}");
+    let text = err.to_string();
+    assert!(
+        text.contains(&url) && text.contains("missing or unknown token"),
+        "{text}"
+    );
+
+    // No server at all: a connect error naming the address, not permanent.
+    let closed = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+        l.local_addr().expect("addr")
+    };
+    let options = Options {
+        connect_timeout: Duration::from_secs(2),
+        ..Options::default()
+    };
+    let endpoint = lightwire_client::Endpoint::parse(&format!("http://{closed}"), Some("x"))
+        .expect("endpoint");
+    let err = Client::connect_with(endpoint, options)
+        .await
+        .err()
+        .expect("refused");
+    assert!(
+        !err.is_permanent() && err.to_string().contains(&closed.to_string()),
+        "{err}"
+    );
+
+    // A viewer's pose is refused before it reaches the socket.
+    let (client, _ws) = tokio::join!(
+        Client::connect(&url, None, None),
+        fake.welcome(Role::Viewer)
+    );
+    let client = client.expect("connects");
+    assert!(matches!(
+        client.send_pose(1, Pose::IDENTITY),
+        Err(ClientError::Forbidden { role: Role::Viewer })
+    ));
+    client.close().await;
+}
