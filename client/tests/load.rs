@@ -3,10 +3,11 @@
 //!
 //! The server binary: Cargo hands a test the paths of its own package's
 //! binaries only (`CARGO_BIN_EXE_lightwire-client` here), so the test asks
-//! Cargo for `lightwire` with the same profile and target directory
-//! (`cargo build -p lightwire-server --bin lightwire`): a no-op when
-//! `cargo test --workspace` already built it, a build when this test runs
-//! alone, and never a stale binary. ARCHITECTURE.md explains the choice.
+//! Cargo to make sure the workspace's binaries are built, with the same
+//! profile and target directory, and runs `target/<profile>/lightwire`
+//! (see [`lightwire_binary`]): a no-op under `cargo test --workspace`, a
+//! build when this test runs alone, and never a stale binary.
+//! ARCHITECTURE.md explains the choice.
 //!
 //! The server runs in development mode on cornell-low at a fifth of its
 //! texel density with the CPU reference solver at 3 ticks per second: a
@@ -22,37 +23,39 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-/// Builds (or finds fresh) the `lightwire` server binary next to ours.
+/// The `lightwire` server binary, fresh, next to ours.
+///
+/// Runs `cargo test --workspace --no-run` with our profile and target
+/// directory: under `make test` (`cargo test --workspace`) that is a no-op
+/// check, because the outer run already built every binary with exactly
+/// these features; run alone, it builds what is missing or stale. A plain
+/// `cargo build -p lightwire-server` would not do: dev-dependencies of other
+/// members change the unified features of shared crates (wgpu's among
+/// them), so it would compile a second copy of half the dependency graph.
 fn lightwire_binary() -> &'static Path {
     static BINARY: OnceLock<PathBuf> = OnceLock::new();
     BINARY.get_or_init(|| {
         let ours = Path::new(env!("CARGO_BIN_EXE_lightwire-client"));
         let profile_dir = ours.parent().expect("target/<profile>/");
         let target_dir = profile_dir.parent().expect("target/");
-        let profile = match profile_dir.file_name().and_then(|p| p.to_str()) {
-            Some("debug") => "dev",
-            Some(other) => other,
+        let profile: &[&str] = match profile_dir.file_name().and_then(|p| p.to_str()) {
+            Some("debug") => &[],
+            Some("release") => &["--release"],
+            Some(other) => &["--profile", other],
             None => panic!("unexpected binary path {}", ours.display()),
         };
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| env!("CARGO").to_string());
         let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
         let status = Command::new(cargo)
-            .args([
-                "build",
-                "--quiet",
-                "-p",
-                "lightwire-server",
-                "--bin",
-                "lightwire",
-            ])
-            .args(["--profile", profile])
+            .args(["test", "--workspace", "--no-run", "--quiet"])
+            .args(profile)
             .arg("--manifest-path")
             .arg(&manifest)
             .arg("--target-dir")
             .arg(target_dir)
             .status()
             .expect("cargo runs");
-        assert!(status.success(), "building the lightwire server failed");
+        assert!(status.success(), "building the workspace's binaries failed");
         let binary = profile_dir.join(format!("lightwire{}", std::env::consts::EXE_SUFFIX));
         assert!(binary.exists(), "{} was not built", binary.display());
         binary
