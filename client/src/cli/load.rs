@@ -108,6 +108,22 @@ pub struct LatencyReport {
     pub mean_ms: f64,
 }
 
+/// The server's tick timings (means of its `Stats`, sampled every 250 ms
+/// during the drive phase): where the server's share of the latency goes.
+#[derive(Debug, Serialize)]
+pub struct ServerReport {
+    /// `Stats` frames sampled.
+    pub samples: u64,
+    /// Mean wall time of a tick, ms.
+    pub tick_ms_mean: f64,
+    /// Longest sampled tick, ms.
+    pub tick_ms_max: f64,
+    /// Mean solver time per tick, ms.
+    pub solve_ms_mean: f64,
+    /// Mean redistribution time per tick, ms.
+    pub redistribution_ms_mean: f64,
+}
+
 /// One viewer's end state.
 #[derive(Debug, Serialize)]
 pub struct ViewerFinal {
@@ -149,6 +165,8 @@ pub struct Report {
     pub poses_per_s: f64,
     /// Transform (driver send) to delivery (viewer applied).
     pub latency: LatencyReport,
+    /// The server's own timings during the drive phase.
+    pub server: ServerReport,
     /// The server's version after settling (from `Stats`).
     pub final_version: Option<u64>,
     pub settled: bool,
@@ -207,9 +225,22 @@ pub fn run(args: LoadArgs) -> Result<bool> {
 /// What every client task shares.
 struct Shared {
     latency: Mutex<Histogram<u64>>,
+    /// The server's tick timings as its `Stats` report them (one client
+    /// records them; every client sees the same frames).
+    server: Mutex<ServerSamples>,
     /// Highest `Stats.version` seen by anyone.
     server_version: AtomicU64,
     errors: Mutex<Errors>,
+}
+
+/// Sums of `Stats` samples taken during the drive phase.
+#[derive(Default)]
+struct ServerSamples {
+    samples: u64,
+    tick_ms: f64,
+    solve_ms: f64,
+    redistribution_ms: f64,
+    max_tick_ms: f64,
 }
 
 #[derive(Default)]
@@ -264,6 +295,7 @@ async fn client_task(
     shared: Arc<Shared>,
     mut phase: watch::Receiver<Phase>,
     driving: Option<Driving>,
+    record_stats: bool,
 ) -> Finished {
     let viewer = driving.is_none();
     let mut marks: [Option<Counters>; 4] = [Some(client.counters()), None, None, None];
@@ -303,6 +335,14 @@ async fn client_task(
                 }
                 Some(Event::Stats(s)) => {
                     shared.server_version.fetch_max(s.version, Ordering::Relaxed);
+                    if record_stats && *phase.borrow() == Phase::Driving {
+                        let mut acc = shared.server.lock().unwrap_or_else(|p| p.into_inner());
+                        acc.samples += 1;
+                        acc.tick_ms += f64::from(s.tick_ms);
+                        acc.solve_ms += f64::from(s.solve_ms);
+                        acc.redistribution_ms += f64::from(s.redistribution_ms);
+                        acc.max_tick_ms = acc.max_tick_ms.max(f64::from(s.tick_ms));
+                    }
                 }
                 // Reported from the counters: by design when drivers share an object.
                 Some(Event::ServerError { code: ErrorCode::StaleSeq | ErrorCode::RateLimited, .. }) => {}
@@ -406,6 +446,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         latency: Mutex::new(
             Histogram::new_with_bounds(1, 60_000_000, 3).context("latency histogram")?,
         ),
+        server: Mutex::new(ServerSamples::default()),
         server_version: AtomicU64::new(0),
         errors: Mutex::new(Errors::default()),
     });
@@ -494,11 +535,19 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
             shared.clone(),
             phase_rx.clone(),
             Some(driving),
+            i == 0,
         ));
     }
     let n_viewers = viewers.len();
-    for v in viewers {
-        tasks.spawn(client_task(v, shared.clone(), phase_rx.clone(), None));
+    for (i, v) in viewers.into_iter().enumerate() {
+        let record = n_drivers == 0 && i == 0;
+        tasks.spawn(client_task(
+            v,
+            shared.clone(),
+            phase_rx.clone(),
+            None,
+            record,
+        ));
     }
 
     // 2. Drive.
@@ -600,6 +649,23 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         max_ms: ms(h.max()),
         mean_ms: (h.mean() / 10.0).round() / 100.0,
     };
+    let server = {
+        let acc = shared.server.lock().unwrap_or_else(|p| p.into_inner());
+        let mean = |sum: f64| {
+            if acc.samples == 0 {
+                0.0
+            } else {
+                (sum / acc.samples as f64 * 100.0).round() / 100.0
+            }
+        };
+        ServerReport {
+            samples: acc.samples,
+            tick_ms_mean: mean(acc.tick_ms),
+            tick_ms_max: acc.max_tick_ms,
+            solve_ms_mean: mean(acc.solve_ms),
+            redistribution_ms_mean: mean(acc.redistribution_ms),
+        }
+    };
     let mut failures = Vec::new();
     if let Some(limit) = args.max_p99_ms {
         if latency.samples == 0 {
@@ -648,6 +714,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         poses_sent: poses,
         poses_per_s: poses as f64 / drive_secs,
         latency,
+        server,
         final_version,
         settled,
         settle_s: settle_secs,
