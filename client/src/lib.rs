@@ -60,7 +60,9 @@ mod connection;
 pub mod endpoint;
 pub mod error;
 pub mod latency;
+pub mod render;
 pub mod script;
+pub mod view;
 
 pub use backoff::BackoffPolicy;
 pub use buffer::Frame;

@@ -30,6 +30,8 @@ enum Command {
     Watch(cli::watch::WatchArgs),
     /// Move a dynamic object along a transform script.
     Drive(cli::drive::DriveArgs),
+    /// Render the scene with the streamed lightmap to PNG (headless wgpu).
+    View(lightwire_client::view::ViewArgs),
     /// Many viewers and drivers at once; a JSON report; limits.
     Load(cli::load::LoadArgs),
 }
@@ -39,6 +41,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Watch(args) => cli::watch::run(args).map(|()| true),
         Command::Drive(args) => cli::drive::run(args).map(|()| true),
+        // Synchronous, outside any tokio runtime: the renderer makes its own.
+        Command::View(args) => lightwire_client::view::run(args).map(|()| true),
         Command::Load(args) => cli::load::run(args),
     };
     match result {

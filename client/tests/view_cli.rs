@@ -1,0 +1,541 @@
+//! `lightwire-client view` against a real `lightwire serve` process.
+//!
+//! The contract (issue "Thin client library and CLI", must show): `view`
+//! renders an image whose lightmapped pixels match a render of the server's
+//! snapshot within a stated tolerance.
+//!
+//! How: the server serves cornell-low on the CPU reference solver, which
+//! publishes exactly one (converged) version and then nothing until a
+//! driver moves something, so the client's version and the snapshot's are
+//! the same. `view` runs as a user runs it (default camera, automatic
+//! exposure) and prints the camera, the exposure and the version it drew.
+//! The test then fetches, over plain HTTP and without the client library,
+//! the scene description (`GET /api/scenes/{id}`) and the snapshot
+//! (`GET /api/scenes/{id}/lightmap.exr`, f32 RGB, with its version in
+//! `x-lightwire-version`), and renders the same camera with the CPU
+//! reference (`render::reference`: a ray per pixel centre, exact
+//! intersection, bilinear lookup in f64, no GPU).
+//!
+//! Tolerance: at most 2 levels of 8-bit sRGB per channel, on every pixel
+//! whose 3x3 neighbourhood the reference sees on one surface. Why that is
+//! enough and not too much:
+//! - Quantization contributes nothing: the snapshot EXR is the server's
+//!   published RGB9E5 state decoded to f32 (exactly representable), and the
+//!   server's published state is bit for bit what a client holds after
+//!   applying the same frames (PROTOCOL.md §5), so both renders read the
+//!   same texel values once the versions are equal — which is asserted.
+//! - Rasterization differences are excluded by the mask: silhouettes and
+//!   creases, where MSAA blends two surfaces or the background, are the
+//!   pixels with another surface in their 3x3 neighbourhood.
+//! - What remains is the GPU's arithmetic: f32 perspective-correct UVs,
+//!   bilinear weights at the device's sub-texel precision (8 bits on
+//!   lavapipe: at most 1/512 of a texel step), approximate `exp`/`pow`, and
+//!   one rounding to 8 bits on each side: 1 level of rounding plus 1 of
+//!   slack. (Measured on lavapipe: 0.)
+//!
+//! The server binary: Cargo hands a test the paths of its own package's
+//! binaries only, so, as `load.rs` does, the test has Cargo make sure the
+//! workspace's binaries are built (`cargo test --workspace --no-run` with
+//! this profile and target directory: a no-op under `make test`, a build
+//! when run alone, never a stale binary) and runs `target/<profile>/lightwire`
+//! (`load.rs`'s `lightwire_binary` says why not `cargo build -p`).
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+use lightwire_client::render::reference::{self, Hit};
+use lightwire_client::render::tonemap::{auto_exposure, tone_map};
+use lightwire_client::render::{BACKGROUND, Camera, CameraSpec};
+use lightwire_protocol::{Pose, SceneInfo};
+
+const SCENE: &str = "cornell-low";
+const TOLERANCE: u8 = 2;
+const WIDTH: u32 = 320;
+const HEIGHT: u32 = 240;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The `lightwire` server binary, fresh, next to ours: the same as
+/// `load.rs`'s `lightwire_binary` (see there for why `cargo test
+/// --workspace --no-run` and not `cargo build -p lightwire-server`).
+fn server_binary() -> &'static Path {
+    static BINARY: OnceLock<PathBuf> = OnceLock::new();
+    BINARY.get_or_init(|| {
+        let ours = Path::new(env!("CARGO_BIN_EXE_lightwire-client"));
+        let profile_dir = ours.parent().expect("target/<profile>/");
+        let target_dir = profile_dir.parent().expect("target/");
+        let profile: &[&str] = match profile_dir.file_name().and_then(|p| p.to_str()) {
+            Some("debug") => &[],
+            Some("release") => &["--release"],
+            Some(other) => &["--profile", other],
+            None => panic!("unexpected binary path {}", ours.display()),
+        };
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| env!("CARGO").to_string());
+        let status = Command::new(cargo)
+            .args(["test", "--workspace", "--no-run", "--quiet"])
+            .args(profile)
+            .arg("--manifest-path")
+            .arg(repo().join("Cargo.toml"))
+            .arg("--target-dir")
+            .arg(target_dir)
+            .status()
+            .expect("cargo runs");
+        assert!(status.success(), "building the workspace's binaries failed");
+        let binary = profile_dir.join(format!("lightwire{}", std::env::consts::EXE_SUFFIX));
+        assert!(binary.exists(), "{} was not built", binary.display());
+        binary
+    })
+}
+
+/// A `lightwire serve --dev` child process, killed on drop.
+struct Server {
+    child: Child,
+    addr: String,
+}
+
+impl Server {
+    /// cornell-low at half density on the reference solver: one converged
+    /// version in well under a second, then no more (nothing moves).
+    fn start() -> Server {
+        let mut child = Command::new(server_binary())
+            .args(["serve", "--dev", "--listen", "127.0.0.1:0"])
+            .args(["--solver", "reference", "--density-scale", "0.5", "--scene"])
+            .arg(repo().join(format!("scenes/{SCENE}.json")))
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("lightwire starts");
+        let stdout = child.stdout.take().expect("piped stdout");
+        let mut lines = BufReader::new(stdout).lines();
+        let addr = loop {
+            let line = lines
+                .next()
+                .expect("the server prints its address before exiting")
+                .expect("stdout is UTF-8");
+            if let Some(rest) = line.strip_prefix("lightwire listening on http://") {
+                break rest
+                    .split_whitespace()
+                    .next()
+                    .expect("an address")
+                    .to_string();
+            }
+        };
+        // Keep draining stdout so the server never blocks on a full pipe.
+        std::thread::spawn(move || for _ in lines {});
+        let server = Server { child, addr };
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while server.get("/readyz").0 != 200 {
+            assert!(
+                Instant::now() < deadline,
+                "the server is not ready after 60 s"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        server
+    }
+
+    fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    /// A minimal HTTP/1.1 GET: status, headers (lower-case names), body.
+    fn get(&self, path: &str) -> (u16, Vec<(String, String)>, Vec<u8>) {
+        let mut stream = TcpStream::connect(&self.addr).expect("connect");
+        write!(
+            stream,
+            "GET {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n",
+            self.addr
+        )
+        .expect("send");
+        let mut response = Vec::new();
+        stream.read_to_end(&mut response).expect("read");
+        let split = response
+            .windows(4)
+            .position(|w| w == b"\r\n\r\n")
+            .expect("end of headers");
+        let head = String::from_utf8_lossy(&response[..split]).into_owned();
+        let mut lines = head.lines();
+        let status = lines
+            .next()
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|c| c.parse().ok())
+            .expect("status line");
+        let headers = lines
+            .filter_map(|l| l.split_once(':'))
+            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+            .collect();
+        (status, headers, response[split + 4..].to_vec())
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn view(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lightwire-client"))
+        .arg("view")
+        .args(args)
+        .output()
+        .expect("lightwire-client runs")
+}
+
+fn text(output: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+/// `key "value"` or `key value` from view's first output line.
+fn field<'a>(line: &'a str, key: &str) -> &'a str {
+    let rest = line
+        .split_once(&format!("{key} "))
+        .unwrap_or_else(|| panic!("no {key} in {line:?}"))
+        .1;
+    match rest.strip_prefix('"') {
+        Some(quoted) => quoted.split('"').next().unwrap(),
+        None => rest.split([' ', ',']).next().unwrap(),
+    }
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let dir = repo().join("target/view-artifacts").join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("artifact directory");
+    dir
+}
+
+#[test]
+fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
+    let server = Server::start();
+    let dir = out_dir("snapshot");
+    let png = dir.join("frame.png");
+    let started = Instant::now();
+    let output = view(&[
+        &server.url(),
+        "--scene",
+        SCENE,
+        "--width",
+        &WIDTH.to_string(),
+        "--height",
+        &HEIGHT.to_string(),
+        "--out",
+        png.to_str().unwrap(),
+    ]);
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "view failed:\n{stdout}\n{stderr}");
+    eprintln!("view took {:?}:\n{stdout}", started.elapsed());
+    let mut lines = stdout.lines();
+    let header = lines.next().expect("a line describing the view");
+    let camera: Camera = field(header, "camera")
+        .parse::<CameraSpec>()
+        .unwrap()
+        .resolve(None, 1.0)
+        .unwrap();
+    let exposure: f32 = field(header, "exposure").parse().unwrap();
+    let wrote = lines.next().expect("a line per frame");
+    let version: u64 = field(wrote, "version").parse().unwrap();
+
+    // The snapshot of the version view drew, and the scene, over HTTP.
+    let (status, headers, exr) = server.get(&format!("/api/scenes/{SCENE}/lightmap.exr"));
+    assert_eq!(status, 200);
+    let snapshot_version = headers
+        .iter()
+        .find(|(k, _)| k == "x-lightwire-version")
+        .map(|(_, v)| v.parse::<u64>().unwrap());
+    assert_eq!(
+        snapshot_version,
+        Some(version),
+        "view drew the snapshot's version"
+    );
+    let snapshot = image::load_from_memory_with_format(&exr, image::ImageFormat::OpenExr)
+        .expect("the snapshot decodes")
+        .into_rgb32f();
+    let (status, _, json) = server.get(&format!("/api/scenes/{SCENE}"));
+    assert_eq!(status, 200);
+    let scene: SceneInfo = serde_json::from_slice(&json).expect("scene JSON");
+    assert_eq!(
+        snapshot.dimensions(),
+        (scene.atlas_width, scene.atlas_height)
+    );
+    let texels: Vec<[f32; 3]> = snapshot.pixels().map(|p| p.0).collect();
+
+    // The exposure and the curve are `bake`'s: view's automatic exposure is
+    // 1 / white point of this lightmap, and tone-mapping each texel with it
+    // gives the server's own lightmap.png byte for byte.
+    assert_eq!(exposure, auto_exposure(&texels), "automatic exposure");
+    let (status, _, png_bytes) = server.get(&format!("/api/scenes/{SCENE}/lightmap.png"));
+    assert_eq!(status, 200);
+    let baked = image::load_from_memory(&png_bytes).unwrap().into_rgb8();
+    for (texel, baked) in texels.iter().zip(baked.pixels()) {
+        assert_eq!(tone_map(*texel, exposure), baked.0, "texel {texel:?}");
+    }
+
+    // The CPU reference of the same camera, scene and snapshot.
+    let poses: Vec<Pose> = scene.objects.iter().map(|o| o.pose).collect();
+    let hits = reference::trace(&scene, &poses, &texels, &camera, WIDTH, HEIGHT);
+    let image = image::open(&png).expect("view wrote a PNG").into_rgb8();
+    assert_eq!(image.dimensions(), (WIDTH, HEIGHT));
+    let hit = |x: i64, y: i64| -> Option<Hit> {
+        if x < 0 || y < 0 || x >= WIDTH as i64 || y >= HEIGHT as i64 {
+            return None;
+        }
+        hits[(y * WIDTH as i64 + x) as usize]
+    };
+    let (mut compared, mut worst, mut total) = (0usize, 0u8, 0u64);
+    let mut per_surface = vec![(0usize, [0u64; 3]); scene.surfaces.len()];
+    for y in 0..HEIGHT as i64 {
+        for x in 0..WIDTH as i64 {
+            let Some(centre) = hit(x, y) else { continue };
+            let interior = (-1..=1).all(|dy| {
+                (-1..=1).all(|dx| hit(x + dx, y + dy).is_some_and(|h| h.surface == centre.surface))
+            });
+            if !interior {
+                continue;
+            }
+            let got = image.get_pixel(x as u32, y as u32).0;
+            let want = tone_map(centre.radiosity.map(|c| c as f32), exposure);
+            let diff = (0..3).map(|c| got[c].abs_diff(want[c])).max().unwrap();
+            assert!(
+                diff <= TOLERANCE,
+                "pixel ({x}, {y}) on {:?} at (s, t) = ({:.3}, {:.3}): view {got:?}, reference {want:?}",
+                scene.surfaces[centre.surface].name,
+                centre.s,
+                centre.t
+            );
+            compared += 1;
+            worst = worst.max(diff);
+            total += u64::from(diff);
+            let (n, sum) = &mut per_surface[centre.surface];
+            *n += 1;
+            for c in 0..3 {
+                sum[c] += u64::from(got[c]);
+            }
+        }
+    }
+    eprintln!(
+        "{compared} lightmapped pixels compared, max difference {worst} levels, mean {:.4}",
+        total as f64 / compared as f64
+    );
+
+    // Not blank, and the room is where it should be: the default camera
+    // frames the open box with background around it (more than half of the
+    // frame is surfaces, not all of it), and where the reference sees
+    // nothing, view shows background (up to the silhouette's pixels).
+    let covered = hits.iter().filter(|h| h.is_some()).count();
+    let background = image.pixels().filter(|p| p.0 == BACKGROUND).count();
+    let pixels = (WIDTH * HEIGHT) as usize;
+    assert!(
+        compared > pixels * 4 / 10,
+        "{compared} of {pixels} pixels are interior"
+    );
+    assert!(
+        covered > pixels / 2 && covered < pixels * 95 / 100,
+        "{covered} of {pixels} pixels hit a surface"
+    );
+    let outline = (2 * (WIDTH + HEIGHT)) as usize;
+    assert!(
+        background.abs_diff(pixels - covered) <= outline,
+        "background pixels: view {background}, reference {}",
+        pixels - covered
+    );
+
+    // What a person looks for: red left wall, green right wall, a white
+    // light, a shaded box (its faces differ in brightness).
+    let mean = |name: &str| {
+        let k = scene.surfaces.iter().position(|s| s.name == name).unwrap();
+        let (n, sum) = per_surface[k];
+        assert!(n > 20, "{name} is visible: {n} pixels");
+        sum.map(|s| s as f64 / n as f64)
+    };
+    let left = mean("left");
+    assert!(
+        left[0] > 1.5 * left[1] && left[0] > 1.5 * left[2],
+        "the left wall is red: {left:?}"
+    );
+    let right = mean("right");
+    assert!(
+        right[1] > 1.3 * right[0] && right[1] > 1.3 * right[2],
+        "the right wall is green: {right:?}"
+    );
+    // The light is neutral and the brightest surface (automatic exposure
+    // puts the 95th percentile, here the light, at 1 - 1/e: sRGB 208).
+    let light = mean("light");
+    assert!(
+        light
+            .iter()
+            .all(|&c| (c - light[0]).abs() < 2.0 && c > 200.0),
+        "the light is white: {light:?}"
+    );
+    for (k, (n, sum)) in per_surface.iter().enumerate() {
+        let level = sum.iter().sum::<u64>() as f64 / (*n).max(1) as f64 / 3.0;
+        assert!(
+            scene.surfaces[k].name == "light" || level < light[1],
+            "{} is brighter than the light",
+            scene.surfaces[k].name
+        );
+    }
+    let box_faces: Vec<f64> = scene
+        .surfaces
+        .iter()
+        .enumerate()
+        .filter(|(k, s)| scene.objects[s.object as usize].dynamic && per_surface[*k].0 > 20)
+        .map(|(k, _)| per_surface[k].1.iter().sum::<u64>() as f64 / per_surface[k].0 as f64 / 3.0)
+        .collect();
+    assert!(
+        box_faces.len() >= 2,
+        "at least two faces of the box are visible"
+    );
+    let (lo, hi) = box_faces
+        .iter()
+        .fold((f64::MAX, 0.0f64), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    assert!(
+        hi - lo > 10.0,
+        "the box's faces are shaded differently: {box_faces:?}"
+    );
+
+    // Named points: where the CPU puts a known surface point in the image,
+    // view shows that surface's bilinear radiosity.
+    for (name, s, t) in [
+        ("back", 0.5, 0.5),
+        ("floor", 0.8, 0.2),
+        ("left", 0.4, 0.6),
+        ("right", 0.3, 0.5),
+    ] {
+        let k = scene.surfaces.iter().position(|x| x.name == name).unwrap();
+        let c = scene.surfaces[k].corners.map(Vec3::from_array);
+        let point = c[0] + (c[1] - c[0]) * s + (c[3] - c[0]) * t;
+        let (px, py) = reference::project(&camera, WIDTH, HEIGHT, point).expect("in front");
+        let (x, y) = (px as u32, py as u32);
+        let h = hit(x as i64, y as i64).expect("the point is visible");
+        assert_eq!(
+            scene.surfaces[h.surface].name, name,
+            "({x}, {y}) shows {name}"
+        );
+        let want = tone_map(
+            reference::sample(&scene, &texels, k, h.s, h.t).map(|v| v as f32),
+            exposure,
+        );
+        let got = image.get_pixel(x, y).0;
+        let diff = (0..3).map(|c| got[c].abs_diff(want[c])).max().unwrap();
+        assert!(
+            diff <= TOLERANCE,
+            "{name} at ({s}, {t}) -> pixel ({x}, {y}): view {got:?}, CPU {want:?}"
+        );
+    }
+}
+
+#[test]
+fn view_writes_numbered_frames_on_a_cadence() {
+    let server = Server::start();
+    let dir = out_dir("frames");
+    let started = Instant::now();
+    let output = view(&[
+        &format!("ws://{}/ws/scenes/{SCENE}", server.addr),
+        "--camera",
+        "eye=2.78,2.74,9;target=2.78,2.74,0;fov=40",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--exposure",
+        "0.5",
+        "--frames",
+        "3",
+        "--every",
+        "300",
+        "--out",
+        dir.join("shot.png").to_str().unwrap(),
+    ]);
+    let elapsed = started.elapsed();
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "view failed:\n{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("camera \"eye=2.78,2.74,9;target=2.78,2.74,0;up=0,1,0;fov=40\""),
+        "{stdout}"
+    );
+    assert!(stdout.contains("exposure 0.5 (given)"), "{stdout}");
+    let images: Vec<_> = (0..3)
+        .map(|i| {
+            let path = dir.join(format!("shot-000{i}.png"));
+            assert!(
+                stdout.contains(&format!("wrote {}: version 1", path.display())),
+                "{stdout}"
+            );
+            image::open(&path).unwrap().into_rgb8()
+        })
+        .collect();
+    assert!(
+        elapsed >= Duration::from_millis(600),
+        "frames 300 ms apart: {elapsed:?}"
+    );
+    assert!(!dir.join("shot-0003.png").exists());
+    // Nothing moves: the same version, the same picture.
+    assert!(images[0] == images[1] && images[1] == images[2]);
+    assert!(images[0].pixels().any(|p| p.0 != BACKGROUND));
+}
+
+#[test]
+fn bad_view_input_is_refused_with_a_reason() {
+    let fails = |args: &[&str], expected: &[&str]| {
+        let output = view(args);
+        let (stdout, stderr) = text(&output);
+        assert!(!output.status.success(), "{args:?} should fail:\n{stdout}");
+        for e in expected {
+            assert!(stderr.contains(e), "{args:?}: {e:?} not in:\n{stderr}");
+        }
+    };
+    fails(
+        &["127.0.0.1:9", "--scene", "x", "--camera", "eye=1,2"],
+        &["camera \"eye=1,2\"", "has 2 numbers, expected three"],
+    );
+    fails(
+        &["127.0.0.1:9", "--scene", "x", "--width", "0"],
+        &["--width"],
+    );
+    fails(
+        &[
+            "127.0.0.1:9",
+            "--scene",
+            "x",
+            "--out",
+            "/nonexistent-dir/f.png",
+        ],
+        &["directory /nonexistent-dir does not exist"],
+    );
+    fails(
+        &["127.0.0.1:9", "--scene", "x", "--pose", "box:spin=1"],
+        &["unknown key \"spin\""],
+    );
+    // A port nothing listens on (bound, then released): the error names
+    // the address.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port();
+    fails(
+        &[
+            &format!("http://127.0.0.1:{port}"),
+            "--scene",
+            "cornell-low",
+            "--timeout",
+            "5",
+        ],
+        &[
+            &format!("ws://127.0.0.1:{port}/ws/scenes/cornell-low"),
+            "cannot connect",
+        ],
+    );
+}
