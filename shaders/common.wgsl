@@ -8,10 +8,12 @@
 struct Shooter {
     // xyz: corner of the shooter's region (world), w: its area (m²).
     corner: vec4<f32>,
-    // Edge vectors of the region (world); w unused.
+    // Edge vectors of the region (world); su.w: cross redistribution's
+    // gather_moving takes the bitcast chart width of the shooter's patch.
     su: vec4<f32>,
     sv: vec4<f32>,
-    // xyz: hemicube eye (region centre lifted off the surface); w unused.
+    // xyz: hemicube eye (region centre lifted off the surface); w: for
+    // gather_moving, the bitcast first element of the shooter's patch.
     eye: vec4<f32>,
     // Orthonormal frame of the hemicube: two tangents and the normal;
     // n.w is the bitcast id of the shooting patch.

@@ -34,9 +34,10 @@ const KIND_NEGATIVE: u32 = 1u;
 // hemicubes, n..2n: old hemicubes of the same shooters. T holds B^u in
 // energy[k] and B^s in energy[n + k].
 const KIND_STATIC: u32 = 2u;
-// Cross redistribution, Alg. 4.4-4.5: elements of M shoot; slots 0..n: new
-// position, n..2n: old position. T holds the new total radiosity in
-// energy[k] and the negated old shot radiosity in energy[n + k].
+// Cross redistribution, Alg. 4.4-4.5: tiles of M shoot; slots 0..n: new
+// front, n..2n: new back, 2n..3n: old front, 3n..4n: old back hemicubes.
+// T holds the new total radiosity in energy[k] and the negated old shot
+// radiosity in energy[n + k].
 const KIND_CROSS: u32 = 3u;
 // The new position exists (M is inserted or moved, not removed).
 const HAS_NEW: u32 = 0x100u;
@@ -133,17 +134,20 @@ fn delta_form_factor(face: u32, px: vec2<u32>, res: u32) -> f32 {
     return max(y, 0.0) * da / (PI * d * d);
 }
 
-// One workgroup per element of M (one shooter each): gather the shot
-// radiosity of C seen from the new position (thesis Alg. 4.5 lines 23-27),
-// B += ρ H; then T = (new total radiosity, negated old shot radiosity) and
-// the element's unshot radiosity is cleared, since it shoots everything
-// (Alg. 4.4 lines 13-14).
+// One workgroup per tile of M (one shooter each; eye.w holds the bitcast
+// first element of the tile's patch and su.w its chart width): gather the
+// shot radiosity of C seen from the tile's new position (thesis Alg. 4.5
+// lines 23-27) and give it to every texel of the tile, B += ρ H; clear their
+// unshot radiosity, since the tile shoots everything (Alg. 4.4 lines
+// 13-14); and fill T with the tile's area-weighted new total radiosity and
+// negated old shot radiosity (Alg. 4.4 line 4, GENERATESHOOTINGPATCHES with
+// the "shot" type).
 @compute @workgroup_size(64)
 fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let k = wid.x;
     let s = shooters[k];
-    let e = bitcast<u32>(s.eye.w);
     let has_new = (batch.mode & HAS_NEW) != 0u;
+    let has_old = (batch.mode & HAS_OLD) != 0u;
     let res = batch.resolution;
     var acc = vec3<f32>(0.0);
     if (has_new) {
@@ -164,16 +168,55 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
         }
         workgroupBarrier();
     }
-    if (lid == 0u) {
-        var total = vec4<f32>(0.0);
+    let h = partial[0];
+    workgroupBarrier();
+
+    let first_element = bitcast<u32>(s.eye.w);
+    let chart_w = bitcast<u32>(s.su.w);
+    let tw = s.tile.z - s.tile.x;
+    let count = tw * (s.tile.w - s.tile.y);
+    var total = vec3<f32>(0.0);
+    var old = vec3<f32>(0.0);
+    var area = 0.0;
+    for (var t = lid; t < count; t += WG) {
+        let e = first_element + (s.tile.y + t / tw) * chart_w + s.tile.x + t % tw;
+        let a = elements[e].position.w;
+        area += a;
         if (has_new) {
-            let b = radiosity[e] + vec4<f32>(elements[e].albedo.rgb * partial[0], 0.0);
+            let b = radiosity[e] + vec4<f32>(elements[e].albedo.rgb * h, 0.0);
             radiosity[e] = b;
             unshot[e] = vec4<f32>(0.0);
-            total = b;
+            total += b.rgb * a;
         }
-        energy[k] = total;
-        energy[batch.shooters + k] = select(vec4<f32>(0.0), -old_shot[e], (batch.mode & HAS_OLD) != 0u);
+        if (has_old) {
+            old += old_shot[e].rgb * a;
+        }
+    }
+    partial[lid] = total;
+    partial_power[lid] = area;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial[lid] += partial[lid + stride];
+            partial_power[lid] += partial_power[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    let total_area = max(partial_power[0], 1e-30);
+    if (lid == 0u) {
+        energy[k] = vec4<f32>(partial[0] / total_area, 0.0);
+    }
+    workgroupBarrier();
+    partial[lid] = old;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial[lid] += partial[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if (lid == 0u) {
+        energy[batch.shooters + k] = vec4<f32>(-partial[0] / total_area, 0.0);
     }
 }
 

@@ -131,6 +131,10 @@ enum BenchCommand {
         /// Rotation of the box per frame, degrees.
         #[arg(long, default_value_t = 2.0)]
         degrees: f32,
+        /// Methods to run, comma-separated: gather, progressive,
+        /// incremental, cross (default: all four).
+        #[arg(long, value_delimiter = ',', default_values_t = bench::dynamic::Method::ALL)]
+        methods: Vec<bench::dynamic::Method>,
         /// Directory for the images (a subdirectory per scene).
         #[arg(long, default_value = "bench-out/dynamic")]
         out: PathBuf,
@@ -216,6 +220,7 @@ fn main() -> ExitCode {
                     frames,
                     gather_frames,
                     degrees,
+                    methods,
                     out,
                     json,
                     adapter,
@@ -226,6 +231,7 @@ fn main() -> ExitCode {
                 frames,
                 gather_frames,
                 degrees_per_frame: degrees,
+                methods,
                 density_scale,
                 progressive: gpu::ProgressiveOptions::default(),
                 gather: gpu::GatherOptions::default(),

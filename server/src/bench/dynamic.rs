@@ -37,6 +37,45 @@ use crate::metrics::nrmse;
 use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
 use crate::scene::{LoadOptions, Pose, Scene};
 
+/// A method the benchmark compares (thesis Table 5.2's rows).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Method {
+    /// Gather radiosity from scratch per frame.
+    Gather,
+    /// Full progressive refinement from scratch per frame.
+    Progressive,
+    /// Incremental radiosity with reshooting.
+    Incremental,
+    /// Cross redistribution radiosity.
+    Cross,
+}
+
+impl Method {
+    /// Every method, in the order of the report.
+    pub const ALL: [Method; 4] = [
+        Self::Gather,
+        Self::Progressive,
+        Self::Incremental,
+        Self::Cross,
+    ];
+
+    /// The name in reports and file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Gather => "gather",
+            Self::Progressive => "progressive",
+            Self::Incremental => "incremental",
+            Self::Cross => "cross",
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// What to run.
 #[derive(Debug, Clone)]
 pub struct Settings {
@@ -46,6 +85,8 @@ pub struct Settings {
     pub gather_frames: u32,
     /// Rotation of the box per frame, degrees.
     pub degrees_per_frame: f32,
+    /// The methods to run.
+    pub methods: Vec<Method>,
     pub density_scale: f32,
     pub progressive: ProgressiveOptions,
     pub gather: GatherOptions,
@@ -179,7 +220,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
     let mut methods = Vec::new();
     // Gather: a from-scratch solve per frame, to the level the others
     // refine to (power changed per bounce below 0.1% of emitted).
-    {
+    if settings.methods.contains(&Method::Gather) {
         let mut times = Vec::new();
         let mut values = Vec::new();
         for frame in 1..=settings.gather_frames.max(1) {
@@ -207,11 +248,15 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         });
         write_images("gather", &values, &against)?;
     }
-    for (name, method) in [
-        ("progressive", Redistribution::Full),
-        ("incremental", Redistribution::Incremental),
-        ("cross", Redistribution::Cross),
+    for (which, method) in [
+        (Method::Progressive, Redistribution::Full),
+        (Method::Incremental, Redistribution::Incremental),
+        (Method::Cross, Redistribution::Cross),
     ] {
+        if !settings.methods.contains(&which) {
+            continue;
+        }
+        let name = which.name();
         let options = DynamicOptions {
             method,
             progressive: settings.progressive,

@@ -112,9 +112,20 @@ pub enum Job {
     Negative { patch: u32, shooters: u32 },
     /// Incremental: a patch of C shoots with old and new hemicubes.
     Static { patch: u32, shooters: u32 },
-    /// Cross: elements `first..first + count` (texels of one patch of M)
-    /// shoot, one element per shooter.
-    Cross { patch: u32, first: u32, count: u32 },
+    /// Cross: tiles `first..first + count` of [`Move::tiles`] shoot, one
+    /// shooter per tile.
+    Cross { first: u32, count: u32 },
+}
+
+/// A shooting tile of a moving patch for cross redistribution: texels
+/// `[a0, b0, a1, b1)` of the patch's chart. The tile is the thesis's
+/// reduced "element on the rotating box" (§5.1: 918 box elements become 90
+/// for cross redistribution on the large Cornell box, 270 become 24 on the
+/// low-quality one): it gathers, shoots and casts shadows as one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CrossTile {
+    pub patch: u32,
+    pub texels: [u32; 4],
 }
 
 /// A move in progress: what changed, and the batches still to run.
@@ -128,6 +139,8 @@ pub struct Move {
     /// The objects in M.
     moving: Vec<bool>,
     jobs: VecDeque<Job>,
+    /// Cross: the shooting tiles of M.
+    tiles: Vec<CrossTile>,
     /// Batches run so far.
     pub batches: u32,
 }
@@ -418,18 +431,22 @@ impl ProgressiveSolver {
             old_absent,
             moving,
             jobs: VecDeque::new(),
+            tiles: Vec::new(),
             batches: 0,
         };
         if mv.is_empty_move() {
             return Ok(mv);
         }
-        // Total power per patch before the move (one readback), to size
-        // the shooter grids.
-        let radiosity = self.total_radiosity()?;
+        // Incremental: total power per patch before the move (one
+        // readback), to size the shooter grids. Cross tiles do not depend
+        // on power.
         let mut patch_power = vec![0.0f64; self.patches.len()];
-        for (e, b) in radiosity.iter().enumerate() {
-            let p = self.element_patch(e);
-            patch_power[p] += f64::from(self.areas[e]) * f64::from(b.abs().element_sum());
+        if method == Redistribution::Incremental {
+            let radiosity = self.total_radiosity()?;
+            for (e, b) in radiosity.iter().enumerate() {
+                let p = self.element_patch(e);
+                patch_power[p] += f64::from(self.areas[e]) * f64::from(b.abs().element_sum());
+            }
         }
 
         self.patches = place_patches(&self.shapes, &self.patch_objects, &self.layout, &self.poses);
@@ -484,22 +501,44 @@ impl ProgressiveSolver {
                 }
             }
             Redistribution::Cross | Redistribution::Full => {
+                let side = self.options.cross_tile.max(1);
                 for p in 0..self.patches.len() {
                     if !in_m(p) {
                         continue;
                     }
                     let wp = self.patches[p];
-                    let count = wp.w * wp.h;
-                    let mut first = 0;
-                    while first < count {
-                        let n = quarter.min(count - first);
-                        mv.jobs.push_back(Job::Cross {
-                            patch: p as u32,
-                            first,
-                            count: n,
-                        });
-                        first += n;
+                    // At least 2 x 2 tiles where the chart allows: one tile
+                    // per face is too coarse a shadow caster and receiver.
+                    let tiles = |n: u32| n.div_ceil(side).max(n.min(2));
+                    let (gx, gy) = (tiles(wp.w), tiles(wp.h));
+                    for j in 0..gy {
+                        for i in 0..gx {
+                            mv.tiles.push(CrossTile {
+                                patch: p as u32,
+                                texels: [
+                                    i * wp.w / gx,
+                                    j * wp.h / gy,
+                                    (i + 1) * wp.w / gx,
+                                    (j + 1) * wp.h / gy,
+                                ],
+                            });
+                        }
                     }
+                }
+                // A job's tiles belong to one object: presence (whether the
+                // old and the new position exist) is a per-batch flag.
+                let object = |t: &CrossTile| self.patch_objects[t.patch as usize];
+                mv.tiles.sort_by_key(|t| object(t));
+                let mut first = 0;
+                while (first as usize) < mv.tiles.len() {
+                    let o = object(&mv.tiles[first as usize]);
+                    let count = mv.tiles[first as usize..]
+                        .iter()
+                        .take(quarter as usize)
+                        .take_while(|t| object(t) == o)
+                        .count() as u32;
+                    mv.jobs.push_back(Job::Cross { first, count });
+                    first += count;
                 }
             }
         }
@@ -586,16 +625,13 @@ impl ProgressiveSolver {
                     self.element_count.div_ceil(WORKGROUP),
                 );
             }
-            Job::Cross {
-                patch,
-                first,
-                count,
-            } => {
-                let object = self.patch_objects[patch as usize] as usize;
+            Job::Cross { first, count } => {
+                let tiles = &mv.tiles[first as usize..(first + count) as usize];
+                // All tiles of a job are on one object (see begin_move).
+                let object = self.patch_objects[tiles[0].patch as usize] as usize;
+                let patch = tiles[0].patch;
                 let has_new = !self.absent[object];
                 let has_old = !mv.old_absent[object];
-                let new_wp = self.patches[patch as usize];
-                let old_wp = old_patches[patch as usize];
                 // Slots: [new front, new back, old front, old back], n each.
                 // The back hemicubes make the moving patches two-sided
                 // occluders for the cross projection: a static element
@@ -603,12 +639,15 @@ impl ProgressiveSolver {
                 // floor under a box resting on it) loses the light the
                 // patch blocks from its front side.
                 let mut list = Vec::with_capacity(4 * count as usize);
-                for (wp, areas) in [(&new_wp, &self.areas), (&old_wp, &old_areas)] {
-                    let front: Vec<GpuShooter> = (first..first + count)
-                        .map(|i| {
-                            let (a, b) = (i % wp.w, i / wp.w);
-                            let mut s = self.shooter(patch, wp, areas, [a, b, a + 1, b + 1]);
-                            s.eye[3] = f32::from_bits(wp.first + i);
+                for (placed, areas) in [(&self.patches, &self.areas), (&old_patches, &old_areas)] {
+                    let front: Vec<GpuShooter> = tiles
+                        .iter()
+                        .map(|t| {
+                            let wp = &placed[t.patch as usize];
+                            let mut s = self.shooter(t.patch, wp, areas, t.texels);
+                            // gather_moving walks the tile's texels.
+                            s.eye[3] = f32::from_bits(wp.first);
+                            s.su[3] = f32::from_bits(wp.w);
                             s
                         })
                         .collect();
