@@ -72,6 +72,9 @@ pub enum RenderError {
     /// The requested image cannot be rendered (zero or too large).
     #[error("image size: {0}")]
     Size(String),
+    /// The camera does not form a view.
+    #[error(transparent)]
+    Camera(#[from] CameraError),
     /// The exposure is not a positive finite number.
     #[error("exposure {0} is not a positive finite number")]
     Exposure(f32),

@@ -337,9 +337,7 @@ impl Renderer {
         if !(exposure.is_finite() && exposure > 0.0) {
             return Err(RenderError::Exposure(exposure));
         }
-        camera
-            .check()
-            .map_err(|e| RenderError::Scene(e.to_string()))?;
+        camera.check()?;
         geometry::check_poses(scene, poses)?;
         check_lightmap(scene, &lightmap)?;
 
