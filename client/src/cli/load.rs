@@ -28,8 +28,15 @@
 //! Rates (frames/s, bytes/s, poses/s) are measured over the drive phase
 //! only; latency samples include the settle phase (the last poses'
 //! deliveries).
+//!
+//! Where the latency goes: per transform, the first viewer's latency is
+//! the server's part (inbox, wait for the tick, solve, encode) plus one
+//! hop; the spread between the first and the last viewer is the fan-out
+//! (the server writing N sockets, the viewers decoding, all on the same
+//! machine). The report gives both, and the server's own tick and solve
+//! times from its `Stats`.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -48,6 +55,9 @@ use super::{ServerArgs, ms, parse_duration, parse_rate, pick_object};
 
 /// Error messages kept verbatim in the report (the rest are counted).
 const MAX_MESSAGES: usize = 20;
+/// Transforms whose per-viewer deliveries are tracked for the first
+/// delivery / fan-out spread split (later ones are not tracked).
+const MAX_TRACKED_TRANSFORMS: usize = 200_000;
 
 /// Arguments of `load`.
 #[derive(clap::Args, Debug)]
@@ -99,7 +109,8 @@ pub struct LoadArgs {
 /// Latency percentiles in milliseconds.
 #[derive(Debug, Serialize)]
 pub struct LatencyReport {
-    /// Deliveries measured (viewer x transform).
+    /// Samples: (viewer, transform) deliveries, or transforms for the
+    /// per-transform figures.
     pub samples: u64,
     pub p50_ms: f64,
     pub p95_ms: f64,
@@ -163,8 +174,16 @@ pub struct Report {
     pub bytes_per_s_per_viewer: f64,
     pub poses_sent: u64,
     pub poses_per_s: f64,
-    /// Transform (driver send) to delivery (viewer applied).
+    /// Transform (driver send) to delivery (viewer applied), every
+    /// (viewer, transform) pair.
     pub latency: LatencyReport,
+    /// Per transform, the latency of the first viewer to apply it: the
+    /// server's part (inbox, tick, solve, encode) plus one hop.
+    pub first_delivery: LatencyReport,
+    /// Per transform that reached every viewer: last minus first viewer,
+    /// the time the fan-out to all viewers took (server sends and the
+    /// viewers' decoding, on the same cores).
+    pub fanout_spread: LatencyReport,
     /// The server's own timings during the drive phase.
     pub server: ServerReport,
     /// The server's version after settling (from `Stats`).
@@ -193,7 +212,7 @@ pub fn run(args: LoadArgs) -> Result<bool> {
             .with_context(|| format!("writing the report to {}", path.display()))?;
     }
     eprintln!(
-        "load: {} viewers, {} drivers, {:.0} s: {} errors ({} connect), {:.0} frames/s, {:.1} KiB/s, latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples), {} resyncs, {} stale; final version {:?}, {} of {} viewers on it{}",
+        "load: {} viewers, {} drivers, {:.0} s: {} errors ({} connect), {:.0} frames/s, {:.1} KiB/s, latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples; first viewer p50 {:.1} ms, fan-out spread p50 {:.1} ms p99 {:.1} ms), {} resyncs, {} stale; final version {:?}, {} of {} viewers on it{}",
         report.viewers,
         report.drivers,
         report.duration_s,
@@ -206,6 +225,9 @@ pub fn run(args: LoadArgs) -> Result<bool> {
         report.latency.p99_ms,
         report.latency.max_ms,
         report.latency.samples,
+        report.first_delivery.p50_ms,
+        report.fanout_spread.p50_ms,
+        report.fanout_spread.p99_ms,
         report.resyncs,
         report.stale_seqs,
         report.final_version,
@@ -228,10 +250,18 @@ struct Shared {
     /// The server's tick timings as its `Stats` report them (one client
     /// records them; every client sees the same frames).
     server: Mutex<ServerSamples>,
+    /// Per transform (object, seq): the earliest and latest viewer
+    /// latency and how many viewers got it, for the first-delivery and
+    /// fan-out split of the latency.
+    deliveries: Mutex<HashMap<(u32, u64), Spread>>,
     /// Highest `Stats.version` seen by anyone.
     server_version: AtomicU64,
     errors: Mutex<Errors>,
 }
+
+/// One transform's deliveries: earliest and latest viewer latency, and
+/// how many viewers applied it.
+type Spread = (Duration, Duration, u32);
 
 /// Sums of `Stats` samples taken during the drive phase.
 #[derive(Default)]
@@ -329,8 +359,20 @@ async fn client_task(
             event = client.next_event() => match event {
                 Some(Event::Version(v)) if viewer => {
                     let mut h = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
-                    for l in v.delivered.iter().filter_map(|d| d.latency) {
+                    for d in &v.delivered {
+                        let Some(l) = d.latency else { continue };
                         h.saturating_record(l.as_micros() as u64);
+                    }
+                    drop(h);
+                    let mut per = shared.deliveries.lock().unwrap_or_else(|p| p.into_inner());
+                    for d in &v.delivered {
+                        let Some(l) = d.latency else { continue };
+                        let key = (d.object, d.seq);
+                        if let Some(e) = per.get_mut(&key) {
+                            *e = (e.0.min(l), e.1.max(l), e.2 + 1);
+                        } else if per.len() < MAX_TRACKED_TRANSFORMS {
+                            per.insert(key, (l, l, 1));
+                        }
                     }
                 }
                 Some(Event::Stats(s)) => {
@@ -421,6 +463,17 @@ async fn connect_all(
         .collect()
 }
 
+fn percentiles(h: &Histogram<u64>) -> LatencyReport {
+    LatencyReport {
+        samples: h.len(),
+        p50_ms: ms(h.value_at_quantile(0.5)),
+        p95_ms: ms(h.value_at_quantile(0.95)),
+        p99_ms: ms(h.value_at_quantile(0.99)),
+        max_ms: ms(h.max()),
+        mean_ms: (h.mean() / 10.0).round() / 100.0,
+    }
+}
+
 /// Sum of `f` over the counters at phase `to` minus at phase `from`.
 fn delta(done: &[&Finished], from: Phase, to: Phase, f: impl Fn(&Counters) -> u64) -> u64 {
     done.iter()
@@ -447,6 +500,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
             Histogram::new_with_bounds(1, 60_000_000, 3).context("latency histogram")?,
         ),
         server: Mutex::new(ServerSamples::default()),
+        deliveries: Mutex::new(HashMap::new()),
         server_version: AtomicU64::new(0),
         errors: Mutex::new(Errors::default()),
     });
@@ -640,14 +694,18 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         breakdown.insert("rate_limited", rate_limited);
     }
     let total_errors: u64 = breakdown.values().sum();
-    let h = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
-    let latency = LatencyReport {
-        samples: h.len(),
-        p50_ms: ms(h.value_at_quantile(0.5)),
-        p95_ms: ms(h.value_at_quantile(0.95)),
-        p99_ms: ms(h.value_at_quantile(0.99)),
-        max_ms: ms(h.max()),
-        mean_ms: (h.mean() / 10.0).round() / 100.0,
+    let latency = percentiles(&shared.latency.lock().unwrap_or_else(|p| p.into_inner()));
+    let (first_delivery, fanout_spread) = {
+        let per = shared.deliveries.lock().unwrap_or_else(|p| p.into_inner());
+        let mut first = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).context("histogram")?;
+        let mut spread = first.clone();
+        for &(lo, hi, count) in per.values() {
+            first.saturating_record(lo.as_micros() as u64);
+            if count as usize == n_viewers {
+                spread.saturating_record((hi - lo).as_micros() as u64);
+            }
+        }
+        (percentiles(&first), percentiles(&spread))
     };
     let server = {
         let acc = shared.server.lock().unwrap_or_else(|p| p.into_inner());
@@ -714,6 +772,8 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         poses_sent: poses,
         poses_per_s: poses as f64 / drive_secs,
         latency,
+        first_delivery,
+        fanout_spread,
         server,
         final_version,
         settled,
