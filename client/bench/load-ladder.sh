@@ -9,6 +9,7 @@
 #   NS="100 200" REPS=5 client/bench/load-ladder.sh
 #   SERVE_FLAGS="--solver progressive" client/bench/load-ladder.sh
 #   SKIP_BUILD=1 ...                            # use the release binaries as they are
+#   SUMMARY_ONLY=1 OUT=target/bench-load NS="1 100" client/bench/load-ladder.sh   # table only
 #
 # By default the server runs the cheapest solver configuration (the CPU
 # reference solver on cornell-low at a tenth of its texel density, about
@@ -26,6 +27,7 @@ SERVE_FLAGS=${SERVE_FLAGS:-"--solver reference --density-scale 0.1"}
 OUT=${OUT:-target/bench-load}
 mkdir -p "$OUT"
 
+if [ -z "${SUMMARY_ONLY:-}" ]; then
 [ -n "${SKIP_BUILD:-}" ] || cargo build --release -p lightwire-server -p lightwire-client --bins >&2
 BIN=target/release
 
@@ -63,13 +65,15 @@ for n in $NS; do
       '"N=\($n) run \($r): p50 \(.latency.p50_ms) p99 \(.latency.p99_ms) max \(.latency.max_ms) ms, errors \(.errors), server \(.server_cpu_per_s*100|floor)% load \(.load_cpu_per_s*100|floor)% CPU"' "$report" >&2
   done
 done
+kill $SERVER 2>/dev/null || true
+fi
 
 echo
-echo "| viewers | p50 ms | p95 ms | p99 ms | max ms | errors | frames/s (all viewers) | KiB/s (all viewers) | server tick ms | server solve ms | server CPU | load-tester CPU |"
-echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+echo "| viewers | p50 ms | p95 ms | p99 ms | max ms | first viewer p50 / p99 ms | fan-out spread p50 / p99 ms | errors | versions/s per viewer | frames/s (all viewers) | KiB/s (all viewers) | server solve ms | server CPU | load-tester CPU |"
+echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 for n in $NS; do
   jq -s -r --arg n "$n" '
     def med(f): (map(f) | sort) as $v | $v[(($v | length) - 1) / 2 | floor];
-    "| \($n) | \(med(.latency.p50_ms)) | \(med(.latency.p95_ms)) | \(med(.latency.p99_ms)) | \(med(.latency.max_ms)) | \(med(.errors)) | \(med(.frames_per_s) | floor) | \(med(.bytes_per_s / 1024) | floor) | \(med(.server.tick_ms_mean)) | \(med(.server.solve_ms_mean)) | \(med(.server_cpu_per_s * 100) | floor)% | \(med(.load_cpu_per_s * 100) | floor)% |"
+    "| \($n) | \(med(.latency.p50_ms)) | \(med(.latency.p95_ms)) | \(med(.latency.p99_ms)) | \(med(.latency.max_ms)) | \(med(.first_delivery.p50_ms)) / \(med(.first_delivery.p99_ms)) | \(med(.fanout_spread.p50_ms)) / \(med(.fanout_spread.p99_ms)) | \(med(.errors)) | \(med(.versions_per_s_per_viewer) * 10 | floor / 10) | \(med(.frames_per_s) | floor) | \(med(.bytes_per_s / 1024) | floor) | \(med(.server.solve_ms_mean)) | \(med(.server_cpu_per_s * 100) | floor)% | \(med(.load_cpu_per_s * 100) | floor)% |"
   ' "$OUT"/n"$n"-r*.json
 done
