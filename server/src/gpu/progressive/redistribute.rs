@@ -16,14 +16,17 @@
 //!   Ordinary progressive iterations then do R_p(M, M) and the second half
 //!   of R_p(M, C). Cost: two hemicubes per shooter of every patch.
 //! - **Cross redistribution radiosity** (thesis §3.3, §4.5, Alg. 4.4-4.5):
-//!   only the elements of M get hemicubes: front item buffers at the old
-//!   and new positions, a front hemicube of C's shot radiosity at the new
-//!   position that M gathers from (R_g(C, M)), and back hemicubes of C's
+//!   only M gets hemicubes, one set per tile of its patches (at most
+//!   `cross_tile`² texels; the thesis likewise gives the box far fewer
+//!   elements for cross, §5.1): front item buffers at the old and new
+//!   positions, a front hemicube of C's shot radiosity at the new position
+//!   that the tile gathers from (R_g(C, M)), and back hemicubes of C's
 //!   shot radiosity with depth at both positions, through which every
 //!   element of C sees what M's old position stopped blocking and what its
 //!   new position blocks (the non-incremental cross projection R_x(C, C),
-//!   eq. 3.3.1, with reprojection). Each element of M then shoots its new
-//!   total radiosity and its negated old shot radiosity.
+//!   eq. 3.3.1, with reprojection). Each tile then shoots its new total
+//!   radiosity and its negated old shot radiosity (area-weighted averages
+//!   over its texels).
 //!
 //! Cross projection uses C's shot radiosity B^s; it cancels exactly only
 //! while B^s of C does not change. So progressive iterations never run
