@@ -4,6 +4,7 @@
 #   make bake  the same, but bakes the default scene once to $(OUT)
 #   make test  installs what is missing, runs every test (Rust, the
 #              dashboard's JavaScript, and the dashboard in headless Chromium)
+#              and validates the deployment files (make deploy-check)
 #
 # System packages are installed with apt (idempotently: only what is
 # missing, and `apt-get update` only when something is).
@@ -28,7 +29,7 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config chromium
 NODE_APT_PACKAGES := nodejs npm
 DASHBOARD := server/dashboard
 
-.PHONY: run bake test deps check-toolchain build dashboard-deps
+.PHONY: run bake test deps check-toolchain build dashboard-deps deploy-tools deploy-check
 
 deps: check-toolchain
 	@missing=""; \
@@ -74,9 +75,47 @@ bake: build
 	@echo "baked $(SCENE): open $(OUT)/lightmap.png (tone-mapped) or $(OUT)/lightmap.exr (linear HDR);"
 	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers."
 
+# Validators for deploy/, from PyPI into a venv under target/ (reinstalled
+# only when the pinned versions change). Both work offline once installed:
+# kubernetes-validate bundles the Kubernetes JSON schemas, check-jsonschema
+# the Compose Specification's schema.
+DEPLOY_TOOLS := target/deploy-tools
+DEPLOY_PIP := kubernetes-validate==1.37.0 check-jsonschema==0.39.0
+# The oldest Kubernetes the manifests target (the StatefulSet pod-index
+# label needs 1.28).
+KUBERNETES_VERSION := 1.30.0
+
+deploy-tools:
+	@if [ "$$(cat $(DEPLOY_TOOLS)/.installed 2>/dev/null)" != "$(DEPLOY_PIP)" ]; then \
+	  echo "installing $(DEPLOY_PIP) into $(DEPLOY_TOOLS)"; \
+	  rm -rf $(DEPLOY_TOOLS); \
+	  if ! python3 -m venv $(DEPLOY_TOOLS) >/dev/null 2>&1; then \
+	    if [ "$$(id -u)" -ne 0 ]; then SUDO=sudo; else SUDO=; fi; \
+	    $$SUDO apt-get update -q && \
+	    DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q --no-install-recommends python3 python3-venv && \
+	    rm -rf $(DEPLOY_TOOLS) && python3 -m venv $(DEPLOY_TOOLS) || exit 1; \
+	  fi; \
+	  $(DEPLOY_TOOLS)/bin/pip install -q $(DEPLOY_PIP) && echo "$(DEPLOY_PIP)" > $(DEPLOY_TOOLS)/.installed; \
+	fi
+
+# The Kubernetes manifests against the Kubernetes JSON schemas (strict: no
+# unknown fields), compose.yaml against the Compose Specification, the
+# scenes ConfigMap against scenes/, and the broken fixtures in deploy/tests/
+# must be refused (so a validator that accepts anything fails this target).
+deploy-check: deploy-tools
+	$(DEPLOY_TOOLS)/bin/kubernetes-validate --strict --quiet -k $(KUBERNETES_VERSION) deploy/k8s/*.yaml
+	$(DEPLOY_TOOLS)/bin/check-jsonschema --builtin-schema vendor.compose-spec deploy/compose.yaml
+	@deploy/k8s/gen-scenes.sh target/scenes.yaml.check && diff -u deploy/k8s/scenes.yaml target/scenes.yaml.check \
+	  || { echo "deploy/k8s/scenes.yaml is stale: run deploy/k8s/gen-scenes.sh"; exit 1; }
+	@if $(DEPLOY_TOOLS)/bin/kubernetes-validate --strict --quiet -k $(KUBERNETES_VERSION) deploy/tests/broken-statefulset.yaml >/dev/null 2>&1; then \
+	  echo "kubernetes-validate accepted deploy/tests/broken-statefulset.yaml"; exit 1; fi
+	@if $(DEPLOY_TOOLS)/bin/check-jsonschema --builtin-schema vendor.compose-spec deploy/tests/broken-compose.yaml >/dev/null 2>&1; then \
+	  echo "check-jsonschema accepted deploy/tests/broken-compose.yaml"; exit 1; fi
+	@echo "deploy/: manifests and compose file valid; broken fixtures refused"
+
 # The dashboard's browser test (server/tests/dashboard.rs) runs inside
 # `cargo test`; its screenshots land in target/dashboard-artifacts/.
-test: deps dashboard-deps
+test: deps dashboard-deps deploy-check
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	cd $(DASHBOARD) && node --test test/
