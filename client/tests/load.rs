@@ -265,3 +265,109 @@ fn two_hundred_viewers_and_two_drivers_for_twenty_seconds_end_on_the_servers_ver
         );
     }
 }
+
+#[test]
+fn watch_drive_and_load_limits_as_a_user_sees_them() {
+    // Bad input is refused before connecting, saying what and where.
+    let dir = report_path("bad-script").with_extension("d");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let bad = dir.join("bad.json");
+    std::fs::write(&bad, "{ \"keyframes\": [ { \"t\": 0, \"scale\": 1 } ] }\n").expect("write");
+    let out = client(&[
+        "drive",
+        "http://127.0.0.1:9",
+        "--scene",
+        "x",
+        "--script",
+        bad.to_str().expect("utf-8"),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("bad.json: keyframes[0].translation"),
+        "{stderr}"
+    );
+    let out = client(&["watch", "http://127.0.0.1:9/api/scenes"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("http://127.0.0.1:9/api/scenes") && stderr.contains("unexpected path"),
+        "{stderr}"
+    );
+
+    let server = Server::start();
+    let url = server.url();
+    // watch: a line per interval with the version and the server's stats.
+    let out = client(&[
+        "watch",
+        &url,
+        "--scene",
+        "cornell-low",
+        "--every",
+        "300ms",
+        "--duration",
+        "1s",
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let line = stdout.lines().last().expect("a status line");
+    assert!(
+        line.starts_with(&format!("v{}", server.version())) && line.contains("unshot"),
+        "{line}"
+    );
+
+    // drive: moves the box, measures its own poses' latency, exits 0.
+    let rotate = repo().join("scenes/scripts/rotate.json");
+    let before = server.version();
+    let out = client(&[
+        "drive",
+        &url,
+        "--scene",
+        "cornell-low",
+        "--script",
+        rotate.to_str().expect("utf-8"),
+        "--duration",
+        "1s",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("done: ") && stderr.contains("reached the light"),
+        "{stderr}"
+    );
+    assert!(server.version() > before, "driving produced new versions");
+
+    // load: a missed limit is exit code 1 and says which.
+    let report = report_path("missed-limit.json");
+    let out = client(&[
+        "load",
+        &url,
+        "--scene",
+        "cornell-low",
+        "--script",
+        rotate.to_str().expect("utf-8"),
+        "--viewers",
+        "2",
+        "--drivers",
+        "1",
+        "--duration",
+        "1s",
+        "--quiet",
+        "300ms",
+        "--max-p99-ms",
+        "0.001",
+        "--report",
+        report.to_str().expect("utf-8"),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("FAILED: p99 latency"), "{stderr}");
+    let r: Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(r["passed"], false);
+    assert_eq!(r["errors"], 0, "{r:#}");
+}
