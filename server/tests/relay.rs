@@ -555,3 +555,232 @@ async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exac
     assert_eq!(sum(|v| v.other_errors.load(Ordering::Relaxed)), 0);
     eprintln!("wall time {:?}", test_started.elapsed());
 }
+
+/// A scripted upstream for the relay: the test plays the solver.
+mod fake {
+    use super::*;
+    use lightwire_protocol::lightmap::Encoder;
+    use lightwire_protocol::{
+        Delta, Keyframe, ObjectInfo, PixelFormat, Role, SceneInfo, decode_client, encode_server,
+    };
+
+    pub type Peer = WebSocketStream<TcpStream>;
+
+    pub fn scene() -> SceneInfo {
+        let pose = Pose {
+            translation: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+            scale: 1.0,
+        };
+        SceneInfo {
+            id: SCENE.into(),
+            atlas_width: 16,
+            atlas_height: 8,
+            tile_size: 8,
+            format: PixelFormat::Rgb9e5,
+            objects: vec![
+                ObjectInfo {
+                    name: "room".into(),
+                    dynamic: false,
+                    pose,
+                },
+                ObjectInfo {
+                    name: "box".into(),
+                    dynamic: true,
+                    pose,
+                },
+            ],
+            materials: vec![],
+            surfaces: vec![],
+        }
+    }
+
+    pub fn encoder() -> Encoder {
+        Encoder::new(16, 8, 8, PixelFormat::Rgb9e5, 0.0)
+    }
+
+    /// An image whose two tiles have brightness `a` and `b`.
+    pub fn image(a: f32, b: f32) -> Vec<[f32; 3]> {
+        (0..16 * 8)
+            .map(|i| [if i % 16 < 8 { a } else { b }, 0.5, 0.25])
+            .collect()
+    }
+
+    /// Accepts the relay's next connection, checks its Hello and answers
+    /// with a Welcome granting `role`.
+    pub async fn accept(listener: &tokio::net::TcpListener, role: Role) -> Peer {
+        let (tcp, _) = tokio::time::timeout(Duration::from_secs(20), listener.accept())
+            .await
+            .expect("the relay connects")
+            .expect("accept");
+        let mut peer = tokio_tungstenite::accept_async(tcp).await.expect("upgrade");
+        match next(&mut peer).await {
+            ClientMessage::Hello { token, .. } => {
+                assert_eq!(token.as_deref(), Some(DRIVER_TOKEN), "upstream token")
+            }
+            other => panic!("expected Hello, got {other:?}"),
+        }
+        send(
+            &mut peer,
+            &ServerMessage::Welcome {
+                protocol_version: PROTOCOL_VERSION,
+                server: "fake".into(),
+                role,
+                capabilities: 0,
+                scene: scene(),
+            },
+        )
+        .await;
+        peer
+    }
+
+    pub async fn send(peer: &mut Peer, m: &ServerMessage) {
+        raw(peer, Message::Binary(encode_server(m).into())).await;
+    }
+
+    pub async fn raw(peer: &mut Peer, m: Message) {
+        peer.send(m).await.expect("send to relay");
+    }
+
+    pub async fn keyframe(peer: &mut Peer, k: Keyframe) {
+        send(peer, &ServerMessage::Keyframe(k)).await;
+    }
+
+    pub async fn delta(peer: &mut Peer, d: Delta) {
+        send(peer, &ServerMessage::Delta(d)).await;
+    }
+
+    /// The relay's next message (a binary frame; pongs skipped).
+    pub async fn next(peer: &mut Peer) -> ClientMessage {
+        loop {
+            let frame = tokio::time::timeout(Duration::from_secs(10), peer.next())
+                .await
+                .expect("the relay says something")
+                .expect("open")
+                .expect("ok");
+            if let Message::Binary(bytes) = frame {
+                return decode_client(&bytes).expect("relay frames decode");
+            }
+        }
+    }
+}
+
+/// A viewer of the relay that keeps reading on a task and reports what it
+/// holds.
+fn watch_relay(url: String) -> (Arc<ViewerState>, Arc<AtomicBool>) {
+    let state = Arc::new(ViewerState::default());
+    let stop = Arc::new(AtomicBool::new(false));
+    tokio::spawn(viewer(Arc::new(vec![url]), 0, state.clone(), stop.clone()));
+    (state, stop)
+}
+
+async fn until(what: &str, ok: impl Fn() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !ok() {
+        assert!(Instant::now() < deadline, "timed out: {what}");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
+    use lightwire_protocol::Role;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let upstream = listener.local_addr().expect("addr").to_string();
+    let relay = Proc::relay(&upstream);
+    let mut solver = fake::encoder();
+
+    // Connection 1: a driver role, keyframe v1.
+    let mut peer = fake::accept(&listener, Role::Driver).await;
+    let _ = solver.publish(&fake::image(1.0, 1.0), vec![]);
+    fake::keyframe(&mut peer, solver.keyframe()).await;
+    let (viewer, stop) = watch_relay(relay.ws_url());
+    let state_v1 = solver.state().texels.clone();
+    until("the viewer holds v1", || holds(&viewer, 1, &state_v1)).await;
+
+    // Garbage, a text frame, and a delta whose tile is not zstd: refused,
+    // and the relay asks for a resync.
+    fake::raw(&mut peer, Message::Binary(vec![0xff, 0x00, 0x13].into())).await;
+    fake::raw(&mut peer, Message::Text("hello?".into())).await;
+    let mut corrupt = solver.publish(&fake::image(2.0, 1.0), vec![]);
+    for t in &mut corrupt.tiles {
+        t.data = vec![0xde, 0xad, 0xbe, 0xef];
+    }
+    fake::delta(&mut peer, corrupt).await;
+    assert!(matches!(
+        fake::next(&mut peer).await,
+        ClientMessage::Resync { .. }
+    ));
+    // Nothing reached the viewer.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(holds(&viewer, 1, &state_v1), "the viewer keeps v1");
+
+    // The keyframe that answers the resync (upstream v2) reaches viewers
+    // as relay version 2.
+    fake::keyframe(&mut peer, solver.keyframe()).await;
+    let state_v2 = solver.state().texels.clone();
+    until("the viewer holds v2", || holds(&viewer, 2, &state_v2)).await;
+
+    // A delta onto a version the relay does not hold: resync again; the
+    // keyframe that follows is unchanged, so nothing is published; the
+    // next delta continues the relay's numbering.
+    let mut wrong = solver.publish(&fake::image(3.0, 1.0), vec![]);
+    wrong.base_version += 5;
+    wrong.version += 5;
+    fake::delta(&mut peer, wrong).await;
+    assert!(matches!(
+        fake::next(&mut peer).await,
+        ClientMessage::Resync { .. }
+    ));
+    // Upstream v3 is the state after `wrong`'s real tiles; the relay's
+    // viewers hold v2's state, so this keyframe is a change: relay v3.
+    fake::keyframe(&mut peer, solver.keyframe()).await;
+    let state_v3 = solver.state().texels.clone();
+    until("the viewer holds v3", || holds(&viewer, 3, &state_v3)).await;
+    // The same keyframe again (a reconnect-like resync): no new version.
+    fake::keyframe(&mut peer, solver.keyframe()).await;
+    let d = solver.publish(&fake::image(4.0, 1.0), vec![]);
+    fake::delta(&mut peer, d).await;
+    let state_v4 = solver.state().texels.clone();
+    until("the viewer holds v4", || holds(&viewer, 4, &state_v4)).await;
+
+    // Transforms from the relay's drivers are forwarded (the relay's
+    // upstream role is Driver).
+    assert_eq!(drive(&relay.ws_url(), DRIVER_TOKEN, 7).await, vec![]);
+    loop {
+        match fake::next(&mut peer).await {
+            ClientMessage::Transform { object, seq, .. } => {
+                assert_eq!((object, seq), (1, 7));
+                break;
+            }
+            ClientMessage::Resync { .. } | ClientMessage::Ping { .. } => {}
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+
+    // Too many bad frames: the relay drops the connection and reconnects;
+    // the viewer is not disturbed.
+    for _ in 0..12 {
+        fake::raw(&mut peer, Message::Binary(vec![0xee; 5].into())).await;
+    }
+    let mut peer = fake::accept(&listener, Role::Viewer).await;
+    fake::keyframe(&mut peer, solver.keyframe()).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(holds(&viewer, 4, &state_v4), "same state: still v4");
+    assert_eq!(viewer.connections.load(Ordering::Relaxed), 1);
+    // With a viewer role upstream, the relay refuses transforms itself.
+    assert_eq!(
+        drive(&relay.ws_url(), DRIVER_TOKEN, 8).await,
+        vec![ErrorCode::Forbidden]
+    );
+
+    stop.store(true, Ordering::Relaxed);
+    assert_eq!(viewer.wrong_base.load(Ordering::Relaxed), 0);
+    assert_eq!(viewer.other_errors.load(Ordering::Relaxed), 0);
+    assert_eq!(viewer.not_increasing.load(Ordering::Relaxed), 0);
+    let status = relay_status(&relay.addr).await;
+    assert_eq!(status["connects"], 2, "{status}");
+    assert_eq!(status["upstream_version"].as_u64(), Some(4));
+}
