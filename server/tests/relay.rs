@@ -765,7 +765,42 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     for _ in 0..12 {
         fake::raw(&mut peer, Message::Binary(vec![0xee; 5].into())).await;
     }
+    let mut peer = fake::accept(&listener, Role::Driver).await;
+    fake::keyframe(&mut peer, solver.keyframe()).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(holds(&viewer, 4, &state_v4), "same state: still v4");
+
+    // An upstream that goes silent without closing is dropped after
+    // SILENCE (5 s), even while drivers keep the relay sending to it.
+    let silent = Instant::now();
+    let relay_url = relay.ws_url();
+    let driving = tokio::spawn(async move {
+        let mut ws = hello(&relay_url, DRIVER_TOKEN).await.expect("driver");
+        for seq in 100..200u64 {
+            let t = ClientMessage::Transform {
+                object: 1,
+                seq,
+                pose: pose_at(seq as u32),
+                client_time_us: 0,
+            };
+            if ws
+                .send(Message::Binary(encode_client(&t).into()))
+                .await
+                .is_err()
+            {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    });
     let mut peer = fake::accept(&listener, Role::Viewer).await;
+    let waited = silent.elapsed();
+    driving.abort();
+    assert!(
+        waited >= Duration::from_secs(2) && waited < Duration::from_secs(15),
+        "a silent upstream is dropped after about 5 s, not {waited:?}"
+    );
+    eprintln!("silent upstream replaced after {waited:?}");
     fake::keyframe(&mut peer, solver.keyframe()).await;
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert!(holds(&viewer, 4, &state_v4), "same state: still v4");
@@ -781,6 +816,6 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     assert_eq!(viewer.other_errors.load(Ordering::Relaxed), 0);
     assert_eq!(viewer.not_increasing.load(Ordering::Relaxed), 0);
     let status = relay_status(&relay.addr).await;
-    assert_eq!(status["connects"], 2, "{status}");
+    assert_eq!(status["connects"], 3, "{status}");
     assert_eq!(status["upstream_version"].as_u64(), Some(4));
 }

@@ -282,6 +282,7 @@ impl Upstream {
         let mut next_forward = Instant::now();
         let mut forward_due: Option<Instant> = None;
         let mut shutdown = self.shutdown.clone();
+        let mut last_frame = tokio::time::Instant::now();
         let lost = |why: String, synced: bool| {
             if synced {
                 Ok(Ended::LostAfterSync(why))
@@ -297,17 +298,22 @@ impl Upstream {
                     let _ = tokio::time::timeout(Duration::from_secs(1), ws.close(None)).await;
                     return Ok(Ended::Shutdown);
                 }
-                next = tokio::time::timeout(SILENCE, ws.next()) => {
+                // A deadline from the last frame, not a timeout per wait:
+                // forwarding transforms must not keep a dead upstream alive.
+                _ = tokio::time::sleep_until(last_frame + SILENCE) => {
+                    return lost(format!("no frame for {SILENCE:?}"), synced);
+                }
+                next = ws.next() => {
+                    last_frame = tokio::time::Instant::now();
                     let bytes = match next {
-                        Err(_) => return lost(format!("no frame for {SILENCE:?}"), synced),
-                        Ok(None) => return lost("the upstream closed the connection".into(), synced),
-                        Ok(Some(Err(e))) => return lost(format!("upstream connection failed: {e}"), synced),
-                        Ok(Some(Ok(Message::Binary(bytes)))) => bytes,
-                        Ok(Some(Ok(Message::Close(frame)))) => {
+                        None => return lost("the upstream closed the connection".into(), synced),
+                        Some(Err(e)) => return lost(format!("upstream connection failed: {e}"), synced),
+                        Some(Ok(Message::Binary(bytes))) => bytes,
+                        Some(Ok(Message::Close(frame))) => {
                             let why = frame.map_or_else(String::new, |f| format!(" ({} {})", f.code, f.reason));
                             return lost(format!("the upstream closed the connection{why}"), synced);
                         }
-                        Ok(Some(Ok(Message::Text(_)))) => {
+                        Some(Ok(Message::Text(_))) => {
                             self.relay_metrics.upstream_bad_frames.inc();
                             bad += 1;
                             if bad >= MAX_BAD_FRAMES {
@@ -315,7 +321,7 @@ impl Upstream {
                             }
                             continue;
                         }
-                        Ok(Some(Ok(_))) => continue, // ping/pong: tungstenite answers
+                        Some(Ok(_)) => continue, // ping/pong: tungstenite answers
                     };
                     self.relay_metrics.upstream_frames.inc();
                     self.relay_metrics.upstream_bytes.inc_by(bytes.len() as u64);
