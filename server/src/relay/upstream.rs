@@ -200,7 +200,12 @@ impl Upstream {
             };
             self.relay_metrics.upstream_failures.inc();
             let delay = backoff.delay();
-            tracing::warn!(upstream = %self.url.url, "upstream lost: {why}; serving the last version, reconnecting in {delay:?}");
+            let serving = if self.publisher.latest().is_some() {
+                "serving the last version"
+            } else {
+                "nothing to serve yet"
+            };
+            tracing::warn!(upstream = %self.url.url, "upstream lost: {why}; {serving}, reconnecting in {delay:?}");
             *self
                 .status
                 .last_error
