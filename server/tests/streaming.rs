@@ -323,8 +323,12 @@ async fn settled_version(server: &Server, seq: u64, watcher: &mut Client) -> u64
             .read_until_version(version, Duration::from_secs(60))
             .await;
         if watcher.reflected.get(&1) == Some(&seq) {
-            // One more solve could be pending; give the tick loop a moment.
-            tokio::time::sleep(Duration::from_millis(300)).await;
+            // One more publication could be pending (the session refines
+            // further after a move and publishes again, in its own time:
+            // with cross redistribution the refinement cycle removes and
+            // re-inserts the box); wait for a quiet spell before calling
+            // it settled.
+            tokio::time::sleep(Duration::from_millis(2000)).await;
             let (_, body, _) = http_get(&server.url("/api/scenes")).await;
             let again: serde_json::Value = serde_json::from_slice(&body).expect("json");
             if again[0]["version"].as_u64() == Some(version) {
