@@ -549,17 +549,23 @@ fn bench_solve_command(
     let mut results = Vec::new();
     let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.3}"));
     println!(
-        "| scene | elements | solver | s to 10% | s to 1% | s to 0.1% | shots/s | NRMSE vs reference |"
+        "| scene | elements | solver | s to 10% | s to 1% | s to 0.1% | shots/s | NRMSE vs reference | reference s to same NRMSE | speed-up at equal NRMSE |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for path in &scenes {
         let result = bench::solve_scene(&gpu, path, density_scale, options, gather_options)
             .with_context(|| format!("benchmarking {}", path.display()))?;
         for s in &result.solvers {
             let t: Vec<Option<f64>> = s.seconds_to.values().copied().collect();
             // BTreeMap orders "0.001" < "0.01" < "0.1"; print 10% first.
+            // The speed-up compares the reference's time to this solver's
+            // NRMSE with this solver's time to 0.1% (where it was measured).
+            let speedup = match (s.reference_seconds_to_same_nrmse, t[0]) {
+                (Some(r), Some(own)) if own > 0.0 => format!("{:.1}x", r / own),
+                _ => "-".into(),
+            };
             println!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 result.scene,
                 result.elements,
                 s.name,
@@ -569,6 +575,8 @@ fn bench_solve_command(
                 s.shots_per_second.map_or("-".into(), |v| format!("{v:.0}")),
                 s.nrmse_vs_reference
                     .map_or("-".into(), |v| format!("{:.2}%", v * 100.0)),
+                fmt(s.reference_seconds_to_same_nrmse),
+                speedup,
             );
         }
         results.push(result);

@@ -197,6 +197,58 @@ fn bake_writes_exr_png_atlas_and_stats() {
     std::fs::remove_dir_all(&out_dir).ok();
 }
 
+/// `bench solve --json` writes the shape issue 3 names, with every solver's
+/// times and NRMSE filled in, and the GPU solvers' errors turned into the
+/// reference solver's time to the same NRMSE.
+#[test]
+fn bench_solve_writes_times_nrmse_and_reference_time_at_equal_nrmse() {
+    let json =
+        std::env::temp_dir().join(format!("lightwire-bench-solve-{}.json", std::process::id()));
+    let scene = repo().join("scenes/cornell-low.json");
+    let out = lightwire(&[
+        "bench",
+        "solve",
+        "--scene",
+        scene.to_str().expect("utf-8"),
+        "--density-scale",
+        "0.25",
+        "--json",
+        json.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    std::fs::remove_file(&json).ok();
+    let scenes = report.as_array().expect("one object per scene");
+    assert_eq!(scenes.len(), 1);
+    assert_eq!(scenes[0]["scene"], "cornell-low");
+    assert!(scenes[0]["adapter"].as_str().is_some_and(|a| !a.is_empty()));
+    let solvers = scenes[0]["solvers"].as_array().expect("solvers");
+    let names: Vec<&str> = solvers.iter().filter_map(|s| s["name"].as_str()).collect();
+    assert_eq!(names, ["progressive", "reference", "gather"]);
+    for s in solvers {
+        let name = &s["name"];
+        let mut last = 0.0;
+        for fraction in ["0.1", "0.01", "0.001"] {
+            let t = s["seconds_to"][fraction]
+                .as_f64()
+                .unwrap_or_else(|| panic!("{name} reached {fraction}: {s}"));
+            assert!(t >= last, "{name}: times grow as the fraction shrinks: {s}");
+            last = t;
+        }
+        let error = s["nrmse_vs_reference"].as_f64().expect("NRMSE");
+        assert!((0.0..0.05).contains(&error), "{name}: NRMSE {error}");
+        if name != "reference" {
+            assert!(
+                s["shots_per_second"].as_f64().is_some_and(|v| v > 0.0),
+                "{s}"
+            );
+            let t = s["reference_seconds_to_same_nrmse"].as_f64();
+            assert!(t.is_some_and(|t| t > 0.0), "{name}: {s}");
+        }
+    }
+}
+
 /// User errors on the command line are reported without a panic.
 #[test]
 fn command_line_errors_are_clear() {

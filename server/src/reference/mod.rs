@@ -280,28 +280,14 @@ impl ReferenceSolver {
     /// Solves for radiosity by Jacobi iteration.
     pub fn solve(&self, options: SolveOptions, progress: &dyn Progress) -> Solution {
         let started = Instant::now();
-        let n = self.len();
-        let emission: Vec<DVec3> = self.elements.iter().map(|e| e.emission).collect();
-        let emitted: f64 = self
-            .elements
-            .iter()
-            .map(|e| e.area * e.emission.element_sum())
-            .sum();
-        let mut b = emission.clone();
-        let mut h = vec![DVec3::ZERO; n];
+        let mut b = self.emission();
+        let mut h = vec![DVec3::ZERO; self.len()];
         let mut iterations = 0;
         let mut residual = f64::INFINITY;
         while iterations < options.max_iterations {
-            h = self.gather(&b);
-            let next: Vec<DVec3> = (0..n)
-                .map(|i| emission[i] + self.elements[i].albedo * h[i])
-                .collect();
-            let added: f64 = (0..n)
-                .map(|i| self.elements[i].area * (next[i] - b[i]).abs().element_sum())
-                .sum();
-            b = next;
+            let (next, gathered, fraction) = self.sweep(&b);
+            (b, h, residual) = (next, gathered, fraction);
             iterations += 1;
-            residual = if emitted > 0.0 { added / emitted } else { 0.0 };
             progress.iteration(iterations, residual);
             if residual < options.tolerance {
                 break;
@@ -311,19 +297,76 @@ impl ReferenceSolver {
         if iterations > 0 {
             h = self.gather(&b);
         }
-        let point: Vec<Vec3> = gather_rows(&self.point_matrix, n, &b)
-            .iter()
-            .zip(&self.elements)
-            .map(|(hp, e)| (e.emission + e.albedo * *hp).as_vec3())
-            .collect();
         Solution {
-            radiosity: point,
+            radiosity: self.point_radiosity(&b),
             region_radiosity: b.iter().map(|v| v.as_vec3()).collect(),
             irradiance: h.iter().map(|v| v.as_vec3()).collect(),
             iterations,
             residual_fraction: residual,
             seconds: started.elapsed().as_secs_f64(),
         }
+    }
+
+    /// How long this solver takes to come within `target` NRMSE (see
+    /// [`crate::metrics::nrmse`]) of the lightmap `goal`: Jacobi sweeps
+    /// from `B = E` as in [`Self::solve`], the point values evaluated after
+    /// each. Returns the sweeps and the seconds they took, not counting the
+    /// point evaluations (which `solve` does once, at the end), or `None`
+    /// when `max_iterations` sweeps do not get there. This is how a
+    /// benchmark compares another solver with this one "at equal NRMSE".
+    pub fn sweeps_to_nrmse(
+        &self,
+        goal: &[Vec3],
+        target: f64,
+        max_iterations: usize,
+    ) -> Option<(usize, f64)> {
+        let mut b = self.emission();
+        let mut seconds = 0.0;
+        for iterations in 1..=max_iterations {
+            let started = Instant::now();
+            b = self.sweep(&b).0;
+            seconds += started.elapsed().as_secs_f64();
+            let error = crate::metrics::nrmse(&self.point_radiosity(&b), goal)?;
+            if error <= target {
+                return Some((iterations, seconds));
+            }
+        }
+        None
+    }
+
+    /// Emitted radiosity of every element: where Jacobi iteration starts.
+    fn emission(&self) -> Vec<DVec3> {
+        self.elements.iter().map(|e| e.emission).collect()
+    }
+
+    /// One Jacobi sweep from `b`: the next radiosity, the irradiance it was
+    /// computed from, and the power it added as a fraction of the emitted
+    /// power (`Σ_i A_i |ΔB_i| / Σ_i A_i E_i`, 0 in a dark scene).
+    fn sweep(&self, b: &[DVec3]) -> (Vec<DVec3>, Vec<DVec3>, f64) {
+        let h = self.gather(b);
+        let next: Vec<DVec3> = self
+            .elements
+            .iter()
+            .zip(&h)
+            .map(|(e, hi)| e.emission + e.albedo * *hi)
+            .collect();
+        let (mut added, mut emitted) = (0.0, 0.0);
+        for ((e, bn), bo) in self.elements.iter().zip(&next).zip(b) {
+            added += e.area * (*bn - *bo).abs().element_sum();
+            emitted += e.area * e.emission.element_sum();
+        }
+        let fraction = if emitted > 0.0 { added / emitted } else { 0.0 };
+        (next, h, fraction)
+    }
+
+    /// Radiosity at each element's sample point given region radiosity `b`
+    /// (step 3 of the module docs).
+    fn point_radiosity(&self, b: &[DVec3]) -> Vec<Vec3> {
+        gather_rows(&self.point_matrix, self.len(), b)
+            .iter()
+            .zip(&self.elements)
+            .map(|(hp, e)| (e.emission + e.albedo * *hp).as_vec3())
+            .collect()
     }
 
     /// `H_i = Σ_j F_ij B_j` for every element, in parallel.
