@@ -49,9 +49,18 @@ pub struct ProgressiveOptions {
     /// Form-factor subdivision: a shooter of area `A` at distance `r` is
     /// split into `ceil(subdivision * sqrt(A) / r)²` sub-disks (thesis
     /// §4.3.3, adaptive form factor subdivision).
+    ///
+    /// The disk approximation (thesis eq. 2.2.7) is biased low: each
+    /// sub-disk of area `a` at distance `r` loses about `a / (π r²)` of its
+    /// form factor to the `+ a` in the denominator, so a closed room
+    /// receives less than is shot. Measured on a closed albedo-0.9 box
+    /// (`furnace.json` repainted), power received per power shot:
+    /// 0.9974 at 4, 0.9992 at 8, 0.9998 at 16, 1.0000 with the exact form
+    /// factor; a room that needs ten bounces multiplies that loss tenfold.
     pub subdivision: f32,
     /// Upper bound on sub-disks per axis; closer shooters use the exact
-    /// (infinitely subdivided) form factor.
+    /// (infinitely subdivided) form factor: Lambert's contour integral,
+    /// four arctangents for an unclipped quad.
     pub max_subdivision: u32,
     /// Publish indirect light only (gems §39.4): [`ProgressiveSolver::radiosity`]
     /// returns `B - E - D`, where `D` is the first bounce of the emitted
@@ -82,8 +91,8 @@ impl Default for ProgressiveOptions {
         Self {
             hemicube_resolution: 64,
             max_shooters: 128,
-            subdivision: 4.0,
-            max_subdivision: 8,
+            subdivision: 8.0,
+            max_subdivision: 2,
             indirect_only: false,
             cross_grid: 4,
             cross_tile: 4,
