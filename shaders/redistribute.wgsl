@@ -180,7 +180,13 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
     var area = 0.0;
     for (var t = lid; t < count; t += WG) {
         let e = first_element + (s.tile.y + t / tw) * chart_w + s.tile.x + t % tw;
-        let a = elements[e].position.w;
+        // Weights for the tile's averages: object-space areas. The placed
+        // areas would do for a move, but a removal places M nowhere (its
+        // matrix is zero, so are its placed areas) and its negated old shot
+        // radiosity would average to nothing: removals would keep adding
+        // the light M had blocked without taking back what M had shot.
+        // All texels of a tile share one scale, so the averages are the same.
+        let a = local_elements[e].position.w;
         area += a;
         if (has_new) {
             let b = radiosity[e] + vec4<f32>(elements[e].albedo.rgb * h, 0.0);

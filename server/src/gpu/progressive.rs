@@ -379,6 +379,8 @@ pub struct ProgressiveSolver {
 /// Buffers the redistribution passes bind besides those above.
 struct SharedBuffers {
     elements: wgpu::Buffer,
+    /// Elements in object space (`LocalElement`), as uploaded.
+    local_elements: wgpu::Buffer,
     unshot: wgpu::Buffer,
     emission: wgpu::Buffer,
     energy: wgpu::Buffer,
@@ -878,6 +880,7 @@ impl ProgressiveSolver {
             dynamic: None,
             buffers: SharedBuffers {
                 elements: element_buffer,
+                local_elements: local_buffer,
                 unshot,
                 emission: emission_buffer,
                 energy,

@@ -320,6 +320,7 @@ impl ProgressiveSolver {
             &[],
             &[
                 (0, b(&bufs.elements)),
+                (13, b(&bufs.local_elements)),
                 (1, b(&self.radiosity)),
                 (2, b(&bufs.unshot)),
                 (7, b(&self.shooters)),
