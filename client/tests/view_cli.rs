@@ -38,13 +38,12 @@
 //! workspace's binaries are built (`cargo test --workspace --no-run` with
 //! this profile and target directory: a no-op under `make test`, a build
 //! when run alone, never a stale binary) and runs `target/<profile>/lightwire`
-//! (`load.rs`'s `lightwire_binary` says why not `cargo build -p`).
+//! (`support::lightwire_binary` says why not `cargo build -p`).
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::TcpStream;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
-use std::sync::OnceLock;
+mod support;
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use glam::Vec3;
@@ -52,135 +51,25 @@ use lightwire_client::render::reference::{self, Hit};
 use lightwire_client::render::tonemap::{auto_exposure, tone_map};
 use lightwire_client::render::{BACKGROUND, Camera, CameraSpec};
 use lightwire_protocol::{Pose, SceneInfo};
+use support::{Server, repo};
 
 const SCENE: &str = "cornell-low";
 const TOLERANCE: u8 = 2;
 const WIDTH: u32 = 320;
 const HEIGHT: u32 = 240;
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-/// The `lightwire` server binary, fresh, next to ours: the same as
-/// `load.rs`'s `lightwire_binary` (see there for why `cargo test
-/// --workspace --no-run` and not `cargo build -p lightwire-server`).
-fn server_binary() -> &'static Path {
-    static BINARY: OnceLock<PathBuf> = OnceLock::new();
-    BINARY.get_or_init(|| {
-        let ours = Path::new(env!("CARGO_BIN_EXE_lightwire-client"));
-        let profile_dir = ours.parent().expect("target/<profile>/");
-        let target_dir = profile_dir.parent().expect("target/");
-        let profile: &[&str] = match profile_dir.file_name().and_then(|p| p.to_str()) {
-            Some("debug") => &[],
-            Some("release") => &["--release"],
-            Some(other) => &["--profile", other],
-            None => panic!("unexpected binary path {}", ours.display()),
-        };
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| env!("CARGO").to_string());
-        let status = Command::new(cargo)
-            .args(["test", "--workspace", "--no-run", "--quiet"])
-            .args(profile)
-            .arg("--manifest-path")
-            .arg(repo().join("Cargo.toml"))
-            .arg("--target-dir")
-            .arg(target_dir)
-            .status()
-            .expect("cargo runs");
-        assert!(status.success(), "building the workspace's binaries failed");
-        let binary = profile_dir.join(format!("lightwire{}", std::env::consts::EXE_SUFFIX));
-        assert!(binary.exists(), "{} was not built", binary.display());
-        binary
-    })
-}
-
-/// A `lightwire serve --dev` child process, killed on drop.
-struct Server {
-    child: Child,
-    addr: String,
-}
-
-impl Server {
-    /// cornell-low at half density on the reference solver: one converged
-    /// version in well under a second, then no more (nothing moves).
-    fn start() -> Server {
-        let mut child = Command::new(server_binary())
-            .args(["serve", "--dev", "--listen", "127.0.0.1:0"])
-            .args(["--solver", "reference", "--density-scale", "0.5", "--scene"])
-            .arg(repo().join(format!("scenes/{SCENE}.json")))
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("lightwire starts");
-        let stdout = child.stdout.take().expect("piped stdout");
-        let mut lines = BufReader::new(stdout).lines();
-        let addr = loop {
-            let line = lines
-                .next()
-                .expect("the server prints its address before exiting")
-                .expect("stdout is UTF-8");
-            if let Some(rest) = line.strip_prefix("lightwire listening on http://") {
-                break rest
-                    .split_whitespace()
-                    .next()
-                    .expect("an address")
-                    .to_string();
-            }
-        };
-        // Keep draining stdout so the server never blocks on a full pipe.
-        std::thread::spawn(move || for _ in lines {});
-        let server = Server { child, addr };
-        let deadline = Instant::now() + Duration::from_secs(60);
-        while server.get("/readyz").0 != 200 {
-            assert!(
-                Instant::now() < deadline,
-                "the server is not ready after 60 s"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        server
-    }
-
-    fn url(&self) -> String {
-        format!("http://{}", self.addr)
-    }
-
-    /// A minimal HTTP/1.1 GET: status, headers (lower-case names), body.
-    fn get(&self, path: &str) -> (u16, Vec<(String, String)>, Vec<u8>) {
-        let mut stream = TcpStream::connect(&self.addr).expect("connect");
-        write!(
-            stream,
-            "GET {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n",
-            self.addr
-        )
-        .expect("send");
-        let mut response = Vec::new();
-        stream.read_to_end(&mut response).expect("read");
-        let split = response
-            .windows(4)
-            .position(|w| w == b"\r\n\r\n")
-            .expect("end of headers");
-        let head = String::from_utf8_lossy(&response[..split]).into_owned();
-        let mut lines = head.lines();
-        let status = lines
-            .next()
-            .and_then(|l| l.split_whitespace().nth(1))
-            .and_then(|c| c.parse().ok())
-            .expect("status line");
-        let headers = lines
-            .filter_map(|l| l.split_once(':'))
-            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
-            .collect();
-        (status, headers, response[split + 4..].to_vec())
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// cornell-low at half density on the reference solver: one converged
+/// version in well under a second, then no more (nothing moves).
+fn start_server() -> Server {
+    let scene = repo().join(format!("scenes/{SCENE}.json"));
+    Server::start(&[
+        "--solver",
+        "reference",
+        "--density-scale",
+        "0.5",
+        "--scene",
+        scene.to_str().expect("utf-8 path"),
+    ])
 }
 
 fn view(args: &[&str]) -> Output {
@@ -219,7 +108,7 @@ fn out_dir(name: &str) -> PathBuf {
 
 #[test]
 fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
-    let server = Server::start();
+    let server = start_server();
     let dir = out_dir("snapshot");
     let png = dir.join("frame.png");
     let started = Instant::now();
@@ -249,7 +138,11 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     let version: u64 = field(wrote, "version").parse().unwrap();
 
     // The snapshot of the version view drew, and the scene, over HTTP.
-    let (status, headers, exr) = server.get(&format!("/api/scenes/{SCENE}/lightmap.exr"));
+    let support::Response {
+        status,
+        headers,
+        body: exr,
+    } = server.get(&format!("/api/scenes/{SCENE}/lightmap.exr"));
     assert_eq!(status, 200);
     let snapshot_version = headers
         .iter()
@@ -263,7 +156,9 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     let snapshot = image::load_from_memory_with_format(&exr, image::ImageFormat::OpenExr)
         .expect("the snapshot decodes")
         .into_rgb32f();
-    let (status, _, json) = server.get(&format!("/api/scenes/{SCENE}"));
+    let support::Response {
+        status, body: json, ..
+    } = server.get(&format!("/api/scenes/{SCENE}"));
     assert_eq!(status, 200);
     let scene: SceneInfo = serde_json::from_slice(&json).expect("scene JSON");
     assert_eq!(
@@ -276,7 +171,11 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     // 1 / white point of this lightmap, and tone-mapping each texel with it
     // gives the server's own lightmap.png byte for byte.
     assert_eq!(exposure, auto_exposure(&texels), "automatic exposure");
-    let (status, _, png_bytes) = server.get(&format!("/api/scenes/{SCENE}/lightmap.png"));
+    let support::Response {
+        status,
+        body: png_bytes,
+        ..
+    } = server.get(&format!("/api/scenes/{SCENE}/lightmap.png"));
     assert_eq!(status, 200);
     let baked = image::load_from_memory(&png_bytes).unwrap().into_rgb8();
     for (texel, baked) in texels.iter().zip(baked.pixels()) {
@@ -439,11 +338,11 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
 
 #[test]
 fn view_writes_numbered_frames_on_a_cadence() {
-    let server = Server::start();
+    let server = start_server();
     let dir = out_dir("frames");
     let started = Instant::now();
     let output = view(&[
-        &format!("ws://{}/ws/scenes/{SCENE}", server.addr),
+        &format!("ws://{}/ws/scenes/{SCENE}", server.addr()),
         "--camera",
         "eye=2.78,2.74,9;target=2.78,2.74,0;fov=40",
         "--width",
