@@ -356,6 +356,14 @@ fn cross_removal_undoes_insertion_in_a_furnace_with_a_box() {
     eprintln!("furnace with a box, cross: room {room:.4}, box {moving:.4} (exact 2)");
     assert!((room / 2.0 - 1.0).abs() < 0.01, "room {room}");
     assert!((moving / 2.0 - 1.0).abs() < 0.03, "box {moving}");
+    // Converged as far as cross goes: the static scene is refined to the
+    // last publication level (the box's one-bounce deposit is not counted).
+    let last = DynamicOptions::default().publish_at[1];
+    assert!(
+        d.unshot_fraction() <= last,
+        "a settled cross session reports {} unshot",
+        d.unshot_fraction()
+    );
 
     // And a remove-insert cycle with nothing refined in between leaves the
     // static lightmap where it was.

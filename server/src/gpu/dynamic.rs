@@ -211,9 +211,21 @@ impl DynamicSolver {
         &self.reflected
     }
 
-    /// Unshot power over emitted power right now.
+    /// How far from converged the session is: unshot power over emitted
+    /// power, of the light the method still means to shoot. For full and
+    /// incremental that is all unshot light. Cross redistribution never
+    /// shoots the light that inserting the moving objects deposits in the
+    /// static scene (their reflection and their shadows, one bounce: no
+    /// progressive iterations run with them present, thesis §4.5.2), so
+    /// for cross it is the static scene's unshot fraction: right now while
+    /// it is being refined, else after its latest refinement. Counting the
+    /// deposit would make a converged session look a few percent short.
     pub fn unshot_fraction(&self) -> f64 {
-        self.solver.unshot_fraction()
+        match (self.options.method, &self.phase) {
+            (Redistribution::Cross, Phase::Refining { .. }) => self.solver.unshot_fraction(),
+            (Redistribution::Cross, _) => self.static_unshot,
+            _ => self.solver.unshot_fraction(),
+        }
     }
 
     /// The progressive solver underneath (for inspection in tests and
