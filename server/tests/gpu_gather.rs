@@ -58,17 +58,7 @@ fn furnace_every_texel_within_one_percent_of_e_over_one_minus_rho() {
     let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.change_fraction <= 1e-4, "{report:?}");
     let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    let mut worst = 0.0f32;
-    for (i, v) in b.iter().enumerate() {
-        let error = ((*v - expected) / expected).abs().max_element();
-        worst = worst.max(error);
-        assert!(
-            error < 0.01,
-            "element {i} at texel {:?} (st {:?}): {v} vs {expected}",
-            atlas.elements[i].texel,
-            atlas.elements[i].st
-        );
-    }
+    let worst = common::assert_uniform(&atlas, &b, expected, 0.01);
     eprintln!(
         "furnace: max relative error {worst:.5} after {} bounces, {:.2} s",
         solver.total_bounces(),

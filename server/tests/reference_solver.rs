@@ -30,14 +30,7 @@ fn furnace_every_texel_within_half_a_percent_of_e_over_one_minus_rho() {
     let material = &scene.materials[0];
     let expected = material.emission / (Vec3::ONE - material.albedo);
     let (_, solution) = solve(&scene, &atlas);
-    for (i, b) in solution.radiosity.iter().enumerate() {
-        let error = ((*b - expected) / expected).abs().max_element();
-        assert!(
-            error < 0.005,
-            "element {i} at texel {:?}: {b} vs {expected}",
-            atlas.elements[i].texel
-        );
-    }
+    common::assert_uniform(&atlas, &solution.radiosity, expected, 0.005);
 }
 
 /// Two directly opposed, parallel unit squares one unit apart exchange a

@@ -5,6 +5,7 @@
 
 use std::path::PathBuf;
 
+use glam::Vec3;
 use lightwire_server::atlas::Atlas;
 use lightwire_server::scene::{LoadOptions, Scene};
 
@@ -29,4 +30,21 @@ pub fn parse(text: &str) -> (Scene, Atlas) {
         Scene::parse(text, "inline").unwrap_or_else(|e| panic!("inline scene must load: {e}"));
     let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("inline scene must fit: {e}"));
     (scene, atlas)
+}
+
+/// Furnace check: every element of `b` within `tolerance` (relative, per
+/// channel) of `expected`; returns the largest relative error.
+pub fn assert_uniform(atlas: &Atlas, b: &[Vec3], expected: Vec3, tolerance: f32) -> f32 {
+    let mut worst = 0.0f32;
+    for (i, v) in b.iter().enumerate() {
+        let error = ((*v - expected) / expected).abs().max_element();
+        worst = worst.max(error);
+        assert!(
+            error < tolerance,
+            "element {i} at texel {:?} (st {:?}): {v} vs {expected}",
+            atlas.elements[i].texel,
+            atlas.elements[i].st
+        );
+    }
+    worst
 }
