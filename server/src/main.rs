@@ -624,20 +624,10 @@ struct ServeFlags {
 }
 
 fn serve_command(flags: ServeFlags) -> Result<()> {
-    use lightwire_server::service::{self, Config};
+    use lightwire_server::service;
 
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    let mut config = match &flags.config {
-        Some(path) => Config::from_file(path)?,
-        None => Config::default(),
-    };
-    config.apply_env(std::env::vars())?;
+    init_logging();
+    let mut config = load_config(flags.config.as_deref())?;
     if !flags.scenes.is_empty() {
         config.scenes = flags.scenes;
     }
@@ -728,15 +718,21 @@ fn init_logging() {
         .init();
 }
 
-fn relay_command(flags: RelayFlags) -> Result<()> {
+/// The configuration of `serve` and `relay` before their flags: the TOML
+/// file when given (else the defaults), then `LIGHTWIRE_*` variables.
+fn load_config(path: Option<&std::path::Path>) -> Result<lightwire_server::service::Config> {
     use lightwire_server::service::Config;
-
-    init_logging();
-    let mut config = match &flags.config {
+    let mut config = match path {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
     };
     config.apply_env(std::env::vars())?;
+    Ok(config)
+}
+
+fn relay_command(flags: RelayFlags) -> Result<()> {
+    init_logging();
+    let mut config = load_config(flags.config.as_deref())?;
     if !flags.upstreams.is_empty() {
         config.upstreams = flags.upstreams;
     }
