@@ -12,7 +12,9 @@
 //! timed the same way: when the power changed by its last completed bounce,
 //! `Σ A_i |ΔB_i|`, first falls to each fraction of the emitted power. The
 //! progressive and gather lightmaps at 0.1% are compared with the converged
-//! reference by [`crate::metrics::nrmse`].
+//! reference by [`crate::metrics::accuracy`]: area-weighted NRMSE over the
+//! non-emitting elements and the 95th percentile of the per-element
+//! relative error.
 //!
 //! "At equal NRMSE" (issue 3): the reference solver is then timed again to
 //! each GPU solver's NRMSE: its form factor time plus the Jacobi sweeps,
@@ -33,7 +35,7 @@ use serde::Serialize;
 
 use crate::atlas::Atlas;
 use crate::gpu::{Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver};
-use crate::metrics::nrmse;
+use crate::metrics::accuracy;
 use crate::reference::{self, ReferenceSolver, SolveOptions};
 use crate::scene::{LoadOptions, Scene};
 
@@ -59,9 +61,13 @@ pub struct SolverResult {
     /// Progressive: shooters per second. Gather: hemicubes (elements
     /// gathered) per second. Reference: `null`.
     pub shots_per_second: Option<f64>,
-    /// NRMSE against the converged reference solution (`null` when the
-    /// reference could not run).
+    /// NRMSE against the converged reference solution, over the
+    /// non-emitting elements, area-weighted ([`crate::metrics::accuracy`];
+    /// `null` when the reference could not run).
     pub nrmse_vs_reference: Option<f64>,
+    /// 95th percentile of the per-element relative error against the
+    /// reference (same elements; `null` when the reference could not run).
+    pub p95_rel_vs_reference: Option<f64>,
     /// Seconds the reference solver needs, form factors included, to come
     /// within `nrmse_vs_reference` of its own converged lightmap (`null`
     /// for the reference itself, or when it could not run).
@@ -75,19 +81,31 @@ struct Reference {
     radiosity: Vec<glam::Vec3>,
 }
 
+/// A solver's error against the reference and the reference's time to it.
+#[derive(Default)]
+struct Comparison {
+    nrmse: Option<f64>,
+    p95_rel: Option<f64>,
+    reference_seconds: Option<f64>,
+}
+
 impl Reference {
-    /// NRMSE of `lightmap` against the reference, and the reference's time
-    /// (form factors plus sweeps) to the same NRMSE.
-    fn compare(&self, lightmap: &[glam::Vec3]) -> (Option<f64>, Option<f64>) {
-        let Some(error) = nrmse(lightmap, &self.radiosity) else {
-            return (None, None);
+    /// Accuracy of `lightmap` against the reference, and the reference's
+    /// time (form factors plus sweeps) to the same NRMSE.
+    fn compare(&self, atlas: &Atlas, lightmap: &[glam::Vec3]) -> Comparison {
+        let Some(error) = accuracy(atlas, lightmap, &self.radiosity) else {
+            return Comparison::default();
         };
         let max_sweeps = SolveOptions::default().max_iterations;
         let seconds = self
             .solver
-            .sweeps_to_nrmse(&self.radiosity, error, max_sweeps)
+            .sweeps_to_nrmse(atlas, &self.radiosity, error.nrmse, max_sweeps)
             .map(|(_, sweeps)| self.solver.form_factor_seconds + sweeps);
-        (Some(error), seconds)
+        Comparison {
+            nrmse: Some(error.nrmse),
+            p95_rel: Some(error.p95_rel),
+            reference_seconds: seconds,
+        }
     }
 }
 
@@ -185,15 +203,16 @@ pub fn solve_scene(
             None
         }
     };
-    let (error, reference_seconds) = reference
+    let compared = reference
         .as_ref()
-        .map_or((None, None), |r| r.compare(&progressive));
+        .map_or_else(Comparison::default, |r| r.compare(&atlas, &progressive));
     let mut solvers = vec![SolverResult {
         name: "progressive".into(),
         seconds_to: seconds_map(&times),
         shots_per_second: (seconds > 0.0).then(|| shots as f64 / seconds),
-        nrmse_vs_reference: error,
-        reference_seconds_to_same_nrmse: reference_seconds,
+        nrmse_vs_reference: compared.nrmse,
+        p95_rel_vs_reference: compared.p95_rel,
+        reference_seconds_to_same_nrmse: compared.reference_seconds,
     }];
     if reference.is_some() {
         let times = clock.times.lock().map(|t| *t).unwrap_or([None; 3]);
@@ -202,6 +221,7 @@ pub fn solve_scene(
             seconds_to: seconds_map(&times),
             shots_per_second: None,
             nrmse_vs_reference: Some(0.0),
+            p95_rel_vs_reference: Some(0.0),
             reference_seconds_to_same_nrmse: None,
         });
     }
@@ -222,15 +242,16 @@ pub fn solve_scene(
     }
     let seconds = started.elapsed().as_secs_f64();
     let gather = solver.radiosity()?;
-    let (error, reference_seconds) = reference
+    let compared = reference
         .as_ref()
-        .map_or((None, None), |r| r.compare(&gather));
+        .map_or_else(Comparison::default, |r| r.compare(&atlas, &gather));
     solvers.push(SolverResult {
         name: "gather".into(),
         seconds_to: seconds_map(&times),
         shots_per_second: (seconds > 0.0).then(|| solver.total_hemicubes() as f64 / seconds),
-        nrmse_vs_reference: error,
-        reference_seconds_to_same_nrmse: reference_seconds,
+        nrmse_vs_reference: compared.nrmse,
+        p95_rel_vs_reference: compared.p95_rel,
+        reference_seconds_to_same_nrmse: compared.reference_seconds,
     });
     Ok(SceneResult {
         scene: scene.name.clone(),

@@ -198,8 +198,9 @@ fn bake_writes_exr_png_atlas_and_stats() {
 }
 
 /// `bench solve --json` writes the shape issue 3 names, with every solver's
-/// times and NRMSE filled in, and the GPU solvers' errors turned into the
-/// reference solver's time to the same NRMSE.
+/// times, NRMSE and p95 relative error (issue 15's metric) filled in, and
+/// the GPU solvers' errors turned into the reference solver's time to the
+/// same NRMSE.
 #[test]
 fn bench_solve_writes_times_nrmse_and_reference_time_at_equal_nrmse() {
     let json =
@@ -238,6 +239,11 @@ fn bench_solve_writes_times_nrmse_and_reference_time_at_equal_nrmse() {
         }
         let error = s["nrmse_vs_reference"].as_f64().expect("NRMSE");
         assert!((0.0..0.05).contains(&error), "{name}: NRMSE {error}");
+        let p95 = s["p95_rel_vs_reference"].as_f64().expect("p95");
+        assert!(p95 >= 0.0 && p95.is_finite(), "{name}: p95 {p95}");
+        if name == "reference" {
+            assert_eq!((error, p95), (0.0, 0.0), "{s}");
+        }
         if name != "reference" {
             assert!(
                 s["shots_per_second"].as_f64().is_some_and(|v| v > 0.0),

@@ -308,14 +308,16 @@ impl ReferenceSolver {
     }
 
     /// How long this solver takes to come within `target` NRMSE (see
-    /// [`crate::metrics::nrmse`]) of the lightmap `goal`: Jacobi sweeps
-    /// from `B = E` as in [`Self::solve`], the point values evaluated after
-    /// each. Returns the sweeps and the seconds they took, not counting the
-    /// point evaluations (which `solve` does once, at the end), or `None`
-    /// when `max_iterations` sweeps do not get there. This is how a
-    /// benchmark compares another solver with this one "at equal NRMSE".
+    /// [`crate::metrics::accuracy`]; `atlas` is the one this solver was
+    /// built on) of the lightmap `goal`: Jacobi sweeps from `B = E` as in
+    /// [`Self::solve`], the point values evaluated after each. Returns the
+    /// sweeps and the seconds they took, not counting the point evaluations
+    /// (which `solve` does once, at the end), or `None` when
+    /// `max_iterations` sweeps do not get there. This is how a benchmark
+    /// compares another solver with this one "at equal NRMSE".
     pub fn sweeps_to_nrmse(
         &self,
+        atlas: &Atlas,
         goal: &[Vec3],
         target: f64,
         max_iterations: usize,
@@ -326,7 +328,7 @@ impl ReferenceSolver {
             let started = Instant::now();
             b = self.sweep(&b).0;
             seconds += started.elapsed().as_secs_f64();
-            let error = crate::metrics::nrmse(&self.point_radiosity(&b), goal)?;
+            let error = crate::metrics::accuracy(atlas, &self.point_radiosity(&b), goal)?.nrmse;
             if error <= target {
                 return Some((iterations, seconds));
             }
