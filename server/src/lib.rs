@@ -15,6 +15,8 @@ pub mod bake;
 pub mod bench;
 pub mod gpu;
 pub mod metrics;
+pub mod pathtrace;
+pub mod raycast;
 pub mod reference;
 pub mod relay;
 pub mod scene;
