@@ -12,6 +12,7 @@ use lightwire_server::atlas::Atlas;
 use lightwire_server::bake::{self, BakeStats};
 use lightwire_server::bench;
 use lightwire_server::gpu;
+use lightwire_server::pathtrace::{self, PathTracer};
 use lightwire_server::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_server::scene::{LoadOptions, Scene};
 
@@ -60,6 +61,9 @@ enum Command {
         /// GPU solvers: write indirect light only (gems §39.4).
         #[arg(long)]
         indirect_only: bool,
+        /// Path tracer: paths per element [default: 256].
+        #[arg(long)]
+        spp: Option<u32>,
     },
     /// Benchmarks (run the release build).
     Bench {
@@ -158,6 +162,9 @@ enum SolverKind {
     /// GPU: gather radiosity, a radiosity hemicube per element and bounce
     /// (thesis Alg. 4.1).
     Gather,
+    /// CPU: Monte Carlo path tracing with next-event estimation at every
+    /// element's sample point; also writes std_error.json.
+    Pathtrace,
 }
 
 /// Solver settings from the command line.
@@ -166,6 +173,7 @@ struct SolveSettings {
     adapter: Option<String>,
     hemicube_resolution: Option<u32>,
     indirect_only: bool,
+    spp: Option<u32>,
 }
 
 fn main() -> ExitCode {
@@ -180,6 +188,7 @@ fn main() -> ExitCode {
             adapter,
             hemicube_resolution,
             indirect_only,
+            spp,
         } => bake_command(
             scene,
             solver,
@@ -190,6 +199,7 @@ fn main() -> ExitCode {
                 adapter,
                 hemicube_resolution,
                 indirect_only,
+                spp,
             },
         ),
         Command::Validate {
@@ -290,11 +300,24 @@ fn validate_command(paths: &[PathBuf], density_scale: f32) -> Result<()> {
     Ok(())
 }
 
-/// Prints solver progress to stderr: every 10% of the form factors and
-/// every tenth sweep.
+/// Prints solver progress to stderr: every 10% of the form factors or of
+/// the path-traced elements, and every tenth sweep.
 struct StderrProgress {
     started: Instant,
     last_decile: AtomicUsize,
+}
+
+impl pathtrace::Progress for StderrProgress {
+    fn points(&self, done: usize, total: usize) {
+        let decile = done * 10 / total.max(1);
+        if self.last_decile.fetch_max(decile, Ordering::Relaxed) < decile {
+            eprintln!(
+                "  path tracing: {:3}% ({done}/{total} elements, {:.1} s)",
+                decile * 10,
+                self.started.elapsed().as_secs_f64()
+            );
+        }
+    }
 }
 
 impl reference::Progress for StderrProgress {
@@ -323,11 +346,18 @@ fn bake_command(
     settings: SolveSettings,
 ) -> Result<()> {
     let tolerance = settings.tolerance;
-    if settings.indirect_only && matches!(solver, SolverKind::Reference) {
+    if settings.indirect_only && matches!(solver, SolverKind::Reference | SolverKind::Pathtrace) {
         anyhow::bail!("--indirect-only needs --solver progressive or gather");
     }
     if !(tolerance > 0.0 && tolerance < 1.0) {
         anyhow::bail!("--tolerance {tolerance} must be between 0 and 1");
+    }
+    match (settings.spp, solver) {
+        (Some(spp), SolverKind::Pathtrace) if spp < 2 => {
+            anyhow::bail!("--spp {spp}: the standard error needs at least 2 paths per element")
+        }
+        (Some(_), SolverKind::Pathtrace) | (None, _) => {}
+        (Some(_), _) => anyhow::bail!("--spp needs --solver pathtrace"),
     }
     let started = Instant::now();
     let (scene, atlas) = load(&path, density_scale)?;
@@ -460,6 +490,46 @@ fn bake_command(
                 escaped_power: (balance.emitted - balance.absorbed).max(0.0),
             };
             (values, stats)
+        }
+        SolverKind::Pathtrace => {
+            let spp = settings.spp.unwrap_or(pathtrace::DEFAULT_SPP);
+            let progress = StderrProgress {
+                started,
+                last_decile: AtomicUsize::new(0),
+            };
+            let solve_started = Instant::now();
+            let tracer = PathTracer::new(&scene, &poses);
+            let estimates = tracer.estimate_elements(&atlas, spp, &progress);
+            let solve_seconds = solve_started.elapsed().as_secs_f64();
+            let errors = pathtrace::std_error_file(&scene, &atlas, spp, &estimates);
+            eprintln!(
+                "  {spp} paths per element in {solve_seconds:.2} s; noise NRMSE {:.2}%, relative standard error mean {:.2}%, max {:.1}%",
+                errors.summary.noise_nrmse * 100.0,
+                errors.summary.mean_relative_std_error * 100.0,
+                errors.summary.max_relative_std_error * 100.0
+            );
+            std::fs::create_dir_all(&out)
+                .with_context(|| format!("creating output directory {}", out.display()))?;
+            bake::write_json(&out.join("std_error.json"), &errors)?;
+            let balance = pathtrace::energy_balance(&scene, &atlas, &poses, &estimates);
+            let stats = BakeStats {
+                scene: scene.name.clone(),
+                solver: "pathtrace".into(),
+                elements: atlas.elements.len(),
+                static_elements: atlas.elements.len() - dynamic,
+                dynamic_elements: dynamic,
+                atlas_width: atlas.width,
+                atlas_height: atlas.height,
+                iterations: spp as usize,
+                residual_fraction: errors.summary.noise_nrmse,
+                seconds: started.elapsed().as_secs_f64(),
+                form_factor_seconds: 0.0,
+                solve_seconds,
+                emitted_power: balance.emitted,
+                absorbed_power: balance.absorbed,
+                escaped_power: (balance.emitted - balance.absorbed).max(0.0),
+            };
+            (estimates.iter().map(|e| e.mean).collect(), stats)
         }
     };
     bake::write_outputs(&out, &scene, &atlas, &poses, &values, &stats)
