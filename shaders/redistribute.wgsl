@@ -282,6 +282,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x = el.position.xyz;
     let nx = el.normal.xyz;
     let d = el.lookup.xyz;
+    let edge = on_edge(el);
     var h = vec3<f32>(0.0);
     if (kind == KIND_NEGATIVE) {
         // R_p(M, C), first part: -B^s_M with the old form factors.
@@ -290,8 +291,11 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         for (var k = 0u; k < n; k++) {
             let s = shooters[k];
-            if (dot(x - s.corner.xyz, s.n.xyz) > 0.0 && visible(k, s, d - s.eye.xyz, id)) {
-                h += energy[k].rgb * form_factor(s, x, nx);
+            if (dot(x - s.corner.xyz, s.n.xyz) > 0.0) {
+                let v = visibility(k, s, d - s.eye.xyz, x, nx, id, edge);
+                if (v > 0.0) {
+                    h += energy[k].rgb * (v * form_factor(s, x, nx));
+                }
             }
         }
     } else if (kind == KIND_STATIC) {
@@ -304,25 +308,21 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                 continue;
             }
             let dir = d - s.eye.xyz;
-            let seen_new = visible(k, s, dir, id);
+            let seen_new = visibility(k, s, dir, x, nx, id, edge);
             var r = vec3<f32>(0.0);
             if (moving) {
                 // R_p(C, M) by reshooting: the total radiosity (eq. 4.4.1).
-                if (seen_new) {
-                    r = energy[k].rgb + energy[n + k].rgb;
-                }
+                r = seen_new * (energy[k].rgb + energy[n + k].rgb);
             } else {
-                // R_p(C, C): the four visibility cases of Alg. 4.3 lines 25-33.
-                let seen_old = visible(n + k, s, dir, id);
-                if (seen_old && seen_new) {
-                    r = energy[k].rgb;
-                } else if (seen_new) {
-                    r = energy[k].rgb + energy[n + k].rgb;
-                } else if (seen_old) {
-                    r = -energy[n + k].rgb;
-                } else {
-                    continue;
-                }
+                // R_p(C, C): the four visibility cases of Alg. 4.3 lines
+                // 25-33 (seen at both poses: B^u; only at the new: B^u +
+                // B^s; only at the old: -B^s; neither: nothing), written
+                // for fractional visibility.
+                let seen_old = visibility(n + k, s, dir, x, nx, id, edge);
+                r = seen_new * (energy[k].rgb + energy[n + k].rgb) - seen_old * energy[n + k].rgb;
+            }
+            if (all(r == vec3<f32>(0.0))) {
+                continue;
             }
             h += r * form_factor(s, x, nx);
         }
@@ -345,8 +345,11 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                     continue;
                 }
                 let s = shooters[q];
-                if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0
-                    || !visible(q, s, d - s.eye.xyz, id)) {
+                if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
+                    continue;
+                }
+                let v = visibility(q, s, d - s.eye.xyz, x, nx, id, edge);
+                if (v <= 0.0) {
                     continue;
                 }
                 var r = vec3<f32>(0.0);
@@ -364,7 +367,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                     let p = projected_radiosity(q, s, x);
                     r += select(p, -p, new_pose);
                 }
-                h += r * form_factor(s, x, nx);
+                h += r * (v * form_factor(s, x, nx));
             }
         }
     }

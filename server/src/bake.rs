@@ -164,6 +164,9 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 }
 
 /// Writes all bake outputs for per-element radiosity `values`.
+/// Writes `lightmap.exr`, `lightmap.png`, `atlas.json` and `stats.json`;
+/// invalid texels ([`crate::validity`]) are filled from their neighbours
+/// first.
 pub fn write_outputs(
     dir: &Path,
     scene: &Scene,
@@ -174,7 +177,11 @@ pub fn write_outputs(
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating output directory {}", dir.display()))?;
-    let image = atlas.to_image(values);
+    // Texels inside or under geometry take their visible neighbours' light,
+    // so that a client's bilinear filter never blends them in.
+    let mut values = values.to_vec();
+    crate::validity::Validity::compute(scene, atlas, poses).dilate(atlas, &mut values);
+    let image = atlas.to_image(&values);
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;
     write_json(&dir.join("atlas.json"), &atlas_file(scene, atlas, poses))?;

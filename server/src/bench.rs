@@ -12,7 +12,8 @@
 //! timed the same way: when the power changed by its last completed bounce,
 //! `Σ A_i |ΔB_i|`, first falls to each fraction of the emitted power. The
 //! progressive and gather lightmaps at 0.1% are compared with the converged
-//! reference by [`crate::metrics::accuracy`]: area-weighted NRMSE over the
+//! reference by [`crate::metrics::accuracy`] (over the elements that are not
+//! inside or under geometry, [`crate::validity`]): area-weighted NRMSE over the
 //! non-emitting elements and the 95th percentile of the per-element
 //! relative error.
 //!
@@ -35,9 +36,10 @@ use serde::Serialize;
 
 use crate::atlas::Atlas;
 use crate::gpu::{Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver};
-use crate::metrics::accuracy;
+use crate::metrics::accuracy_where;
 use crate::reference::{self, ReferenceSolver, SolveOptions};
 use crate::scene::{LoadOptions, Scene};
+use crate::validity::Validity;
 
 /// The unshot-power fractions at which times are recorded.
 pub const FRACTIONS: [f64; 3] = [0.1, 0.01, 0.001];
@@ -79,6 +81,8 @@ pub struct SolverResult {
 struct Reference {
     solver: ReferenceSolver,
     radiosity: Vec<glam::Vec3>,
+    /// Texels inside or under geometry, left out of every comparison.
+    validity: Validity,
 }
 
 /// A solver's error against the reference and the reference's time to it.
@@ -93,13 +97,14 @@ impl Reference {
     /// Accuracy of `lightmap` against the reference, and the reference's
     /// time (form factors plus sweeps) to the same NRMSE.
     fn compare(&self, atlas: &Atlas, lightmap: &[glam::Vec3]) -> Comparison {
-        let Some(error) = accuracy(atlas, lightmap, &self.radiosity) else {
+        let keep = self.validity.keep();
+        let Some(error) = accuracy_where(atlas, lightmap, &self.radiosity, &keep) else {
             return Comparison::default();
         };
         let max_sweeps = SolveOptions::default().max_iterations;
         let seconds = self
             .solver
-            .sweeps_to_nrmse(atlas, &self.radiosity, error.nrmse, max_sweeps)
+            .sweeps_to_nrmse(atlas, &self.radiosity, error.nrmse, max_sweeps, &keep)
             .map(|(_, sweeps)| self.solver.form_factor_seconds + sweeps);
         Comparison {
             nrmse: Some(error.nrmse),
@@ -196,6 +201,7 @@ pub fn solve_scene(
             Some(Reference {
                 solver,
                 radiosity: solution.radiosity,
+                validity: Validity::compute(&scene, &atlas, &poses),
             })
         }
         Err(e) => {

@@ -21,3 +21,4 @@ pub mod reference;
 pub mod relay;
 pub mod scene;
 pub mod service;
+pub mod validity;

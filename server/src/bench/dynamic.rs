@@ -34,9 +34,10 @@ use crate::gpu::{
     Device, DynamicOptions, DynamicSolver, GatherOptions, GatherSolver, ProgressiveOptions,
     ProgressiveSolver, Redistribution,
 };
-use crate::metrics::accuracy;
+use crate::metrics::accuracy_where;
 use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
 use crate::scene::{LoadOptions, Pose, Scene};
+use crate::validity::Validity;
 
 /// A method the benchmark compares (thesis Table 5.2's rows).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -188,6 +189,11 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         atlas.elements.len()
     );
     let (reference_name, expected) = reference(&last)?;
+    // Texels inside or under geometry at the compared poses are left out
+    // (crate::validity).
+    let visible_last = Validity::compute(&scene, &atlas, &last);
+    let visible_gather = Validity::compute(&scene, &atlas, &gather_last);
+
     let dir = settings.out.join(&scene.name);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let expected_image = atlas.to_image(&expected);
@@ -199,7 +205,12 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         &expected_image,
         white,
     )?;
+    // Images show what a client would see: invalid texels filled.
     let write_images = |name: &str, values: &[Vec3], against: &[Vec3]| -> Result<()> {
+        let (mut values, mut against) = (values.to_vec(), against.to_vec());
+        visible_last.dilate(&atlas, &mut values);
+        visible_last.dilate(&atlas, &mut against);
+        let (values, against) = (&values[..], &against[..]);
         let image = atlas.to_image(values);
         write_png_with(
             &dir.join(format!("{name}.png")),
@@ -223,8 +234,9 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
     };
 
     // NaN (JSON null) when there is nothing to compare.
-    let judge = |values: &[Vec3], against: &[Vec3]| {
-        accuracy(&atlas, values, against).map_or((f64::NAN, f64::NAN), |a| (a.nrmse, a.p95_rel))
+    let judge = |values: &[Vec3], against: &[Vec3], visible: &Validity| {
+        accuracy_where(&atlas, values, against, visible.keep())
+            .map_or((f64::NAN, f64::NAN), |a| (a.nrmse, a.p95_rel))
     };
     let mut methods = Vec::new();
     // Gather: a from-scratch solve per frame, to the level the others
@@ -247,7 +259,12 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             reference(&gather_last)?.1
         };
         let (median, min, max) = median_ms(&mut times);
-        let (nrmse, p95_rel) = judge(&values, &against);
+        let visible = if settings.gather_frames.max(1) == frames {
+            &visible_last
+        } else {
+            &visible_gather
+        };
+        let (nrmse, p95_rel) = judge(&values, &against, visible);
         methods.push(MethodResult {
             name: "gather".into(),
             ms_per_frame: median,
@@ -286,7 +303,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         let values = session.radiosity()?;
         let (median, min, max) = median_ms(&mut times);
         eprintln!("  {name}: median {median:.1} ms per frame");
-        let (nrmse, p95_rel) = judge(&values, &expected);
+        let (nrmse, p95_rel) = judge(&values, &expected, &visible_last);
         methods.push(MethodResult {
             name: name.into(),
             ms_per_frame: median,

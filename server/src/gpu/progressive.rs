@@ -15,6 +15,7 @@ use wgpu::util::DeviceExt;
 use super::device::{Device, GpuError};
 use crate::atlas::Atlas;
 use crate::scene::{PatchShape, Pose, Scene};
+use crate::validity::Validity;
 
 /// WGSL shared by both shaders, prepended to each.
 pub(super) const COMMON_WGSL: &str = include_str!("../../../shaders/common.wgsl");
@@ -256,7 +257,7 @@ pub(super) fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec
 }
 
 /// A hemicube render pipeline of hemicube.wgsl: item buffers
-/// (`vs_main`/`fs_main`, R32Uint) or shot radiosity (`vs_rad`/`fs_rad`,
+/// (`vs_main`/`fs_main`, Rgba32Uint: id, distance, plane normal) or shot radiosity (`vs_rad`/`fs_rad`,
 /// Rgba16Float, optionally multisampled as a blur, thesis §4.5.2).
 fn hemicube_pipeline(
     device: &wgpu::Device,
@@ -330,6 +331,14 @@ pub struct ProgressiveSolver {
     patches: Vec<WorldPatch>,
     /// The current pose of every object.
     poses: Vec<Pose>,
+    /// Elements inside or under geometry at `poses` (crate::validity):
+    /// they do not receive, and shooters look from their tiles' valid part.
+    validity: Validity,
+    /// Elements on their patch's boundary.
+    edge: Vec<bool>,
+    /// The scene and atlas, to re-test validity after a move.
+    scene: Scene,
+    atlas: Atlas,
     /// Objects removed from the simulation (thesis §4.5.2).
     absent: Vec<bool>,
     /// Element areas at scale 1 and their objects, for shooter areas.
@@ -560,12 +569,23 @@ impl ProgressiveSolver {
             }
         }
 
+        let validity = Validity::compute(scene, atlas, poses);
+        // Samples on their patch's boundary (`visibility` in progressive.wgsl).
+        let edge: Vec<bool> = atlas
+            .elements
+            .iter()
+            .map(|e| {
+                let c = atlas.charts[e.patch as usize];
+                let (a, b) = (e.texel[0] - c.x, e.texel[1] - c.y);
+                a == 0 || b == 0 || a + 1 == c.w || b + 1 == c.h
+            })
+            .collect();
         let mut locals = Vec::with_capacity(n);
         let mut local_areas = Vec::with_capacity(n);
         let mut element_objects = Vec::with_capacity(n);
         let mut albedo = Vec::with_capacity(n);
         let mut emission = Vec::with_capacity(n);
-        for e in &atlas.elements {
+        for (i, e) in atlas.elements.iter().enumerate() {
             let p = e.patch as usize;
             let PatchShape::Quad { origin, u, v } = shapes[p];
             let chart = atlas.charts[p];
@@ -585,7 +605,7 @@ impl ProgressiveSolver {
                 position: v4(sample, e.area),
                 normal: v4(normal, f32::from_bits(e.patch)),
                 lookup: v4(lookup, f32::from_bits(e.object)),
-                albedo: v4(e.albedo, 0.0),
+                albedo: v4(e.albedo, element_flags(validity.is_invalid(i), edge[i])),
                 // Receiving points are moved a hair towards the patch centre
                 // and off the surface (like the reference solver's offset).
                 nudge: v4(
@@ -625,11 +645,16 @@ impl ProgressiveSolver {
         if locals.is_empty() {
             locals.push(LocalElement::zeroed());
         }
-        let local_buffer = init("local elements", bytemuck::cast_slice(&locals), storage);
+        // Written after a move when contacts change (`update_validity`).
+        let local_buffer = init(
+            "local elements",
+            bytemuck::cast_slice(&locals),
+            storage | wgpu::BufferUsages::COPY_DST,
+        );
         let element_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("elements"),
             size: locals.len() as u64 * ELEMENT_BYTES,
-            usage: storage,
+            usage: storage | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         // Absent objects start dark: they neither hold nor shoot light.
@@ -733,7 +758,7 @@ impl ProgressiveSolver {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Uint,
+            format: wgpu::TextureFormat::Rgba32Uint,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
             view_formats: &[],
         });
@@ -782,6 +807,7 @@ impl ProgressiveSolver {
                 (1, b(&radiosity)),
                 (2, b(&unshot)),
                 (3, b(&irradiance)),
+                (4, b(&patch_buffer)),
                 (7, b(&shooters)),
                 (8, b(&energy)),
                 (9, b(&batch)),
@@ -821,7 +847,7 @@ impl ProgressiveSolver {
             &device,
             &hemicube_module,
             ("vs_main", "fs_main"),
-            wgpu::TextureFormat::R32Uint,
+            wgpu::TextureFormat::Rgba32Uint,
             1,
         );
         let hemicube_group = bind(
@@ -846,6 +872,10 @@ impl ProgressiveSolver {
             layout,
             patches,
             poses: poses.to_vec(),
+            validity,
+            edge,
+            scene: scene.clone(),
+            atlas: atlas.clone(),
             absent,
             local_areas,
             element_objects,
@@ -1000,15 +1030,63 @@ impl ProgressiveSolver {
 
     /// Radiosity per element (W/m² per channel), in atlas element order:
     /// `B`, or `B - E - D` with [`ProgressiveOptions::indirect_only`].
+    /// Invalid elements ([`ProgressiveSolver::validity`]) hold what they
+    /// happen to hold; whoever publishes fills them ([`Validity::dilate`]).
     pub fn radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
         let total = self.total_radiosity()?;
-        match &self.direct {
-            None => Ok(total),
-            Some(direct) => Ok(total
+        Ok(match &self.direct {
+            None => total,
+            Some(direct) => total
                 .iter()
                 .zip(direct)
                 .map(|(b, d)| (*b - *d).max(Vec3::ZERO))
-                .collect()),
+                .collect(),
+        })
+    }
+
+    /// Which elements are invalid at the current poses.
+    pub fn validity(&self) -> &Validity {
+        &self.validity
+    }
+
+    /// Re-tests validity near the objects flagged in `moving` after the
+    /// poses changed from `old` to the current ones, and uploads the
+    /// elements whose state changed.
+    pub(super) fn update_validity(&mut self, old: &[Pose], moving: &[bool]) {
+        let objects: Vec<u32> = (0..moving.len() as u32)
+            .filter(|&o| moving[o as usize])
+            .collect();
+        if objects.is_empty() {
+            return;
+        }
+        let before = self.validity.clone();
+        // A texel's reach: the coarsest texel spacing of the scene.
+        let margin = 1.0
+            / self
+                .scene
+                .patches
+                .iter()
+                .map(|p| p.texel_density)
+                .fold(f32::INFINITY, f32::min);
+        let poses = self.poses.clone();
+        self.validity
+            .update_near(&self.scene, &self.atlas, (old, &poses), &objects, margin);
+        for i in 0..before.mask().len() {
+            let now = self.validity.is_invalid(i);
+            if now != before.is_invalid(i) {
+                let flag = element_flags(now, self.edge[i]).to_le_bytes();
+                // albedo.w of LocalElement (80 bytes) and of Element (64).
+                self.queue.write_buffer(
+                    &self.buffers.local_elements,
+                    i as u64 * std::mem::size_of::<LocalElement>() as u64 + 60,
+                    &flag,
+                );
+                self.queue.write_buffer(
+                    &self.buffers.elements,
+                    i as u64 * ELEMENT_BYTES + 60,
+                    &flag,
+                );
+            }
         }
     }
 
@@ -1136,12 +1214,30 @@ impl ProgressiveSolver {
         let su = patch.u * (s1 - s0);
         let sv = patch.v * (u1 - u0);
         let mut area = 0.0;
+        // The hemicube eye sits over the area-weighted centroid of the
+        // tile's valid elements, not over the tile's centre: a floor tile
+        // that straddles a block's footprint must see the room from the
+        // part of it that is in the room, or it shoots its whole power into
+        // the inside of the block (a 10 x 10 texel tile half under a block
+        // lost all of its shot).
+        let (mut valid_area, mut centroid) = (0.0f32, Vec3::ZERO);
         for b in b0..b1 {
             for a in a0..a1 {
-                area += areas[(patch.first + b * patch.w + a) as usize];
+                let e = (patch.first + b * patch.w + a) as usize;
+                area += areas[e];
+                if !self.validity.is_invalid(e) {
+                    let [es, et] = self.atlas.elements[e].st;
+                    valid_area += areas[e];
+                    centroid += (patch.origin + patch.u * es + patch.v * et) * areas[e];
+                }
             }
         }
-        let eye = corner + (su + sv) * 0.5 + normal * (self.near * 2.0);
+        let base = if valid_area > 0.0 {
+            centroid / valid_area
+        } else {
+            corner + (su + sv) * 0.5
+        };
+        let eye = base + normal * (self.near * 2.0);
         GpuShooter {
             corner: v4(corner, area),
             su: v4(su, 0.0),
@@ -1244,7 +1340,8 @@ impl ProgressiveSolver {
             &self.depth_view,
             wgpu::Color {
                 r: f64::from(NO_PATCH),
-                g: 0.0,
+                // Nothing there: no occluder at any distance.
+                g: f64::from(f32::MAX.to_bits()),
                 b: 0.0,
                 a: 0.0,
             },
@@ -1345,6 +1442,13 @@ impl ProgressiveSolver {
 }
 
 /// Waits for the GPU and copies a mappable buffer's contents out.
+/// `albedo.w` of an element: 1 when it is invalid (progressive.wgsl skips
+/// it when receiving) plus 2 when its sample lies on its patch's boundary
+/// (`is_invalid` and `on_edge` in progressive.wgsl).
+fn element_flags(invalid: bool, edge: bool) -> f32 {
+    f32::from(u8::from(invalid) + 2 * u8::from(edge))
+}
+
 pub(super) fn map_read(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
     let (tx, rx) = std::sync::mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, .., move |result| {

@@ -315,12 +315,16 @@ impl ReferenceSolver {
     /// (which `solve` does once, at the end), or `None` when
     /// `max_iterations` sweeps do not get there. This is how a benchmark
     /// compares another solver with this one "at equal NRMSE".
+    ///
+    /// `keep` narrows the compared elements as in
+    /// [`crate::metrics::accuracy_where`].
     pub fn sweeps_to_nrmse(
         &self,
         atlas: &Atlas,
         goal: &[Vec3],
         target: f64,
         max_iterations: usize,
+        keep: &dyn Fn(usize) -> bool,
     ) -> Option<(usize, f64)> {
         let mut b = self.emission();
         let mut seconds = 0.0;
@@ -328,7 +332,8 @@ impl ReferenceSolver {
             let started = Instant::now();
             b = self.sweep(&b).0;
             seconds += started.elapsed().as_secs_f64();
-            let error = crate::metrics::accuracy(atlas, &self.point_radiosity(&b), goal)?.nrmse;
+            let error =
+                crate::metrics::accuracy_where(atlas, &self.point_radiosity(&b), goal, keep)?.nrmse;
             if error <= target {
                 return Some((iterations, seconds));
             }

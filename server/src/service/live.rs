@@ -115,6 +115,9 @@ impl LiveSolver for ReferenceLive {
             }
         };
         self.radiosity = solution.radiosity;
+        // Texels inside or under geometry take their neighbours' light.
+        crate::validity::Validity::compute(&self.scene, &self.atlas, &self.poses)
+            .dilate(&self.atlas, &mut self.radiosity);
         self.residual = solution.residual_fraction;
         self.reflected = self.seqs.clone();
         let spent = started.elapsed();
@@ -146,6 +149,7 @@ impl LiveSolver for ReferenceLive {
 /// redistribution.
 pub struct GpuLive {
     session: crate::gpu::DynamicSolver,
+    atlas: Atlas,
     /// The last complete state and the seqs it reflects.
     radiosity: Vec<Vec3>,
     reflected: Vec<u64>,
@@ -170,6 +174,7 @@ impl GpuLive {
             reflected: vec![0; poses.len()],
             name: method.name(),
             session,
+            atlas,
         })
     }
 }
@@ -192,7 +197,13 @@ impl LiveSolver for GpuLive {
                 redistribution = step.redistribution;
                 if step.completed {
                     match self.session.radiosity() {
-                        Ok(r) => {
+                        Ok(mut r) => {
+                            // Texels inside or under geometry at the
+                            // state's poses take their neighbours' light.
+                            self.session
+                                .progressive()
+                                .validity()
+                                .dilate(&self.atlas, &mut r);
                             self.radiosity = r;
                             self.reflected = self.session.reflected().to_vec();
                             completed = true;

@@ -48,3 +48,18 @@ pub fn assert_uniform(atlas: &Atlas, b: &[Vec3], expected: Vec3, tolerance: f32)
     }
     worst
 }
+
+/// [`lightwire_server::metrics::accuracy`] over the elements a viewer can
+/// see: the non-emitting elements that are not inside or under geometry at
+/// `poses` ([`lightwire_server::validity`]).
+pub fn visible_accuracy(
+    scene: &Scene,
+    atlas: &Atlas,
+    poses: &[lightwire_server::scene::Pose],
+    values: &[Vec3],
+    reference: &[Vec3],
+) -> lightwire_server::metrics::Accuracy {
+    let validity = lightwire_server::validity::Validity::compute(scene, atlas, poses);
+    lightwire_server::metrics::accuracy_where(atlas, values, reference, validity.keep())
+        .unwrap_or_else(|| panic!("lengths must match and the reference must be lit"))
+}

@@ -339,6 +339,7 @@ impl ProgressiveSolver {
                 (0, b(&bufs.elements)),
                 (1, b(&self.radiosity)),
                 (2, b(&bufs.unshot)),
+                (4, b(&bufs.patches)),
                 (7, b(&self.shooters)),
                 (8, b(&bufs.energy)),
                 (9, b(&self.batch)),
@@ -441,6 +442,8 @@ impl ProgressiveSolver {
         if mv.is_empty_move() {
             return Ok(mv);
         }
+        // Contacts move with the objects (crate::validity).
+        self.update_validity(&mv.old_poses, &mv.moving);
         // Incremental: total power per patch before the move (one
         // readback), to size the shooter grids. Cross tiles do not depend
         // on power.

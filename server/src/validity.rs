@@ -1,0 +1,376 @@
+//! Texels nobody can see: samples inside or under geometry, and how they
+//! are kept out of the light.
+//!
+//! A texel's sample point can lie where no viewer ever looks: the floor
+//! under a block resting on it, a wall behind a box pushed against it, the
+//! ceiling above a light that hangs a centimetre below it. What a solver
+//! computes there is meaningless (black under a block, leaked light above a
+//! lamp), and bilinear filtering blends it into the visible texels around
+//! it: floor points a few millimetres from a block's base read 25–60% too
+//! dark. Such texels are **invalid**:
+//!
+//! - **Detection** ([`Validity::compute`]): from the sample point, [`RAYS`]
+//!   stratified, cosine-distributed rays over the hemisphere; a texel is
+//!   invalid when more than [`BACK_FACE_LIMIT`] of them (cosine-weighted)
+//!   first hit the *back* of a surface. Surfaces are one-sided and face
+//!   where light is, so a point that sees mostly backs is enclosed: inside a
+//!   block, under it, or sandwiched between a lamp and the ceiling.
+//! - **Exclusion**: the GPU solver neither lets invalid elements receive
+//!   nor shoot (their area and power leave the solve), and the accuracy
+//!   metric leaves them out ([`Validity::keep`]).
+//! - **Filling** ([`Validity::dilate`]): after every solve or publication,
+//!   each invalid texel takes the mean of its valid 8-neighbours in its own
+//!   chart, ring by ring inwards, so that bilinear filtering next to a
+//!   contact reads the visible side's light.
+//!
+//! Dynamic objects move contacts: [`Validity::update_near`] re-tests the
+//! elements near the moved objects (their old and new bounds) at the new
+//! poses, so a box put down on the floor invalidates the texels under it
+//! and a box moved away gives them back.
+
+use glam::{DVec3, Vec3};
+
+use crate::atlas::Atlas;
+use crate::raycast::Raycaster;
+use crate::scene::{PatchShape, Pose, Scene};
+
+/// Rays per element (a stratified 8 x 8 grid over the cosine-weighted
+/// hemisphere).
+pub const RAYS: usize = 64;
+/// Fraction of rays that may see back faces before a texel is invalid.
+pub const BACK_FACE_LIMIT: f64 = 0.5;
+/// Ray origins leave the surface by this fraction of the scene's extent
+/// (and move as far towards the patch centre), as the solvers' samples do.
+const OFFSET: f64 = 1e-5;
+
+/// The invalid elements of an atlas at some poses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Validity {
+    invalid: Vec<bool>,
+}
+
+impl Validity {
+    /// Every element valid (nothing tested).
+    pub fn all_valid(atlas: &Atlas) -> Self {
+        Self {
+            invalid: vec![false; atlas.elements.len()],
+        }
+    }
+
+    /// Tests every element of `atlas` with the scene at `poses`.
+    pub fn compute(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> Self {
+        let caster = Raycaster::new(scene, poses);
+        let extent = extent(&caster);
+        use rayon::prelude::*;
+        let invalid = (0..atlas.elements.len())
+            .into_par_iter()
+            .map(|i| encloses(&caster, scene, atlas, poses, i, extent))
+            .collect();
+        Self { invalid }
+    }
+
+    /// Re-tests, at `poses`, the elements whose world sample lies within
+    /// `margin` of the world bounds of `objects` at `poses` or at `old`
+    /// (the poses the current mask was computed at), and every element of
+    /// those objects. Returns how many elements changed state.
+    pub fn update_near(
+        &mut self,
+        scene: &Scene,
+        atlas: &Atlas,
+        (old, poses): (&[Pose], &[Pose]),
+        objects: &[u32],
+        margin: f32,
+    ) -> usize {
+        let boxes: Vec<(Vec3, Vec3)> = objects
+            .iter()
+            .flat_map(|&o| {
+                [
+                    bounds(scene, o, &old[o as usize]),
+                    bounds(scene, o, &poses[o as usize]),
+                ]
+            })
+            .flatten()
+            .map(|(lo, hi)| (lo - Vec3::splat(margin), hi + Vec3::splat(margin)))
+            .collect();
+        let near: Vec<usize> = (0..atlas.elements.len())
+            .filter(|&i| {
+                let e = &atlas.elements[i];
+                if objects.contains(&e.object) {
+                    return true;
+                }
+                let p = poses[e.object as usize].transform_point(e.position);
+                boxes
+                    .iter()
+                    .any(|(lo, hi)| p.cmpge(*lo).all() && p.cmple(*hi).all())
+            })
+            .collect();
+        if near.is_empty() {
+            return 0;
+        }
+        let caster = Raycaster::new(scene, poses);
+        let extent = extent(&caster);
+        use rayon::prelude::*;
+        let tested: Vec<(usize, bool)> = near
+            .into_par_iter()
+            .map(|i| (i, encloses(&caster, scene, atlas, poses, i, extent)))
+            .collect();
+        let mut changed = 0;
+        for (i, invalid) in tested {
+            if self.invalid[i] != invalid {
+                self.invalid[i] = invalid;
+                changed += 1;
+            }
+        }
+        changed
+    }
+
+    /// Whether element `i` is invalid.
+    pub fn is_invalid(&self, i: usize) -> bool {
+        self.invalid.get(i).copied().unwrap_or(false)
+    }
+
+    /// The per-element mask (true = invalid).
+    pub fn mask(&self) -> &[bool] {
+        &self.invalid
+    }
+
+    /// How many elements are invalid.
+    pub fn count(&self) -> usize {
+        self.invalid.iter().filter(|&&b| b).count()
+    }
+
+    /// A `keep` predicate for [`crate::metrics::accuracy_where`]: the
+    /// valid elements.
+    pub fn keep(&self) -> impl Fn(usize) -> bool + '_ {
+        move |i| !self.is_invalid(i)
+    }
+
+    /// Fills every invalid element of `values` (indexed like
+    /// `atlas.elements`) with the mean of its valid or already filled
+    /// 8-neighbours on its own chart, one ring at a time, until nothing
+    /// more can be filled (a chart with no valid texel keeps its values).
+    pub fn dilate(&self, atlas: &Atlas, values: &mut [Vec3]) {
+        if values.len() != self.invalid.len() || !self.invalid.iter().any(|&b| b) {
+            return;
+        }
+        let mut known: Vec<bool> = self.invalid.iter().map(|&b| !b).collect();
+        let mut pending: Vec<usize> = (0..known.len()).filter(|&i| !known[i]).collect();
+        while !pending.is_empty() {
+            let mut filled = Vec::new();
+            for &i in &pending {
+                let e = &atlas.elements[i];
+                let chart = atlas.charts[e.patch as usize];
+                let first = atlas.patch_elements[e.patch as usize] as usize;
+                let (a, b) = ((e.texel[0] - chart.x) as i64, (e.texel[1] - chart.y) as i64);
+                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+                for db in -1..=1i64 {
+                    for da in -1..=1i64 {
+                        let (x, y) = (a + da, b + db);
+                        if (da, db) == (0, 0)
+                            || x < 0
+                            || y < 0
+                            || x >= i64::from(chart.w)
+                            || y >= i64::from(chart.h)
+                        {
+                            continue;
+                        }
+                        let j = first + (y as usize) * chart.w as usize + x as usize;
+                        if known[j] {
+                            sum += values[j];
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    filled.push((i, sum / n as f32));
+                }
+            }
+            if filled.is_empty() {
+                break;
+            }
+            for &(i, v) in &filled {
+                values[i] = v;
+                known[i] = true;
+            }
+            pending.retain(|&i| !known[i]);
+        }
+    }
+}
+
+/// The diagonal of the scene's bounds, for scale-relative offsets.
+fn extent(caster: &Raycaster) -> f64 {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for p in caster.patches() {
+        for c in [
+            p.origin,
+            p.origin + p.u,
+            p.origin + p.v,
+            p.origin + p.u + p.v,
+        ] {
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
+    }
+    (hi - lo).length().max(1e-9)
+}
+
+/// World bounds of object `object`'s patches at `pose` (`None` if it has
+/// none).
+fn bounds(scene: &Scene, object: u32, pose: &Pose) -> Option<(Vec3, Vec3)> {
+    let mut out: Option<(Vec3, Vec3)> = None;
+    for p in scene.patches.iter().filter(|p| p.object == object) {
+        for c in p.shape.transformed(pose).corners() {
+            out = Some(match out {
+                None => (c, c),
+                Some((lo, hi)) => (lo.min(c), hi.max(c)),
+            });
+        }
+    }
+    out
+}
+
+/// Whether element `i`'s sample sees back faces over more than
+/// [`BACK_FACE_LIMIT`] of its cosine-weighted hemisphere.
+fn encloses(
+    caster: &Raycaster,
+    scene: &Scene,
+    atlas: &Atlas,
+    poses: &[Pose],
+    i: usize,
+    extent: f64,
+) -> bool {
+    let e = &atlas.elements[i];
+    let pose = &poses[e.object as usize];
+    let patch = &scene.patches[e.patch as usize];
+    let n = pose.transform_normal(e.normal).as_dvec3();
+    let x = pose.transform_point(e.position).as_dvec3();
+    let centre = match patch.shape.transformed(pose) {
+        PatchShape::Quad { origin, u, v } => (origin + (u + v) * 0.5).as_dvec3(),
+    };
+    let inward = (centre - x).normalize_or_zero();
+    let origin = x + (n + inward) * (OFFSET * extent);
+    let t1 = n.any_orthonormal_vector();
+    let t2 = n.cross(t1);
+    let side = (RAYS as f64).sqrt() as usize;
+    let mut back = 0usize;
+    for j in 0..side {
+        for k in 0..side {
+            // Stratified Malley's method: a uniform disk point lifted to
+            // the hemisphere is cosine distributed.
+            let (u1, u2) = (
+                (j as f64 + 0.5) / side as f64,
+                (k as f64 + 0.5) / side as f64,
+            );
+            let r = u1.sqrt();
+            let phi = std::f64::consts::TAU * u2;
+            let d = t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt();
+            if let Some(hit) = caster.closest_hit(origin, d, f64::INFINITY) {
+                if !hit.front {
+                    back += 1;
+                }
+            }
+        }
+    }
+    back as f64 > BACK_FACE_LIMIT * (side * side) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2 x 2 floor with a closed-topped 0.5 m block resting on it (four
+    /// sides and a top, no bottom) and a light above.
+    const BLOCK: &str = r#"{
+      "name": "contact", "lightmap": { "texel_density": 10 },
+      "materials": [
+        { "name": "white", "albedo": [0.5, 0.5, 0.5] },
+        { "name": "light", "albedo": [0, 0, 0], "emission": [10, 10, 10] }
+      ],
+      "objects": [{ "name": "crate", "pose": { "translation": [1.03, 0.25, 1.03] } }],
+      "surfaces": [
+        { "name": "floor", "material": "white",
+          "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } },
+        { "name": "light", "material": "light",
+          "quad": { "origin": [0.5, 2, 0.5], "u": [1, 0, 0], "v": [0, 0, 1] } },
+        { "name": "crate", "material": "white", "object": "crate",
+          "box": { "center": [0, 0, 0], "size": [0.5, 0.5, 0.5] } }
+      ]
+    }"#;
+
+    fn floor_texel_at(atlas: &Atlas, poses: &[Pose], x: f32, z: f32) -> usize {
+        (0..atlas.elements.len())
+            .filter(|&i| atlas.elements[i].patch == 0)
+            .min_by(|&a, &b| {
+                let d = |i: usize| {
+                    let p = poses[0].transform_point(atlas.elements[i].position);
+                    (p.x - x).powi(2) + (p.z - z).powi(2)
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .expect("floor texels")
+    }
+
+    #[test]
+    fn texels_under_a_box_are_invalid_and_come_back_when_it_moves_away() {
+        let scene = Scene::parse(BLOCK, "contact").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let mut poses = scene.initial_poses();
+        let mut v = Validity::compute(&scene, &atlas, &poses);
+        let under = floor_texel_at(&atlas, &poses, 1.0, 1.0);
+        let open = floor_texel_at(&atlas, &poses, 0.2, 1.8);
+        assert!(v.is_invalid(under), "the floor under the box");
+        assert!(!v.is_invalid(open), "the open floor");
+        // Lift the box off the floor: the texels under it become valid.
+        let old = poses.clone();
+        poses[1].translation.y = 1.0;
+        let changed = v.update_near(&scene, &atlas, (&old, &poses), &[1], 0.1);
+        assert!(changed > 0);
+        assert!(!v.is_invalid(under), "the floor once the box is lifted");
+        assert_eq!(
+            v,
+            Validity::compute(&scene, &atlas, &poses),
+            "update = recompute"
+        );
+        // And put it back down.
+        let lifted = poses.clone();
+        v.update_near(&scene, &atlas, (&lifted, &old), &[1], 0.1);
+        assert_eq!(v, Validity::compute(&scene, &atlas, &old));
+        assert!(v.is_invalid(under));
+    }
+
+    #[test]
+    fn dilation_fills_invalid_texels_from_their_valid_neighbours_only() {
+        let scene = Scene::parse(BLOCK, "contact").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let poses = scene.initial_poses();
+        let v = Validity::compute(&scene, &atlas, &poses);
+        assert!(v.count() > 0);
+        // Valid texels 1, invalid ones a poison value.
+        let mut values: Vec<Vec3> = (0..atlas.elements.len())
+            .map(|i| {
+                if v.is_invalid(i) {
+                    Vec3::splat(-7.0)
+                } else {
+                    Vec3::ONE
+                }
+            })
+            .collect();
+        v.dilate(&atlas, &mut values);
+        for (i, value) in values.iter().enumerate() {
+            if atlas.elements[i].patch == 0 {
+                assert_eq!(*value, Vec3::ONE, "floor element {i} after dilation");
+            }
+        }
+        // Valid elements are never touched.
+        let mut graded: Vec<Vec3> = (0..atlas.elements.len())
+            .map(|i| Vec3::splat(i as f32))
+            .collect();
+        let before = graded.clone();
+        v.dilate(&atlas, &mut graded);
+        for i in 0..graded.len() {
+            if !v.is_invalid(i) {
+                assert_eq!(graded[i], before[i]);
+            }
+        }
+    }
+}
