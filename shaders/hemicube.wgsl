@@ -9,8 +9,7 @@
 // is zero is absent: its triangles collapse to a point and draw nothing.
 //
 // Two kinds of target:
-//   vs_main/fs_main  item buffers (Rgba32Uint): the nearest patch id, its
-//                    distance from the eye and its plane's normal.
+//   vs_main/fs_main  item buffers (R32Uint): the nearest patch id.
 //   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
 //                    and the distance from the eye (Rgba16Float), for the
 //                    gathering and cross projection of thesis Alg. 4.4-4.5.
@@ -56,8 +55,6 @@ fn project(s: Shooter, face: u32, p: vec3<f32>) -> vec4<f32> {
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) @interpolate(flat) id: u32,
-    // The fragment's position relative to the eye (world axes).
-    @location(1) offset: vec3<f32>,
 };
 
 @vertex
@@ -65,28 +62,14 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     let slot = ii / 5u;
     let v = vertices[vi];
     var out: VertexOut;
-    let s = shooters[slot];
-    let p = world_position(v, slot);
-    out.clip = project(s, ii % 5u, p);
+    out.clip = project(shooters[slot], ii % 5u, world_position(v, slot));
     out.id = bitcast<u32>(v.pos.w);
-    out.offset = p - s.eye.xyz;
     return out;
 }
 
-// The item buffer holds the nearest patch, its distance from the eye
-// (bitcast f32) and the plane it lies in (its unit normal, up to sign, as
-// two snorm16 of the normal flipped to z >= 0): with them a lookup can
-// tell an occluder in front of a receiver from a neighbouring surface that
-// merely shares its pixels (`visibility` in progressive.wgsl). The normal
-// comes from the screen-space derivatives of the fragment's position,
-// which are exact for a flat triangle.
 @fragment
-fn fs_main(in: VertexOut) -> @location(0) vec4<u32> {
-    var n = normalize(cross(dpdx(in.offset), dpdy(in.offset)));
-    if (n.z < 0.0) {
-        n = -n;
-    }
-    return vec4<u32>(in.id, bitcast<u32>(length(in.offset)), pack2x16snorm(n.xy), 0u);
+fn fs_main(in: VertexOut) -> @location(0) u32 {
+    return in.id;
 }
 
 struct RadOut {

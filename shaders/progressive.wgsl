@@ -20,7 +20,7 @@ struct Element {
     // xyz: point used for the visibility lookup (edge samples nudged into
     // their own patch), w: bitcast object id.
     lookup: vec4<f32>,
-    // rgb: albedo, w: flags (see `is_invalid`, `on_edge`).
+    // rgb: albedo, w: 1 if invalid (see `is_invalid`).
     albedo: vec4<f32>,
 };
 
@@ -72,9 +72,6 @@ const PI: f32 = 3.14159265358979;
 const NO_PATCH: u32 = 0xffffffffu;
 // Inward offset of corner samples in cells (atlas::CORNER_OFFSET).
 const CORNER_OFFSET: f32 = 0.05;
-// Pixel footprints by which a surface in an item-buffer pixel must be nearer
-// than the receiving point to occlude it (`visibility`).
-const DEPTH_SLACK: f32 = 2.0;
 
 var<workgroup> partial: array<vec3<f32>, 64>;
 var<workgroup> partial_power: array<f32, 256>;
@@ -139,30 +136,24 @@ fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
     }
 }
 
-// How much of the receiving point `x` (normal `nx`, on patch `id`) the
-// shooter in item-buffer slot `slot` sees, in [0, 1], looking along `d`
-// (eye to the point's lookup position).
+// Whether the shooter in item-buffer slot `slot` sees the receiving point
+// `x` (on patch `id`), looking along `d` (eye to the point's lookup
+// position): 1 or 0.
 //
-// The four pixels nearest to the direction are each counted with their
-// bilinear weight (percentage-closer filtering). A pixel counts as showing
-// the point when it shows the point's own patch, or when what it shows does
-// not occlude the point: a surface occludes `x` only if the eye and `x` lie
-// on opposite sides of its plane and it is nearer than `x`. Surface-level
-// ids alone (thesis §4.3.2) cannot tell a block in front of a floor point
-// from the wall that rises behind it, and at grazing angles one pixel
-// covers several texels: "any of the four pixels shows my patch" (thesis
-// §5, "general observations") moved every shadow edge a whole pixel into
-// the shadow (cornell-blocks: direct light on the floor 10% too bright at
-// resolution 64, the blocks' shadows half gone), while "the weighted share
-// of pixels showing my patch" darkened the texels a pixel footprint from
-// every concave edge. With the plane test a wall behind the point, a
-// coplanar neighbour and the shooter's own plane never occlude; a block
-// between eye and point does.
-//
-// Samples on their patch's boundary (`edge`) see the shooter when any of
-// the four pixels does: the neighbour that shares their edge fills half of
-// their pixels, and at convex edges its plane separates them from the eye.
-fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, nx: vec3<f32>, id: u32, edge: bool) -> f32 {
+// The pixel the direction falls in shows the point's own patch, nothing, or
+// another patch. Surface-level ids alone (thesis §4.3.2) cannot tell a
+// block in front of a floor point from the wall that rises behind it, and
+// at grazing angles one pixel covers several texels, so another patch in
+// the pixel only occludes if, placed as the buffer drew it, it really
+// crosses the segment from the eye to `x` (`crosses`). The rule it replaces
+// ("any of the four nearest pixels shows my patch", thesis §5, "general
+// observations") moved every shadow edge a whole pixel into the shadow: on
+// cornell-blocks the direct light on the floor read 10% too bright at
+// resolution 64, the blocks' shadows half gone. A weighted share of the
+// four pixels (percentage-closer filtering) measured as accurate but cost
+// four texture loads per receiver and shooter, twice the reconstruction
+// time on lavapipe.
+fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, id: u32) -> f32 {
     let face = face_of(s, d);
     let l = face_local(s, face, d);
     if (l.z <= 0.0) {
@@ -170,72 +161,35 @@ fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, nx: vec3<f32>, 
     }
     let res = f32(batch.resolution);
     let ndc = l.xy / l.z;
-    let p = vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res) - vec2<f32>(0.5);
-    let base = vec2<i32>(floor(p));
-    let f = p - floor(p);
+    let p = vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res);
     let last = i32(batch.resolution) - 1;
+    let q = clamp(vec2<i32>(floor(p)), vec2<i32>(0), vec2<i32>(last));
     let origin = vec2<i32>(i32(face * batch.resolution), i32(slot * batch.resolution));
-    let axes = face_axes(s, face);
-    // A surface nearer than `reach` can occlude: the point's own surface
-    // varies by about a pixel footprint in distance across the four pixels,
-    // and the footprint grows as the ray grazes it.
-    let dist = length(d);
-    let grazing = max(abs(dot(d, nx)) / dist, 0.1);
-    let reach = dist * (1.0 - DEPTH_SLACK * 2.0 / (res * grazing));
-    // Within this of a plane counts as on it.
-    let lift = batch.near;
-    let shooter_patch = bitcast<u32>(s.n.w);
-    var seen = 0.0;
-    for (var j = 0; j < 2; j++) {
-        for (var i = 0; i < 2; i++) {
-            let q = clamp(base + vec2<i32>(i, j), vec2<i32>(0), vec2<i32>(last));
-            let texel = textureLoad(item, origin + q, 0);
-            // The shooter's own (planar) patch occludes nothing in front of it.
-            var shows = texel.r == id || texel.r == shooter_patch || texel.r == NO_PATCH;
-            if (!shows) {
-                let distance = bitcast<f32>(texel.g);
-                // The surface point the pixel shows, through its centre,
-                // and the plane it lies in.
-                let c = (vec2<f32>(q) + vec2<f32>(0.5)) / res;
-                let ray = normalize(axes * vec3<f32>(c.x * 2.0 - 1.0, 1.0 - c.y * 2.0, 1.0));
-                let hit = s.eye.xyz + ray * distance;
-                let nxy = unpack2x16snorm(texel.b);
-                let np = vec3<f32>(nxy, sqrt(max(1.0 - dot(nxy, nxy), 0.0)));
-                let owner = bitcast<u32>(elements[patches[texel.r].first].lookup.w);
-                if ((object_flags[owner] & OBJECT_MOVING) == 0u) {
-                    // A static patch is where the buffer drew it: ask
-                    // whether it really lies across the segment.
-                    shows = !crosses(texel.r, s.eye.xyz, x);
-                } else {
-                    // A moving patch may have been drawn at its old pose
-                    // (redistribution renders both): judge by the plane
-                    // and distance of what the pixel shows, the same way
-                    // at both poses so that what did not change cancels.
-                    let side_eye = dot(s.eye.xyz - hit, np);
-                    let side_x = dot(x - hit, np);
-                    let separates = (side_eye > lift && side_x < -lift) || (side_eye < -lift && side_x > lift);
-                    shows = !separates || distance >= reach;
-                }
-            }
-            if (shows) {
-                seen += select(1.0 - f.x, f.x, i == 1) * select(1.0 - f.y, f.y, j == 1);
-            }
-        }
+    let shown = textureLoad(item, origin + q, 0).r;
+    // The shooter's own (planar) patch occludes nothing in front of it.
+    if (shown == id || shown == NO_PATCH || shown == bitcast<u32>(s.n.w)) {
+        return 1.0;
     }
-
-    return seen;
+    // Another patch: it occludes only if, placed as the buffer drew it
+    // (redistribution draws old-pose buffers too), it really lies across
+    // the segment from the eye to `x`.
+    let pose_base = select(0u, arrayLength(&poses) / 2u, slot >= batch.old_from_slot);
+    return select(1.0, 0.0, crosses(shown, pose_base, s.eye.xyz, x));
 }
 
-// Whether patch `p`, at the current poses, crosses the open segment from
-// `a` to `b` (short of `b` by a hair, so that a receiver on the patch's
-// plane or on its edge is not occluded by it). The patch's parallelogram is
-// rebuilt from its three corner elements: their samples sit CORNER_OFFSET of
-// a cell inside the corners (server/src/atlas.rs).
-fn crosses(p: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
+// Whether patch `p`, placed by the pose set starting at `pose_base` in
+// `poses`, crosses the open segment from `a` to `b` (short of `b` by a
+// hair, so that a receiver on the patch's plane or on its edge is not
+// occluded by it). The patch's parallelogram is rebuilt from its three
+// corner elements in object space: their samples sit CORNER_OFFSET of a
+// cell inside the corners (server/src/atlas.rs).
+fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     let r = patches[p];
-    let e00 = elements[r.first].position.xyz;
-    let e10 = elements[r.first + r.w - 1u].position.xyz;
-    let e01 = elements[r.first + (r.h - 1u) * r.w].position.xyz;
+    let first = local_elements[r.first];
+    let m = poses[pose_base + bitcast<u32>(first.lookup.w)];
+    let e00 = (m * vec4<f32>(first.position.xyz, 1.0)).xyz;
+    let e10 = (m * vec4<f32>(local_elements[r.first + r.w - 1u].position.xyz, 1.0)).xyz;
+    let e01 = (m * vec4<f32>(local_elements[r.first + (r.h - 1u) * r.w].position.xyz, 1.0)).xyz;
     let cu = (e10 - e00) / (f32(r.w - 1u) - 2.0 * CORNER_OFFSET);
     let cv = (e01 - e00) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
     let o = e00 - (cu + cv) * CORNER_OFFSET;
@@ -257,17 +211,12 @@ fn crosses(p: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     return su > 0.0 && su < 1.0 && sv > 0.0 && sv < 1.0;
 }
 
-// `albedo.w` of an element holds two flags (server/src/gpu/progressive.rs,
-// `element_flags`): 1 = invalid (inside or under geometry,
-// server/src/validity.rs: it receives nothing), 2 = on its patch's boundary
-// (`visibility` treats it leniently).
+// `albedo.w` of an element is 1 when it is invalid (inside or under
+// geometry, server/src/validity.rs): it receives nothing.
 fn is_invalid(el: Element) -> bool {
     return (u32(el.albedo.w) & 1u) != 0u;
 }
 
-fn on_edge(el: Element) -> bool {
-    return (u32(el.albedo.w) & 2u) != 0u;
-}
 
 // Exact unoccluded form factor from the point `x` (normal `nx`) to the
 // shooter's parallelogram, clipped to the upper hemisphere of `x`
@@ -380,7 +329,6 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let x = el.position.xyz;
     let nx = el.normal.xyz;
-    let edge = on_edge(el);
     var h = vec3<f32>(0.0);
     for (var k = 0u; k < batch.shooters; k++) {
         let s = shooters[k];
@@ -389,7 +337,7 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
             continue;
         }
-        let v = visibility(k, s, el.lookup.xyz - s.eye.xyz, x, nx, id, edge);
+        let v = visibility(k, s, el.lookup.xyz - s.eye.xyz, x, id);
         if (v <= 0.0) {
             continue;
         }

@@ -282,7 +282,6 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x = el.position.xyz;
     let nx = el.normal.xyz;
     let d = el.lookup.xyz;
-    let edge = on_edge(el);
     var h = vec3<f32>(0.0);
     if (kind == KIND_NEGATIVE) {
         // R_p(M, C), first part: -B^s_M with the old form factors.
@@ -292,7 +291,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
         for (var k = 0u; k < n; k++) {
             let s = shooters[k];
             if (dot(x - s.corner.xyz, s.n.xyz) > 0.0) {
-                let v = visibility(k, s, d - s.eye.xyz, x, nx, id, edge);
+                let v = visibility(k, s, d - s.eye.xyz, x, id);
                 if (v > 0.0) {
                     h += energy[k].rgb * (v * form_factor(s, x, nx));
                 }
@@ -308,7 +307,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                 continue;
             }
             let dir = d - s.eye.xyz;
-            let seen_new = visibility(k, s, dir, x, nx, id, edge);
+            let seen_new = visibility(k, s, dir, x, id);
             var r = vec3<f32>(0.0);
             if (moving) {
                 // R_p(C, M) by reshooting: the total radiosity (eq. 4.4.1).
@@ -318,7 +317,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                 // 25-33 (seen at both poses: B^u; only at the new: B^u +
                 // B^s; only at the old: -B^s; neither: nothing), written
                 // for fractional visibility.
-                let seen_old = visibility(n + k, s, dir, x, nx, id, edge);
+                let seen_old = visibility(n + k, s, dir, x, id);
                 r = seen_new * (energy[k].rgb + energy[n + k].rgb) - seen_old * energy[n + k].rgb;
             }
             if (all(r == vec3<f32>(0.0))) {
@@ -348,7 +347,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                 if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
                     continue;
                 }
-                let v = visibility(q, s, d - s.eye.xyz, x, nx, id, edge);
+                let v = visibility(q, s, d - s.eye.xyz, x, id);
                 if (v <= 0.0) {
                     continue;
                 }

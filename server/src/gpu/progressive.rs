@@ -257,7 +257,7 @@ pub(super) fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec
 }
 
 /// A hemicube render pipeline of hemicube.wgsl: item buffers
-/// (`vs_main`/`fs_main`, Rgba32Uint: id, distance, plane normal) or shot radiosity (`vs_rad`/`fs_rad`,
+/// (`vs_main`/`fs_main`, R32Uint) or shot radiosity (`vs_rad`/`fs_rad`,
 /// Rgba16Float, optionally multisampled as a blur, thesis §4.5.2).
 fn hemicube_pipeline(
     device: &wgpu::Device,
@@ -334,8 +334,6 @@ pub struct ProgressiveSolver {
     /// Elements inside or under geometry at `poses` (crate::validity):
     /// they do not receive, and shooters look from their tiles' valid part.
     validity: Validity,
-    /// Elements on their patch's boundary.
-    edge: Vec<bool>,
     /// The scene and atlas, to re-test validity after a move.
     scene: Scene,
     atlas: Atlas,
@@ -570,16 +568,6 @@ impl ProgressiveSolver {
         }
 
         let validity = Validity::compute(scene, atlas, poses);
-        // Samples on their patch's boundary (`visibility` in progressive.wgsl).
-        let edge: Vec<bool> = atlas
-            .elements
-            .iter()
-            .map(|e| {
-                let c = atlas.charts[e.patch as usize];
-                let (a, b) = (e.texel[0] - c.x, e.texel[1] - c.y);
-                a == 0 || b == 0 || a + 1 == c.w || b + 1 == c.h
-            })
-            .collect();
         let mut locals = Vec::with_capacity(n);
         let mut local_areas = Vec::with_capacity(n);
         let mut element_objects = Vec::with_capacity(n);
@@ -605,7 +593,7 @@ impl ProgressiveSolver {
                 position: v4(sample, e.area),
                 normal: v4(normal, f32::from_bits(e.patch)),
                 lookup: v4(lookup, f32::from_bits(e.object)),
-                albedo: v4(e.albedo, element_flags(validity.is_invalid(i), edge[i])),
+                albedo: v4(e.albedo, invalid_flag(validity.is_invalid(i))),
                 // Receiving points are moved a hair towards the patch centre
                 // and off the surface (like the reference solver's offset).
                 nudge: v4(
@@ -758,7 +746,7 @@ impl ProgressiveSolver {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba32Uint,
+            format: wgpu::TextureFormat::R32Uint,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
             view_formats: &[],
         });
@@ -813,6 +801,8 @@ impl ProgressiveSolver {
                 (9, b(&batch)),
                 (10, wgpu::BindingResource::TextureView(&item_view)),
                 (11, b(&flags_buffer)),
+                (12, b(&pose_buffer)),
+                (13, b(&local_buffer)),
             ],
         );
         let patch_power_pass = compute(
@@ -847,7 +837,7 @@ impl ProgressiveSolver {
             &device,
             &hemicube_module,
             ("vs_main", "fs_main"),
-            wgpu::TextureFormat::Rgba32Uint,
+            wgpu::TextureFormat::R32Uint,
             1,
         );
         let hemicube_group = bind(
@@ -873,7 +863,6 @@ impl ProgressiveSolver {
             patches,
             poses: poses.to_vec(),
             validity,
-            edge,
             scene: scene.clone(),
             atlas: atlas.clone(),
             absent,
@@ -1074,7 +1063,7 @@ impl ProgressiveSolver {
         for i in 0..before.mask().len() {
             let now = self.validity.is_invalid(i);
             if now != before.is_invalid(i) {
-                let flag = element_flags(now, self.edge[i]).to_le_bytes();
+                let flag = invalid_flag(now).to_le_bytes();
                 // albedo.w of LocalElement (80 bytes) and of Element (64).
                 self.queue.write_buffer(
                     &self.buffers.local_elements,
@@ -1340,8 +1329,7 @@ impl ProgressiveSolver {
             &self.depth_view,
             wgpu::Color {
                 r: f64::from(NO_PATCH),
-                // Nothing there: no occluder at any distance.
-                g: f64::from(f32::MAX.to_bits()),
+                g: 0.0,
                 b: 0.0,
                 a: 0.0,
             },
@@ -1442,11 +1430,10 @@ impl ProgressiveSolver {
 }
 
 /// Waits for the GPU and copies a mappable buffer's contents out.
-/// `albedo.w` of an element: 1 when it is invalid (progressive.wgsl skips
-/// it when receiving) plus 2 when its sample lies on its patch's boundary
-/// (`is_invalid` and `on_edge` in progressive.wgsl).
-fn element_flags(invalid: bool, edge: bool) -> f32 {
-    f32::from(u8::from(invalid) + 2 * u8::from(edge))
+/// `albedo.w` of an element: 1 when it is invalid (`is_invalid` in
+/// progressive.wgsl: it receives nothing).
+fn invalid_flag(invalid: bool) -> f32 {
+    if invalid { 1.0 } else { 0.0 }
 }
 
 pub(super) fn map_read(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {

@@ -345,6 +345,8 @@ impl ProgressiveSolver {
                 (9, b(&self.batch)),
                 (10, wgpu::BindingResource::TextureView(&self.item_view)),
                 (11, b(&self.flags_buffer)),
+                (12, b(&self.pose_buffer)),
+                (13, b(&bufs.local_elements)),
                 (18, wgpu::BindingResource::TextureView(&back_view)),
                 (19, wgpu::BindingResource::Sampler(&sampler)),
                 (20, b(&back_shooters)),

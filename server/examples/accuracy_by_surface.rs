@@ -1,0 +1,141 @@
+//! Where a GPU solver deviates from the reference, surface by surface.
+//!
+//! ```text
+//! cargo run --release -p lightwire-server --example accuracy_by_surface -- \
+//!     scenes/cornell-blocks.json [--density-scale 0.5] [--direct] [--gather]
+//! ```
+//!
+//! Solves the scene with the reference solver and with the progressive (or,
+//! with `--gather`, the gather) GPU solver, then prints the metric of
+//! `metrics::accuracy` over the visible elements (those not inside or under
+//! geometry), the energy balance, and per surface the ratio of the
+//! area-weighted mean radiosity per channel and the surface's own NRMSE and
+//! p95. A channel-dependent ratio points at bounces (the channel with the
+//! highest albedo gathers the most of them); a surface far off while its
+//! neighbours are right points at visibility.
+//!
+//! `--direct` compares the first shot only: the progressive solver stops
+//! after its first batch (the brightest emitter's shot) and the reference
+//! does no Jacobi sweep, so both hold emission plus direct light. The
+//! numbers of BENCHMARKS.md's "Where the GPU solvers deviate" come from
+//! here.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use glam::DVec3;
+use lightwire_server::atlas::Atlas;
+use lightwire_server::gpu;
+use lightwire_server::metrics::accuracy_where;
+use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
+use lightwire_server::scene::{LoadOptions, Scene};
+use lightwire_server::validity::Validity;
+
+fn main() -> Result<()> {
+    let mut scene_path = None;
+    let (mut density, mut direct, mut gather) = (1.0f32, false, false);
+    let mut args = std::env::args().skip(1);
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--density-scale" => {
+                let v = args.next().context("--density-scale needs a number")?;
+                density = v.parse().with_context(|| format!("--density-scale {v}"))?;
+            }
+            "--direct" => direct = true,
+            "--gather" => gather = true,
+            flag if flag.starts_with("--") => bail!("unknown option {flag}"),
+            path => scene_path = Some(PathBuf::from(path)),
+        }
+    }
+    let path = scene_path.context(
+        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather]",
+    )?;
+    let scene = Scene::load_with(
+        &path,
+        LoadOptions {
+            density_scale: density,
+        },
+    )?;
+    let atlas = Atlas::build(&scene).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let poses = scene.initial_poses();
+    let validity = Validity::compute(&scene, &atlas, &poses);
+    eprintln!(
+        "{}: {} elements, {} invalid",
+        scene.name,
+        atlas.elements.len(),
+        validity.count()
+    );
+
+    let reference = ReferenceSolver::new(&scene, &atlas, &poses, &Silent)?;
+    let options = SolveOptions {
+        tolerance: 1e-6,
+        max_iterations: if direct {
+            0
+        } else {
+            SolveOptions::default().max_iterations
+        },
+    };
+    let expected = reference.solve(options, &Silent).radiosity;
+
+    let device = gpu::Device::new(None)?;
+    let values = if gather {
+        let mut solver =
+            gpu::GatherSolver::new(&device, &scene, &atlas, &poses, Default::default())?;
+        solver.solve(1e-4)?;
+        solver.radiosity()?
+    } else {
+        let mut solver = gpu::ProgressiveSolver::new(
+            &device,
+            &scene,
+            &atlas,
+            &poses,
+            gpu::ProgressiveOptions::default(),
+        )?;
+        if direct {
+            solver.step(std::time::Duration::ZERO)?;
+        } else {
+            solver.solve(1e-4)?;
+        }
+        let balance = solver.energy_balance()?;
+        println!(
+            "energy: shot {:.3} W, received {:.3} W ({:.4} of shot)",
+            balance.shot,
+            balance.received,
+            balance.received / balance.shot
+        );
+        solver.radiosity()?
+    };
+
+    let overall = accuracy_where(&atlas, &values, &expected, validity.keep())
+        .context("nothing lit to compare")?;
+    println!("overall: {overall}");
+    println!("surface | mean reference (r, g, b) | ratio (r, g, b) | surface accuracy");
+    for (p, patch) in scene.patches.iter().enumerate() {
+        let range = atlas.elements_of(p as u32);
+        let (mut got, mut want) = (DVec3::ZERO, DVec3::ZERO);
+        let mut area = 0.0;
+        for i in range.clone().filter(|&i| !validity.is_invalid(i)) {
+            let a = f64::from(atlas.elements[i].area);
+            got += values[i].as_dvec3() * a;
+            want += expected[i].as_dvec3() * a;
+            area += a;
+        }
+        let mean = want / area.max(1e-30);
+        let ratio = got / want;
+        let own = accuracy_where(&atlas, &values, &expected, |i| {
+            range.contains(&i) && !validity.is_invalid(i)
+        });
+        println!(
+            "{:<20} | {:.3} {:.3} {:.3} | {:.4} {:.4} {:.4} | {}",
+            patch.name,
+            mean.x,
+            mean.y,
+            mean.z,
+            ratio.x,
+            ratio.y,
+            ratio.z,
+            own.map_or_else(|| "-".to_string(), |a| a.to_string())
+        );
+    }
+    Ok(())
+}
