@@ -310,10 +310,17 @@ struct StderrProgress {
     last_decile: AtomicUsize,
 }
 
+impl StderrProgress {
+    /// The decile `done` of `total` reached, if it is a new one.
+    fn new_decile(&self, done: usize, total: usize) -> Option<usize> {
+        let decile = done * 10 / total.max(1);
+        (self.last_decile.fetch_max(decile, Ordering::Relaxed) < decile).then_some(decile)
+    }
+}
+
 impl pathtrace::Progress for StderrProgress {
     fn points(&self, done: usize, total: usize) {
-        let decile = done * 10 / total.max(1);
-        if self.last_decile.fetch_max(decile, Ordering::Relaxed) < decile {
+        if let Some(decile) = self.new_decile(done, total) {
             eprintln!(
                 "  path tracing: {:3}% ({done}/{total} elements, {:.1} s)",
                 decile * 10,
@@ -325,8 +332,7 @@ impl pathtrace::Progress for StderrProgress {
 
 impl reference::Progress for StderrProgress {
     fn form_factors(&self, done: usize, total: usize) {
-        let decile = done * 10 / total.max(1);
-        if self.last_decile.fetch_max(decile, Ordering::Relaxed) < decile {
+        if let Some(decile) = self.new_decile(done, total) {
             eprintln!(
                 "  form factors: {:3}% ({done}/{total} rows, {:.1} s)",
                 decile * 10,

@@ -294,14 +294,8 @@ impl Raycaster {
         loop {
             let node = &self.nodes[current as usize];
             if node.count > 0 {
-                let first = node.first as usize;
-                for &id in &self.order[first..first + node.count as usize] {
-                    if let Some(t) = self.patches[id as usize].intersect(origin, dir, *limit) {
-                        *limit = t;
-                        if on_hit(id, t) {
-                            return;
-                        }
-                    }
+                if self.visit_leaf(node, origin, dir, limit, &mut on_hit) {
+                    return;
                 }
             } else {
                 let (left, right) = (current + 1, node.right);
@@ -351,6 +345,28 @@ impl Raycaster {
         }
     }
 
+    /// Tests the patches of leaf `node`, shortening `limit` to every hit;
+    /// true when `on_hit` asks to stop.
+    fn visit_leaf(
+        &self,
+        node: &Node,
+        origin: DVec3,
+        dir: DVec3,
+        limit: &mut f64,
+        on_hit: &mut impl FnMut(u32, f64) -> bool,
+    ) -> bool {
+        let first = node.first as usize;
+        for &id in &self.order[first..first + node.count as usize] {
+            if let Some(t) = self.patches[id as usize].intersect(origin, dir, *limit) {
+                *limit = t;
+                if on_hit(id, t) {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
     /// Tests every patch under `node` (the stack-overflow fallback).
     fn visit_all(
         &self,
@@ -362,15 +378,7 @@ impl Raycaster {
     ) {
         let n = &self.nodes[node as usize];
         if n.count > 0 {
-            let first = n.first as usize;
-            for &id in &self.order[first..first + n.count as usize] {
-                if let Some(t) = self.patches[id as usize].intersect(origin, dir, *limit) {
-                    *limit = t;
-                    if on_hit(id, t) {
-                        return;
-                    }
-                }
-            }
+            self.visit_leaf(n, origin, dir, limit, on_hit);
         } else {
             self.visit_all(node + 1, origin, dir, limit, on_hit);
             self.visit_all(n.right, origin, dir, limit, on_hit);
