@@ -11,10 +11,10 @@
 //! by splitting the primitives at the median centroid along the longest
 //! axis of their centroid bounds; leaves hold up to [`LEAF_SIZE`] patches.
 //! Traversal visits the nearer child first and skips every box that starts
-//! beyond the closest hit found so far. The path tracer
-//! ([`crate::pathtrace`]) is its user; the reference solver keeps its own
-//! shadow-ray hierarchy (`reference/bvh.rs`) so that the two oracles share
-//! no code.
+//! beyond the closest hit found so far. Its users are the path tracer
+//! ([`crate::pathtrace`]) and the contact test of [`crate::validity`]; the
+//! reference solver keeps its own shadow-ray hierarchy (`reference/bvh.rs`)
+//! so that the two oracles share no code.
 //!
 //! Today every patch is a parallelogram ([`PatchShape::Quad`]); a new shape
 //! adds an arm to [`WorldPatch::new`] and an intersection routine here.
