@@ -42,9 +42,21 @@ impl Pose {
     /// Largest accepted deviation of `|rotation|` from 1.
     pub const ROTATION_TOLERANCE: f64 = 1e-3;
 
-    /// Checks what the codec cannot: every number finite, the rotation a unit
-    /// quaternion within [`Pose::ROTATION_TOLERANCE`], the scale positive.
-    /// The server answers a failing transform with
+    /// Largest accepted magnitude of each translation component, in scene
+    /// units (metres): 100 km. Beyond it, squared distances and the
+    /// products of the solver's `f32` arithmetic lose the precision light
+    /// needs (a translation of 1e30 squares to infinity).
+    pub const MAX_TRANSLATION: f32 = 1e5;
+
+    /// Accepted range of the uniform scale, both ends included: an object
+    /// may shrink or grow a thousandfold, not to a point or past the
+    /// precision of element areas (which scale with its square).
+    pub const SCALE_RANGE: (f32, f32) = (1e-3, 1e3);
+
+    /// Checks what the codec cannot: every number finite, each translation
+    /// component within [`Pose::MAX_TRANSLATION`], the rotation a unit
+    /// quaternion within [`Pose::ROTATION_TOLERANCE`], the scale within
+    /// [`Pose::SCALE_RANGE`]. The server answers a failing transform with
     /// [`ErrorCode::InvalidPose`] and the returned reason.
     pub fn validate(&self) -> Result<(), &'static str> {
         if !self.translation.iter().all(|v| v.is_finite()) {
@@ -58,6 +70,16 @@ impl Pose {
         }
         if self.scale <= 0.0 {
             return Err("scale is not positive");
+        }
+        if self
+            .translation
+            .iter()
+            .any(|v| v.abs() > Self::MAX_TRANSLATION)
+        {
+            return Err("translation is out of range (each component at most 1e5 in magnitude)");
+        }
+        if self.scale < Self::SCALE_RANGE.0 || self.scale > Self::SCALE_RANGE.1 {
+            return Err("scale is out of range (1e-3 to 1e3)");
         }
         let norm = self
             .rotation

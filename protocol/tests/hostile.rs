@@ -316,3 +316,37 @@ proptest! {
         }
     }
 }
+
+/// PROTOCOL.md §2: a varint may use a longer form than the shortest (bincode
+/// 2.0.1 reads `FB 05 00` as 5), but never a form wider than its field's
+/// type, even when the value would fit.
+#[test]
+fn a_varint_wider_than_its_field_is_refused_even_when_the_value_fits() {
+    // Ping { nonce: u64 } is variant 3; its nonce accepts every form.
+    assert_eq!(
+        decode_client(&[0x03, 0xfd, 5, 0, 0, 0, 0, 0, 0, 0]).expect("u64 in FD form"),
+        ClientMessage::Ping { nonce: 5 }
+    );
+    // Transform { object: u32, .. } is variant 1: object 5 in the u16 and
+    // u32 forms decodes, in the u64 form it is malformed.
+    let pose = [0u8; 32];
+    let transform = |object: &[u8]| {
+        let mut frame = vec![0x01];
+        frame.extend_from_slice(object);
+        frame.push(7); // seq
+        frame.extend_from_slice(&pose);
+        frame.push(0); // client_time_us
+        frame
+    };
+    for object in [&[5u8][..], &[0xfb, 5, 0], &[0xfc, 5, 0, 0, 0]] {
+        match decode_client(&transform(object)) {
+            Ok(ClientMessage::Transform {
+                object: 5, seq: 7, ..
+            }) => {}
+            other => panic!("{object:02x?}: {other:?}"),
+        }
+    }
+    let err = decode_client(&transform(&[0xfd, 5, 0, 0, 0, 0, 0, 0, 0]))
+        .expect_err("a u64-form varint in a u32 field");
+    assert_eq!(err.code(), ErrorCode::BadFrame, "{err}");
+}

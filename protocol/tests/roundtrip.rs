@@ -202,3 +202,33 @@ proptest! {
         prop_assert_eq!(encode_server(&decode_server(&bytes).unwrap()), bytes);
     }
 }
+
+/// PROTOCOL.md §4: extreme but finite poses are refused, the bounds
+/// themselves accepted.
+#[test]
+fn poses_beyond_the_stated_bounds_are_invalid() {
+    let at = |translation: [f32; 3], scale: f32| Pose {
+        translation,
+        scale,
+        ..Pose::IDENTITY
+    };
+    let max = Pose::MAX_TRANSLATION;
+    let (lo, hi) = Pose::SCALE_RANGE;
+    for ok in [
+        at([max, -max, 0.0], 1.0),
+        at([0.0; 3], lo),
+        at([0.0; 3], hi),
+    ] {
+        assert_eq!(ok.validate(), Ok(()), "{ok:?}");
+    }
+    for bad in [
+        at([1e30, 0.0, 0.0], 1.0),
+        at([0.0, 0.0, -1.0001e5], 1.0),
+        at([0.0; 3], 1e-30),
+        at([0.0; 3], 0.999e-3),
+        at([0.0; 3], 1.001e3),
+        at([0.0; 3], f32::MAX),
+    ] {
+        assert!(bad.validate().is_err(), "{bad:?} must be refused");
+    }
+}

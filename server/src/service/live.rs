@@ -86,6 +86,9 @@ impl LiveSolver for ReferenceLive {
         if poses != self.poses.as_slice() {
             self.poses = poses.to_vec();
             self.dirty = true;
+        } else if !self.dirty {
+            // Nothing moved: the current state already reflects these seqs.
+            self.reflected = self.seqs.clone();
         }
     }
 
@@ -191,10 +194,12 @@ impl LiveSolver for GpuLive {
     fn step(&mut self, budget: Duration) -> StepReport {
         let started = Instant::now();
         let mut completed = false;
+        let mut idle_echo = false;
         let mut redistribution = Duration::ZERO;
         match self.session.step(budget) {
             Ok(step) => {
                 redistribution = step.redistribution;
+                idle_echo = !step.completed;
                 if step.completed {
                     match self.session.radiosity() {
                         Ok(mut r) => {
@@ -213,6 +218,12 @@ impl LiveSolver for GpuLive {
                 }
             }
             Err(e) => tracing::error!("GPU solver step failed: {e}"),
+        }
+        if idle_echo && self.session.reflected() != self.reflected.as_slice() {
+            // The session took a transform that changed no pose as
+            // reflected by the state it already has (it completes nothing
+            // for it), so the last state reflects it too.
+            self.reflected = self.session.reflected().to_vec();
         }
         StepReport {
             completed,

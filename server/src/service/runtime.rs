@@ -269,21 +269,25 @@ impl TickLoop {
                 self.solver.set_poses(&self.poses, &self.seqs);
             }
             let report = self.solver.step(self.budget);
-            if report.completed {
+            // Echo the seqs newly reflected since the previous version. A
+            // transform that changed nothing (the pose the object already
+            // had) is reflected at once without new light; it still gets a
+            // version, with no tiles, so that every accepted seq is echoed
+            // (PROTOCOL.md §3, `reflected`).
+            let solved = self.solver.reflected();
+            let reflected: Vec<ObjectSeq> = solved
+                .iter()
+                .zip(&published_seqs)
+                .enumerate()
+                .filter(|(_, (now, before))| now > before)
+                .map(|(object, (seq, _))| ObjectSeq {
+                    object: object as u32,
+                    seq: *seq,
+                })
+                .collect();
+            if report.completed || !reflected.is_empty() {
+                published_seqs = solved.to_vec();
                 let image = self.runtime.atlas.to_image(self.solver.radiosity());
-                // Echo the seqs newly reflected since the previous version.
-                let solved = self.solver.reflected().to_vec();
-                let reflected: Vec<ObjectSeq> = solved
-                    .iter()
-                    .zip(&published_seqs)
-                    .enumerate()
-                    .filter(|(_, (now, before))| now > before)
-                    .map(|(object, (seq, _))| ObjectSeq {
-                        object: object as u32,
-                        seq: *seq,
-                    })
-                    .collect();
-                published_seqs = solved;
                 let delta = self.encoder.publish(&image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();
