@@ -578,7 +578,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
             ErrorCode::BadFrame,
             ErrorCode::UnknownObject,
             ErrorCode::InvalidPose,
-            ErrorCode::ProtocolViolation
+            ErrorCode::BadFrame
         ]
     );
 
@@ -694,4 +694,328 @@ async fn sigterm_closes_connections_and_exits_cleanly() {
     assert!(closed, "connection closed on shutdown");
     let exit = server.child.wait().expect("exits");
     assert!(exit.success(), "clean exit: {exit}");
+}
+
+impl Client {
+    /// Reads (recording errors) until the server closes; returns the close
+    /// code, or `None` if the connection ended without a close frame.
+    async fn read_to_close(&mut self, limit: Duration) -> Option<u16> {
+        let deadline = Instant::now() + limit;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(!left.is_zero(), "the server never closed");
+            match tokio::time::timeout(left, self.ws.next()).await {
+                Ok(Some(Ok(Message::Close(frame)))) => return frame.map(|f| u16::from(f.code)),
+                Ok(Some(Ok(Message::Binary(bytes)))) => {
+                    if let Ok(ServerMessage::Error { code, message }) = decode_server(&bytes) {
+                        self.errors.push((code, message));
+                    }
+                }
+                Ok(Some(Ok(_))) => {}
+                Ok(None) | Ok(Some(Err(_))) => return None,
+                Err(_) => panic!("the server never closed"),
+            }
+        }
+    }
+}
+
+/// PROTOCOL.md §1.7: every accepted transform is reflected by a
+/// publication, also one that changes nothing (a delta without tiles), so
+/// a driver waiting for its seq never waits forever and a second driver
+/// can continue from the keyframe's seqs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_transform_that_changes_nothing_is_still_echoed() {
+    // Both backends: each decides on its own that nothing moved.
+    for solver in ["reference", "progressive"] {
+        echo_of_an_unchanged_pose(solver).await;
+    }
+}
+
+async fn echo_of_an_unchanged_pose(solver: &str) {
+    let server = Server::start_with(&[], solver);
+    let url = server.ws_url();
+    wait_ready(&server).await;
+    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    let transform = |seq| ClientMessage::Transform {
+        object: 1,
+        seq,
+        pose: pose_at(4),
+        client_time_us: 0,
+    };
+    driver.send(&transform(10)).await;
+    settled_version(&server, 10, &mut driver).await;
+    let before = driver.map.as_ref().expect("a lightmap").to_rgb();
+    let version = driver.version();
+
+    // The same pose again, with newer seqs: each is echoed in a version
+    // of its own within a tick or two, and the light does not change.
+    for seq in [11, 12] {
+        driver.send(&transform(seq)).await;
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while driver.reflected.get(&1) != Some(&seq) {
+            assert!(
+                Instant::now() < deadline,
+                "{solver}: seq {seq} with an unchanged pose was never echoed"
+            );
+            assert!(driver.read_one(Duration::from_secs(5)).await);
+        }
+    }
+    assert!(driver.version() > version, "the echoes are versions");
+    assert_eq!(
+        driver.map.as_ref().expect("a lightmap").to_rgb(),
+        before,
+        "nothing moved, so no texel changed"
+    );
+    assert!(driver.errors.is_empty(), "{:?}", driver.errors);
+
+    // A second driver learns where to continue from its keyframe.
+    let mut second = Client::connect(&url, DRIVER_TOKEN).await;
+    while second.keyframes == 0 {
+        assert!(second.read_one(Duration::from_secs(10)).await);
+    }
+    let latest = *second
+        .reflected
+        .get(&1)
+        .expect("the keyframe lists object 1");
+    assert_eq!(latest, 12);
+    second.send(&transform(latest + 1)).await;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while second.reflected.get(&1) != Some(&(latest + 1)) {
+        assert!(
+            Instant::now() < deadline,
+            "the continued seq was never echoed"
+        );
+        assert!(second.read_one(Duration::from_secs(5)).await);
+    }
+    assert!(second.errors.is_empty(), "{:?}", second.errors);
+}
+
+/// PROTOCOL.md §7: a client frame over `max_message_bytes` (4096 by
+/// default) gets `Error TooLarge` (2) and close 1009, before and after
+/// `Hello`; other clients are undisturbed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_oversized_frame_gets_too_large_and_close_1009() {
+    let server = Server::start();
+    let url = server.ws_url();
+    wait_ready(&server).await;
+    let mut bystander = Client::connect(&url, VIEWER_TOKEN).await;
+
+    for (size, after_hello) in [(4097, true), (1 << 20, true), (5000, false)] {
+        let mut client = if after_hello {
+            Client::connect(&url, DRIVER_TOKEN).await
+        } else {
+            let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
+                .await
+                .expect("connects");
+            Client::unhandshaken(ws)
+        };
+        // Whether the send completes depends on how much the server read
+        // before it closed; the reply is what matters.
+        let _ = client
+            .ws
+            .send(Message::Binary(vec![0u8; size].into()))
+            .await;
+        let code = client.read_to_close(Duration::from_secs(10)).await;
+        let codes: Vec<_> = client.errors.iter().map(|(c, _)| *c).collect();
+        assert_eq!(codes, vec![ErrorCode::TooLarge], "{size} bytes");
+        assert_eq!(code, Some(1009), "{size} bytes");
+    }
+    // A frame of exactly the limit is read (and refused as malformed).
+    let mut client = Client::connect(&url, DRIVER_TOKEN).await;
+    client
+        .ws
+        .send(Message::Binary(vec![0xee; 4096].into()))
+        .await
+        .expect("send");
+    while client.errors.is_empty() {
+        assert!(client.read_one(Duration::from_secs(10)).await);
+    }
+    assert_eq!(client.errors[0].0, ErrorCode::BadFrame);
+
+    let before = bystander.version();
+    bystander
+        .read_until_version(before, Duration::from_secs(5))
+        .await;
+    assert!(
+        bystander.read_one(Duration::from_secs(5)).await,
+        "still served"
+    );
+    assert!(bystander.errors.is_empty());
+}
+
+/// PROTOCOL.md §1: a text frame is a bad frame (1), first or later.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_text_frame_is_a_bad_frame() {
+    let server = Server::start();
+    let url = server.ws_url();
+    wait_ready(&server).await;
+    let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
+        .await
+        .expect("connects");
+    let mut first = Client::unhandshaken(ws);
+    first
+        .ws
+        .send(Message::Text("hello".into()))
+        .await
+        .expect("send");
+    assert_eq!(
+        first.read_to_close(Duration::from_secs(10)).await,
+        Some(1002)
+    );
+    assert_eq!(first.errors.len(), 1);
+    assert_eq!(first.errors[0].0, ErrorCode::BadFrame);
+
+    let mut later = Client::connect(&url, VIEWER_TOKEN).await;
+    later
+        .ws
+        .send(Message::Text("{}".into()))
+        .await
+        .expect("send");
+    while later.errors.is_empty() {
+        assert!(later.read_one(Duration::from_secs(10)).await);
+    }
+    assert_eq!(later.errors[0].0, ErrorCode::BadFrame);
+}
+
+/// PROTOCOL.md §1.7 and §7: every refused frame gets its Error, in order;
+/// none is dropped, neither in a flood nor before the close 1008 that the
+/// `max_bad_frames`-th bad frame earns.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn no_error_reply_is_lost() {
+    let server = Server::start();
+    let url = server.ws_url();
+    wait_ready(&server).await;
+
+    // 30 bad frames back to back: exactly 20 Errors, then close 1008.
+    let mut abuser = Client::connect(&url, DRIVER_TOKEN).await;
+    for _ in 0..30 {
+        if abuser
+            .ws
+            .send(Message::Binary(vec![0xee; 7].into()))
+            .await
+            .is_err()
+        {
+            break;
+        }
+    }
+    let code = abuser.read_to_close(Duration::from_secs(20)).await;
+    assert_eq!(code, Some(1008));
+    assert_eq!(abuser.errors.len(), 20, "{:?}", abuser.errors);
+    assert!(abuser.errors.iter().all(|(c, _)| *c == ErrorCode::BadFrame));
+
+    // A flood of transforms none of which can be accepted (the seq is not
+    // newer): one Error each, StaleSeq or RateLimited (neither counts
+    // toward closing), all before the Pong of a Ping sent after them.
+    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    let transform = |seq| ClientMessage::Transform {
+        object: 1,
+        seq,
+        pose: pose_at(2),
+        client_time_us: 0,
+    };
+    driver.send(&transform(1_000_000)).await;
+    const FLOOD: usize = 3000;
+    let frame = encode_client(&transform(5));
+    // Send and read concurrently, so that the flood is never held up by
+    // replies piling up unread on our side.
+    let (mut tx, mut rx) = driver.ws.split();
+    let sender = tokio::spawn(async move {
+        for _ in 0..FLOOD {
+            tx.feed(Message::Binary(frame.clone().into()))
+                .await
+                .expect("send");
+        }
+        let ping = encode_client(&ClientMessage::Ping { nonce: 77 });
+        tx.send(Message::Binary(ping.into())).await.expect("send");
+        tx
+    });
+    let mut errors = 0usize;
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(!left.is_zero(), "no Pong after {errors} errors");
+        match tokio::time::timeout(left, rx.next()).await {
+            Ok(Some(Ok(Message::Binary(bytes)))) => match decode_server(&bytes).expect("decodes") {
+                ServerMessage::Error { code, .. } => {
+                    assert!(
+                        matches!(code, ErrorCode::StaleSeq | ErrorCode::RateLimited),
+                        "{code:?}"
+                    );
+                    errors += 1;
+                }
+                ServerMessage::Pong { nonce } => {
+                    assert_eq!(nonce, 77);
+                    break;
+                }
+                _ => {}
+            },
+            Ok(Some(Ok(_))) => {}
+            other => panic!("connection ended after {errors} errors: {other:?}"),
+        }
+    }
+    let _sink = sender.await.expect("the flood was sent");
+    assert_eq!(
+        errors, FLOOD,
+        "one Error per refused transform, before the Pong"
+    );
+}
+
+/// PROTOCOL.md §4: extreme but finite poses are refused with InvalidPose;
+/// a pose at the bounds is accepted and lit with finite light.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
+    let server = Server::start();
+    let url = server.ws_url();
+    wait_ready(&server).await;
+    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    let far = Pose {
+        translation: [1e30, 0.0, 0.0],
+        ..pose_at(0)
+    };
+    let tiny = Pose {
+        scale: 1e-30,
+        ..pose_at(0)
+    };
+    for (seq, pose) in [(1, far), (2, tiny)] {
+        driver
+            .send(&ClientMessage::Transform {
+                object: 1,
+                seq,
+                pose,
+                client_time_us: 0,
+            })
+            .await;
+    }
+    while driver.errors.len() < 2 {
+        assert!(driver.read_one(Duration::from_secs(10)).await);
+    }
+    assert!(
+        driver
+            .errors
+            .iter()
+            .all(|(c, _)| *c == ErrorCode::InvalidPose),
+        "{:?}",
+        driver.errors
+    );
+    let edge = Pose {
+        translation: [Pose::MAX_TRANSLATION, 0.85, 2.796],
+        scale: Pose::SCALE_RANGE.1,
+        ..pose_at(0)
+    };
+    driver
+        .send(&ClientMessage::Transform {
+            object: 1,
+            seq: 3,
+            pose: edge,
+            client_time_us: 0,
+        })
+        .await;
+    let version = settled_version(&server, 3, &mut driver).await;
+    let (at, rgb) = server_state(&server).await;
+    assert_eq!(at, version);
+    assert!(
+        rgb.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+        "the light at a pose on the bounds is finite"
+    );
+    assert_eq!(driver.errors.len(), 2);
 }

@@ -9,15 +9,18 @@
 //! - the **reader** decodes client frames, checks them (role, object,
 //!   pose, seq, rate) and hands accepted poses to the scene's inbox;
 //!   anything invalid earns an `Error` frame with a code, and after
-//!   `max_bad_frames` of those the connection is closed (1008);
+//!   `max_bad_frames` of those the connection is closed (1008); a frame
+//!   over `max_message_bytes` earns `Error TooLarge` and close 1009;
 //! - the **writer** owns the socket's sink. It waits for the newest
 //!   publication and sends the delta if the client holds exactly its base,
 //!   a merged delta if it holds one of the few versions before that, else
 //!   a keyframe ([`Publication::frame_for`]). While a send is blocked on a
 //!   slow client, newer publications simply replace older ones in the
 //!   watch channel, so nothing queues. Control frames from the reader
-//!   (errors, pongs) go through a small bounded channel and are dropped,
-//!   counted, when it is full.
+//!   (errors, pongs) go through a small bounded channel; when it is full
+//!   the reader waits, so a client flooding bad frames is slowed to the
+//!   pace it reads its replies, and every refusal's `Error` arrives, in
+//!   order, before any close.
 //!
 //! A session serves a [`Feed`]: the same code serves a solver's scene
 //! (`lightwire serve`) and a relay's copy of one (`lightwire relay`).
@@ -48,6 +51,9 @@ const CLOSE_POLICY: u16 = 1008;
 const CLOSE_GOING_AWAY: u16 = 1001;
 /// Close code for a protocol error.
 const CLOSE_PROTOCOL: u16 = 1002;
+/// Close code "message too big" (RFC 6455 §7.4.1): a client frame over
+/// `max_message_bytes`, after an `Error TooLarge`.
+const CLOSE_TOO_BIG: u16 = 1009;
 /// Close code "service restart": the scene's description changed (a
 /// relay's upstream came back with another one); reconnect for a new
 /// `Welcome`.
@@ -72,6 +78,8 @@ type Sink = SplitSink<WebSocket, Message>;
 enum Control {
     Frame(Bytes),
     Resync,
+    /// A frame over the size limit arrived: refuse it and close.
+    TooLarge,
 }
 
 fn error_frame(code: ErrorCode, message: impl Into<String>) -> Bytes {
@@ -79,6 +87,31 @@ fn error_frame(code: ErrorCode, message: impl Into<String>) -> Bytes {
         code,
         message: message.into(),
     }))
+}
+
+/// Whether a read error is the WebSocket layer refusing a frame longer than
+/// `max_message_bytes`. The layer refuses it from the frame header, before
+/// reading the payload, so an oversized frame never costs its size in
+/// memory; the write half still works and can say why.
+fn is_too_large(error: &axum::Error) -> bool {
+    // axum wraps tungstenite's `Error::Capacity(MessageTooLong { .. })` in
+    // an opaque error; its text is the only stable handle on it (a test
+    // over a real socket checks that the reply is TooLarge).
+    error.to_string().contains("Message too long")
+}
+
+/// Refuses an oversized frame: `Error TooLarge` (2), then close 1009.
+async fn refuse_too_large(sink: &mut Sink, state: &Shared) {
+    state.metrics.bad_frame("too_large");
+    let frame = error_frame(
+        ErrorCode::TooLarge,
+        format!(
+            "a client frame may be at most {} bytes",
+            state.config.max_message_bytes
+        ),
+    );
+    let _ = tokio::time::timeout(Duration::from_secs(2), sink.send(Message::Binary(frame))).await;
+    close(sink, CLOSE_TOO_BIG, "frame too large").await;
 }
 
 async fn close(sink: &mut Sink, code: u16, reason: &str) {
@@ -151,17 +184,24 @@ pub async fn run(
                 return;
             }
         },
+        Ok(Some(Ok(Message::Close(_)))) | Ok(None) => return, // left without a word
         Ok(Some(Ok(_))) => {
+            // A text frame (pings and pongs are answered by the layer and
+            // never reach here as the first frame).
             metrics.bad_frame("text");
             let frame = error_frame(
-                ErrorCode::ProtocolViolation,
+                ErrorCode::BadFrame,
                 "frames must be binary; the first must be Hello",
             );
             let _ = sink.send(Message::Binary(frame)).await;
             close(&mut sink, CLOSE_PROTOCOL, "expected a binary Hello").await;
             return;
         }
-        Ok(_) => return, // closed or errored before saying anything
+        Ok(Some(Err(e))) if is_too_large(&e) => {
+            refuse_too_large(&mut sink, &state).await;
+            return;
+        }
+        Ok(Some(Err(_))) => return, // the connection failed
         Err(_) => {
             metrics.bad_frame("hello_timeout");
             close(&mut sink, CLOSE_POLICY, "no Hello in time").await;
@@ -280,20 +320,32 @@ async fn read_loop(
                 handle(&bytes, &state, &feed, &info, role, &mut rate, &control).await
             }
             Ok(Message::Text(_)) => Err((
-                ErrorCode::ProtocolViolation,
+                ErrorCode::BadFrame,
                 "text",
                 "frames must be binary".to_string(),
             )),
+            Err(e) if is_too_large(&e) => {
+                // The writer sends TooLarge and closes 1009; nothing after
+                // an oversized frame can be read reliably.
+                let _ = control.send(Control::TooLarge).await;
+                return;
+            }
             Ok(Message::Close(_)) | Err(_) => break,
             Ok(_) => Ok(()), // ping/pong handled by the WebSocket layer
         };
         if let Err((code, kind, message)) = reply {
             metrics.bad_frame(kind);
+            // Every refusal gets its Error, in order (PROTOCOL.md §1.7):
+            // waiting for room in the writer's queue slows this reader, and
+            // so the misbehaving client, down to the pace its socket takes
+            // the replies; nothing is dropped and nothing queues without
+            // bound. Only a vanished writer (connection gone) fails here.
             if control
-                .try_send(Control::Frame(error_frame(code, message)))
+                .send(Control::Frame(error_frame(code, message)))
+                .await
                 .is_err()
             {
-                metrics.bad_frame("error_frame_dropped");
+                break;
             }
             // Rate limiting and stale seqs are a client's timing, not
             // abuse; everything else counts toward closing.
@@ -382,12 +434,12 @@ async fn handle(
             }
         }
         ClientMessage::Resync { .. } => {
-            let _ = control.try_send(Control::Resync);
+            let _ = control.send(Control::Resync).await;
             Ok(())
         }
         ClientMessage::Ping { nonce } => {
             let pong = Bytes::from(encode_server(&ServerMessage::Pong { nonce }));
-            let _ = control.try_send(Control::Frame(pong));
+            let _ = control.send(Control::Frame(pong)).await;
             Ok(())
         }
         ClientMessage::Hello { .. } => Err((
@@ -462,6 +514,21 @@ async fn write_loop(
             changed = close_rx.changed() => {
                 let request = close_rx.borrow().clone();
                 if changed.is_err() || request.is_some() {
+                    // The reader has stopped: deliver the replies it queued
+                    // (the Error for the frame that ended it among them)
+                    // before the close.
+                    while let Ok(c) = control.try_recv() {
+                        match c {
+                            Control::Frame(frame) => {
+                                if !send(&mut sink, &state, frame).await { return; }
+                            }
+                            Control::TooLarge => {
+                                refuse_too_large(&mut sink, &state).await;
+                                return;
+                            }
+                            Control::Resync => {}
+                        }
+                    }
                     if let Some((code, reason)) = request {
                         if code != 1000 {
                             close(&mut sink, code, &reason).await;
@@ -477,6 +544,10 @@ async fn write_loop(
                         held = None;
                         publications.mark_changed();
                         true
+                    }
+                    Control::TooLarge => {
+                        refuse_too_large(&mut sink, &state).await;
+                        return;
                     }
                 };
                 if !ok { return; }
