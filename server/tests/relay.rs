@@ -20,9 +20,8 @@
 //! The bounds are generous on purpose (CI shares 2 cores with builds); the
 //! measured times are printed.
 
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+mod common;
+
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -36,9 +35,9 @@ use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-const DRIVER_TOKEN: &str = "driver-token-0123";
-const VIEWER_TOKEN: &str = "viewer-token-0123";
-const SCENE: &str = "cornell-low";
+use common::http;
+use common::process::{DRIVER_TOKEN, Proc, SCENE, VIEWER_TOKEN};
+
 const VIEWERS: usize = 500;
 /// Killing a relay: every one of its viewers is connected to the other
 /// relay and holds its current version within this.
@@ -47,105 +46,12 @@ const FAILOVER_BOUND: Duration = Duration::from_secs(20);
 /// this after the new solver published its first version.
 const RESYNC_BOUND: Duration = Duration::from_secs(20);
 
-/// A child process, killed on drop.
-struct Proc {
-    child: Child,
-    addr: String,
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Proc {
-    fn spawn(args: &[String], env: &[(&str, String)]) -> Proc {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
-            .args(args)
-            .env("RUST_LOG", "warn")
-            .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("lightwire starts");
-        let stdout = child.stdout.take().expect("piped stdout");
-        let mut line = String::new();
-        BufReader::new(stdout)
-            .read_line(&mut line)
-            .expect("it prints its address");
-        let addr = line
-            .split("http://")
-            .nth(1)
-            .and_then(|rest| rest.split_whitespace().next())
-            .unwrap_or_else(|| panic!("unexpected first line: {line:?}"))
-            .to_string();
-        Proc { child, addr }
-    }
-
-    /// A solver on `listen` (port 0: any) with cornell-low at a coarse
-    /// density on the CPU reference solver, which re-solves a move in well
-    /// under a second.
-    fn solver(listen: &str) -> Proc {
-        let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
-        let args = [
-            "serve",
-            "--listen",
-            listen,
-            "--density-scale",
-            "0.5",
-            "--solver",
-            "reference",
-            "--scene",
-        ]
-        .map(String::from)
-        .into_iter()
-        .chain([scene.display().to_string()])
-        .collect::<Vec<_>>();
-        Proc::spawn(&args, &[("LIGHTWIRE_TOKENS", tokens())])
-    }
-
-    /// A relay of the solver at `upstream`, presenting the driver token.
-    fn relay(upstream: &str) -> Proc {
-        let args = [
-            "relay",
-            "--listen",
-            "127.0.0.1:0",
-            "--upstream",
-            &format!("ws://{upstream}/ws/scenes/{SCENE}"),
-        ]
-        .map(String::from);
-        Proc::spawn(
-            &args,
-            &[
-                ("LIGHTWIRE_TOKENS", tokens()),
-                ("LIGHTWIRE_UPSTREAM_TOKEN", DRIVER_TOKEN.to_string()),
-            ],
-        )
-    }
-
-    fn ws_url(&self) -> String {
-        format!("ws://{}/ws/scenes/{SCENE}", self.addr)
-    }
-}
-
-fn tokens() -> String {
-    format!("driver:{DRIVER_TOKEN},viewer:{VIEWER_TOKEN}")
-}
-
-/// A minimal HTTP/1.1 GET: status and body.
+/// `GET path` with the viewer token: status and body, `None` if the
+/// process does not answer.
 async fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = TcpStream::connect(addr).await.ok()?;
-    let request = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
-    stream.write_all(request.as_bytes()).await.ok()?;
-    let mut response = Vec::new();
-    stream.read_to_end(&mut response).await.ok()?;
-    let text = String::from_utf8_lossy(&response).into_owned();
-    let status = text.split_whitespace().nth(1)?.parse().ok()?;
-    let body = text.split_once("\r\n\r\n")?.1.to_string();
-    Some((status, body))
+    let bearer = format!("Bearer {VIEWER_TOKEN}");
+    let r = http::get_with(addr, path, &[("Authorization", &bearer)]).await?;
+    Some((r.status, r.text()))
 }
 
 async fn wait_ready(addr: &str, what: &str) {
