@@ -4,7 +4,10 @@
 //! Chromium through Playwright against it. The script checks the page's
 //! contracts (no console errors, WebSocket, chart, atlas, 3D view, dragging
 //! the box changes the light) and saves screenshots to
-//! `target/dashboard-artifacts/`.
+//! `target/dashboard-artifacts/`. It runs twice: on a development server,
+//! and on a relay (of a solver with tokens) opened as `/?token=<driver>`,
+//! where the page must present the token to the REST API as well as to
+//! the WebSocket, and its drags go through the relay.
 //!
 //! Needs `node`, `chromium` and `npm ci` in `server/dashboard`; `make test`
 //! provides all three. Without them this test fails and says what to
@@ -17,7 +20,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::http;
-use common::process::Proc;
+use common::process::{DRIVER_TOKEN, Proc};
 
 /// The browser test's own time limit (it is usually done in 15-40 s).
 const E2E_TIMEOUT: Duration = Duration::from_secs(300);
@@ -158,4 +161,23 @@ fn the_dashboard_works_in_headless_chromium() {
         &format!("http://{}/", server.addr),
         &target_dir().join("dashboard-artifacts"),
     );
+}
+
+/// The page on a relay, with tokens configured: the token in the page's
+/// URL goes to the REST list and the WebSocket alike, and a driver's drag
+/// goes through the relay to the solver and back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_works_on_a_relay_with_a_token() {
+    let solver = Proc::solver("127.0.0.1:0");
+    let relay = Proc::relay(&solver.addr);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while http::get(&relay.addr, "/readyz", None).await.status != 200 {
+        assert!(Instant::now() < deadline, "the relay never became ready");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let url = format!("http://{}/?token={DRIVER_TOKEN}", relay.addr);
+    let artifacts = target_dir().join("dashboard-artifacts/relay");
+    tokio::task::spawn_blocking(move || run_e2e(&url, &artifacts))
+        .await
+        .expect("the browser test ran");
 }
