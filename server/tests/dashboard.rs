@@ -4,68 +4,38 @@
 //! Chromium through Playwright against it. The script checks the page's
 //! contracts (no console errors, WebSocket, chart, atlas, 3D view, dragging
 //! the box changes the light) and saves screenshots to
-//! `target/dashboard-artifacts/`.
+//! `target/dashboard-artifacts/`. It runs twice: on a development server,
+//! and on a relay (of a solver with tokens) opened as `/?token=<driver>`,
+//! where the page must present the token to the REST API as well as to
+//! the WebSocket, and its drags go through the relay.
 //!
 //! Needs `node`, `chromium` and `npm ci` in `server/dashboard`; `make test`
 //! provides all three. Without them this test fails and says what to
 //! install: a dashboard that cannot be tested is not a passing one.
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::TcpStream;
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+
+use common::http;
+use common::process::{DRIVER_TOKEN, Proc};
 
 /// The browser test's own time limit (it is usually done in 15-40 s).
 const E2E_TIMEOUT: Duration = Duration::from_secs(300);
 
-/// A `lightwire serve` child process, killed on drop.
-struct Server {
-    child: Child,
-    addr: String,
-}
-
-impl Server {
-    /// Serves cornell-low in development mode on a free port, with extra
-    /// `serve` flags.
-    fn start(flags: &[&str]) -> Server {
-        let scene = dashboard_dir().join("../../scenes/cornell-low.json");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
-            .args(["serve", "--dev", "--listen", "127.0.0.1:0"])
-            .args(flags)
-            .arg("--scene")
-            .arg(&scene)
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("lightwire starts");
-        let stdout = child.stdout.take().expect("piped stdout");
-        let mut lines = BufReader::new(stdout).lines();
-        let addr = loop {
-            let line = lines
-                .next()
-                .expect("the server prints its address before exiting")
-                .expect("stdout is UTF-8");
-            if let Some(rest) = line.strip_prefix("lightwire listening on http://") {
-                break rest
-                    .split_whitespace()
-                    .next()
-                    .expect("an address")
-                    .to_string();
-            }
-        };
-        // Keep draining stdout so the server never blocks on a full pipe.
-        std::thread::spawn(move || for _ in lines {});
-        Server { child, addr }
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// `lightwire serve --dev` on cornell-low on a free port, with extra
+/// `serve` flags.
+fn dev_server(flags: &[&str]) -> Proc {
+    let scene = common::scene_path("cornell-low.json");
+    let args: Vec<String> = ["serve", "--dev", "--listen", "127.0.0.1:0"]
+        .iter()
+        .chain(flags)
+        .map(|a| a.to_string())
+        .chain(["--scene".to_string(), scene.display().to_string()])
+        .collect();
+    Proc::spawn(&args, &[])
 }
 
 fn dashboard_dir() -> PathBuf {
@@ -81,35 +51,31 @@ fn target_dir() -> PathBuf {
         .to_path_buf()
 }
 
-/// A minimal HTTP/1.1 GET: status line and headers, lowercased, and the body.
-fn get(addr: &str, path: &str) -> (String, String) {
-    let mut stream = TcpStream::connect(addr).expect("connect");
-    stream
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .expect("timeout");
-    write!(
-        stream,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .expect("send");
-    let mut response = String::new();
-    stream.read_to_string(&mut response).expect("read");
-    let (head, body) = response.split_once("\r\n\r\n").expect("headers end");
-    (head.to_ascii_lowercase(), body.to_string())
-}
-
-#[test]
-fn the_embedded_files_are_served_and_nothing_else() {
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_embedded_files_are_served_and_nothing_else() {
     // No need for the GPU here: the cheap reference solver on a coarse atlas.
-    let server = Server::start(&["--solver", "reference", "--density-scale", "0.5"]);
-    let (head, body) = get(&server.addr, "/");
-    assert!(head.starts_with("http/1.1 200"), "{head}");
-    assert!(head.contains("content-type: text/html"), "{head}");
+    let server = dev_server(&["--solver", "reference", "--density-scale", "0.5"]);
+    let index = http::get(&server.addr, "/", None).await;
+    assert_eq!(index.status, 200);
     assert!(
-        head.contains("content-security-policy: default-src 'self'"),
-        "{head}"
+        index
+            .header("content-type")
+            .is_some_and(|t| t.starts_with("text/html")),
+        "{:?}",
+        index.headers
     );
-    assert!(body.contains("<script type=\"module\" src=\"/dashboard/app.js\">"));
+    assert!(
+        index
+            .header("content-security-policy")
+            .is_some_and(|c| c.starts_with("default-src 'self'")),
+        "{:?}",
+        index.headers
+    );
+    assert!(
+        index
+            .text()
+            .contains("<script type=\"module\" src=\"/dashboard/app.js\">")
+    );
     for file in [
         "app.js",
         "protocol.js",
@@ -118,21 +84,24 @@ fn the_embedded_files_are_served_and_nothing_else() {
         "chart.js",
         "vendor/fzstd.js",
     ] {
-        let (head, _) = get(&server.addr, &format!("/dashboard/{file}"));
-        assert!(head.starts_with("http/1.1 200"), "{file}: {head}");
+        let r = http::get(&server.addr, &format!("/dashboard/{file}"), None).await;
+        assert_eq!(r.status, 200, "{file}");
         assert!(
-            head.contains("content-type: text/javascript"),
-            "{file}: {head}"
+            r.header("content-type")
+                .is_some_and(|t| t.starts_with("text/javascript")),
+            "{file}: {:?}",
+            r.headers
         );
     }
     for missing in ["/dashboard/nope.js", "/dashboard/../Cargo.toml"] {
-        let (head, _) = get(&server.addr, missing);
-        assert!(head.starts_with("http/1.1 404"), "{missing}: {head}");
+        let r = http::get(&server.addr, missing, None).await;
+        assert_eq!(r.status, 404, "{missing}");
     }
 }
 
-#[test]
-fn the_dashboard_works_in_headless_chromium() {
+/// Runs `dashboard.e2e.mjs` against the page at `url` and checks that it
+/// passed and left its screenshots in `artifacts`.
+fn run_e2e(url: &str, artifacts: &Path) {
     let dir = dashboard_dir();
     let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
     assert!(
@@ -144,16 +113,14 @@ fn the_dashboard_works_in_headless_chromium() {
         "{} has no node_modules/playwright-core: run `npm ci` there (make test does)",
         dir.display()
     );
-    let artifacts = target_dir().join("dashboard-artifacts");
-    let server = Server::start(&[]);
     let started = Instant::now();
     let mut node = Command::new("node")
         .current_dir(&dir)
         .arg("e2e/dashboard.e2e.mjs")
         .arg("--url")
-        .arg(format!("http://{}/", server.addr))
+        .arg(url)
         .arg("--artifacts")
-        .arg(&artifacts)
+        .arg(artifacts)
         .arg("--chromium")
         .arg(&chromium)
         .stdout(Stdio::inherit())
@@ -171,7 +138,6 @@ fn the_dashboard_works_in_headless_chromium() {
         }
         std::thread::sleep(Duration::from_millis(200));
     };
-    drop(server);
     assert!(
         status.success(),
         "the dashboard's browser test failed ({status}); see its output above and the screenshots in {}",
@@ -186,4 +152,32 @@ fn the_dashboard_works_in_headless_chromium() {
             path.display()
         );
     }
+}
+
+#[test]
+fn the_dashboard_works_in_headless_chromium() {
+    let server = dev_server(&[]);
+    run_e2e(
+        &format!("http://{}/", server.addr),
+        &target_dir().join("dashboard-artifacts"),
+    );
+}
+
+/// The page on a relay, with tokens configured: the token in the page's
+/// URL goes to the REST list and the WebSocket alike, and a driver's drag
+/// goes through the relay to the solver and back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_works_on_a_relay_with_a_token() {
+    let solver = Proc::solver("127.0.0.1:0");
+    let relay = Proc::relay(&solver.addr);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while http::get(&relay.addr, "/readyz", None).await.status != 200 {
+        assert!(Instant::now() < deadline, "the relay never became ready");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let url = format!("http://{}/?token={DRIVER_TOKEN}", relay.addr);
+    let artifacts = target_dir().join("dashboard-artifacts/relay");
+    tokio::task::spawn_blocking(move || run_e2e(&url, &artifacts))
+        .await
+        .expect("the browser test ran");
 }

@@ -20,9 +20,8 @@
 //! The bounds are generous on purpose (CI shares 2 cores with builds); the
 //! measured times are printed.
 
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+mod common;
+
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -36,9 +35,9 @@ use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-const DRIVER_TOKEN: &str = "driver-token-0123";
-const VIEWER_TOKEN: &str = "viewer-token-0123";
-const SCENE: &str = "cornell-low";
+use common::http;
+use common::process::{DRIVER_TOKEN, Proc, SCENE, VIEWER_TOKEN};
+
 const VIEWERS: usize = 500;
 /// Killing a relay: every one of its viewers is connected to the other
 /// relay and holds its current version within this.
@@ -47,105 +46,12 @@ const FAILOVER_BOUND: Duration = Duration::from_secs(20);
 /// this after the new solver published its first version.
 const RESYNC_BOUND: Duration = Duration::from_secs(20);
 
-/// A child process, killed on drop.
-struct Proc {
-    child: Child,
-    addr: String,
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Proc {
-    fn spawn(args: &[String], env: &[(&str, String)]) -> Proc {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
-            .args(args)
-            .env("RUST_LOG", "warn")
-            .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("lightwire starts");
-        let stdout = child.stdout.take().expect("piped stdout");
-        let mut line = String::new();
-        BufReader::new(stdout)
-            .read_line(&mut line)
-            .expect("it prints its address");
-        let addr = line
-            .split("http://")
-            .nth(1)
-            .and_then(|rest| rest.split_whitespace().next())
-            .unwrap_or_else(|| panic!("unexpected first line: {line:?}"))
-            .to_string();
-        Proc { child, addr }
-    }
-
-    /// A solver on `listen` (port 0: any) with cornell-low at a coarse
-    /// density on the CPU reference solver, which re-solves a move in well
-    /// under a second.
-    fn solver(listen: &str) -> Proc {
-        let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
-        let args = [
-            "serve",
-            "--listen",
-            listen,
-            "--density-scale",
-            "0.5",
-            "--solver",
-            "reference",
-            "--scene",
-        ]
-        .map(String::from)
-        .into_iter()
-        .chain([scene.display().to_string()])
-        .collect::<Vec<_>>();
-        Proc::spawn(&args, &[("LIGHTWIRE_TOKENS", tokens())])
-    }
-
-    /// A relay of the solver at `upstream`, presenting the driver token.
-    fn relay(upstream: &str) -> Proc {
-        let args = [
-            "relay",
-            "--listen",
-            "127.0.0.1:0",
-            "--upstream",
-            &format!("ws://{upstream}/ws/scenes/{SCENE}"),
-        ]
-        .map(String::from);
-        Proc::spawn(
-            &args,
-            &[
-                ("LIGHTWIRE_TOKENS", tokens()),
-                ("LIGHTWIRE_UPSTREAM_TOKEN", DRIVER_TOKEN.to_string()),
-            ],
-        )
-    }
-
-    fn ws_url(&self) -> String {
-        format!("ws://{}/ws/scenes/{SCENE}", self.addr)
-    }
-}
-
-fn tokens() -> String {
-    format!("driver:{DRIVER_TOKEN},viewer:{VIEWER_TOKEN}")
-}
-
-/// A minimal HTTP/1.1 GET: status and body.
+/// `GET path` with the viewer token: status and body, `None` if the
+/// process does not answer.
 async fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = TcpStream::connect(addr).await.ok()?;
-    let request = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
-    stream.write_all(request.as_bytes()).await.ok()?;
-    let mut response = Vec::new();
-    stream.read_to_end(&mut response).await.ok()?;
-    let text = String::from_utf8_lossy(&response).into_owned();
-    let status = text.split_whitespace().nth(1)?.parse().ok()?;
-    let body = text.split_once("\r\n\r\n")?.1.to_string();
-    Some((status, body))
+    let bearer = format!("Bearer {VIEWER_TOKEN}");
+    let r = http::get_with(addr, path, &[("Authorization", &bearer)]).await?;
+    Some((r.status, r.text()))
 }
 
 async fn wait_ready(addr: &str, what: &str) {
@@ -818,4 +724,154 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     let status = relay_status(&relay.addr).await;
     assert_eq!(status["connects"], 3, "{status}");
     assert_eq!(status["upstream_version"].as_u64(), Some(4));
+}
+
+/// A viewer's lightmap after joining `url`: its version and its linear RGB.
+async fn joined_rgb(url: &str) -> (u64, Vec<[f32; 3]>) {
+    let mut ws = hello(url, VIEWER_TOKEN).await.expect("connects");
+    let mut map = None;
+    loop {
+        let frame = tokio::time::timeout(Duration::from_secs(10), ws.next())
+            .await
+            .expect("frames arrive")
+            .expect("open")
+            .expect("ok");
+        let Message::Binary(bytes) = frame else {
+            continue;
+        };
+        match decode_server(&bytes).expect("decodes") {
+            ServerMessage::Welcome { scene, .. } => {
+                map = Some(Lightmap::for_scene(&scene).expect("layout"))
+            }
+            ServerMessage::Keyframe(k) => {
+                let map = map.as_mut().expect("Welcome first");
+                map.apply_keyframe(&k).expect("applies");
+                return (k.version, map.to_rgb());
+            }
+            _ => {}
+        }
+    }
+}
+
+/// A viewer on a relay needs nothing from the solver: the relay serves the
+/// scene info, snapshots of the version it holds and the dashboard, with
+/// the solver's token and Origin rules (PROTOCOL.md §7, Relays and REST).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
+    let solver = Proc::solver("127.0.0.1:0");
+    wait_ready(&solver.addr, "the solver").await;
+    let relay = Proc::relay(&solver.addr);
+    wait_ready(&relay.addr, "the relay").await;
+    // Nothing moves, so once settled the state stays put.
+    let _ = settled(&solver, None).await;
+    let (version, rgb) = joined_rgb(&relay.ws_url()).await;
+    let addr = relay.addr.as_str();
+
+    // Scene info: the solver's description, byte for byte.
+    let info_path = format!("/api/scenes/{SCENE}");
+    let from_relay = http::get(addr, &info_path, Some(VIEWER_TOKEN)).await;
+    assert_eq!(from_relay.status, 200, "{}", from_relay.text());
+    let from_solver = http::get(&solver.addr, &info_path, Some(VIEWER_TOKEN)).await;
+    assert_eq!(from_relay.json(), from_solver.json());
+
+    // Snapshots of the version the relay's viewer holds.
+    let exr = http::get(
+        addr,
+        &format!("/api/scenes/{SCENE}/lightmap.exr"),
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(exr.status, 200, "{}", exr.text());
+    assert_eq!(exr.header("content-type"), Some("image/x-exr"));
+    assert_eq!(
+        exr.header("x-lightwire-version"),
+        Some(version.to_string().as_str()),
+        "the snapshot is the version a WebSocket client of the relay holds"
+    );
+    let image = image::load_from_memory_with_format(&exr.body, image::ImageFormat::OpenExr)
+        .expect("valid EXR")
+        .into_rgb32f();
+    let pixels: Vec<[f32; 3]> = image.pixels().map(|p| p.0).collect();
+    assert!(
+        pixels == rgb,
+        "the EXR is bit-exact with the viewer's lightmap"
+    );
+    let png = http::get(
+        addr,
+        &format!("/api/scenes/{SCENE}/lightmap.png?token={VIEWER_TOKEN}"),
+        None,
+    )
+    .await;
+    assert_eq!(png.status, 200, "{}", png.text());
+    assert_eq!(png.header("content-type"), Some("image/png"));
+    assert_eq!(
+        png.header("x-lightwire-version"),
+        Some(version.to_string().as_str())
+    );
+    let decoded =
+        image::load_from_memory_with_format(&png.body, image::ImageFormat::Png).expect("valid PNG");
+    assert_eq!(
+        (decoded.width(), decoded.height()),
+        (image.width(), image.height())
+    );
+
+    // The list says which scenes, for the dashboard's picker.
+    let list = http::get(addr, "/api/scenes", Some(VIEWER_TOKEN))
+        .await
+        .json();
+    assert_eq!(list[0]["id"], SCENE);
+    assert_eq!(list[0]["version"].as_u64(), Some(version));
+    assert_eq!(list[0]["connected"], true);
+
+    // The same rules as the solver's, with the relay's own tokens.
+    for route in [
+        "/api/scenes".to_string(),
+        info_path.clone(),
+        format!("/api/scenes/{SCENE}/lightmap.exr"),
+        format!("/api/scenes/{SCENE}/lightmap.png"),
+    ] {
+        let none = http::get(addr, &route, None).await;
+        assert_eq!(none.status, 401, "{route} on the relay without a token");
+        assert!(none.json()["error"].is_string());
+        let bearer = format!("Bearer {VIEWER_TOKEN}");
+        let foreign = http::get_with(
+            addr,
+            &route,
+            &[
+                ("Authorization", &bearer),
+                ("Origin", "https://evil.example"),
+            ],
+        )
+        .await
+        .expect("answers");
+        assert_eq!(foreign.status, 403, "{route} from a foreign origin");
+    }
+    let unknown = http::get(addr, "/api/scenes/nope", Some(VIEWER_TOKEN)).await;
+    assert_eq!(unknown.status, 404);
+
+    // The dashboard.
+    let index = http::get(addr, "/", None).await;
+    assert_eq!(index.status, 200);
+    assert!(
+        index
+            .header("content-type")
+            .is_some_and(|t| t.starts_with("text/html"))
+    );
+    assert!(
+        index
+            .text()
+            .contains("<script type=\"module\" src=\"/dashboard/app.js\">")
+    );
+    for file in [
+        "app.js",
+        "protocol.js",
+        "lightmap.js",
+        "view3d.js",
+        "chart.js",
+    ] {
+        let r = http::get(addr, &format!("/dashboard/{file}"), None).await;
+        assert_eq!(r.status, 200, "/dashboard/{file} on the relay");
+    }
+    // Metrics are open by default on the relay too.
+    assert_eq!(http::get(addr, "/metrics", None).await.status, 200);
 }

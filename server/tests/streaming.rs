@@ -1,9 +1,9 @@
 //! `lightwire serve` over real sockets: a real server process, real
 //! WebSocket clients speaking the binary protocol.
 
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+mod common;
+
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
@@ -16,116 +16,12 @@ use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-const DRIVER_TOKEN: &str = "driver-token-0123";
-const VIEWER_TOKEN: &str = "viewer-token-0123";
+use common::http;
+use common::process::{DRIVER_TOKEN, Proc, VIEWER_TOKEN};
 
-/// A `lightwire serve` child process, killed on drop.
-struct Server {
-    child: Child,
-    addr: String,
-}
-
-impl Server {
-    /// Starts the server on a free port with cornell-low at a coarse
-    /// density (so even the CPU reference solver re-solves in well under a
-    /// second), on the reference solver.
-    fn start() -> Server {
-        Self::start_with(&[], "reference")
-    }
-
-    /// [`Server::start`] with extra environment variables and a solver.
-    fn start_with(env: &[(&str, &str)], solver: &str) -> Server {
-        let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
-            .args([
-                "serve",
-                "--listen",
-                "127.0.0.1:0",
-                "--density-scale",
-                "0.5",
-                "--solver",
-                solver,
-                "--scene",
-            ])
-            .arg(&scene)
-            .env(
-                "LIGHTWIRE_TOKENS",
-                format!("driver:{DRIVER_TOKEN},viewer:{VIEWER_TOKEN}"),
-            )
-            .env("RUST_LOG", "warn")
-            .envs(env.iter().copied())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("lightwire starts");
-        let stdout = child.stdout.take().expect("piped stdout");
-        let mut line = String::new();
-        BufReader::new(stdout)
-            .read_line(&mut line)
-            .expect("the server prints its address");
-        let addr = line
-            .split("http://")
-            .nth(1)
-            .and_then(|rest| rest.split_whitespace().next())
-            .unwrap_or_else(|| panic!("unexpected first line: {line:?}"))
-            .to_string();
-        Server { child, addr }
-    }
-
-    fn url(&self, path: &str) -> String {
-        format!("http://{}{path}", self.addr)
-    }
-
-    fn ws_url(&self) -> String {
-        format!("ws://{}/ws/scenes/cornell-low", self.addr)
-    }
-
-    /// Kilobytes of resident memory of the server process.
-    fn rss_kib(&self) -> u64 {
-        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id()))
-            .expect("/proc status");
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix("VmRSS:"))
-            .and_then(|v| v.split_whitespace().next())
-            .and_then(|v| v.parse().ok())
-            .expect("VmRSS")
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-async fn http_get(url: &str) -> (u16, Vec<u8>, Vec<(String, String)>) {
-    // A minimal HTTP/1.1 GET over a fresh connection.
-    let rest = url.strip_prefix("http://").expect("http url");
-    let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
-    let mut stream = TcpStream::connect(host).await.expect("connect");
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let request = format!("GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n");
-    stream.write_all(request.as_bytes()).await.expect("send");
-    let mut response = Vec::new();
-    stream.read_to_end(&mut response).await.expect("read");
-    let split = response
-        .windows(4)
-        .position(|w| w == b"\r\n\r\n")
-        .expect("headers end");
-    let head = String::from_utf8_lossy(&response[..split]).into_owned();
-    let mut lines = head.lines();
-    let status: u16 = lines
-        .next()
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|c| c.parse().ok())
-        .expect("status");
-    let headers = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
-        .collect::<Vec<_>>();
-    (status, response[split + 4..].to_vec(), headers)
+/// `GET path` on `server` with the viewer token (the REST routes need one).
+async fn http_get(server: &Proc, path: &str) -> http::Response {
+    http::get(&server.addr, path, Some(VIEWER_TOKEN)).await
 }
 
 type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
@@ -283,9 +179,9 @@ fn pose_at(step: u32) -> Pose {
 }
 
 /// Polls `/readyz` until the first lightmap is published.
-async fn wait_ready(server: &Server) {
+async fn wait_ready(server: &Proc) {
     let deadline = Instant::now() + Duration::from_secs(60);
-    while http_get(&server.url("/readyz")).await.0 != 200 {
+    while http_get(server, "/readyz").await.status != 200 {
         assert!(Instant::now() < deadline, "the server never became ready");
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
@@ -293,16 +189,14 @@ async fn wait_ready(server: &Server) {
 
 /// The server's current version, and its lightmap decoded from the EXR
 /// snapshot (f32, so bit-exact with what a client decodes).
-async fn server_state(server: &Server) -> (u64, Vec<[f32; 3]>) {
-    let (status, body, headers) =
-        http_get(&server.url("/api/scenes/cornell-low/lightmap.exr")).await;
-    assert_eq!(status, 200);
-    let version: u64 = headers
-        .iter()
-        .find(|(k, _)| k == "x-lightwire-version")
-        .and_then(|(_, v)| v.parse().ok())
+async fn server_state(server: &Proc) -> (u64, Vec<[f32; 3]>) {
+    let snapshot = http_get(server, "/api/scenes/cornell-low/lightmap.exr").await;
+    assert_eq!(snapshot.status, 200);
+    let version: u64 = snapshot
+        .header("x-lightwire-version")
+        .and_then(|v| v.parse().ok())
         .expect("version header");
-    let image = image::load_from_memory_with_format(&body, image::ImageFormat::OpenExr)
+    let image = image::load_from_memory_with_format(&snapshot.body, image::ImageFormat::OpenExr)
         .expect("valid EXR")
         .into_rgb32f();
     (version, image.pixels().map(|p| p.0).collect())
@@ -311,12 +205,12 @@ async fn server_state(server: &Server) -> (u64, Vec<[f32; 3]>) {
 /// Waits until the published state reflects transform `seq` of the box
 /// (as echoed in the frames `watcher` receives) and no newer version
 /// follows; returns that version.
-async fn settled_version(server: &Server, seq: u64, watcher: &mut Client) -> u64 {
+async fn settled_version(server: &Proc, seq: u64, watcher: &mut Client) -> u64 {
     let deadline = Instant::now() + Duration::from_secs(120);
     loop {
-        let (status, body, _) = http_get(&server.url("/api/scenes")).await;
-        assert_eq!(status, 200);
-        let scenes: serde_json::Value = serde_json::from_slice(&body).expect("json");
+        let list = http_get(server, "/api/scenes").await;
+        assert_eq!(list.status, 200);
+        let scenes = list.json();
         let version = scenes[0]["version"].as_u64().expect("version");
         // Let the watcher catch up to it, then check nothing newer comes.
         watcher
@@ -329,8 +223,7 @@ async fn settled_version(server: &Server, seq: u64, watcher: &mut Client) -> u64
             // re-inserts the box); wait for a quiet spell before calling
             // it settled.
             tokio::time::sleep(Duration::from_millis(2000)).await;
-            let (_, body, _) = http_get(&server.url("/api/scenes")).await;
-            let again: serde_json::Value = serde_json::from_slice(&body).expect("json");
+            let again = http_get(server, "/api/scenes").await.json();
             if again[0]["version"].as_u64() == Some(version) {
                 return version;
             }
@@ -346,7 +239,7 @@ async fn settled_version(server: &Server, seq: u64, watcher: &mut Client) -> u64
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fifty_clients_follow_a_moving_box_bit_exactly_and_a_late_joiner_converges() {
     // The real engine: the GPU progressive solver (lavapipe in CI).
-    let server = Server::start_with(&[], "progressive");
+    let server = Proc::solver_with("127.0.0.1:0", "progressive", &[]);
     let url = server.ws_url();
     let mut viewers = Vec::new();
     for _ in 0..50 {
@@ -421,7 +314,11 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
     // A small kernel send buffer, so that the server's sends to the
     // stalled client block within the stall instead of being absorbed by
     // the kernel.
-    let server = Server::start_with(&[("LIGHTWIRE_SEND_BUFFER", "4096")], "reference");
+    let server = Proc::solver_with(
+        "127.0.0.1:0",
+        "reference",
+        &[("LIGHTWIRE_SEND_BUFFER", "4096".into())],
+    );
     let url = server.ws_url();
     // The stalled client gets a tiny receive window so the server's writes
     // to it block soon after it stops reading.
@@ -518,7 +415,7 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
-    let server = Server::start();
+    let server = Proc::solver("127.0.0.1:0");
     let url = server.ws_url();
     let mut bystander = Client::connect(&url, VIEWER_TOKEN).await;
 
@@ -636,7 +533,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
     );
 
     // The bystander is undisturbed: still connected and still served.
-    let (_, _, _) = http_get(&server.url("/healthz")).await;
+    let _ = http_get(&server, "/healthz").await;
     driver
         .send(&ClientMessage::Transform {
             object: 1,
@@ -652,8 +549,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
     assert!(bystander.errors.is_empty());
 
     // Metrics count the bad frames by kind.
-    let (_, body, _) = http_get(&server.url("/metrics")).await;
-    let metrics = String::from_utf8_lossy(&body);
+    let metrics = http_get(&server, "/metrics").await.text();
     for kind in [
         "forbidden",
         "malformed",
@@ -672,9 +568,9 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigterm_closes_connections_and_exits_cleanly() {
-    let mut server = Server::start();
+    let mut server = Proc::solver("127.0.0.1:0");
     let mut client = Client::connect(&server.ws_url(), VIEWER_TOKEN).await;
-    let (ready, _, _) = http_get(&server.url("/readyz")).await;
+    let ready = http_get(&server, "/readyz").await.status;
     assert!(ready == 200 || ready == 503);
     let pid = server.child.id().to_string();
     let status = Command::new("kill")

@@ -4,7 +4,8 @@
 //
 //   node e2e/dashboard.e2e.mjs --url http://127.0.0.1:PORT/ --artifacts DIR
 //
-// The server must already run (in development mode, so the page may drive);
+// The server must already run (in development mode, or with a driver token
+// in the URL's `?token=`, so the page may drive; it may be a relay);
 // `server/tests/dashboard.rs` starts one and runs this script. Checks, in
 // order, each a contract of issue 7:
 //

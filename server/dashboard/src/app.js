@@ -545,18 +545,39 @@ function connect() {
   updateStatus();
 }
 
+/** Headers that present the token field's token to the REST API, which
+ * asks for the same token as the WebSocket (none in development mode). */
+function authHeaders() {
+  const token = ui.token.value.trim();
+  return token ? { Authorization: `Bearer ${token}` } : {};
+}
+
 async function loadScenes() {
-  const response = await fetch('/api/scenes');
-  if (!response.ok) throw new Error(`GET /api/scenes: HTTP ${response.status}`);
+  const response = await fetch('/api/scenes', { headers: authHeaders() });
+  if (!response.ok) {
+    const body = await response.json().catch(() => null);
+    const why = body?.error ? `: ${body.error}` : '';
+    throw new Error(`GET /api/scenes: HTTP ${response.status}${why}`);
+  }
   const scenes = await response.json();
-  ui.scene.replaceChildren(...scenes.map((s) => new Option(`${s.id} (${s.elements} elements)`, s.id)));
+  // A relay knows no element count: it holds the lightmap, not the mesh.
+  const label = (s) => (s.elements == null ? s.id : `${s.id} (${s.elements} elements)`);
+  ui.scene.replaceChildren(...scenes.map((s) => new Option(label(s), s.id)));
   const wanted = new URLSearchParams(location.search).get('scene');
   if (wanted && scenes.some((s) => s.id === wanted)) ui.scene.value = wanted;
   if (!scenes.length) logEvent('the server serves no scene', 'warn');
 }
 
+/** Lists the scenes (with the token in the field), then connects. */
+function start() {
+  loadScenes()
+    .then(connect)
+    .catch((e) => logEvent(`cannot list scenes: ${e.message}`, 'error'));
+}
+
 ui.scene.addEventListener('change', connect);
-ui.connect.addEventListener('click', connect);
+// Without a list yet (e.g. no token was given), Connect lists first.
+ui.connect.addEventListener('click', () => (ui.scene.options.length ? connect() : start()));
 ui.token.value = new URLSearchParams(location.search).get('token') ?? '';
 
 // --- Frame loop ---------------------------------------------------------------
@@ -608,6 +629,4 @@ window.lightwire = {
 exposureChanged();
 updateStatus();
 requestAnimationFrame(frame);
-loadScenes()
-  .then(connect)
-  .catch((e) => logEvent(`cannot list scenes: ${e.message}`, 'error'));
+start();

@@ -32,30 +32,40 @@
 //! relay keeps serving the last version (and stays ready), reconnects with
 //! backoff, and resyncs its viewers with a delta of exactly the tiles that
 //! differ when the upstream is back.
+//!
+//! A viewer needs nothing from the solver that the relay does not serve:
+//! the relay's routes are the solver's ([`crate::service::http::routes`],
+//! on the relay's feeds) — the dashboard (`/`, `/dashboard/{*path}`),
+//! `/healthz`, `/metrics`, `/api/scenes` (with the upstream's status per
+//! scene), `/api/scenes/{id}`, the snapshots
+//! `/api/scenes/{id}/lightmap.exr|png` of the version the relay holds
+//! (its number in `x-lightwire-version`, the relay's own version) and
+//! `/ws/scenes/{id}` — with the same token and Origin rules, checked with
+//! the relay's own tokens; only `/readyz` is the relay's own (ready once
+//! every scene has a version, and still ready while an upstream is away).
 
 pub mod metrics;
 pub mod mirror;
 pub mod upstream;
 
-use std::collections::{BTreeMap, HashMap};
-use std::net::SocketAddr;
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use anyhow::{Result, bail};
 use axum::Router;
-use axum::extract::{ConnectInfo, Path, Query, State, WebSocketUpgrade};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::extract::State;
+use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use lightwire_protocol::Stats;
-use serde_json::json;
+use serde_json::{Value, json};
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 
 use crate::service::feed::Feed;
-use crate::service::http::upgrade_websocket;
+use crate::service::http::{self, Scenes};
 use crate::service::publication::Publisher;
 use crate::service::{Config, Shared, auth, serve_http};
 use metrics::RelayMetrics;
@@ -142,12 +152,9 @@ pub async fn relay(
         scenes,
     });
     let app = Router::new()
-        .route("/healthz", get(|| async { "ok\n" }))
         .route("/readyz", get(readyz))
-        .route("/metrics", get(metrics_text))
-        .route("/api/scenes", get(list_scenes))
-        .route("/ws/scenes/{id}", get(websocket))
-        .with_state(state);
+        .with_state(state.clone())
+        .merge(http::routes(state));
     let mut stop = shutdown.clone();
     serve_http(
         listener,
@@ -185,64 +192,53 @@ async fn readyz(State(state): State<Arc<RelayState>>) -> Response {
     }
 }
 
-async fn metrics_text(State(state): State<Arc<RelayState>>) -> Response {
-    (
-        [(
-            header::CONTENT_TYPE,
-            "application/openmetrics-text; version=1.0.0; charset=utf-8",
-        )],
-        state.shared.metrics.render(),
-    )
-        .into_response()
-}
+impl Scenes for RelayState {
+    fn shared(&self) -> &Arc<Shared> {
+        &self.shared
+    }
 
-/// Per scene: the relay version, the upstream version it equals, whether
-/// the upstream is connected, clients, and why the upstream was last lost.
-async fn list_scenes(State(state): State<Arc<RelayState>>) -> Response {
-    let scenes: Vec<_> = state
-        .scenes
-        .iter()
-        .map(|(id, s)| {
-            let upstream_version = s.status.upstream_version.load(Ordering::Relaxed);
-            json!({
-                "id": id,
-                "upstream": s.url.url,
-                "connected": s.status.connected.load(Ordering::Relaxed),
-                "connects": s.status.connects.load(Ordering::Relaxed),
-                "last_error": *s.status.last_error.lock().unwrap_or_else(|p| p.into_inner()),
-                "ready": s.feed.ready.load(Ordering::Acquire),
-                "version": s.feed.latest().map(|p| p.version),
-                "upstream_version": (upstream_version > 0).then_some(upstream_version),
-                "clients": s.feed.clients.load(Ordering::Relaxed),
+    fn feed(&self, id: &str) -> Option<&Arc<Feed>> {
+        self.scenes.get(id).map(|s| &s.feed)
+    }
+
+    /// Per scene, besides what any server says: the relay version, the
+    /// upstream version it equals, whether the upstream is connected, and
+    /// why the upstream was last lost.
+    fn list(&self) -> Vec<Value> {
+        self.scenes
+            .values()
+            .map(|s| {
+                let upstream_version = s.status.upstream_version.load(Ordering::Relaxed);
+                let mut entry = http::feed_summary(&s.feed);
+                entry.insert("upstream".into(), json!(s.url.url));
+                entry.insert(
+                    "connected".into(),
+                    json!(s.status.connected.load(Ordering::Relaxed)),
+                );
+                entry.insert(
+                    "connects".into(),
+                    json!(s.status.connects.load(Ordering::Relaxed)),
+                );
+                entry.insert(
+                    "last_error".into(),
+                    json!(
+                        *s.status
+                            .last_error
+                            .lock()
+                            .unwrap_or_else(|p| p.into_inner())
+                    ),
+                );
+                entry.insert("version".into(), json!(s.feed.latest().map(|p| p.version)));
+                entry.insert(
+                    "upstream_version".into(),
+                    json!((upstream_version > 0).then_some(upstream_version)),
+                );
+                Value::Object(entry)
             })
-        })
-        .collect();
-    axum::Json(scenes).into_response()
-}
+            .collect()
+    }
 
-async fn websocket(
-    State(state): State<Arc<RelayState>>,
-    Path(id): Path<String>,
-    Query(query): Query<HashMap<String, String>>,
-    ConnectInfo(peer): ConnectInfo<SocketAddr>,
-    headers: HeaderMap,
-    upgrade: WebSocketUpgrade,
-) -> Response {
-    let Some(scene) = state.scenes.get(&id) else {
-        return (
-            StatusCode::NOT_FOUND,
-            axum::Json(json!({
-                "error": format!("this relay does not relay scene \"{id}\"; GET /api/scenes lists what it does")
-            })),
-        )
-            .into_response();
-    };
-    tracing::debug!(%peer, scene = %id, "websocket upgrade");
-    upgrade_websocket(
-        state.shared.clone(),
-        scene.feed.clone(),
-        &headers,
-        &query,
-        upgrade,
-    )
+    fn unknown(&self, id: &str) -> String {
+        format!("this relay does not relay scene \"{id}\"; GET /api/scenes lists what it does")
+    }
 }

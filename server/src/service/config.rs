@@ -21,6 +21,7 @@
 //! transforms_per_second = 120
 //! max_bad_frames = 20
 //! socket_send_buffer = 262144         # SO_SNDBUF per connection, bytes
+//! metrics = "open"                    # or "token": /metrics needs an admin token
 //! # lightwire relay only:
 //! upstreams = ["ws://solver-0:8080/ws/scenes/cornell-low"]
 //! upstream_token = "d-secret"          # presented to the solver
@@ -31,10 +32,29 @@
 //! ```
 //!
 //! Environment: `LIGHTWIRE_LISTEN`, `LIGHTWIRE_DEV=1`,
-//! `LIGHTWIRE_SEND_BUFFER=<bytes>`,
+//! `LIGHTWIRE_SEND_BUFFER=<bytes>`, `LIGHTWIRE_METRICS=open|token`,
 //! `LIGHTWIRE_TOKENS="viewer:abc,driver:def,admin:ghi"` (added to the
 //! file's tokens), and for the relay `LIGHTWIRE_UPSTREAM=url,url` (replaces
 //! the file's `upstreams`) and `LIGHTWIRE_UPSTREAM_TOKEN`.
+//!
+//! Access. With tokens configured, the REST routes (`/api/scenes`,
+//! `/api/scenes/{id}`, the snapshots) need at least a viewer token, like
+//! the WebSocket; `/healthz`, `/readyz` and the dashboard's files are open.
+//! `metrics` decides `/metrics`:
+//!
+//! - `"open"` (the default): anyone who reaches the port may scrape it.
+//!   Metrics are counters and timings (connections, frames, refusals,
+//!   tick times per scene id), never lightmaps, scene geometry or tokens;
+//!   and the scrape convention the deployment uses (`prometheus.io/*` pod
+//!   annotations, `deploy/k8s/`) cannot present a token. Where the port
+//!   is reachable from outside, route only `/`, `/dashboard/`, `/api/`
+//!   and `/ws/` to it, or choose `"token"`.
+//! - `"token"`: `/metrics` needs an admin token (`Authorization: Bearer`,
+//!   or `?token=`), for a server whose port is public; give Prometheus
+//!   that token (`authorization: credentials_file` in its scrape config).
+//!   Admin rather than viewer because viewer tokens are handed to browsers.
+//!
+//! In development mode without tokens everything is open.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -51,6 +71,17 @@ pub enum SolverChoice {
     Progressive,
     /// The CPU reference solver, re-solved on moves (small scenes only).
     Reference,
+}
+
+/// Who may read `/metrics` (see the module doc).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MetricsAccess {
+    /// Anyone who reaches the port.
+    #[default]
+    Open,
+    /// Requests with an admin token.
+    Token,
 }
 
 /// Tokens per role.
@@ -112,6 +143,8 @@ pub struct Config {
     pub adapter: Option<String>,
     /// Kernel send buffer per connection, bytes (SO_SNDBUF; 0 = OS default).
     pub socket_send_buffer: usize,
+    /// Who may read `/metrics`.
+    pub metrics: MetricsAccess,
     pub tokens: Tokens,
     /// `lightwire relay`: the solver scenes it relays, one WebSocket URL
     /// each (`ws://HOST:PORT/ws/scenes/ID`; `http://` means the same).
@@ -142,6 +175,7 @@ impl Default for Config {
             redistribution: crate::gpu::Redistribution::default(),
             scene_redistribution: Default::default(),
             adapter: None,
+            metrics: MetricsAccess::Open,
             tokens: Tokens::default(),
             upstreams: Vec::new(),
             upstream_token: None,
@@ -170,6 +204,13 @@ impl Config {
                     self.socket_send_buffer = value.parse().with_context(|| {
                         format!("LIGHTWIRE_SEND_BUFFER={value:?} is not a byte count")
                     })?;
+                }
+                "LIGHTWIRE_METRICS" => {
+                    self.metrics = match value.as_str() {
+                        "open" => MetricsAccess::Open,
+                        "token" => MetricsAccess::Token,
+                        other => bail!("LIGHTWIRE_METRICS={other:?}: use open or token"),
+                    };
                 }
                 "LIGHTWIRE_DEV" => self.dev_mode = matches!(value.as_str(), "1" | "true" | "yes"),
                 "LIGHTWIRE_UPSTREAM" => {
@@ -315,6 +356,22 @@ mod tests {
         );
         c.dev_mode = true;
         c.validate().expect("dev mode is allowed without tokens");
+    }
+
+    #[test]
+    fn metrics_access_is_open_by_default_and_set_by_file_or_environment() {
+        assert_eq!(Config::default().metrics, MetricsAccess::Open);
+        let c: Config = toml::from_str("metrics = \"token\"").expect("valid");
+        assert_eq!(c.metrics, MetricsAccess::Token);
+        assert!(toml::from_str::<Config>("metrics = \"public\"").is_err());
+        let mut c = Config::default();
+        c.apply_env([("LIGHTWIRE_METRICS".to_string(), "token".to_string())].into_iter())
+            .expect("valid");
+        assert_eq!(c.metrics, MetricsAccess::Token);
+        let err = c
+            .apply_env([("LIGHTWIRE_METRICS".to_string(), "closed".to_string())].into_iter())
+            .expect_err("unknown value");
+        assert!(err.to_string().contains("open or token"), "{err}");
     }
 
     #[test]

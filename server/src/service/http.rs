@@ -1,6 +1,19 @@
 //! HTTP routes: health, readiness, metrics, the REST API, lightmap
 //! snapshots, the WebSocket upgrade and the dashboard (its embedded files
 //! are in [`super::dashboard`]).
+//!
+//! Every route but `/readyz` is served by [`routes`] on anything that
+//! implements [`Scenes`]: a solver's scenes ([`AppState`]) or a relay's
+//! (`crate::relay`). Both are [`Feed`]s, so scene info, the snapshots and
+//! the WebSocket answer the same way on both, from the version that
+//! server holds.
+//!
+//! Access (PROTOCOL.md §7, REST): the scene list, scene info and snapshots
+//! need at least a viewer token, exactly as the WebSocket does, and refuse
+//! a foreign browser `Origin` like the upgrade; [`request_token`] reads
+//! the token for both. `/metrics` is open or needs an admin token
+//! (`metrics` in [`super::config`]). `/healthz`, `/readyz` and the
+//! dashboard's files (no data in them) are open.
 
 use std::collections::HashMap;
 use std::io::Cursor;
@@ -9,44 +22,230 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use axum::Router;
-use axum::extract::{ConnectInfo, Path, Query, State, WebSocketUpgrade};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::extract::{ConnectInfo, Path, Query, Request, State, WebSocketUpgrade};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
+use lightwire_protocol::Role;
 use lightwire_protocol::lightmap::Lightmap;
-use serde_json::json;
+use serde_json::{Value, json};
 
+use super::config::MetricsAccess;
 use super::dashboard;
 use super::feed::Feed;
-use super::runtime::SceneRuntime;
 use super::session;
 use super::{AppState, Shared};
 
-/// Builds the router.
+/// The scenes a server serves, as the shared handlers see them.
+pub trait Scenes: Send + Sync + 'static {
+    /// What every session and handler shares.
+    fn shared(&self) -> &Arc<Shared>;
+    /// The feed of scene `id`, if this server serves it.
+    fn feed(&self, id: &str) -> Option<&Arc<Feed>>;
+    /// The entries of `GET /api/scenes`, in id order.
+    fn list(&self) -> Vec<Value>;
+    /// The 404 message for a scene id this server does not serve.
+    fn unknown(&self, id: &str) -> String {
+        format!("no scene \"{id}\"; GET /api/scenes lists them")
+    }
+}
+
+impl Scenes for AppState {
+    fn shared(&self) -> &Arc<Shared> {
+        &self.shared
+    }
+
+    fn feed(&self, id: &str) -> Option<&Arc<Feed>> {
+        self.scenes.get(id).map(|s| &s.feed)
+    }
+
+    fn list(&self) -> Vec<Value> {
+        self.scenes
+            .values()
+            .map(|s| {
+                let stats = *s.feed.stats.borrow();
+                let mut entry = feed_summary(&s.feed);
+                entry.insert("description".into(), json!(s.scene.description));
+                entry.insert("elements".into(), json!(s.atlas.elements.len()));
+                entry.insert("version".into(), json!(stats.version));
+                entry.insert("unshot_fraction".into(), json!(stats.unshot_fraction));
+                Value::Object(entry)
+            })
+            .collect()
+    }
+}
+
+/// What `GET /api/scenes` says of any feed: id, readiness, clients, and
+/// (once known) the atlas size and the dynamic objects' names.
+pub fn feed_summary(feed: &Feed) -> serde_json::Map<String, Value> {
+    let mut entry = serde_json::Map::new();
+    entry.insert("id".into(), json!(feed.id));
+    if let Some(info) = feed.info() {
+        entry.insert(
+            "atlas".into(),
+            json!({ "width": info.atlas_width, "height": info.atlas_height }),
+        );
+        let dynamic: Vec<&String> = info
+            .objects
+            .iter()
+            .filter(|o| o.dynamic)
+            .map(|o| &o.name)
+            .collect();
+        entry.insert("objects".into(), json!(dynamic));
+    }
+    entry.insert("ready".into(), json!(feed.ready.load(Ordering::Acquire)));
+    entry.insert(
+        "clients".into(),
+        json!(feed.clients.load(Ordering::Relaxed)),
+    );
+    entry
+}
+
+/// `lightwire serve`'s router: [`routes`] and the solver's `/readyz`.
 pub fn router(state: Arc<AppState>) -> Router {
+    Router::new()
+        .route("/readyz", get(readyz))
+        .with_state(state.clone())
+        .merge(routes(state))
+}
+
+/// Every route a solver and a relay share: the dashboard, `/healthz`,
+/// `/metrics`, the REST API, the snapshots and the WebSocket.
+pub fn routes<S: Scenes>(scenes: Arc<S>) -> Router {
+    let shared = scenes.shared().clone();
+    let api = Router::new()
+        .route("/api/scenes", get(list_scenes::<S>))
+        .route("/api/scenes/{id}", get(scene_info::<S>))
+        .route("/api/scenes/{id}/{file}", get(lightmap_file::<S>))
+        .route_layer(middleware::from_fn_with_state(
+            shared.clone(),
+            require_viewer,
+        ));
+    let mut metrics_route = Router::new().route("/metrics", get(metrics));
+    if shared.config.metrics == MetricsAccess::Token {
+        metrics_route = metrics_route.route_layer(middleware::from_fn_with_state(
+            shared.clone(),
+            require_admin,
+        ));
+    }
     Router::new()
         .route("/", get(dashboard::index))
         .route("/dashboard/{*path}", get(dashboard::file))
         .route("/healthz", get(|| async { "ok\n" }))
-        .route("/readyz", get(readyz))
-        .route("/metrics", get(metrics))
-        .route("/api/scenes", get(list_scenes))
-        .route("/api/scenes/{id}", get(scene_info))
-        .route("/api/scenes/{id}/{file}", get(lightmap_file))
-        .route("/ws/scenes/{id}", get(websocket))
-        .with_state(state)
+        .route("/ws/scenes/{id}", get(websocket::<S>))
+        .merge(api)
+        .with_state(scenes)
+        .merge(metrics_route.with_state(shared))
+}
+
+fn json_error(status: StatusCode, message: String) -> Response {
+    (status, axum::Json(json!({ "error": message }))).into_response()
 }
 
 fn not_found(what: String) -> Response {
-    (StatusCode::NOT_FOUND, axum::Json(json!({ "error": what }))).into_response()
+    json_error(StatusCode::NOT_FOUND, what)
 }
 
-fn scene<'a>(state: &'a AppState, id: &str) -> Result<&'a Arc<SceneRuntime>, Box<Response>> {
-    state.scenes.get(id).ok_or_else(|| {
-        Box::new(not_found(format!(
-            "no scene \"{id}\"; GET /api/scenes lists them"
-        )))
-    })
+/// The token a request presents: `Authorization: Bearer <token>`, else
+/// `?token=<token>`. The WebSocket upgrade and the REST routes read it
+/// the same way (a `Hello.token` then overrides it on the WebSocket).
+pub fn request_token(headers: &HeaderMap, query: &HashMap<String, String>) -> Option<String> {
+    headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| {
+            let (scheme, token) = v.split_once(' ')?;
+            scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
+        })
+        .filter(|t| !t.is_empty())
+        .map(str::to_string)
+        .or_else(|| query.get("token").cloned())
+}
+
+/// Whether `role` includes `needed` (admin ⊃ driver ⊃ viewer).
+fn includes(role: Role, needed: Role) -> bool {
+    let rank = |r: Role| match r {
+        Role::Viewer => 0,
+        Role::Driver => 1,
+        Role::Admin => 2,
+    };
+    rank(role) >= rank(needed)
+}
+
+/// Checks a REST request: the browser origin (403), then that its token
+/// grants at least `needed` (401, or 403 for a known token with too small
+/// a role). In development mode without tokens every request is an admin.
+fn authorize(shared: &Shared, request: &Request, needed: Role) -> Result<(), Box<Response>> {
+    let headers = request.headers();
+    if !origin_allowed(shared, headers) {
+        let origin = headers
+            .get(header::ORIGIN)
+            .map(|o| String::from_utf8_lossy(o.as_bytes()).into_owned())
+            .unwrap_or_default();
+        return Err(Box::new(json_error(
+            StatusCode::FORBIDDEN,
+            format!(
+                "origin {origin:?} is not allowed; the server's own origin and `allowed_origins` are"
+            ),
+        )));
+    }
+    let query = Query::<HashMap<String, String>>::try_from_uri(request.uri())
+        .map(|q| q.0)
+        .unwrap_or_default();
+    let token = request_token(headers, &query);
+    let needs = match needed {
+        Role::Viewer => "a viewer, driver or admin token",
+        Role::Driver => "a driver or admin token",
+        Role::Admin => "an admin token",
+    };
+    match shared.auth.role(token.as_deref()) {
+        Some(role) if includes(role, needed) => Ok(()),
+        Some(role) => Err(Box::new(json_error(
+            StatusCode::FORBIDDEN,
+            format!("this endpoint needs {needs}; yours grants the {role:?} role"),
+        ))),
+        None => {
+            let what = if token.is_some() {
+                "unknown token"
+            } else {
+                "missing token"
+            };
+            let mut response = json_error(
+                StatusCode::UNAUTHORIZED,
+                format!(
+                    "{what}: this endpoint needs {needs}, as `Authorization: Bearer <token>` or `?token=<token>`"
+                ),
+            );
+            response.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"lightwire\""),
+            );
+            Err(Box::new(response))
+        }
+    }
+}
+
+async fn require_viewer(
+    State(shared): State<Arc<Shared>>,
+    request: Request,
+    next: Next,
+) -> Response {
+    match authorize(&shared, &request, Role::Viewer) {
+        Ok(()) => next.run(request).await,
+        Err(refused) => *refused,
+    }
+}
+
+async fn require_admin(
+    State(shared): State<Arc<Shared>>,
+    request: Request,
+    next: Next,
+) -> Response {
+    match authorize(&shared, &request, Role::Admin) {
+        Ok(()) => next.run(request).await,
+        Err(refused) => *refused,
+    }
 }
 
 async fn readyz(State(state): State<Arc<AppState>>) -> Response {
@@ -67,66 +266,87 @@ async fn readyz(State(state): State<Arc<AppState>>) -> Response {
     }
 }
 
-async fn metrics(State(state): State<Arc<AppState>>) -> Response {
+async fn metrics(State(shared): State<Arc<Shared>>) -> Response {
     (
         [(
             header::CONTENT_TYPE,
             "application/openmetrics-text; version=1.0.0; charset=utf-8",
         )],
-        state.shared.metrics.render(),
+        shared.metrics.render(),
     )
         .into_response()
 }
 
-async fn list_scenes(State(state): State<Arc<AppState>>) -> Response {
-    let scenes: Vec<_> = state
-        .scenes
-        .values()
-        .map(|s| {
-            let stats = *s.feed.stats.borrow();
-            json!({
-                "id": s.info.id,
-                "description": s.scene.description,
-                "elements": s.atlas.elements.len(),
-                "atlas": { "width": s.info.atlas_width, "height": s.info.atlas_height },
-                "objects": s.info.objects.iter().filter(|o| o.dynamic).map(|o| &o.name).collect::<Vec<_>>(),
-                "ready": s.feed.ready.load(Ordering::Acquire),
-                "version": stats.version,
-                "unshot_fraction": stats.unshot_fraction,
-                "clients": s.feed.clients.load(Ordering::Relaxed),
-            })
-        })
-        .collect();
-    axum::Json(scenes).into_response()
+async fn list_scenes<S: Scenes>(State(scenes): State<Arc<S>>) -> Response {
+    axum::Json(scenes.list()).into_response()
 }
 
-async fn scene_info(State(state): State<Arc<AppState>>, Path(id): Path<String>) -> Response {
-    match scene(&state, &id) {
-        Ok(s) => axum::Json(&*s.info).into_response(),
-        Err(r) => *r,
+/// The feed of `id`, or the 404 to answer.
+fn feed_of<S: Scenes>(scenes: &S, id: &str) -> Result<Arc<Feed>, Box<Response>> {
+    scenes
+        .feed(id)
+        .cloned()
+        .ok_or_else(|| Box::new(not_found(scenes.unknown(id))))
+}
+
+/// 503 for a scene whose description is not known yet (a relay that has
+/// not reached its upstream): clients retry.
+fn not_available(id: &str) -> Response {
+    json_error(
+        StatusCode::SERVICE_UNAVAILABLE,
+        format!("scene \"{id}\" is not available yet; retry"),
+    )
+}
+
+async fn scene_info<S: Scenes>(State(scenes): State<Arc<S>>, Path(id): Path<String>) -> Response {
+    let feed = match feed_of(&*scenes, &id) {
+        Ok(feed) => feed,
+        Err(r) => return *r,
+    };
+    match feed.info() {
+        Some(info) => axum::Json(&*info).into_response(),
+        None => not_available(&id),
     }
 }
 
-/// Decodes the current publication to linear RGB, exactly what a client
-/// holds.
-fn current_rgb(s: &SceneRuntime) -> Option<(u32, u32, u64, Vec<[f32; 3]>)> {
-    let p = s.latest()?;
-    let mut map = Lightmap::new(
-        s.info.atlas_width,
-        s.info.atlas_height,
-        s.info.tile_size,
-        s.info.format,
-    );
-    map.apply_keyframe(&p.keyframe).ok()?;
-    Some((map.width, map.height, p.version, map.to_rgb()))
+/// One version of a scene's lightmap, decoded.
+struct Snapshot {
+    width: u32,
+    height: u32,
+    version: u64,
+    rgb: Vec<[f32; 3]>,
 }
 
-async fn lightmap_file(
-    State(state): State<Arc<AppState>>,
+/// Decodes the feed's newest publication to linear RGB, exactly what a
+/// client of this server holds.
+fn current_rgb(feed: &Feed) -> Result<Snapshot, String> {
+    let info = feed.info().ok_or("the scene is not available yet")?;
+    let p = feed.latest().ok_or("no lightmap published yet")?;
+    let mut map = Lightmap::new(
+        info.atlas_width,
+        info.atlas_height,
+        info.tile_size,
+        info.format,
+    );
+    // Only a relay whose upstream just changed the scene's description
+    // can hold a publication of the old one; its next one will fit.
+    map.apply_keyframe(&p.keyframe).map_err(|e| {
+        format!("the newest lightmap does not fit the scene's description yet ({e}); retry")
+    })?;
+    Ok(Snapshot {
+        width: map.width,
+        height: map.height,
+        version: p.version,
+        rgb: map.to_rgb(),
+    })
+}
+
+async fn lightmap_file<S: Scenes>(
+    State(scenes): State<Arc<S>>,
     Path((id, file)): Path<(String, String)>,
 ) -> Response {
-    let s = match scene(&state, &id) {
-        Ok(s) => s.clone(),
+    let feed = match feed_of(&*scenes, &id) {
+        Ok(feed) => feed,
         Err(r) => return *r,
     };
     let format = match file.as_str() {
@@ -139,7 +359,12 @@ async fn lightmap_file(
         }
     };
     let encoded = tokio::task::spawn_blocking(move || -> Result<(u64, Vec<u8>), String> {
-        let (w, h, version, rgb) = current_rgb(&s).ok_or("no lightmap published yet")?;
+        let Snapshot {
+            width: w,
+            height: h,
+            version,
+            rgb,
+        } = current_rgb(&feed)?;
         let mut out = Cursor::new(Vec::new());
         let image = match format {
             image::ImageFormat::OpenExr => {
@@ -179,16 +404,13 @@ async fn lightmap_file(
             )
                 .into_response()
         }
-        Ok(Err(why)) => (
-            StatusCode::SERVICE_UNAVAILABLE,
-            axum::Json(json!({ "error": why })),
-        )
-            .into_response(),
+        Ok(Err(why)) => json_error(StatusCode::SERVICE_UNAVAILABLE, why),
         Err(_) => (StatusCode::INTERNAL_SERVER_ERROR, "encoding failed").into_response(),
     }
 }
 
-/// Whether a browser `Origin` may open a WebSocket here.
+/// Whether a browser `Origin` may use this server (the WebSocket upgrade
+/// and the REST routes).
 fn origin_allowed(state: &Shared, headers: &HeaderMap) -> bool {
     let Some(origin) = headers.get(header::ORIGIN) else {
         return true; // not a browser
@@ -210,33 +432,27 @@ fn origin_allowed(state: &Shared, headers: &HeaderMap) -> bool {
     own.iter().any(|o| o == origin) || state.config.allowed_origins.iter().any(|o| o == origin)
 }
 
-async fn websocket(
-    State(state): State<Arc<AppState>>,
+async fn websocket<S: Scenes>(
+    State(scenes): State<Arc<S>>,
     Path(id): Path<String>,
     Query(query): Query<HashMap<String, String>>,
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
-    let s = match scene(&state, &id) {
-        Ok(s) => s.clone(),
+    let feed = match feed_of(&*scenes, &id) {
+        Ok(feed) => feed,
         Err(r) => return *r,
     };
     tracing::debug!(%peer, scene = %id, "websocket upgrade");
-    upgrade_websocket(
-        state.shared.clone(),
-        s.feed.clone(),
-        &headers,
-        &query,
-        upgrade,
-    )
+    upgrade_websocket(scenes.shared().clone(), feed, &headers, &query, upgrade)
 }
 
 /// Upgrades a request for `feed`'s WebSocket into a [`session`], after the
 /// checks every server (solver or relay) makes: the browser origin, and
 /// that the scene's description is known (a relay that has not reached its
 /// upstream yet answers 503, so clients retry). The token may come on the
-/// upgrade (`Authorization: Bearer`, `?token=`); `Hello.token` wins.
+/// upgrade ([`request_token`]); `Hello.token` wins.
 pub fn upgrade_websocket(
     shared: Arc<Shared>,
     feed: Arc<Feed>,
@@ -249,23 +465,62 @@ pub fn upgrade_websocket(
         return (StatusCode::FORBIDDEN, "origin not allowed\n").into_response();
     }
     if feed.info().is_none() {
-        return (
-            StatusCode::SERVICE_UNAVAILABLE,
-            axum::Json(json!({
-                "error": format!("scene \"{}\" is not available yet; retry", feed.id)
-            })),
-        )
-            .into_response();
+        return not_available(&feed.id);
     }
-    let token = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::to_string)
-        .or_else(|| query.get("token").cloned());
+    let token = request_token(headers, query);
     let max = shared.config.max_message_bytes;
     upgrade
         .max_message_size(max)
         .max_frame_size(max)
         .on_upgrade(move |socket| session::run(socket, shared, feed, token))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn headers(authorization: Option<&str>) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        if let Some(a) = authorization {
+            h.insert(
+                header::AUTHORIZATION,
+                HeaderValue::from_str(a).expect("valid header"),
+            );
+        }
+        h
+    }
+
+    #[test]
+    fn the_bearer_header_wins_over_the_query_and_other_schemes_fall_back() {
+        let query: HashMap<String, String> =
+            [("token".to_string(), "from-query".to_string())].into();
+        let none = HashMap::new();
+        assert_eq!(
+            request_token(&headers(Some("Bearer from-header")), &query).as_deref(),
+            Some("from-header")
+        );
+        assert_eq!(
+            request_token(&headers(Some("bearer  spaced ")), &none).as_deref(),
+            Some("spaced"),
+            "the scheme is case-insensitive"
+        );
+        assert_eq!(
+            request_token(&headers(Some("Basic dXNlcjpwdw==")), &query).as_deref(),
+            Some("from-query")
+        );
+        assert_eq!(
+            request_token(&headers(Some("Bearer ")), &query).as_deref(),
+            Some("from-query")
+        );
+        assert_eq!(request_token(&headers(None), &none), None);
+    }
+
+    #[test]
+    fn roles_include_the_smaller_ones() {
+        assert!(includes(Role::Admin, Role::Viewer));
+        assert!(includes(Role::Driver, Role::Viewer));
+        assert!(includes(Role::Viewer, Role::Viewer));
+        assert!(!includes(Role::Viewer, Role::Admin));
+        assert!(!includes(Role::Driver, Role::Admin));
+    }
 }

@@ -3,6 +3,9 @@
 // Each test binary compiles this module and uses only some helpers.
 #![allow(dead_code)]
 
+pub mod http;
+pub mod process;
+
 use std::path::PathBuf;
 
 use glam::Vec3;

@@ -1,0 +1,192 @@
+//! The REST routes follow the WebSocket's roles (PROTOCOL.md §7, REST), on
+//! a real `lightwire serve` over real sockets:
+//!
+//! - with tokens configured, the scene list, scene info and both
+//!   snapshots answer 401 (a JSON `error` naming what is missing, and
+//!   `WWW-Authenticate: Bearer`) without a token or with an unknown one,
+//!   and 200 with a viewer token as `Authorization: Bearer` or `?token=`;
+//! - a foreign browser `Origin` gets 403 even with a good token; the
+//!   server's own origin is fine;
+//! - `/healthz` and `/readyz` stay open; `/metrics` is open by default and
+//!   needs an admin token with `metrics = "token"`;
+//! - in development mode (no tokens) the REST routes are open.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::http::{self, Response};
+use common::process::{ADMIN_TOKEN, DRIVER_TOKEN, Proc, SCENE, VIEWER_TOKEN};
+
+/// The routes that need a viewer token.
+fn viewer_routes() -> [String; 4] {
+    [
+        "/api/scenes".to_string(),
+        format!("/api/scenes/{SCENE}"),
+        format!("/api/scenes/{SCENE}/lightmap.exr"),
+        format!("/api/scenes/{SCENE}/lightmap.png"),
+    ]
+}
+
+async fn wait_ready(server: &Proc) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while http::get(&server.addr, "/readyz", None).await.status != 200 {
+        assert!(Instant::now() < deadline, "the server never became ready");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+fn assert_unauthorized(r: &Response, route: &str, what: &str) {
+    assert_eq!(r.status, 401, "{route}: {}", r.text());
+    assert_eq!(
+        r.header("www-authenticate"),
+        Some("Bearer realm=\"lightwire\""),
+        "{route}"
+    );
+    let error = r.json()["error"].as_str().unwrap_or_default().to_string();
+    assert!(
+        error.contains(what) && error.contains("Authorization: Bearer"),
+        "{route}: the 401 says what is missing and how to send it: {error:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
+    let server = Proc::solver("127.0.0.1:0");
+    let addr = server.addr.as_str();
+    wait_ready(&server).await;
+
+    for route in viewer_routes() {
+        let none = http::get(addr, &route, None).await;
+        assert_unauthorized(&none, &route, "missing token");
+        let unknown = http::get(addr, &route, Some("not-a-token-at-all")).await;
+        assert_unauthorized(&unknown, &route, "unknown token");
+        let wrong_query = http::get(addr, &format!("{route}?token=nope-nope-nope"), None).await;
+        assert_unauthorized(&wrong_query, &route, "unknown token");
+
+        for token in [VIEWER_TOKEN, DRIVER_TOKEN, ADMIN_TOKEN] {
+            let header = http::get(addr, &route, Some(token)).await;
+            assert_eq!(header.status, 200, "{route} with a Bearer token");
+            let query = http::get(addr, &format!("{route}?token={token}"), None).await;
+            assert_eq!(query.status, 200, "{route}?token=");
+            assert_eq!(
+                header.header("content-type"),
+                query.header("content-type"),
+                "{route}: the same answer either way"
+            );
+        }
+
+        // The WebSocket's Origin rule: a foreign origin is refused even
+        // with a good token, the server's own is not.
+        let bearer = format!("Bearer {VIEWER_TOKEN}");
+        let foreign = http::get_with(
+            addr,
+            &route,
+            &[
+                ("Authorization", &bearer),
+                ("Origin", "https://evil.example"),
+            ],
+        )
+        .await
+        .expect("answers");
+        assert_eq!(foreign.status, 403, "{route}");
+        let error = foreign.json()["error"]
+            .as_str()
+            .unwrap_or_default()
+            .to_string();
+        assert!(error.contains("evil.example"), "{route}: {error:?}");
+        let own = format!("http://{addr}");
+        let same = http::get_with(
+            addr,
+            &route,
+            &[("Authorization", &bearer), ("Origin", &own)],
+        )
+        .await
+        .expect("answers");
+        assert_eq!(same.status, 200, "{route} from the server's own origin");
+    }
+
+    // What the 200s carry.
+    let list = http::get(addr, "/api/scenes", Some(VIEWER_TOKEN))
+        .await
+        .json();
+    assert_eq!(list[0]["id"], SCENE);
+    let info = http::get(addr, &format!("/api/scenes/{SCENE}"), Some(VIEWER_TOKEN))
+        .await
+        .json();
+    assert_eq!(info["id"], SCENE);
+    let exr = http::get(
+        addr,
+        &format!("/api/scenes/{SCENE}/lightmap.exr"),
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(exr.header("content-type"), Some("image/x-exr"));
+    assert!(exr.header("x-lightwire-version").is_some());
+
+    // Open: health, readiness, the dashboard's files, and by default the
+    // metrics.
+    for open in ["/healthz", "/readyz", "/", "/dashboard/app.js", "/metrics"] {
+        let r = http::get(addr, open, None).await;
+        assert_eq!(r.status, 200, "{open} without a token");
+    }
+    assert!(
+        http::get(addr, "/metrics", None)
+            .await
+            .text()
+            .contains("# EOF"),
+        "metrics are served"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_token_mode_needs_an_admin_token() {
+    let server = Proc::solver_with(
+        "127.0.0.1:0",
+        "reference",
+        &[("LIGHTWIRE_METRICS", "token".into())],
+    );
+    let addr = server.addr.as_str();
+    let none = http::get(addr, "/metrics", None).await;
+    assert_unauthorized(&none, "/metrics", "missing token");
+    for token in [VIEWER_TOKEN, DRIVER_TOKEN] {
+        let r = http::get(addr, "/metrics", Some(token)).await;
+        assert_eq!(r.status, 403, "a non-admin token: {}", r.text());
+        assert!(r.text().contains("admin token"), "{}", r.text());
+    }
+    let admin = http::get(addr, "/metrics", Some(ADMIN_TOKEN)).await;
+    assert_eq!(admin.status, 200);
+    assert!(admin.text().contains("# EOF"));
+    let query = http::get(addr, &format!("/metrics?token={ADMIN_TOKEN}"), None).await;
+    assert_eq!(query.status, 200);
+    // Health and readiness stay open.
+    assert_eq!(http::get(addr, "/healthz", None).await.status, 200);
+    wait_ready(&server).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn development_mode_leaves_the_rest_routes_open() {
+    let scene = common::scene_path("cornell-low.json");
+    let args = [
+        "serve",
+        "--dev",
+        "--listen",
+        "127.0.0.1:0",
+        "--solver",
+        "reference",
+        "--density-scale",
+        "0.5",
+        "--scene",
+    ]
+    .map(String::from)
+    .into_iter()
+    .chain([scene.display().to_string()])
+    .collect::<Vec<_>>();
+    let server = Proc::spawn(&args, &[]);
+    wait_ready(&server).await;
+    for route in viewer_routes() {
+        let r = http::get(&server.addr, &route, None).await;
+        assert_eq!(r.status, 200, "{route} in development mode: {}", r.text());
+    }
+    assert_eq!(http::get(&server.addr, "/metrics", None).await.status, 200);
+}
