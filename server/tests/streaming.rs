@@ -628,7 +628,7 @@ async fn a_transform_that_changes_nothing_is_still_echoed() {
 }
 
 async fn echo_of_an_unchanged_pose(solver: &str) {
-    let server = Server::start_with(&[], solver);
+    let server = Proc::solver_with("127.0.0.1:0", solver, &[]);
     let url = server.ws_url();
     wait_ready(&server).await;
     let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
@@ -691,7 +691,7 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
 /// `Hello`; other clients are undisturbed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_oversized_frame_gets_too_large_and_close_1009() {
-    let server = Server::start();
+    let server = Proc::solver("127.0.0.1:0");
     let url = server.ws_url();
     wait_ready(&server).await;
     let mut bystander = Client::connect(&url, VIEWER_TOKEN).await;
@@ -742,7 +742,7 @@ async fn an_oversized_frame_gets_too_large_and_close_1009() {
 /// PROTOCOL.md §1: a text frame is a bad frame (1), first or later.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_text_frame_is_a_bad_frame() {
-    let server = Server::start();
+    let server = Proc::solver("127.0.0.1:0");
     let url = server.ws_url();
     wait_ready(&server).await;
     let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
@@ -778,7 +778,7 @@ async fn a_text_frame_is_a_bad_frame() {
 /// `max_bad_frames`-th bad frame earns.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn no_error_reply_is_lost() {
-    let server = Server::start();
+    let server = Proc::solver("127.0.0.1:0");
     let url = server.ws_url();
     wait_ready(&server).await;
 
@@ -860,7 +860,7 @@ async fn no_error_reply_is_lost() {
 /// a pose at the bounds is accepted and lit with finite light.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
-    let server = Server::start();
+    let server = Proc::solver("127.0.0.1:0");
     let url = server.ws_url();
     wait_ready(&server).await;
     let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
