@@ -34,7 +34,7 @@ OUT=target/soak
 BIN=${LIGHTWIRE_BIN:-target/release}
 
 usage() {
-  sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'
   cat <<EOF
 
 Options (defaults in brackets):
@@ -44,7 +44,8 @@ Options (defaults in brackets):
   --rate HZ           poses per second per driver [$RATE]
   --sample SECS       RSS / descriptor sampling period [$SAMPLE]
   --interval SECS     latency / error reporting period [$INTERVAL]
-  --warmup SECS       the growth is measured from this long into the drive [$WARMUP]
+  --warmup SECS       growth is measured from the sample this long after the
+                      load tester starts [$WARMUP]
   --scene FILE        [$SCENE]
   --script FILE       the drivers' transform script [$SCRIPT]
   --serve-flags STR   extra flags for \`lightwire serve\` (default: none, as \`make run\`:
@@ -54,6 +55,7 @@ EOF
 }
 
 while [ $# -gt 0 ]; do
+  case "$1" in -h|--help) ;; *) [ $# -ge 2 ] || { echo "soak: $1 needs a value (see --help)" >&2; exit 2; } ;; esac
   case "$1" in
     --duration) DURATION=$2; shift 2 ;;
     --viewers) VIEWERS=$2; shift 2 ;;
@@ -130,7 +132,9 @@ wait_ready() {
   return 1
 }
 
-SCENE_ID=$(basename "$SCENE" .json)
+# The scene's id is its "name" (top level, first in the shipped files).
+SCENE_ID=$(sed -n 's/^  "name": *"\([^"]*\)".*/\1/p' "$SCENE" | head -1)
+SCENE_ID=${SCENE_ID:-$(basename "$SCENE" .json)}
 # shellcheck disable=SC2086
 "$BIN/lightwire" serve --dev --listen 127.0.0.1:0 --scene "$SCENE" $SERVE_FLAGS \
   > "$OUT/solver.out" 2> "$OUT/solver.err" &
