@@ -734,11 +734,11 @@ async fn verify(
     };
     let client = Client::connect_with(endpoint.clone(), options)
         .await
-        .with_context(|| format!("--verify-url: connecting to {endpoint}"))?;
+        .context("--verify-url")?;
     let frame = client
         .wait_for_version(0, Duration::from_secs(30))
         .await
-        .with_context(|| format!("--verify-url: waiting for a keyframe from {endpoint}"));
+        .context("--verify-url");
     client.close().await;
     let frame = frame?;
     let checksum = format!("{:016x}", frame.checksum());
