@@ -186,8 +186,12 @@ pub struct IntervalReport {
     pub versions_skipped: u64,
     /// Versions viewers applied, summed over viewers.
     pub versions_applied: u64,
+    /// Sessions re-opened after a disconnect, all clients.
     pub reconnects: u64,
+    /// `StaleSeq` refusals (by design with drivers sharing an object).
     pub stale_seqs: u64,
+    /// Poses the drivers handed to their clients (the outbox may still
+    /// coalesce some before they are written).
     pub poses_sent: u64,
 }
 
