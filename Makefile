@@ -5,6 +5,9 @@
 #   make test  installs what is missing, runs every test (Rust, the
 #              dashboard's JavaScript, and the dashboard in headless Chromium)
 #              and validates the deployment files (make deploy-check)
+#   make soak  builds, then the soak benchmark: a solver, a relay, 500 viewers
+#              and 2 drivers for 10 minutes on loopback (SOAK_FLAGS, e.g.
+#              SOAK_FLAGS="--duration 60"; report in target/soak/)
 #
 # System packages are installed with apt (idempotently: only what is
 # missing, and `apt-get update` only when something is).
@@ -29,7 +32,7 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config chromium
 NODE_APT_PACKAGES := nodejs npm
 DASHBOARD := server/dashboard
 
-.PHONY: run bake test deps check-toolchain build dashboard-deps deploy-tools deploy-check
+.PHONY: run bake test soak deps check-toolchain build dashboard-deps deploy-tools deploy-check
 
 deps: check-toolchain
 	@missing=""; \
@@ -74,6 +77,11 @@ bake: build
 	@echo
 	@echo "baked $(SCENE): open $(OUT)/lightmap.png (tone-mapped) or $(OUT)/lightmap.exr (linear HDR);"
 	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers."
+
+# BENCHMARKS.md, "Soak". The script builds nothing and stops by itself.
+SOAK_FLAGS ?=
+soak: build
+	client/bench/soak.sh $(SOAK_FLAGS)
 
 # Validators for deploy/, from PyPI into a venv under target/ (reinstalled
 # only when the pinned versions change). Both work offline once installed:

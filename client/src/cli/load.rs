@@ -10,21 +10,35 @@
 //!    so their poses interleave. Every client shares one [`LatencyBook`],
 //!    so each viewer measures the transform-to-delivery latency of every
 //!    driver's pose: send → the viewer has applied the version that echoes
-//!    the seq.
+//!    the seq. With `--interval I` the drive phase is cut into intervals
+//!    of `I`: each gets its own latency percentiles (a histogram reset
+//!    when the interval closes), errors, versions skipped, reconnects and
+//!    stale seqs, in the report's `intervals` and as one line on stderr as
+//!    it closes, so a long run shows drift as it happens.
 //! 3. **Settle**: the drivers stop; the run waits until the server's
 //!    version (from `Stats`) has not changed for `--quiet` and every
 //!    viewer holds it, or `--settle-timeout` passes. Each viewer's final
 //!    version and lightmap checksum (FNV-1a of its texels) go into the
 //!    report, so a test can compare them with the server's state.
+//!    `--verify-url` does that comparison itself: a fresh client on that
+//!    server (e.g. the solver behind the relay under test) takes a
+//!    keyframe, and every viewer whose texels differ is an error.
 //! 4. **Report** (`--report FILE`, JSON; a summary on stderr) and exit
 //!    code: 0, or 1 when `--max-p99-ms` or `--max-errors` is missed.
 //!
 //! Errors (what `--max-errors` counts): connect errors, disconnects,
 //! failed reconnects, server frames that do not decode or apply, server
 //! `Error` frames (except `StaleSeq`), refused poses, and viewers not on
-//! the final version after settling. `StaleSeq` refusals are reported
+//! the final version after settling, and with `--verify-url` viewers not
+//! bit-exact with its keyframe. `StaleSeq` refusals are reported
 //! separately: when two drivers move one object, a pose overtaken by the
 //! other driver's newer one is refused by design ("latest seq wins").
+//! *Versions skipped*: per viewer, the versions between two it applied
+//! that it never held (a slow viewer is skipped forward by a merged delta
+//! or a keyframe). Poses the solver coalesced into one version are not
+//! numbered and do not count; behind a relay, versions the relay itself
+//! was skipped past by its upstream do (its version numbers follow the
+//! solver's).
 //! Rates (frames/s, bytes/s, poses/s) are measured over the drive phase
 //! only; latency samples include the settle phase (the last poses'
 //! deliveries).
@@ -104,10 +118,21 @@ pub struct LoadArgs {
     /// Give up waiting for the viewers to settle after this long.
     #[arg(long, value_parser = parse_duration, default_value = "60s")]
     pub settle_timeout: Duration,
+    /// Report latency percentiles, errors, versions skipped and reconnects
+    /// per interval of the drive phase (e.g. 60s; at most
+    /// 10,000 intervals), in the report's `intervals` and on stderr.
+    #[arg(long, value_parser = parse_duration)]
+    pub interval: Option<Duration>,
+    /// After settling, compare every viewer's lightmap with a fresh
+    /// keyframe from this server (e.g. the solver behind the relay the
+    /// viewers use); a viewer that differs is an error. Same URL forms and
+    /// `--scene` as the server argument; the viewer token.
+    #[arg(long)]
+    pub verify_url: Option<String>,
 }
 
 /// Latency percentiles in milliseconds.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, PartialEq)]
 pub struct LatencyReport {
     /// Samples: (viewer, transform) deliveries, or transforms for the
     /// per-transform figures.
@@ -144,6 +169,46 @@ pub struct ViewerFinal {
     pub checksum: Option<String>,
 }
 
+/// One interval of the drive phase (`--interval`).
+#[derive(Debug, Serialize, PartialEq)]
+pub struct IntervalReport {
+    /// 0 for the first interval.
+    pub index: usize,
+    /// Seconds since the drive phase began.
+    pub start_s: f64,
+    pub end_s: f64,
+    /// Transform-to-delivery latency of the deliveries in this interval.
+    pub latency: LatencyReport,
+    /// Errors in this interval (what `--max-errors` counts, as they happen).
+    pub errors: u64,
+    /// Versions viewers did not receive one by one (skipped forward by a
+    /// merged delta or a keyframe), summed over viewers.
+    pub versions_skipped: u64,
+    /// Versions viewers applied, summed over viewers.
+    pub versions_applied: u64,
+    /// Sessions re-opened after a disconnect, all clients.
+    pub reconnects: u64,
+    /// `StaleSeq` refusals (by design with drivers sharing an object).
+    pub stale_seqs: u64,
+    /// Poses the drivers handed to their clients (the outbox may still
+    /// coalesce some before they are written).
+    pub poses_sent: u64,
+}
+
+/// The end-of-run comparison with a fresh keyframe (`--verify-url`).
+#[derive(Debug, Serialize)]
+pub struct VerifyReport {
+    pub url: String,
+    /// The fresh keyframe's version (a relay's versions equal its solver's
+    /// only while it has followed one solver run).
+    pub version: u64,
+    /// FNV-1a 64 of its texels, hex.
+    pub checksum: String,
+    /// Viewers whose lightmap has exactly these texels.
+    pub viewers_bit_exact: usize,
+    pub viewers_differing: usize,
+}
+
 /// The JSON report.
 #[derive(Debug, Serialize)]
 pub struct Report {
@@ -161,6 +226,9 @@ pub struct Report {
     pub error_breakdown: BTreeMap<&'static str, u64>,
     /// The first error messages, verbatim.
     pub error_messages: Vec<String>,
+    /// Versions viewers skipped (see [`IntervalReport::versions_skipped`]),
+    /// over the whole run.
+    pub versions_skipped: u64,
     /// Poses refused because another driver's newer pose was first.
     pub stale_seqs: u64,
     pub resyncs: u64,
@@ -194,6 +262,10 @@ pub struct Report {
     /// Distinct lightmap checksums among viewers on the final version.
     pub final_checksums: Vec<String>,
     pub viewer_final: Vec<ViewerFinal>,
+    /// Per interval of the drive phase (`--interval`; empty without).
+    pub intervals: Vec<IntervalReport>,
+    /// The comparison with `--verify-url` (`null` without).
+    pub verify: Option<VerifyReport>,
     /// Limits that were missed.
     pub failures: Vec<String>,
     pub passed: bool,
@@ -204,6 +276,18 @@ pub fn run(args: LoadArgs) -> Result<bool> {
     let script = Script::load(&args.script)?;
     if args.viewers == 0 && args.drivers == 0 {
         bail!("--viewers and --drivers are both 0: nothing to do");
+    }
+    if let Some(step) = args.interval {
+        if step < Duration::from_millis(100) {
+            bail!("--interval {step:?} is too short (at least 100ms)");
+        }
+        let n = interval_count(args.duration, step);
+        if n > MAX_INTERVALS {
+            bail!(
+                "--interval {step:?} cuts --duration {:?} into {n} intervals; at most {MAX_INTERVALS}",
+                args.duration
+            );
+        }
     }
     let report = super::runtime()?.block_on(load(&args, script))?;
     let text = serde_json::to_string_pretty(&report).context("encoding the report")?;
@@ -235,6 +319,17 @@ pub fn run(args: LoadArgs) -> Result<bool> {
         report.viewers,
         if report.settled { "" } else { " (NOT settled)" }
     );
+    if let Some(v) = &report.verify {
+        eprintln!(
+            "load: {} of {} viewers bit-exact with {} version {} (checksum {}); {} versions skipped",
+            v.viewers_bit_exact,
+            report.viewers,
+            v.url,
+            v.version,
+            v.checksum,
+            report.versions_skipped
+        );
+    }
     for m in &report.error_messages {
         eprintln!("  error: {m}");
     }
@@ -244,9 +339,137 @@ pub fn run(args: LoadArgs) -> Result<bool> {
     Ok(report.passed)
 }
 
+/// The whole run's latency histogram and the current interval's (reset
+/// when the interval closes, so memory does not grow with the duration).
+struct Latencies {
+    all: Histogram<u64>,
+    window: Histogram<u64>,
+}
+
+impl Latencies {
+    fn new() -> Result<Self> {
+        let all = Histogram::new_with_bounds(1, 60_000_000, 3).context("latency histogram")?;
+        Ok(Self {
+            window: all.clone(),
+            all,
+        })
+    }
+
+    fn record(&mut self, latency: Duration) {
+        let us = latency.as_micros() as u64;
+        self.all.saturating_record(us);
+        self.window.saturating_record(us);
+    }
+}
+
+/// Counts since the start of the run, updated as events arrive; an
+/// interval is the difference of two snapshots.
+#[derive(Default)]
+struct Tally {
+    errors: AtomicU64,
+    versions_skipped: AtomicU64,
+    versions_applied: AtomicU64,
+    reconnects: AtomicU64,
+    stale_seqs: AtomicU64,
+    poses_sent: AtomicU64,
+}
+
+impl Tally {
+    fn snapshot(&self) -> TallySnapshot {
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        TallySnapshot {
+            errors: get(&self.errors),
+            versions_skipped: get(&self.versions_skipped),
+            versions_applied: get(&self.versions_applied),
+            reconnects: get(&self.reconnects),
+            stale_seqs: get(&self.stale_seqs),
+            poses_sent: get(&self.poses_sent),
+        }
+    }
+}
+
+/// A copy of [`Tally`] at one instant.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct TallySnapshot {
+    errors: u64,
+    versions_skipped: u64,
+    versions_applied: u64,
+    reconnects: u64,
+    stale_seqs: u64,
+    poses_sent: u64,
+}
+
+/// The interval being measured: when it began and the counts then.
+struct Window {
+    index: usize,
+    start_s: f64,
+    at_start: TallySnapshot,
+}
+
+impl Window {
+    fn new(at_start: TallySnapshot) -> Self {
+        Self {
+            index: 0,
+            start_s: 0.0,
+            at_start,
+        }
+    }
+
+    /// Ends the interval at `now_s` (seconds since the drive began):
+    /// its percentiles from `latency` (which is then reset) and the counts
+    /// since it began; the next interval starts here.
+    fn close(
+        &mut self,
+        latency: &mut Histogram<u64>,
+        now: TallySnapshot,
+        now_s: f64,
+    ) -> IntervalReport {
+        let since = |f: fn(&TallySnapshot) -> u64| f(&now).saturating_sub(f(&self.at_start));
+        let report = IntervalReport {
+            index: self.index,
+            start_s: (self.start_s * 1000.0).round() / 1000.0,
+            end_s: (now_s * 1000.0).round() / 1000.0,
+            latency: percentiles(latency),
+            errors: since(|t| t.errors),
+            versions_skipped: since(|t| t.versions_skipped),
+            versions_applied: since(|t| t.versions_applied),
+            reconnects: since(|t| t.reconnects),
+            stale_seqs: since(|t| t.stale_seqs),
+            poses_sent: since(|t| t.poses_sent),
+        };
+        latency.reset();
+        self.index += 1;
+        self.start_s = now_s;
+        self.at_start = now;
+        report
+    }
+}
+
+/// Versions between the one a viewer held and the one it now holds that
+/// it never held (0 for its first version, or if versions went back, as
+/// they can on a solver that restarted).
+fn skipped(held: Option<u64>, new: u64) -> u64 {
+    held.map_or(0, |h| new.saturating_sub(h).saturating_sub(1))
+}
+
+/// Intervals of `step` that cover `duration` (the last may be shorter).
+fn interval_count(duration: Duration, step: Duration) -> u64 {
+    if step.is_zero() {
+        return u64::MAX;
+    }
+    (duration.as_secs_f64() / step.as_secs_f64() - 1e-9)
+        .ceil()
+        .max(1.0) as u64
+}
+
+/// At most this many intervals (`--interval`), so their reports stay small.
+const MAX_INTERVALS: u64 = 10_000;
+
 /// What every client task shares.
 struct Shared {
-    latency: Mutex<Histogram<u64>>,
+    latency: Mutex<Latencies>,
+    /// Running counts the intervals are cut from.
+    tally: Tally,
     /// The server's tick timings as its `Stats` report them (one client
     /// records them; every client sees the same frames).
     server: Mutex<ServerSamples>,
@@ -281,6 +504,7 @@ struct Errors {
 
 impl Shared {
     fn error(&self, kind: &'static str, message: String) {
+        self.tally.errors.fetch_add(1, Ordering::Relaxed);
         let mut e = self.errors.lock().unwrap_or_else(|p| p.into_inner());
         *e.counts.entry(kind).or_default() += 1;
         if e.messages.len() < MAX_MESSAGES {
@@ -328,6 +552,8 @@ async fn client_task(
     record_stats: bool,
 ) -> Finished {
     let viewer = driving.is_none();
+    // The version this viewer last applied (for versions skipped).
+    let mut held: Option<u64> = None;
     let mut marks: [Option<Counters>; 4] = [Some(client.counters()), None, None, None];
     let mut poses = driving.as_ref().map(|d| {
         let mut i = tokio::time::interval_at(d.first, d.period);
@@ -351,17 +577,21 @@ async fn client_task(
             } => {
                 if let Some(d) = driving.as_ref().filter(|_| *phase.borrow() == Phase::Driving) {
                     let t = d.clock.elapsed().as_secs_f64();
-                    if let Err(e) = client.send_pose(d.object, d.script.pose_at(t)) {
-                        shared.error("pose_refused_locally", e.to_string());
+                    match client.send_pose(d.object, d.script.pose_at(t)) {
+                        Ok(_) => { shared.tally.poses_sent.fetch_add(1, Ordering::Relaxed); }
+                        Err(e) => shared.error("pose_refused_locally", e.to_string()),
                     }
                 }
             }
             event = client.next_event() => match event {
                 Some(Event::Version(v)) if viewer => {
+                    shared.tally.versions_applied.fetch_add(1, Ordering::Relaxed);
+                    shared.tally.versions_skipped.fetch_add(skipped(held, v.version), Ordering::Relaxed);
+                    held = Some(v.version);
                     let mut h = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
                     for d in &v.delivered {
                         let Some(l) = d.latency else { continue };
-                        h.saturating_record(l.as_micros() as u64);
+                        h.record(l);
                     }
                     drop(h);
                     let mut per = shared.deliveries.lock().unwrap_or_else(|p| p.into_inner());
@@ -386,8 +616,18 @@ async fn client_task(
                         acc.max_tick_ms = acc.max_tick_ms.max(f64::from(s.tick_ms));
                     }
                 }
-                // Reported from the counters: by design when drivers share an object.
-                Some(Event::ServerError { code: ErrorCode::StaleSeq | ErrorCode::RateLimited, .. }) => {}
+                // By design when drivers share an object; the run's total
+                // comes from the counters.
+                Some(Event::ServerError { code: ErrorCode::StaleSeq, .. }) => {
+                    shared.tally.stale_seqs.fetch_add(1, Ordering::Relaxed);
+                }
+                // An error; the run's total comes from the counters.
+                Some(Event::ServerError { code: ErrorCode::RateLimited, .. }) => {
+                    shared.tally.errors.fetch_add(1, Ordering::Relaxed);
+                }
+                Some(Event::Connected { reconnect: true, .. }) => {
+                    shared.tally.reconnects.fetch_add(1, Ordering::Relaxed);
+                }
                 Some(Event::ServerError { code, message }) => {
                     shared.error("server_error", format!("{}: server error {code}: {message}", client.endpoint()));
                 }
@@ -481,6 +721,55 @@ fn delta(done: &[&Finished], from: Phase, to: Phase, f: impl Fn(&Counters) -> u6
         .sum()
 }
 
+/// Compares every viewer's final lightmap with a fresh keyframe from
+/// `url`; each viewer that differs (or holds nothing) is an error.
+async fn verify(
+    url: &str,
+    args: &LoadArgs,
+    options: &Options,
+    viewers: &[ViewerFinal],
+    shared: &Shared,
+) -> Result<VerifyReport> {
+    let endpoint = Endpoint::parse(url, args.server.scene.as_deref())
+        .with_context(|| format!("--verify-url {url}"))?;
+    let options = Options {
+        client_name: "lightwire-client load verify".into(),
+        ..options.clone()
+    };
+    let client = Client::connect_with(endpoint.clone(), options)
+        .await
+        .context("--verify-url")?;
+    let frame = client
+        .wait_for_version(0, Duration::from_secs(30))
+        .await
+        .context("--verify-url");
+    client.close().await;
+    let frame = frame?;
+    let checksum = format!("{:016x}", frame.checksum());
+    let exact = viewers
+        .iter()
+        .filter(|v| v.checksum.as_deref() == Some(checksum.as_str()))
+        .count();
+    let differing = viewers.len() - exact;
+    if differing > 0 {
+        shared.error(
+            "not_bit_exact",
+            format!(
+                "{differing} of {} viewers do not hold the texels of {endpoint}'s version {} (checksum {checksum})",
+                viewers.len(),
+                frame.version()
+            ),
+        );
+    }
+    Ok(VerifyReport {
+        url: endpoint.ws_url(),
+        version: frame.version(),
+        checksum,
+        viewers_bit_exact: exact,
+        viewers_differing: differing,
+    })
+}
+
 async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
     let endpoint = args.server.endpoint()?;
     let driver_token = args.server.token();
@@ -496,9 +785,8 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         ..Options::default()
     };
     let shared = Arc::new(Shared {
-        latency: Mutex::new(
-            Histogram::new_with_bounds(1, 60_000_000, 3).context("latency histogram")?,
-        ),
+        latency: Mutex::new(Latencies::new()?),
+        tally: Tally::default(),
         server: Mutex::new(ServerSamples::default()),
         deliveries: Mutex::new(HashMap::new()),
         server_version: AtomicU64::new(0),
@@ -604,10 +892,47 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         ));
     }
 
-    // 2. Drive.
+    // 2. Drive, cut into intervals if asked.
     tokio::time::sleep_until(start).await;
     let _ = phase_tx.send(Phase::Driving);
-    tokio::time::sleep_until(start + args.duration).await;
+    let mut intervals = Vec::new();
+    if let Some(step) = args.interval {
+        {
+            // Deliveries before the drive began belong to no interval.
+            let mut l = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
+            l.window.reset();
+        }
+        let mut window = Window::new(shared.tally.snapshot());
+        let mut end = Duration::ZERO;
+        while end < args.duration {
+            end = (end + step).min(args.duration);
+            tokio::time::sleep_until(start + end).await;
+            let report = {
+                let mut l = shared.latency.lock().unwrap_or_else(|p| p.into_inner());
+                window.close(&mut l.window, shared.tally.snapshot(), end.as_secs_f64())
+            };
+            eprintln!(
+                "load: interval {} ({:.0}-{:.0} s): latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples), {} versions applied, {} skipped, {} errors, {} reconnects, {} stale, {} poses",
+                report.index,
+                report.start_s,
+                report.end_s,
+                report.latency.p50_ms,
+                report.latency.p95_ms,
+                report.latency.p99_ms,
+                report.latency.max_ms,
+                report.latency.samples,
+                report.versions_applied,
+                report.versions_skipped,
+                report.errors,
+                report.reconnects,
+                report.stale_seqs,
+                report.poses_sent,
+            );
+            intervals.push(report);
+        }
+    } else {
+        tokio::time::sleep_until(start + args.duration).await;
+    }
     let _ = phase_tx.send(Phase::Settling);
     let drive_secs = args.duration.as_secs_f64();
 
@@ -660,6 +985,16 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         }
         viewer_final.push(ViewerFinal { version, checksum });
     }
+    let verify = match &args.verify_url {
+        Some(url) => match verify(url, args, &viewer_options, &viewer_final, &shared).await {
+            Ok(v) => Some(v),
+            Err(e) => {
+                shared.error("verify_failed", format!("{e:#}"));
+                None
+            }
+        },
+        None => None,
+    };
     if on_final < n_viewers {
         shared.error(
             "not_on_final_version",
@@ -694,7 +1029,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         breakdown.insert("rate_limited", rate_limited);
     }
     let total_errors: u64 = breakdown.values().sum();
-    let latency = percentiles(&shared.latency.lock().unwrap_or_else(|p| p.into_inner()));
+    let latency = percentiles(&shared.latency.lock().unwrap_or_else(|p| p.into_inner()).all);
     let (first_delivery, fanout_spread) = {
         let per = shared.deliveries.lock().unwrap_or_else(|p| p.into_inner());
         let mut first = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).context("histogram")?;
@@ -761,6 +1096,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         errors: total_errors,
         error_breakdown: breakdown,
         error_messages: errors.messages.clone(),
+        versions_skipped: shared.tally.snapshot().versions_skipped,
         stale_seqs,
         resyncs,
         reconnects,
@@ -781,7 +1117,103 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         viewers_on_final_version: on_final,
         final_checksums: checksums.into_iter().collect(),
         viewer_final,
+        intervals,
+        verify,
         passed: failures.is_empty(),
         failures,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn histogram() -> Histogram<u64> {
+        Histogram::new_with_bounds(1, 60_000_000, 3).expect("histogram")
+    }
+
+    #[test]
+    fn an_interval_has_its_own_percentiles_and_counts_and_the_next_starts_empty() {
+        let tally = Tally::default();
+        let mut latencies = Latencies::new().expect("histograms");
+        let mut window = Window::new(tally.snapshot());
+        // First interval: 1..=100 ms, 3 errors, 5 skipped.
+        for ms in 1..=100u64 {
+            latencies.record(Duration::from_millis(ms));
+        }
+        tally.errors.fetch_add(3, Ordering::Relaxed);
+        tally.versions_skipped.fetch_add(5, Ordering::Relaxed);
+        tally.versions_applied.fetch_add(40, Ordering::Relaxed);
+        tally.poses_sent.fetch_add(60, Ordering::Relaxed);
+        let first = window.close(&mut latencies.window, tally.snapshot(), 60.0);
+        assert_eq!((first.index, first.start_s, first.end_s), (0, 0.0, 60.0));
+        assert_eq!(first.latency.samples, 100);
+        assert!((first.latency.p50_ms - 50.0).abs() < 0.1, "{first:?}");
+        assert!((first.latency.p99_ms - 99.0).abs() < 0.1, "{first:?}");
+        assert!((first.latency.max_ms - 100.0).abs() < 0.1, "{first:?}");
+        assert_eq!(
+            (
+                first.errors,
+                first.versions_skipped,
+                first.versions_applied,
+                first.poses_sent
+            ),
+            (3, 5, 40, 60)
+        );
+        assert_eq!((first.reconnects, first.stale_seqs), (0, 0));
+
+        // Second interval: only what happened since, 500 ms each.
+        for _ in 0..10 {
+            latencies.record(Duration::from_millis(500));
+        }
+        tally.reconnects.fetch_add(1, Ordering::Relaxed);
+        tally.stale_seqs.fetch_add(2, Ordering::Relaxed);
+        let second = window.close(&mut latencies.window, tally.snapshot(), 90.5);
+        assert_eq!(
+            (second.index, second.start_s, second.end_s),
+            (1, 60.0, 90.5)
+        );
+        assert_eq!(second.latency.samples, 10);
+        assert!((second.latency.p50_ms - 500.0).abs() < 1.0, "{second:?}");
+        assert_eq!(
+            (second.errors, second.versions_skipped, second.poses_sent),
+            (0, 0, 0)
+        );
+        assert_eq!((second.reconnects, second.stale_seqs), (1, 2));
+
+        // An empty interval reports zero samples, not stale figures.
+        let third = window.close(&mut latencies.window, tally.snapshot(), 120.0);
+        assert_eq!(third.latency, percentiles(&histogram()));
+        assert_eq!(third.latency.samples, 0);
+        // The run's histogram kept everything.
+        assert_eq!(latencies.all.len(), 110);
+    }
+
+    #[test]
+    fn versions_skipped_are_the_gaps_a_viewer_never_held() {
+        assert_eq!(skipped(None, 17), 0, "the first version skips nothing");
+        assert_eq!(skipped(Some(4), 5), 0);
+        assert_eq!(
+            skipped(Some(4), 8),
+            3,
+            "a merged delta 4 -> 8 skips 5, 6, 7"
+        );
+        assert_eq!(
+            skipped(Some(9), 3),
+            0,
+            "a restarted solver counts from 1 again"
+        );
+        assert_eq!(skipped(Some(9), 9), 0);
+        assert_eq!(skipped(Some(0), u64::MAX), u64::MAX - 1);
+    }
+
+    #[test]
+    fn intervals_cover_the_duration_and_are_bounded() {
+        let s = Duration::from_secs;
+        assert_eq!(interval_count(s(600), s(60)), 10);
+        assert_eq!(interval_count(s(601), s(60)), 11, "a shorter last interval");
+        assert_eq!(interval_count(s(30), s(60)), 1);
+        assert_eq!(interval_count(Duration::from_secs_f64(0.3), s(60)), 1);
+        assert_eq!(interval_count(s(10), Duration::ZERO), u64::MAX);
+    }
 }
