@@ -24,6 +24,10 @@
 @group(0) @binding(19) var back_sampler: sampler;
 @group(0) @binding(20) var<storage, read> back_shooters: array<Shooter>;
 @group(0) @binding(21) var<uniform> back: Batch;
+// Irradiance H each element of a moving tile gathered in this move (rgb;
+// the tile's value, the same for all its texels), w = 1 once gathered.
+// `smooth_moving` interpolates it between tile centres.
+@group(0) @binding(22) var<storage, read_write> gathered: array<vec4<f32>>;
 
 // Batch.mode: the kind in the low byte, flags above.
 const KIND_MASK: u32 = 0xffu;
@@ -51,6 +55,10 @@ const RESET_UNSHOT: u32 = 0x400u;
 // Alg. 4.5 gridSize, 4 by default).
 override CROSS_GRID: u32 = 4u;
 
+// Side length (texels) of the tiles moving patches are cut into for cross
+// redistribution (`ProgressiveOptions::cross_tile`).
+override CROSS_TILE: u32 = 4u;
+
 fn is_moving(el: Element) -> bool {
     return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_MOVING) != 0u;
 }
@@ -62,6 +70,7 @@ fn reset_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     old_shot[e] = radiosity[e] - unshot[e];
+    gathered[e] = vec4<f32>(0.0);
     radiosity[e] = emission[e];
     unshot[e] = select(vec4<f32>(0.0), emission[e], (batch.mode & RESET_UNSHOT) != 0u);
 }
@@ -137,7 +146,10 @@ fn delta_form_factor(face: u32, px: vec2<u32>, res: u32) -> f32 {
 // One workgroup per tile of M (one shooter each; eye.w holds the bitcast
 // first element of the tile's patch and su.w its chart width): gather the
 // shot radiosity of C seen from the tile's new position (thesis Alg. 4.5
-// lines 23-27) and give it to every texel of the tile, B += ρ H; clear their
+// lines 23-27) and record it for every texel of the tile (`gathered`; the
+// texels receive B += ρ H once every tile has gathered, interpolated
+// between tile centres by `smooth_moving`, so that a face does not show
+// its tiles as bands); the tile's average uses its own H; clear their
 // unshot radiosity, since the tile shoots everything (Alg. 4.4 lines
 // 13-14); and fill T with the tile's area-weighted new total radiosity and
 // negated old shot radiosity (Alg. 4.4 line 4, GENERATESHOOTINGPATCHES with
@@ -189,10 +201,9 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
         let a = local_elements[e].position.w;
         area += a;
         if (has_new) {
-            let b = radiosity[e] + vec4<f32>(elements[e].albedo.rgb * h, 0.0);
-            radiosity[e] = b;
+            gathered[e] = vec4<f32>(h, 1.0);
             unshot[e] = vec4<f32>(0.0);
-            total += b.rgb * a;
+            total += (radiosity[e].rgb + elements[e].albedo.rgb * h) * a;
         }
         if (has_old) {
             old += old_shot[e].rgb * a;
@@ -375,4 +386,68 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
         radiosity[e] += db;
         unshot[e] += db;
     }
+}
+
+// The cross tiling of an axis of `n` texels (`begin_move`): `tile_count(n)`
+// tiles, tile i covering texels [i n / g, (i + 1) n / g).
+fn tile_count(n: u32) -> u32 {
+    return max((n + CROSS_TILE - 1u) / CROSS_TILE, min(n, 2u));
+}
+
+fn tile_centre(i: u32, n: u32, g: u32) -> f32 {
+    return 0.5 * (f32(i * n / g) + f32((i + 1u) * n / g) - 1.0);
+}
+
+// The tiles texel `x` is interpolated between along an axis: the lower one
+// and the weight of the next (0 beyond the outermost centres, which keep
+// their tile's value).
+fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
+    var i = min(x * g / n, g - 1u);
+    loop {
+        if (i + 1u < g && (i + 1u) * n / g <= x) { i += 1u; } else { break; }
+    }
+    loop {
+        if (i > 0u && i * n / g > x) { i -= 1u; } else { break; }
+    }
+    let c = tile_centre(i, n, g);
+    let fx = f32(x);
+    if (fx < c && i > 0u) {
+        let c0 = tile_centre(i - 1u, n, g);
+        return vec2<f32>(f32(i - 1u), (fx - c0) / (c - c0));
+    }
+    if (fx > c && i + 1u < g) {
+        return vec2<f32>(f32(i), (fx - c) / (tile_centre(i + 1u, n, g) - c));
+    }
+    return vec2<f32>(f32(i), 0.0);
+}
+
+// After the last cross batch of a move, per element of M that gathered: B
+// += ρ H with H interpolated bilinearly between the centres of the tiles
+// around the texel on its chart. Every tile's H is the value of a point
+// (its hemicube eye) standing for the tile (thesis Alg. 4.5 gathers once
+// per reduced element), so reading it as samples at tile centres rather
+// than as a constant per tile is the same data, without the steps.
+@compute @workgroup_size(64)
+fn smooth_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let e = gid.x;
+    if (e >= batch.element_count || !is_moving(elements[e]) || gathered[e].w < 0.5) {
+        return;
+    }
+    let range = patches[bitcast<u32>(elements[e].normal.w)];
+    let local = e - range.first;
+    let gx = tile_count(range.w);
+    let gy = tile_count(range.h);
+    let lx = tile_lerp(local % range.w, range.w, gx);
+    let ly = tile_lerp(local / range.w, range.h, gy);
+    let i0 = u32(lx.x);
+    let j0 = u32(ly.x);
+    let i1 = min(i0 + 1u, gx - 1u);
+    let j1 = min(j0 + 1u, gy - 1u);
+    let at = range.first;
+    let h00 = gathered[at + (j0 * range.h / gy) * range.w + i0 * range.w / gx].rgb;
+    let h10 = gathered[at + (j0 * range.h / gy) * range.w + i1 * range.w / gx].rgb;
+    let h01 = gathered[at + (j1 * range.h / gy) * range.w + i0 * range.w / gx].rgb;
+    let h11 = gathered[at + (j1 * range.h / gy) * range.w + i1 * range.w / gx].rgb;
+    let h = mix(mix(h00, h10, lx.y), mix(h01, h11, lx.y), ly.y);
+    radiosity[e] += vec4<f32>(elements[e].albedo.rgb * h, 0.0);
 }

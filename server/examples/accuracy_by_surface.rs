@@ -34,6 +34,7 @@ use lightwire_server::validity::Validity;
 fn main() -> Result<()> {
     let mut scene_path = None;
     let (mut density, mut direct, mut gather) = (1.0f32, false, false);
+    let mut dump: Vec<String> = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -42,13 +43,14 @@ fn main() -> Result<()> {
                 density = v.parse().with_context(|| format!("--density-scale {v}"))?;
             }
             "--direct" => direct = true,
+            "--dump" => dump.push(args.next().context("--dump needs a surface name")?),
             "--gather" => gather = true,
             flag if flag.starts_with("--") => bail!("unknown option {flag}"),
             path => scene_path = Some(PathBuf::from(path)),
         }
     }
     let path = scene_path.context(
-        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather]",
+        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather] [--dump SURFACE]...",
     )?;
     let scene = Scene::load_with(
         &path,
@@ -136,6 +138,32 @@ fn main() -> Result<()> {
             ratio.z,
             own.map_or_else(|| "-".to_string(), |a| a.to_string())
         );
+    }
+    for name in &dump {
+        let Some(p) = scene.patches.iter().position(|p| &p.name == name) else {
+            bail!("no surface {name:?}");
+        };
+        let chart = atlas.charts[p];
+        println!(
+            "{name}: luminance, reference | GPU / reference per texel (rows t, columns s; * invalid)"
+        );
+        let lum = |v: glam::Vec3| 0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z;
+        let mut grid = vec![usize::MAX; (chart.w * chart.h) as usize];
+        for i in atlas.elements_of(p as u32) {
+            let [x, y] = atlas.elements[i].texel;
+            grid[((y - chart.y) * chart.w + (x - chart.x)) as usize] = i;
+        }
+        for row in 0..chart.h {
+            let mut line_ref = String::new();
+            let mut line_ratio = String::new();
+            for col in 0..chart.w {
+                let i = grid[(row * chart.w + col) as usize];
+                line_ref += &format!("{:6.3} ", lum(expected[i]));
+                let mark = if validity.is_invalid(i) { '*' } else { ' ' };
+                line_ratio += &format!("{:5.3}{mark}", lum(values[i]) / lum(expected[i]).max(1e-9));
+            }
+            println!("{line_ref}| {line_ratio}");
+        }
     }
     Ok(())
 }

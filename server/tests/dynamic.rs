@@ -468,3 +468,73 @@ fn cross_removal_undoes_insertion_in_a_furnace_with_a_box() {
         "insert + remove changed the room by {error}"
     );
 }
+
+/// Cross redistribution gathers once per tile of a moving face (thesis
+/// Alg. 4.5); the texels must read those values as samples at the tile
+/// centres, not as a constant per tile, or every face shows its tiles as
+/// bands. Along each row and column of each face of the moved box, the
+/// step between the two texels on either side of a tile boundary is no
+/// larger than the steps beside it (a piecewise-constant face has steps
+/// only at the boundaries and none beside them).
+#[test]
+fn cross_light_on_a_moved_box_has_no_steps_at_tile_boundaries() {
+    let (scene, atlas) = common::load("cornell-large.json", 0.35);
+    let target = box_pose(&scene, 30.0, Vec3::new(0.4, 0.0, -0.3));
+    let mut d = session(&scene, &atlas, Redistribution::Cross);
+    settle(&mut d);
+    d.set_poses(&target, &[1]);
+    settle(&mut d);
+    let b = radiosity(&d);
+    let side = ProgressiveOptions::default().cross_tile;
+    let tiles = |n: u32| n.div_ceil(side).max(n.min(2));
+    let object = scene.object_by_name("box").expect("a box");
+    let lum = |v: Vec3| f64::from(v.x + v.y + v.z);
+    let mut checked = 0;
+    for (p, patch) in scene.patches.iter().enumerate() {
+        if patch.object != object || patch.name.ends_with("-y") {
+            continue; // the bottom rests in the dark
+        }
+        let chart = atlas.charts[p];
+        let mut grid = vec![0.0; (chart.w * chart.h) as usize];
+        for i in atlas.elements_of(p as u32) {
+            let [x, y] = atlas.elements[i].texel;
+            grid[((y - chart.y) * chart.w + (x - chart.x)) as usize] = lum(b[i]);
+        }
+        let mean = grid.iter().sum::<f64>() / grid.len() as f64;
+        // Walk every row (along s) and every column (along t).
+        let lines: Vec<Vec<f64>> = (0..chart.h)
+            .map(|r| {
+                (0..chart.w)
+                    .map(|c| grid[(r * chart.w + c) as usize])
+                    .collect()
+            })
+            .chain((0..chart.w).map(|c| {
+                (0..chart.h)
+                    .map(|r| grid[(r * chart.w + c) as usize])
+                    .collect()
+            }))
+            .collect();
+        for (k, line) in lines.iter().enumerate() {
+            let n = line.len() as u32;
+            let g = tiles(n);
+            for t in 1..g {
+                let x = (t * n / g) as usize; // first texel of tile t
+                if x < 2 || x + 1 >= line.len() {
+                    continue;
+                }
+                let step = (line[x] - line[x - 1]).abs();
+                let beside = (line[x - 1] - line[x - 2])
+                    .abs()
+                    .max((line[x + 1] - line[x]).abs());
+                assert!(
+                    step <= 2.0 * beside + 0.01 * mean,
+                    "{} line {k}: a step of {step:.4} at the tile boundary before texel {x}, \
+                     {beside:.4} beside it (face mean {mean:.3})",
+                    patch.name
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 20, "only {checked} tile boundaries checked");
+}

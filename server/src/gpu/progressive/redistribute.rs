@@ -165,6 +165,7 @@ pub(in crate::gpu) struct DynamicPasses {
     reset: (wgpu::ComputePipeline, wgpu::BindGroup),
     energy: (wgpu::ComputePipeline, wgpu::BindGroup),
     gather: (wgpu::ComputePipeline, wgpu::BindGroup),
+    smooth: (wgpu::ComputePipeline, wgpu::BindGroup),
     reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
     rad_front: (wgpu::RenderPipeline, wgpu::BindGroup),
     rad_back: (wgpu::RenderPipeline, wgpu::BindGroup),
@@ -262,6 +263,12 @@ impl ProgressiveSolver {
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
+        let gathered = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("gathered irradiance of moving tiles"),
+            size: u64::from(self.element_count.max(1)) * 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("back hemicube"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -296,6 +303,7 @@ impl ProgressiveSolver {
                 (11, b(&self.flags_buffer)),
                 (15, b(&bufs.emission)),
                 (16, b(&old_shot)),
+                (22, b(&gathered)),
             ],
         );
         let energy = compute_with(
@@ -328,6 +336,22 @@ impl ProgressiveSolver {
                 (9, b(&self.batch)),
                 (16, b(&old_shot)),
                 (17, wgpu::BindingResource::TextureView(&front_view)),
+                (22, b(&gathered)),
+            ],
+        );
+        let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
+        let smooth = compute_with(
+            device,
+            &module,
+            "smooth_moving",
+            &tile,
+            &[
+                (0, b(&bufs.elements)),
+                (1, b(&self.radiosity)),
+                (4, b(&bufs.patches)),
+                (9, b(&self.batch)),
+                (11, b(&self.flags_buffer)),
+                (22, b(&gathered)),
             ],
         );
         let reconstruct = compute_with(
@@ -386,6 +410,7 @@ impl ProgressiveSolver {
             reset,
             energy,
             gather,
+            smooth,
             reconstruct,
             rad_front: (front_pipeline, front_group),
             rad_back: (back_pipeline, back_group),
@@ -563,8 +588,20 @@ impl ProgressiveSolver {
             mv.batches += 1;
         }
         if mv.jobs.is_empty() {
-            self.write_flags(&[]);
             let mut encoder = self.device.create_command_encoder(&Default::default());
+            if mv.method == Redistribution::Cross {
+                // While M is still marked: the tiles' gathered light, read
+                // between tile centres, becomes the texels' radiosity.
+                let d = self.dynamic.as_ref().expect("built in begin_move");
+                Self::encode_compute(
+                    &mut encoder,
+                    &d.smooth,
+                    self.element_count.div_ceil(WORKGROUP),
+                );
+                self.queue.submit([encoder.finish()]);
+                encoder = self.device.create_command_encoder(&Default::default());
+            }
+            self.write_flags(&[]);
             self.encode_selection(&mut encoder);
             self.queue.submit([encoder.finish()]);
             self.selection = self.read_selection()?;
