@@ -35,6 +35,17 @@
 //! `LIGHTWIRE_TOKENS="viewer:abc,driver:def,admin:ghi"` (added to the
 //! file's tokens), and for the relay `LIGHTWIRE_UPSTREAM=url,url` (replaces
 //! the file's `upstreams`) and `LIGHTWIRE_UPSTREAM_TOKEN`.
+//!
+//! Test only: `LIGHTWIRE_TEST_FAIL_SOLVER=at_seq:S[,rebuild_at_seq:R]`
+//! makes each scene's solver fail once, the first time its tick loop takes
+//! a transform with seq >= S (the GPU solver destroys its device, so the
+//! failure goes through the same path as a lost device); with
+//! `rebuild_at_seq`, the rebuild also waits (besides its backoff) until a
+//! transform with seq >= R has been taken, so that a test can look at the
+//! failed state for as long as it needs. It exists for the tests of
+//! failure handling (`server/tests/gpu_failure.rs`); it has no config-file
+//! key or flag, is off unless the variable is set, and a malformed value
+//! stops the server. Never set it in production.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -120,6 +131,38 @@ pub struct Config {
     /// admin token lets it forward its own drivers' transforms; with a
     /// viewer token the relay is read-only and refuses transforms.
     pub upstream_token: Option<String>,
+    /// Test only (`LIGHTWIRE_TEST_FAIL_SOLVER`, see the module doc).
+    /// Never read from the config file.
+    #[serde(skip)]
+    pub test_fail_solver: Option<FailSolverHook>,
+}
+
+/// Test only: when to fail each scene's solver (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FailSolverHook {
+    /// Fail at the first transform with a seq of at least this.
+    pub at_seq: u64,
+    /// Rebuild only once a transform with a seq of at least this came.
+    pub rebuild_at_seq: Option<u64>,
+}
+
+impl FailSolverHook {
+    /// Parses `at_seq:S[,rebuild_at_seq:R]`.
+    pub fn parse(value: &str) -> Option<Self> {
+        let mut parts = value.split(',');
+        let at_seq = parts.next()?.strip_prefix("at_seq:")?.parse().ok()?;
+        let rebuild_at_seq = match parts.next() {
+            None => None,
+            Some(p) => Some(p.strip_prefix("rebuild_at_seq:")?.parse().ok()?),
+        };
+        if parts.next().is_some() {
+            return None;
+        }
+        Some(Self {
+            at_seq,
+            rebuild_at_seq,
+        })
+    }
 }
 
 impl Default for Config {
@@ -145,6 +188,7 @@ impl Default for Config {
             tokens: Tokens::default(),
             upstreams: Vec::new(),
             upstream_token: None,
+            test_fail_solver: None,
         }
     }
 }
@@ -170,6 +214,14 @@ impl Config {
                     self.socket_send_buffer = value.parse().with_context(|| {
                         format!("LIGHTWIRE_SEND_BUFFER={value:?} is not a byte count")
                     })?;
+                }
+                "LIGHTWIRE_TEST_FAIL_SOLVER" => {
+                    let hook = FailSolverHook::parse(&value).with_context(|| {
+                        format!(
+                            "LIGHTWIRE_TEST_FAIL_SOLVER={value:?} must look like at_seq:SEQ[,rebuild_at_seq:SEQ] (a test hook)"
+                        )
+                    })?;
+                    self.test_fail_solver = Some(hook);
                 }
                 "LIGHTWIRE_DEV" => self.dev_mode = matches!(value.as_str(), "1" | "true" | "yes"),
                 "LIGHTWIRE_UPSTREAM" => {
@@ -299,6 +351,44 @@ mod tests {
             .apply_env([("LIGHTWIRE_TOKENS".to_string(), "root:x".to_string())].into_iter())
             .expect_err("unknown role");
         assert!(err.to_string().contains("unknown role"), "{err}");
+    }
+
+    #[test]
+    fn the_test_failure_hook_parses_strictly() {
+        let hook = |v: &str| FailSolverHook::parse(v);
+        assert_eq!(
+            hook("at_seq:5"),
+            Some(FailSolverHook {
+                at_seq: 5,
+                rebuild_at_seq: None
+            })
+        );
+        assert_eq!(
+            hook("at_seq:5,rebuild_at_seq:9"),
+            Some(FailSolverHook {
+                at_seq: 5,
+                rebuild_at_seq: Some(9)
+            })
+        );
+        for bad in [
+            "",
+            "5",
+            "at_seq:",
+            "at_seq:x",
+            "at_seq:5,",
+            "at_seq:5,x:1",
+            "at_seq:1,rebuild_at_seq:2,z",
+        ] {
+            assert_eq!(hook(bad), None, "{bad:?}");
+        }
+        let mut c = Config::default();
+        assert!(c.test_fail_solver.is_none(), "off unless set");
+        assert!(
+            c.apply_env(
+                [("LIGHTWIRE_TEST_FAIL_SOLVER".to_string(), "soon".to_string())].into_iter()
+            )
+            .is_err()
+        );
     }
 
     #[test]
