@@ -296,6 +296,19 @@ impl Client {
         }
     }
 
+    /// Reads frames until the client holds at least `version`.
+    async fn pump_until_version(&mut self, version: u64, limit: Duration) {
+        let deadline = Instant::now() + limit;
+        while self.version() < version {
+            assert!(
+                Instant::now() < deadline,
+                "stuck at version {} waiting for {version}",
+                self.version()
+            );
+            self.pump(Duration::from_millis(50)).await;
+        }
+    }
+
     fn version(&self) -> u64 {
         self.map.as_ref().map_or(0, |m| m.version)
     }
@@ -361,11 +374,8 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
     assert_eq!(viewer.role, Some(Role::Viewer));
     let mut driver = Client::connect(&server.ws_url(), DRIVER_TOKEN).await;
     assert_eq!(driver.role, Some(Role::Driver));
-    viewer.pump(Duration::from_millis(200)).await;
-    assert!(
-        viewer.version() > 0,
-        "a viewer of a ready scene gets a version"
-    );
+    // A viewer of a ready scene gets a version.
+    viewer.pump_until_version(1, generous).await;
 
     // The transform that makes the hook destroy the device.
     driver.transform(FAIL_AT, pose_at(1)).await;
@@ -412,14 +422,7 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
     // it and nothing newer comes, for many ticks (the hook holds the
     // rebuild until seq REBUILD_AT).
     let last = server.version().await;
-    let until = Instant::now() + generous;
-    while viewer.version() < last {
-        assert!(
-            Instant::now() < until,
-            "the viewer never reached version {last}"
-        );
-        viewer.pump(Duration::from_millis(50)).await;
-    }
+    viewer.pump_until_version(last, generous).await;
     viewer.pump(Duration::from_secs(2)).await;
     driver.pump(Duration::from_millis(100)).await;
     assert_eq!(viewer.version(), last, "no version while failed");
@@ -432,7 +435,7 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
     // A viewer joining now gets the last version as a keyframe, the same
     // bits.
     let mut late = Client::connect(&server.ws_url(), VIEWER_TOKEN).await;
-    late.pump(Duration::from_millis(500)).await;
+    late.pump_until_version(1, generous).await;
     assert_eq!(
         late.applied,
         vec![(last, true)],
