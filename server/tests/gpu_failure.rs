@@ -64,7 +64,9 @@ impl Server {
             )
             .env(
                 "LIGHTWIRE_TEST_FAIL_SOLVER",
-                format!("at_seq:{FAIL_AT},rebuild_at_seq:{REBUILD_AT}"),
+                // The first rebuild attempt fails too, so that the rebuild
+                // backs off once before it succeeds.
+                format!("at_seq:{FAIL_AT},rebuild_at_seq:{REBUILD_AT},rebuild_fails:1"),
             )
             .env("RUST_LOG", "info")
             .env("NO_COLOR", "1")
@@ -503,9 +505,18 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
         Some(1.0),
         "{metrics}"
     );
-    assert!(
-        metric(&metrics, "lightwire_solver_rebuilds_total").is_some_and(|n| n >= 1.0),
+    // The first rebuild failed (the hook), the second, after its backoff,
+    // succeeded.
+    assert_eq!(
+        metric(&metrics, "lightwire_solver_rebuilds_total"),
+        Some(2.0),
         "{metrics}"
+    );
+    assert_eq!(
+        server
+            .log_lines(&["WARN", "rebuilding the solver failed", "next try in 1s"])
+            .len(),
+        1
     );
 
     // One error line for the whole episode, though it lasted many ticks
@@ -517,7 +528,10 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
         errors[0].contains("solver failed") && errors[0].contains("cornell-low"),
         "{errors:?}"
     );
-    assert_eq!(server.log_lines(&["solver recovered"]).len(), 1);
+    assert_eq!(
+        server.log_lines(&["solver recovered", "attempts=2"]).len(),
+        1
+    );
     assert!(server.log_lines(&["panicked"]).is_empty(), "no panic");
 }
 

@@ -36,13 +36,15 @@
 //! file's tokens), and for the relay `LIGHTWIRE_UPSTREAM=url,url` (replaces
 //! the file's `upstreams`) and `LIGHTWIRE_UPSTREAM_TOKEN`.
 //!
-//! Test only: `LIGHTWIRE_TEST_FAIL_SOLVER=at_seq:S[,rebuild_at_seq:R]`
+//! Test only:
+//! `LIGHTWIRE_TEST_FAIL_SOLVER=at_seq:S[,rebuild_at_seq:R][,rebuild_fails:K]`
 //! makes each scene's solver fail once, the first time its tick loop takes
 //! a transform with seq >= S (the GPU solver destroys its device, so the
 //! failure goes through the same path as a lost device); with
 //! `rebuild_at_seq`, the rebuild also waits (besides its backoff) until a
 //! transform with seq >= R has been taken, so that a test can look at the
-//! failed state for as long as it needs. It exists for the tests of
+//! failed state for as long as it needs; with `rebuild_fails`, the first K
+//! rebuild attempts fail (and back off) before one is let through. It exists for the tests of
 //! failure handling (`server/tests/gpu_failure.rs`); it has no config-file
 //! key or flag, is off unless the variable is set, and a malformed value
 //! stops the server. Never set it in production.
@@ -144,24 +146,42 @@ pub struct FailSolverHook {
     pub at_seq: u64,
     /// Rebuild only once a transform with a seq of at least this came.
     pub rebuild_at_seq: Option<u64>,
+    /// Make this many rebuild attempts fail (to exercise the backoff).
+    pub rebuild_fails: u32,
 }
 
 impl FailSolverHook {
-    /// Parses `at_seq:S[,rebuild_at_seq:R]`.
+    /// Parses `at_seq:S[,rebuild_at_seq:R][,rebuild_fails:K]`.
     pub fn parse(value: &str) -> Option<Self> {
-        let mut parts = value.split(',');
-        let at_seq = parts.next()?.strip_prefix("at_seq:")?.parse().ok()?;
-        let rebuild_at_seq = match parts.next() {
-            None => None,
-            Some(p) => Some(p.strip_prefix("rebuild_at_seq:")?.parse().ok()?),
+        let mut hook = Self {
+            at_seq: u64::MAX,
+            rebuild_at_seq: None,
+            rebuild_fails: 0,
         };
-        if parts.next().is_some() {
-            return None;
+        let mut seen = [false; 3];
+        for part in value.split(',') {
+            let (key, n) = part.split_once(':')?;
+            let n: u64 = n.parse().ok()?;
+            let slot = match key {
+                "at_seq" => {
+                    hook.at_seq = n;
+                    0
+                }
+                "rebuild_at_seq" => {
+                    hook.rebuild_at_seq = Some(n);
+                    1
+                }
+                "rebuild_fails" => {
+                    hook.rebuild_fails = u32::try_from(n).ok()?;
+                    2
+                }
+                _ => return None,
+            };
+            if std::mem::replace(&mut seen[slot], true) {
+                return None;
+            }
         }
-        Some(Self {
-            at_seq,
-            rebuild_at_seq,
-        })
+        seen[0].then_some(hook)
     }
 }
 
@@ -218,7 +238,7 @@ impl Config {
                 "LIGHTWIRE_TEST_FAIL_SOLVER" => {
                     let hook = FailSolverHook::parse(&value).with_context(|| {
                         format!(
-                            "LIGHTWIRE_TEST_FAIL_SOLVER={value:?} must look like at_seq:SEQ[,rebuild_at_seq:SEQ] (a test hook)"
+                            "LIGHTWIRE_TEST_FAIL_SOLVER={value:?} must look like at_seq:SEQ[,rebuild_at_seq:SEQ][,rebuild_fails:N] (a test hook)"
                         )
                     })?;
                     self.test_fail_solver = Some(hook);
@@ -360,14 +380,16 @@ mod tests {
             hook("at_seq:5"),
             Some(FailSolverHook {
                 at_seq: 5,
-                rebuild_at_seq: None
+                rebuild_at_seq: None,
+                rebuild_fails: 0,
             })
         );
         assert_eq!(
-            hook("at_seq:5,rebuild_at_seq:9"),
+            hook("rebuild_fails:2,at_seq:5,rebuild_at_seq:9"),
             Some(FailSolverHook {
                 at_seq: 5,
-                rebuild_at_seq: Some(9)
+                rebuild_at_seq: Some(9),
+                rebuild_fails: 2,
             })
         );
         for bad in [
@@ -377,7 +399,9 @@ mod tests {
             "at_seq:x",
             "at_seq:5,",
             "at_seq:5,x:1",
-            "at_seq:1,rebuild_at_seq:2,z",
+            "at_seq:1,at_seq:2",
+            "rebuild_at_seq:9",
+            "at_seq:1,rebuild_fails:-1",
         ] {
             assert_eq!(hook(bad), None, "{bad:?}");
         }

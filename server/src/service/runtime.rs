@@ -250,6 +250,7 @@ impl SceneRuntime {
             episode: None,
             fail_at_seq: config.test_fail_solver.map(|h| h.at_seq),
             rebuild_at_seq: config.test_fail_solver.and_then(|h| h.rebuild_at_seq),
+            rebuild_fails: config.test_fail_solver.map_or(0, |h| h.rebuild_fails),
             failures,
             rebuilds,
             ready,
@@ -314,6 +315,8 @@ struct TickLoop {
     fail_at_seq: Option<u64>,
     /// Test hook: no rebuild until a transform with this seq came.
     rebuild_at_seq: Option<u64>,
+    /// Test hook: rebuild attempts still to fail.
+    rebuild_fails: u32,
     failures: prometheus_client::metrics::counter::Counter,
     rebuilds: prometheus_client::metrics::counter::Counter,
     ready: prometheus_client::metrics::gauge::Gauge,
@@ -438,6 +441,10 @@ impl TickLoop {
         let poses = self.poses.clone();
         let build = &mut self.build;
         let built = match catch_unwind(AssertUnwindSafe(|| build(&poses))) {
+            Ok(Ok(_)) if self.rebuild_fails > 0 => {
+                self.rebuild_fails -= 1;
+                Err("test-injected rebuild failure (LIGHTWIRE_TEST_FAIL_SOLVER)".into())
+            }
             Ok(Ok(solver)) => Ok(solver),
             Ok(Err(e)) => Err(format!("{e:#}")),
             Err(payload) => Err(format!("panicked: {}", panic_message(payload.as_ref()))),
