@@ -1,6 +1,11 @@
-//! Adapter selection and device creation.
+//! Adapter selection and device creation, and what a long-running owner
+//! (the service's tick thread) needs to notice a device going bad: the
+//! device-lost callback and uncaptured errors are recorded in a
+//! [`DeviceHealth`], and [`Device::capture`] runs work inside wgpu error
+//! scopes.
 
 use std::fmt;
+use std::sync::{Arc, Mutex};
 
 /// Why the GPU could not be used or a GPU operation failed.
 ///
@@ -25,6 +30,9 @@ pub enum GpuError {
     /// Mapping a buffer back to the CPU failed (device lost, ...).
     #[error("reading GPU results back failed: {0}")]
     Readback(String),
+    /// The device was lost or reported an error (see [`DeviceHealth`]).
+    #[error("{0}")]
+    Device(String),
     /// The problem does not fit the device (too many elements, ...).
     #[error("{0}")]
     TooLarge(String),
@@ -42,6 +50,37 @@ pub struct Device {
     pub info: wgpu::AdapterInfo,
     /// The limits the device was created with (the adapter's own).
     pub limits: wgpu::Limits,
+    /// What went wrong with the device outside any error scope.
+    pub health: Arc<DeviceHealth>,
+}
+
+/// Failures of a device that no call returned: the device-lost callback
+/// and (once [`Device::record_uncaptured_errors`] is on) errors outside
+/// every error scope. The first of each is kept.
+#[derive(Debug, Default)]
+pub struct DeviceHealth {
+    lost: Mutex<Option<String>>,
+    uncaptured: Mutex<Option<String>>,
+}
+
+impl DeviceHealth {
+    fn record(slot: &Mutex<Option<String>>, what: String) {
+        let mut slot = slot.lock().unwrap_or_else(|p| p.into_inner());
+        if slot.is_none() {
+            *slot = Some(what);
+        }
+    }
+
+    /// Why the device is unusable, if it is: lost, or an uncaptured error.
+    pub fn failure(&self) -> Option<String> {
+        let lost = self.lost.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        lost.or_else(|| {
+            self.uncaptured
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone()
+        })
+    }
 }
 
 impl fmt::Debug for Device {
@@ -122,12 +161,63 @@ impl Device {
                 adapter: info.name.clone(),
                 message: e.to_string(),
             })?;
+        let health = Arc::new(DeviceHealth::default());
+        let lost = health.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            let what = if message.is_empty() {
+                format!("GPU device lost ({reason:?})")
+            } else {
+                format!("GPU device lost ({reason:?}): {message}")
+            };
+            DeviceHealth::record(&lost.lost, what);
+        });
         Ok(Device {
             device,
             queue,
             info,
             limits,
+            health,
         })
+    }
+
+    /// Records errors raised outside every error scope in [`Self::health`]
+    /// instead of panicking (wgpu's default). For an owner that checks
+    /// [`DeviceHealth::failure`] after its work, as the service does; a
+    /// command-line tool keeps the default, which stops it at the error.
+    pub fn record_uncaptured_errors(&self) {
+        let health = self.health.clone();
+        self.device
+            .on_uncaptured_error(Arc::new(move |error: wgpu::Error| {
+                DeviceHealth::record(&health.uncaptured, format!("GPU error: {error}"));
+            }));
+    }
+
+    /// Runs `work` inside error scopes for validation, out-of-memory and
+    /// internal errors (on this thread: wgpu's scopes are thread-local) and
+    /// returns what it returned with the first error the scopes caught.
+    pub fn capture<T>(&self, work: impl FnOnce() -> T) -> (T, Option<String>) {
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let internal = self.device.push_error_scope(wgpu::ErrorFilter::Internal);
+        let out = work();
+        // Scopes pop in reverse order; on native wgpu the futures are ready
+        // at once.
+        let errors = [
+            pollster::block_on(internal.pop()),
+            pollster::block_on(memory.pop()),
+            pollster::block_on(validation.pop()),
+        ];
+        let first = errors
+            .into_iter()
+            .flatten()
+            .next()
+            .map(|e| format!("GPU error: {e}"));
+        (out, first)
+    }
+
+    /// Why the device is unusable, if it is (see [`DeviceHealth`]).
+    pub fn failure(&self) -> Option<String> {
+        self.health.failure()
     }
 
     /// "NAME (BACKEND)", for logs.

@@ -55,6 +55,19 @@
 //!   Admin rather than viewer because viewer tokens are handed to browsers.
 //!
 //! In development mode without tokens everything is open.
+//!
+//! Test only:
+//! `LIGHTWIRE_TEST_FAIL_SOLVER=at_seq:S[,rebuild_at_seq:R][,rebuild_fails:K]`
+//! makes each scene's solver fail once, the first time its tick loop takes
+//! a transform with seq >= S (the GPU solver destroys its device, so the
+//! failure goes through the same path as a lost device); with
+//! `rebuild_at_seq`, the rebuild also waits (besides its backoff) until a
+//! transform with seq >= R has been taken, so that a test can look at the
+//! failed state for as long as it needs; with `rebuild_fails`, the first K
+//! rebuild attempts fail (and back off) before one is let through. It exists for the tests of
+//! failure handling (`server/tests/gpu_failure.rs`); it has no config-file
+//! key or flag, is off unless the variable is set, and a malformed value
+//! stops the server. Never set it in production.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -153,6 +166,56 @@ pub struct Config {
     /// admin token lets it forward its own drivers' transforms; with a
     /// viewer token the relay is read-only and refuses transforms.
     pub upstream_token: Option<String>,
+    /// Test only (`LIGHTWIRE_TEST_FAIL_SOLVER`, see the module doc).
+    /// Never read from the config file.
+    #[serde(skip)]
+    pub test_fail_solver: Option<FailSolverHook>,
+}
+
+/// Test only: when to fail each scene's solver (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FailSolverHook {
+    /// Fail at the first transform with a seq of at least this.
+    pub at_seq: u64,
+    /// Rebuild only once a transform with a seq of at least this came.
+    pub rebuild_at_seq: Option<u64>,
+    /// Make this many rebuild attempts fail (to exercise the backoff).
+    pub rebuild_fails: u32,
+}
+
+impl FailSolverHook {
+    /// Parses `at_seq:S[,rebuild_at_seq:R][,rebuild_fails:K]`.
+    pub fn parse(value: &str) -> Option<Self> {
+        let mut hook = Self {
+            at_seq: u64::MAX,
+            rebuild_at_seq: None,
+            rebuild_fails: 0,
+        };
+        let mut seen = [false; 3];
+        for part in value.split(',') {
+            let (key, n) = part.split_once(':')?;
+            let n: u64 = n.parse().ok()?;
+            let slot = match key {
+                "at_seq" => {
+                    hook.at_seq = n;
+                    0
+                }
+                "rebuild_at_seq" => {
+                    hook.rebuild_at_seq = Some(n);
+                    1
+                }
+                "rebuild_fails" => {
+                    hook.rebuild_fails = u32::try_from(n).ok()?;
+                    2
+                }
+                _ => return None,
+            };
+            if std::mem::replace(&mut seen[slot], true) {
+                return None;
+            }
+        }
+        seen[0].then_some(hook)
+    }
 }
 
 impl Default for Config {
@@ -179,6 +242,7 @@ impl Default for Config {
             tokens: Tokens::default(),
             upstreams: Vec::new(),
             upstream_token: None,
+            test_fail_solver: None,
         }
     }
 }
@@ -211,6 +275,14 @@ impl Config {
                         "token" => MetricsAccess::Token,
                         other => bail!("LIGHTWIRE_METRICS={other:?}: use open or token"),
                     };
+                }
+                "LIGHTWIRE_TEST_FAIL_SOLVER" => {
+                    let hook = FailSolverHook::parse(&value).with_context(|| {
+                        format!(
+                            "LIGHTWIRE_TEST_FAIL_SOLVER={value:?} must look like at_seq:SEQ[,rebuild_at_seq:SEQ][,rebuild_fails:N] (a test hook)"
+                        )
+                    })?;
+                    self.test_fail_solver = Some(hook);
                 }
                 "LIGHTWIRE_DEV" => self.dev_mode = matches!(value.as_str(), "1" | "true" | "yes"),
                 "LIGHTWIRE_UPSTREAM" => {
@@ -340,6 +412,48 @@ mod tests {
             .apply_env([("LIGHTWIRE_TOKENS".to_string(), "root:x".to_string())].into_iter())
             .expect_err("unknown role");
         assert!(err.to_string().contains("unknown role"), "{err}");
+    }
+
+    #[test]
+    fn the_test_failure_hook_parses_strictly() {
+        let hook = |v: &str| FailSolverHook::parse(v);
+        assert_eq!(
+            hook("at_seq:5"),
+            Some(FailSolverHook {
+                at_seq: 5,
+                rebuild_at_seq: None,
+                rebuild_fails: 0,
+            })
+        );
+        assert_eq!(
+            hook("rebuild_fails:2,at_seq:5,rebuild_at_seq:9"),
+            Some(FailSolverHook {
+                at_seq: 5,
+                rebuild_at_seq: Some(9),
+                rebuild_fails: 2,
+            })
+        );
+        for bad in [
+            "",
+            "5",
+            "at_seq:",
+            "at_seq:x",
+            "at_seq:5,",
+            "at_seq:5,x:1",
+            "at_seq:1,at_seq:2",
+            "rebuild_at_seq:9",
+            "at_seq:1,rebuild_fails:-1",
+        ] {
+            assert_eq!(hook(bad), None, "{bad:?}");
+        }
+        let mut c = Config::default();
+        assert!(c.test_fail_solver.is_none(), "off unless set");
+        assert!(
+            c.apply_env(
+                [("LIGHTWIRE_TEST_FAIL_SOLVER".to_string(), "soon".to_string())].into_iter()
+            )
+            .is_err()
+        );
     }
 
     #[test]

@@ -7,8 +7,14 @@
 //! from an upstream connection to a solver (`crate::relay`). Sessions cannot
 //! tell the two apart, which is what lets the relay reuse every rule of a
 //! session (handshake, roles, limits, delta-or-keyframe) without a copy.
+//!
+//! Readiness ([`Feed::health`]): a scene is *solving* until its first
+//! version, then *ready*; a solver's tick loop marks it *failed* (with the
+//! reason and since when) while its solver is broken and being rebuilt,
+//! and ready again at the rebuilt solver's first version. Sessions keep
+//! serving the last publication throughout.
 
-use std::sync::atomic::{AtomicBool, AtomicU32};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 
 use lightwire_protocol::{SceneInfo, Stats};
@@ -16,6 +22,28 @@ use tokio::sync::watch;
 
 use super::inbox::Inbox;
 use super::publication::Publication;
+
+/// Why a scene's solver is not serving new versions.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Failure {
+    /// What failed, in one line (a lost device, a GPU error, a panic).
+    pub reason: String,
+    /// When the failure was noticed, milliseconds since the Unix epoch.
+    pub since_unix_ms: u64,
+    /// Rebuilds of the solver tried since.
+    pub rebuild_attempts: u32,
+}
+
+/// A scene's readiness, as `/readyz` reports it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Health {
+    /// Serving versions.
+    Ready,
+    /// No version yet.
+    Solving,
+    /// The solver failed; the last version (if any) is still served.
+    Failed(Failure),
+}
 
 /// One scene's stream, shared by its sessions.
 pub struct Feed {
@@ -36,8 +64,11 @@ pub struct Feed {
     pub inbox: Inbox,
     /// Connected WebSocket clients.
     pub clients: AtomicU32,
-    /// A lightmap version exists (readiness).
+    /// A lightmap version exists and its source is healthy (readiness).
+    /// A tick loop clears it while its solver has failed.
     pub ready: AtomicBool,
+    /// Set while the solver has failed (see [`Feed::health`]).
+    pub failure: Mutex<Option<Failure>>,
     /// Why transforms are refused right now, if they are: a relay whose
     /// upstream token grants only the viewer role cannot forward them, and
     /// says so to its drivers instead of accepting poses that go nowhere.
@@ -61,6 +92,7 @@ impl Feed {
             inbox: Inbox::new(objects),
             clients: AtomicU32::new(0),
             ready: AtomicBool::new(false),
+            failure: Mutex::new(None),
             transforms_refused: Mutex::new(None),
         }
     }
@@ -73,6 +105,30 @@ impl Feed {
     /// The newest publication, if any.
     pub fn latest(&self) -> Option<Arc<Publication>> {
         self.publications.borrow().clone()
+    }
+
+    /// Ready, solving, or failed with why.
+    pub fn health(&self) -> Health {
+        let failure = self
+            .failure
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone();
+        match failure {
+            Some(f) => Health::Failed(f),
+            None if self.ready.load(Ordering::Acquire) => Health::Ready,
+            None => Health::Solving,
+        }
+    }
+
+    /// Marks the scene failed (not ready) with `failure`, or healthy
+    /// again with `None` (ready only once `ready` is set).
+    pub fn set_failure(&self, failure: Option<Failure>) {
+        let mut slot = self.failure.lock().unwrap_or_else(|p| p.into_inner());
+        if failure.is_some() {
+            self.ready.store(false, Ordering::Release);
+        }
+        *slot = failure;
     }
 
     /// Why transforms are refused now, if they are.

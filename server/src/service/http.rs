@@ -249,18 +249,30 @@ async fn require_admin(
 }
 
 async fn readyz(State(state): State<Arc<AppState>>) -> Response {
-    let pending: Vec<&String> = state
-        .scenes
-        .iter()
-        .filter(|(_, s)| !s.feed.ready.load(Ordering::Acquire))
-        .map(|(id, _)| id)
-        .collect();
-    if pending.is_empty() {
+    // 200 when every scene serves versions; otherwise 503 with the scenes
+    // still solving their first version and those whose solver failed
+    // (with why and since when; they still serve their last version).
+    use super::feed::Health;
+    let mut solving = Vec::new();
+    let mut failed = Vec::new();
+    for (id, s) in &state.scenes {
+        match s.feed.health() {
+            Health::Ready => {}
+            Health::Solving => solving.push(id),
+            Health::Failed(f) => failed.push(json!({
+                "scene": id,
+                "reason": f.reason,
+                "since_unix_ms": f.since_unix_ms,
+                "rebuild_attempts": f.rebuild_attempts,
+            })),
+        }
+    }
+    if solving.is_empty() && failed.is_empty() {
         (StatusCode::OK, "ready\n").into_response()
     } else {
         (
             StatusCode::SERVICE_UNAVAILABLE,
-            axum::Json(json!({ "ready": false, "solving": pending })),
+            axum::Json(json!({ "ready": false, "solving": solving, "failed": failed })),
         )
             .into_response()
     }

@@ -4,6 +4,12 @@
 //! where it can, produces complete radiosity states. The tick loop never
 //! sees a half-done state: [`StepReport::completed`] says when
 //! [`LiveSolver::radiosity`] holds a new complete one.
+//!
+//! A solver does not decide what a failure means for the service: `step`
+//! returns a [`SolverFailure`] (a lost GPU device, an error caught by the
+//! error scopes around the GPU work, a failed readback) and the tick loop
+//! ([`super::runtime`]) marks the scene not ready, keeps serving the last
+//! version and rebuilds the solver.
 
 use std::time::{Duration, Instant};
 
@@ -26,6 +32,11 @@ pub struct StepReport {
     pub solve: Duration,
 }
 
+/// Why a solver cannot go on; the tick loop drops it and builds a new one.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct SolverFailure(pub String);
+
 /// A solver that follows moving objects.
 pub trait LiveSolver: Send {
     /// A short name for logs and metrics.
@@ -34,12 +45,23 @@ pub trait LiveSolver: Send {
     /// transform seq per object they carry. A solver may defer them until
     /// its current work completes (the latest call wins).
     fn set_poses(&mut self, poses: &[Pose], seqs: &[u64]);
-    /// Does up to about `budget` of work.
-    fn step(&mut self, budget: Duration) -> StepReport;
+    /// Does up to about `budget` of work. An error means the solver is
+    /// unusable (its state may be corrupt); it is not called again.
+    fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure>;
     /// The latest complete state: radiosity per element.
     fn radiosity(&self) -> &[Vec3];
     /// The transform seq per object that [`LiveSolver::radiosity`] reflects.
     fn reflected(&self) -> &[u64];
+    /// Why the solver is unusable, if something outside `step` has
+    /// noticed (a device-lost callback): the tick loop's reason when a
+    /// step panicked.
+    fn failure(&self) -> Option<String> {
+        None
+    }
+    /// Test hook (`LIGHTWIRE_TEST_FAIL_SOLVER`, see [`super::config`]):
+    /// make the solver fail the way a real failure would, from its next
+    /// step on. The GPU solver destroys its device.
+    fn inject_failure(&mut self);
 }
 
 /// The CPU reference solver, re-solved from scratch whenever poses change.
@@ -58,6 +80,7 @@ pub struct ReferenceLive {
     dirty: bool,
     radiosity: Vec<Vec3>,
     residual: f64,
+    injected: bool,
 }
 
 impl ReferenceLive {
@@ -72,6 +95,7 @@ impl ReferenceLive {
             poses,
             dirty: true,
             residual: 1.0,
+            injected: false,
         }
     }
 }
@@ -92,29 +116,30 @@ impl LiveSolver for ReferenceLive {
         }
     }
 
-    fn step(&mut self, _budget: Duration) -> StepReport {
+    fn step(&mut self, _budget: Duration) -> Result<StepReport, SolverFailure> {
         let started = Instant::now();
+        if self.injected {
+            return Err(SolverFailure(
+                "test-injected failure (LIGHTWIRE_TEST_FAIL_SOLVER)".into(),
+            ));
+        }
         if !self.dirty {
-            return StepReport {
+            return Ok(StepReport {
                 completed: false,
                 unshot_fraction: self.residual,
                 redistribution: Duration::ZERO,
                 solve: Duration::ZERO,
-            };
+            });
         }
         self.dirty = false;
         let solution = match ReferenceSolver::new(&self.scene, &self.atlas, &self.poses, &Silent) {
             Ok(solver) => solver.solve(SolveOptions::default(), &Silent),
+            // Checked when the runtime starts; unreachable for a scene
+            // that started, but never take the service down for it.
             Err(e) => {
-                // Checked when the runtime starts; unreachable for a scene
-                // that started, but never take the service down for it.
-                tracing::error!("reference solver refused the scene: {e}");
-                return StepReport {
-                    completed: false,
-                    unshot_fraction: 1.0,
-                    redistribution: Duration::ZERO,
-                    solve: started.elapsed(),
-                };
+                return Err(SolverFailure(format!(
+                    "reference solver refused the scene: {e}"
+                )));
             }
         };
         self.radiosity = solution.radiosity;
@@ -124,12 +149,12 @@ impl LiveSolver for ReferenceLive {
         self.residual = solution.residual_fraction;
         self.reflected = self.seqs.clone();
         let spent = started.elapsed();
-        StepReport {
+        Ok(StepReport {
             completed: true,
             unshot_fraction: self.residual,
             redistribution: spent,
             solve: spent,
-        }
+        })
     }
 
     fn radiosity(&self) -> &[Vec3] {
@@ -138,6 +163,10 @@ impl LiveSolver for ReferenceLive {
 
     fn reflected(&self) -> &[u64] {
         &self.reflected
+    }
+
+    fn inject_failure(&mut self) {
+        self.injected = true;
     }
 }
 
@@ -150,7 +179,13 @@ impl LiveSolver for ReferenceLive {
 /// complete (double buffering): at each of the publication levels of
 /// [`crate::gpu::DynamicOptions::publish_at`] and after each
 /// redistribution.
+///
+/// Each step runs inside the device's error scopes
+/// ([`crate::gpu::Device::capture`]) and is followed by a check of the
+/// device's health (lost, uncaptured errors): any of these, or a failed
+/// step or readback, is a [`SolverFailure`].
 pub struct GpuLive {
+    device: crate::gpu::Device,
     session: crate::gpu::DynamicSolver,
     atlas: Atlas,
     /// The last complete state and the seqs it reflects.
@@ -160,24 +195,68 @@ pub struct GpuLive {
 }
 
 impl GpuLive {
+    /// A session on `device` starting from `poses`. Errors of the device
+    /// outside error scopes are recorded from here on, not panicked on.
     pub fn new(
         device: crate::gpu::Device,
-        scene: Scene,
+        scene: &Scene,
         atlas: Atlas,
+        poses: &[Pose],
         method: crate::gpu::Redistribution,
     ) -> Result<Self, crate::gpu::GpuError> {
-        let poses = scene.initial_poses();
+        device.record_uncaptured_errors();
         let options = crate::gpu::DynamicOptions {
             method,
             ..Default::default()
         };
-        let session = crate::gpu::DynamicSolver::new(&device, &scene, &atlas, &poses, options)?;
+        let (session, error) = device
+            .capture(|| crate::gpu::DynamicSolver::new(&device, scene, &atlas, poses, options));
+        let session = session?;
+        if let Some(e) = error.or_else(|| device.failure()) {
+            return Err(crate::gpu::GpuError::Device(format!(
+                "setting up the solver: {e}"
+            )));
+        }
         Ok(Self {
             radiosity: vec![Vec3::ZERO; atlas.elements.len()],
             reflected: vec![0; poses.len()],
             name: method.name(),
+            device,
             session,
             atlas,
+        })
+    }
+
+    fn work(&mut self, budget: Duration) -> Result<StepReport, SolverFailure> {
+        let started = Instant::now();
+        let step = self
+            .session
+            .step(budget)
+            .map_err(|e| SolverFailure(format!("GPU solver step failed: {e}")))?;
+        if step.completed {
+            let mut r = self
+                .session
+                .radiosity()
+                .map_err(|e| SolverFailure(format!("reading back radiosity failed: {e}")))?;
+            // Texels inside or under geometry at the state's poses take
+            // their neighbours' light.
+            self.session
+                .progressive()
+                .validity()
+                .dilate(&self.atlas, &mut r);
+            self.radiosity = r;
+            self.reflected = self.session.reflected().to_vec();
+        } else if self.session.reflected() != self.reflected.as_slice() {
+            // The session took a transform that changed no pose as
+            // reflected by the state it already has (it completes nothing
+            // for it), so the last state reflects it too.
+            self.reflected = self.session.reflected().to_vec();
+        }
+        Ok(StepReport {
+            completed: step.completed,
+            unshot_fraction: self.session.unshot_fraction(),
+            redistribution: step.redistribution,
+            solve: started.elapsed(),
         })
     }
 }
@@ -191,46 +270,31 @@ impl LiveSolver for GpuLive {
         self.session.set_poses(poses, seqs);
     }
 
-    fn step(&mut self, budget: Duration) -> StepReport {
-        let started = Instant::now();
-        let mut completed = false;
-        let mut idle_echo = false;
-        let mut redistribution = Duration::ZERO;
-        match self.session.step(budget) {
-            Ok(step) => {
-                redistribution = step.redistribution;
-                idle_echo = !step.completed;
-                if step.completed {
-                    match self.session.radiosity() {
-                        Ok(mut r) => {
-                            // Texels inside or under geometry at the
-                            // state's poses take their neighbours' light.
-                            self.session
-                                .progressive()
-                                .validity()
-                                .dilate(&self.atlas, &mut r);
-                            self.radiosity = r;
-                            self.reflected = self.session.reflected().to_vec();
-                            completed = true;
-                        }
-                        Err(e) => tracing::error!("reading back radiosity failed: {e}"),
-                    }
-                }
-            }
-            Err(e) => tracing::error!("GPU solver step failed: {e}"),
+    fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure> {
+        if let Some(e) = self.device.failure() {
+            return Err(SolverFailure(e));
         }
-        if idle_echo && self.session.reflected() != self.reflected.as_slice() {
-            // The session took a transform that changed no pose as
-            // reflected by the state it already has (it completes nothing
-            // for it), so the last state reflects it too.
-            self.reflected = self.session.reflected().to_vec();
+        let device = self.device.clone();
+        let (report, scoped) = device.capture(|| self.work(budget));
+        // Let wgpu run its maintenance (it calls the device-lost callback
+        // there) even on ticks that waited for nothing.
+        let _ = device.device.poll(wgpu::PollType::Poll);
+        // A lost device explains everything after it: say that first.
+        if let Some(e) = device.failure() {
+            return Err(SolverFailure(e));
         }
-        StepReport {
-            completed,
-            unshot_fraction: self.session.unshot_fraction(),
-            redistribution,
-            solve: started.elapsed(),
+        if let Some(e) = scoped {
+            return Err(SolverFailure(e));
         }
+        report
+    }
+
+    fn failure(&self) -> Option<String> {
+        self.device.failure()
+    }
+
+    fn inject_failure(&mut self) {
+        self.device.device.destroy();
     }
 
     fn radiosity(&self) -> &[Vec3] {

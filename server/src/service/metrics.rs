@@ -15,6 +15,12 @@ pub struct BadFrameLabels {
     pub kind: String,
 }
 
+/// Label for per-scene metrics.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct SceneLabels {
+    pub scene: String,
+}
+
 /// Every metric the service exports.
 pub struct Metrics {
     registry: Registry,
@@ -33,6 +39,12 @@ pub struct Metrics {
     pub catch_up_deltas_sent: Counter,
     pub bad_frames: Family<BadFrameLabels, Counter>,
     pub connections_closed_for_abuse: Counter,
+    /// Solver failures (lost device, GPU error, panic), per scene.
+    pub solver_failures: Family<SceneLabels, Counter>,
+    /// Attempts to rebuild a failed solver, per scene.
+    pub solver_rebuilds: Family<SceneLabels, Counter>,
+    /// 1 while a scene serves versions, 0 while solving or failed.
+    pub scene_ready: Family<SceneLabels, Gauge>,
 }
 
 impl Default for Metrics {
@@ -59,6 +71,9 @@ impl Metrics {
             catch_up_deltas_sent: Counter::default(),
             bad_frames: Family::default(),
             connections_closed_for_abuse: Counter::default(),
+            solver_failures: Family::default(),
+            solver_rebuilds: Family::default(),
+            scene_ready: Family::default(),
             registry: Registry::default(),
         };
         registry.register("ticks", "Tick loop iterations, all scenes", m.ticks.clone());
@@ -118,6 +133,21 @@ impl Metrics {
             "Connections closed after too many invalid frames",
             m.connections_closed_for_abuse.clone(),
         );
+        registry.register(
+            "solver_failures",
+            "Solver failures (lost GPU device, GPU error, panic), per scene",
+            m.solver_failures.clone(),
+        );
+        registry.register(
+            "solver_rebuilds",
+            "Attempts to rebuild a failed solver, per scene",
+            m.solver_rebuilds.clone(),
+        );
+        registry.register(
+            "scene_ready",
+            "1 while a scene serves versions, 0 while it solves its first or its solver has failed",
+            m.scene_ready.clone(),
+        );
         Self { registry, ..m }
     }
 
@@ -144,6 +174,13 @@ impl Metrics {
                 kind: kind.to_string(),
             })
             .inc();
+    }
+
+    /// Per-scene labels.
+    pub fn scene(scene: &str) -> SceneLabels {
+        SceneLabels {
+            scene: scene.to_string(),
+        }
     }
 
     /// The Prometheus text exposition.

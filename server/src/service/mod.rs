@@ -19,6 +19,11 @@
 //!    is one publication reference plus the socket buffer, whatever the
 //!    client does.
 //!
+//! 4. When a solver fails (lost GPU device, GPU error, panic), the tick
+//!    thread marks its feed failed (`/readyz` 503 with the scene and the
+//!    reason), keeps the last publication for sessions, and rebuilds the
+//!    solver with backoff at the current poses ([`runtime`]).
+//!
 //! Sessions see a scene only as a [`feed::Feed`] (description, inbox,
 //! publications, stats), which is how `lightwire relay` (`crate::relay`)
 //! serves its copy of a solver's scene with the same session code.

@@ -15,7 +15,21 @@
 //!    that state reflects);
 //! 5. update stats and metrics, sleep to the next tick (ticks missed while
 //!    the solver ran long are skipped, not caught up).
+//!
+//! When the solver fails (its `step` returns a [`SolverFailure`], or
+//! panics: each step runs under `catch_unwind`), the tick loop owns the
+//! policy: it drops the solver, marks the feed failed with the reason (so
+//! `/readyz` answers 503 naming the scene), counts
+//! `lightwire_solver_failures_total{scene}`, sets `lightwire_scene_ready`
+//! to 0 and logs one error line for the whole episode. Sessions keep the
+//! last publication (viewers keep their version; new ones get it as a
+//! keyframe). Transforms keep being drained into the current poses, and
+//! the solver is rebuilt from those poses (a fresh GPU device) after 0.5
+//! s, doubling up to 30 s between attempts. The encoder is not rebuilt, so
+//! version numbers keep increasing and the rebuilt solver's first version
+//! is a delta onto the last one; it makes the scene ready again.
 
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
@@ -32,8 +46,8 @@ use lightwire_protocol::{
 use tokio::sync::watch;
 
 use super::config::{Config, SolverChoice};
-use super::feed::Feed;
-use super::live::{GpuLive, LiveSolver, ReferenceLive};
+use super::feed::{Failure, Feed};
+use super::live::{GpuLive, LiveSolver, ReferenceLive, SolverFailure, StepReport};
 use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
 use crate::atlas::Atlas;
@@ -111,6 +125,23 @@ pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
     }
 }
 
+/// Builds a scene's solver starting from given poses: once at start, and
+/// again after each failure.
+type Build = Box<dyn FnMut(&[Pose]) -> Result<Box<dyn LiveSolver>> + Send>;
+
+/// The wait before the first rebuild of a failed solver.
+pub const REBUILD_FIRST: Duration = Duration::from_millis(500);
+/// The longest wait between rebuilds.
+pub const REBUILD_MAX: Duration = Duration::from_secs(30);
+
+/// The wait before the next rebuild after `attempts` of them: 0.5 s,
+/// doubling, at most 30 s.
+pub fn rebuild_delay(attempts: u32) -> Duration {
+    REBUILD_FIRST
+        .saturating_mul(1u32 << attempts.min(16))
+        .min(REBUILD_MAX)
+}
+
 fn now_us() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -148,7 +179,7 @@ impl SceneRuntime {
             );
         }
         let info = Arc::new(scene_info(&scene, &atlas));
-        let solver: Box<dyn LiveSolver> = match config.solver {
+        let mut build: Build = match config.solver {
             SolverChoice::Reference => {
                 if atlas.elements.len() > MAX_ELEMENTS {
                     anyhow::bail!(
@@ -157,20 +188,31 @@ impl SceneRuntime {
                         atlas.elements.len()
                     );
                 }
-                Box::new(ReferenceLive::new(scene.clone(), atlas.clone()))
+                let (scene, atlas) = (scene.clone(), atlas.clone());
+                Box::new(move |poses: &[Pose]| {
+                    let mut solver = ReferenceLive::new(scene.clone(), atlas.clone());
+                    solver.set_poses(poses, &vec![0; poses.len()]);
+                    Ok(Box::new(solver) as Box<dyn LiveSolver>)
+                })
             }
             SolverChoice::Progressive => {
-                let device = crate::gpu::Device::new(config.adapter.as_deref())?;
-                tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
                 let method = config
                     .scene_redistribution
                     .get(&scene.name)
                     .copied()
                     .unwrap_or(config.redistribution);
                 tracing::info!(scene = %scene.name, %method, "redistribution");
-                Box::new(GpuLive::new(device, scene.clone(), atlas.clone(), method)?)
+                let adapter = config.adapter.clone();
+                let (scene, atlas) = (scene.clone(), atlas.clone());
+                Box::new(move |poses: &[Pose]| {
+                    let device = crate::gpu::Device::new(adapter.as_deref())?;
+                    tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
+                    let solver = GpuLive::new(device, &scene, atlas.clone(), poses, method)?;
+                    Ok(Box::new(solver) as Box<dyn LiveSolver>)
+                })
             }
         };
+        let solver = build(&scene.initial_poses())?;
         let (publisher, pub_rx) = Publisher::new();
         let (stats_tx, stats_rx) = watch::channel(Stats {
             version: 0,
@@ -194,9 +236,24 @@ impl SceneRuntime {
             feed,
             thread: Mutex::new(None),
         });
+        let labels = Metrics::scene(&runtime.info.id);
+        let failures = metrics.solver_failures.get_or_create(&labels).clone();
+        let rebuilds = metrics.solver_rebuilds.get_or_create(&labels).clone();
+        let ready = metrics.scene_ready.get_or_create(&labels).clone();
+        ready.set(0);
         let tick = TickLoop {
             runtime: runtime.clone(),
-            solver,
+            name: solver.name(),
+            solver: Some(solver),
+            has_state: false,
+            build,
+            episode: None,
+            fail_at_seq: config.test_fail_solver.map(|h| h.at_seq),
+            rebuild_at_seq: config.test_fail_solver.and_then(|h| h.rebuild_at_seq),
+            rebuild_fails: config.test_fail_solver.map_or(0, |h| h.rebuild_fails),
+            failures,
+            rebuilds,
+            ready,
             encoder: Encoder::new(
                 runtime.atlas.width,
                 runtime.atlas.height,
@@ -237,9 +294,32 @@ impl SceneRuntime {
     }
 }
 
+/// A failure of the solver, from when it is noticed until a rebuilt solver
+/// publishes.
+struct Episode {
+    failure: Failure,
+    /// When to try the next rebuild.
+    retry_at: Instant,
+}
+
 struct TickLoop {
     runtime: Arc<SceneRuntime>,
-    solver: Box<dyn LiveSolver>,
+    /// `None` between a failure and a successful rebuild.
+    solver: Option<Box<dyn LiveSolver>>,
+    /// The solver has completed a state (its `radiosity` is one).
+    has_state: bool,
+    name: &'static str,
+    build: Build,
+    episode: Option<Episode>,
+    /// Test hook: the seq whose arrival makes the solver fail (once).
+    fail_at_seq: Option<u64>,
+    /// Test hook: no rebuild until a transform with this seq came.
+    rebuild_at_seq: Option<u64>,
+    /// Test hook: rebuild attempts still to fail.
+    rebuild_fails: u32,
+    failures: prometheus_client::metrics::counter::Counter,
+    rebuilds: prometheus_client::metrics::counter::Counter,
+    ready: prometheus_client::metrics::gauge::Gauge,
     encoder: Encoder,
     poses: Vec<Pose>,
     /// Latest seq per object handed to the solver.
@@ -252,29 +332,193 @@ struct TickLoop {
     budget: Duration,
 }
 
+fn unix_ms() -> u64 {
+    now_us() / 1000
+}
+
+/// The text of a panic's payload.
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(no message)".into())
+}
+
+/// A tick without a solver: no work, the last state's unshot fraction.
+fn down(last: &StepReport) -> StepReport {
+    StepReport {
+        completed: false,
+        unshot_fraction: last.unshot_fraction,
+        redistribution: Duration::ZERO,
+        solve: Duration::ZERO,
+    }
+}
+
+/// One step, with a panic turned into a failure like any other.
+fn guarded_step(solver: &mut dyn LiveSolver, budget: Duration) -> Result<StepReport, String> {
+    match catch_unwind(AssertUnwindSafe(|| solver.step(budget))) {
+        Ok(Ok(report)) => Ok(report),
+        Ok(Err(SolverFailure(reason))) => Err(reason),
+        Err(payload) => {
+            let message = panic_message(payload.as_ref());
+            // A lost device explains the panic better than its message.
+            Err(match solver.failure() {
+                Some(cause) => format!("{cause} (the step panicked: {message})"),
+                None => format!("the solver panicked: {message}"),
+            })
+        }
+    }
+}
+
 impl TickLoop {
+    /// Drops the failed solver, marks the scene failed and schedules a
+    /// rebuild. Logs at error level once per episode.
+    fn fail(&mut self, reason: String) {
+        if let Some(old) = self.solver.take() {
+            // Freeing resources of a lost device must not end the thread.
+            if catch_unwind(AssertUnwindSafe(move || drop(old))).is_err() {
+                tracing::warn!(scene = %self.runtime.info.id, "dropping the failed solver panicked");
+            }
+        }
+        self.failures.inc();
+        self.ready.set(0);
+        let id = &self.runtime.info.id;
+        let version = self.encoder.state().version;
+        match &mut self.episode {
+            None => {
+                let delay = rebuild_delay(0);
+                tracing::error!(
+                    scene = %id,
+                    version,
+                    "solver failed: {reason}; scene not ready, still serving version {version}, rebuilding in {delay:?}"
+                );
+                self.episode = Some(Episode {
+                    failure: Failure {
+                        reason,
+                        since_unix_ms: unix_ms(),
+                        rebuild_attempts: 0,
+                    },
+                    retry_at: Instant::now() + delay,
+                });
+            }
+            Some(episode) => {
+                // A rebuilt solver failed before publishing: the same
+                // episode, so no second error line.
+                let delay = rebuild_delay(episode.failure.rebuild_attempts);
+                tracing::warn!(scene = %id, "rebuilt solver failed: {reason}; next rebuild in {delay:?}");
+                episode.failure.reason = reason;
+                episode.retry_at = Instant::now() + delay;
+            }
+        }
+        self.show_failure();
+    }
+
+    fn show_failure(&self) {
+        if let Some(episode) = &self.episode {
+            self.runtime.feed.set_failure(Some(episode.failure.clone()));
+        }
+    }
+
+    /// Rebuilds the solver at the current poses once the backoff allows.
+    fn rebuild_when_due(&mut self) {
+        let Some(episode) = &mut self.episode else {
+            return;
+        };
+        if self.solver.is_some() || Instant::now() < episode.retry_at {
+            return;
+        }
+        if let Some(at) = self.rebuild_at_seq {
+            if self.seqs.iter().all(|&s| s < at) {
+                return;
+            }
+            self.rebuild_at_seq = None;
+        }
+        episode.failure.rebuild_attempts += 1;
+        let attempt = episode.failure.rebuild_attempts;
+        self.rebuilds.inc();
+        let id = self.runtime.info.id.clone();
+        let poses = self.poses.clone();
+        let build = &mut self.build;
+        let built = match catch_unwind(AssertUnwindSafe(|| build(&poses))) {
+            Ok(Ok(_)) if self.rebuild_fails > 0 => {
+                self.rebuild_fails -= 1;
+                Err("test-injected rebuild failure (LIGHTWIRE_TEST_FAIL_SOLVER)".into())
+            }
+            Ok(Ok(solver)) => Ok(solver),
+            Ok(Err(e)) => Err(format!("{e:#}")),
+            Err(payload) => Err(format!("panicked: {}", panic_message(payload.as_ref()))),
+        };
+        match built {
+            Ok(mut solver) => {
+                solver.set_poses(&self.poses, &self.seqs);
+                tracing::info!(scene = %id, attempt, "solver rebuilt; ready again at its first version");
+                self.solver = Some(solver);
+                self.has_state = false;
+            }
+            Err(e) => {
+                let delay = rebuild_delay(attempt);
+                tracing::warn!(scene = %id, attempt, "rebuilding the solver failed: {e}; next try in {delay:?}");
+                episode.failure.reason = format!("rebuilding the solver failed: {e}");
+                episode.retry_at = Instant::now() + delay;
+            }
+        }
+        self.show_failure();
+    }
+
     fn run(mut self) {
         let id = self.runtime.info.id.clone();
-        tracing::info!(scene = %id, solver = self.solver.name(), elements = self.runtime.atlas.elements.len(), "tick loop started");
+        tracing::info!(scene = %id, solver = self.name, elements = self.runtime.atlas.elements.len(), "tick loop started");
         let mut next = Instant::now();
         let mut published_seqs: Vec<u64> = vec![0; self.seqs.len()];
+        let mut last = StepReport {
+            completed: false,
+            unshot_fraction: 1.0,
+            redistribution: Duration::ZERO,
+            solve: Duration::ZERO,
+        };
         while !*self.shutdown.borrow() {
             let started = Instant::now();
             let drained = self.runtime.feed.inbox.drain();
-            if !drained.is_empty() {
-                for (object, pending) in drained {
-                    self.poses[object] = from_wire(&pending.pose);
-                    self.seqs[object] = pending.seq;
-                }
-                self.solver.set_poses(&self.poses, &self.seqs);
+            let mut inject = false;
+            let moved = !drained.is_empty();
+            for (object, pending) in drained {
+                self.poses[object] = from_wire(&pending.pose);
+                self.seqs[object] = pending.seq;
+                inject |= self.fail_at_seq.is_some_and(|at| pending.seq >= at);
             }
-            let report = self.solver.step(self.budget);
+            // While failed, poses only accumulate: the rebuilt solver
+            // starts from them.
+            self.rebuild_when_due();
+            let Some(solver) = self.solver.as_mut() else {
+                self.finish_tick(started, down(&last));
+                next = self.sleep_until_next(next);
+                continue;
+            };
+            if moved {
+                solver.set_poses(&self.poses, &self.seqs);
+            }
+            if inject {
+                self.fail_at_seq = None;
+                tracing::warn!(scene = %id, "test hook LIGHTWIRE_TEST_FAIL_SOLVER: failing the solver");
+                solver.inject_failure();
+            }
+            let report = match guarded_step(solver.as_mut(), self.budget) {
+                Ok(report) => report,
+                Err(reason) => {
+                    self.fail(reason);
+                    self.finish_tick(started, down(&last));
+                    next = self.sleep_until_next(next);
+                    continue;
+                }
+            };
+            last = report;
             // Echo the seqs newly reflected since the previous version. A
             // transform that changed nothing (the pose the object already
             // had) is reflected at once without new light; it still gets a
             // version, with no tiles, so that every accepted seq is echoed
             // (PROTOCOL.md §3, `reflected`).
-            let solved = self.solver.reflected();
+            let solved = solver.reflected();
             let reflected: Vec<ObjectSeq> = solved
                 .iter()
                 .zip(&published_seqs)
@@ -285,38 +529,136 @@ impl TickLoop {
                     seq: *seq,
                 })
                 .collect();
-            if report.completed || !reflected.is_empty() {
+            // A new (or rebuilt) solver's `radiosity` means nothing before
+            // its first complete state: no echo-only version until then.
+            if report.completed || (self.has_state && !reflected.is_empty()) {
+                self.has_state = true;
                 published_seqs = solved.to_vec();
-                let image = self.runtime.atlas.to_image(self.solver.radiosity());
+                let image = self.runtime.atlas.to_image(solver.radiosity());
                 let delta = self.encoder.publish(&image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();
                 self.publisher
                     .publish(self.runtime.info.clone(), keyframe, Some(delta));
+                if let Some(episode) = self.episode.take() {
+                    self.runtime.feed.set_failure(None);
+                    tracing::info!(
+                        scene = %id,
+                        version = self.encoder.state().version,
+                        attempts = episode.failure.rebuild_attempts,
+                        "solver recovered; scene ready"
+                    );
+                }
                 self.runtime.feed.ready.store(true, Ordering::Release);
+                self.ready.set(1);
             }
-            let tick_time = started.elapsed();
-            self.metrics.ticks.inc();
-            self.metrics
-                .observe_tick(tick_time, report.solve, report.redistribution);
-            let _ = self.stats.send(Stats {
-                version: self.encoder.state().version,
-                unshot_fraction: report.unshot_fraction as f32,
-                tick_ms: tick_time.as_secs_f32() * 1000.0,
-                solve_ms: report.solve.as_secs_f32() * 1000.0,
-                redistribution_ms: report.redistribution.as_secs_f32() * 1000.0,
-                clients: self.runtime.feed.clients.load(Ordering::Relaxed),
-                server_time_us: now_us(),
-            });
-            next += self.period;
-            let now = Instant::now();
-            if next > now {
-                std::thread::sleep(next - now);
-            } else {
-                // Ran long (a blocking re-solve): skip the missed ticks.
-                next = now;
-            }
+            self.finish_tick(started, last);
+            next = self.sleep_until_next(next);
         }
         tracing::info!(scene = %id, "tick loop stopped");
+    }
+
+    /// Stats and metrics of a tick whose solver work was `report`.
+    fn finish_tick(&self, started: Instant, report: StepReport) {
+        let tick_time = started.elapsed();
+        self.metrics.ticks.inc();
+        self.metrics
+            .observe_tick(tick_time, report.solve, report.redistribution);
+        let _ = self.stats.send(Stats {
+            version: self.encoder.state().version,
+            unshot_fraction: report.unshot_fraction as f32,
+            tick_ms: tick_time.as_secs_f32() * 1000.0,
+            solve_ms: report.solve.as_secs_f32() * 1000.0,
+            redistribution_ms: report.redistribution.as_secs_f32() * 1000.0,
+            clients: self.runtime.feed.clients.load(Ordering::Relaxed),
+            server_time_us: now_us(),
+        });
+    }
+
+    /// Sleeps to the tick after `next`; returns it.
+    fn sleep_until_next(&self, mut next: Instant) -> Instant {
+        next += self.period;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            // Ran long (a blocking re-solve): skip the missed ticks.
+            next = now;
+        }
+        next
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A solver whose step panics, or fails, as told.
+    struct Broken {
+        panic: bool,
+        lost: Option<String>,
+    }
+
+    impl LiveSolver for Broken {
+        fn name(&self) -> &'static str {
+            "broken"
+        }
+        fn set_poses(&mut self, _: &[Pose], _: &[u64]) {}
+        fn step(&mut self, _: Duration) -> Result<StepReport, SolverFailure> {
+            if self.panic {
+                panic!("boom");
+            }
+            Err(SolverFailure("it broke".into()))
+        }
+        fn radiosity(&self) -> &[glam::Vec3] {
+            &[]
+        }
+        fn reflected(&self) -> &[u64] {
+            &[]
+        }
+        fn failure(&self) -> Option<String> {
+            self.lost.clone()
+        }
+        fn inject_failure(&mut self) {}
+    }
+
+    #[test]
+    fn a_panicking_step_is_a_failure_with_its_best_reason() {
+        let budget = Duration::from_millis(1);
+        let mut failing = Broken {
+            panic: false,
+            lost: None,
+        };
+        assert_eq!(
+            guarded_step(&mut failing, budget).err().as_deref(),
+            Some("it broke")
+        );
+        let mut panicking = Broken {
+            panic: true,
+            lost: None,
+        };
+        assert_eq!(
+            guarded_step(&mut panicking, budget).err().as_deref(),
+            Some("the solver panicked: boom")
+        );
+        let mut lost = Broken {
+            panic: true,
+            lost: Some("GPU device lost (Destroyed)".into()),
+        };
+        assert_eq!(
+            guarded_step(&mut lost, budget).err().as_deref(),
+            Some("GPU device lost (Destroyed) (the step panicked: boom)")
+        );
+    }
+
+    #[test]
+    fn rebuilds_back_off_from_half_a_second_to_thirty() {
+        let delays: Vec<Duration> = (0..10).map(rebuild_delay).collect();
+        assert_eq!(delays[0], Duration::from_millis(500));
+        assert_eq!(delays[1], Duration::from_secs(1));
+        assert_eq!(delays[5], Duration::from_secs(16));
+        assert_eq!(delays[6], Duration::from_secs(30));
+        assert_eq!(rebuild_delay(u32::MAX), Duration::from_secs(30));
+        assert!(delays.windows(2).all(|w| w[0] <= w[1]));
     }
 }

@@ -3,6 +3,7 @@
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
 
 use super::scene_path;
 
@@ -22,6 +23,9 @@ pub struct Proc {
     pub child: Child,
     /// `HOST:PORT` it listens on.
     pub addr: String,
+    /// Its stderr, line by line, when spawned with `capture_stderr` (also
+    /// echoed to the test's stderr); empty otherwise.
+    log: Arc<Mutex<Vec<String>>>,
 }
 
 impl Drop for Proc {
@@ -36,14 +40,33 @@ impl Proc {
     /// the line that names its address (stdout keeps being drained, so the
     /// process never blocks on a full pipe).
     pub fn spawn(args: &[String], env: &[(&str, String)]) -> Proc {
+        Self::spawn_with(args, env, false)
+    }
+
+    /// [`Proc::spawn`], optionally collecting stderr for [`Proc::log_lines`].
+    pub fn spawn_with(args: &[String], env: &[(&str, String)], capture_stderr: bool) -> Proc {
         let mut child = Command::new(env!("CARGO_BIN_EXE_lightwire"))
             .args(args)
             .env("RUST_LOG", "warn")
             .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(if capture_stderr {
+                Stdio::piped()
+            } else {
+                Stdio::inherit()
+            })
             .spawn()
             .expect("lightwire starts");
+        let log = Arc::new(Mutex::new(Vec::new()));
+        if let Some(pipe) = child.stderr.take() {
+            let lines = log.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+                    eprintln!("lightwire: {line}");
+                    lines.lock().unwrap_or_else(|p| p.into_inner()).push(line);
+                }
+            });
+        }
         let stdout = child.stdout.take().expect("piped stdout");
         let mut lines = BufReader::new(stdout).lines();
         let addr = loop {
@@ -60,7 +83,7 @@ impl Proc {
             }
         };
         std::thread::spawn(move || for _ in lines {});
-        Proc { child, addr }
+        Proc { child, addr, log }
     }
 
     /// A solver on `listen` (port 0: any) with cornell-low at a coarse
@@ -72,6 +95,16 @@ impl Proc {
 
     /// [`Proc::solver`] with another solver and extra environment.
     pub fn solver_with(listen: &str, solver: &str, env: &[(&str, String)]) -> Proc {
+        Self::solver_logged(listen, solver, env, false)
+    }
+
+    /// [`Proc::solver_with`], optionally collecting stderr.
+    pub fn solver_logged(
+        listen: &str,
+        solver: &str,
+        env: &[(&str, String)],
+        capture_stderr: bool,
+    ) -> Proc {
         let args = [
             "serve",
             "--listen",
@@ -90,7 +123,19 @@ impl Proc {
             .into_iter()
             .chain(env.iter().cloned())
             .collect();
-        Proc::spawn(&args, &env)
+        Proc::spawn_with(&args, &env, capture_stderr)
+    }
+
+    /// Lines of stderr so far that contain every one of `words` (empty
+    /// unless spawned with `capture_stderr`).
+    pub fn log_lines(&self, words: &[&str]) -> Vec<String> {
+        self.log
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .iter()
+            .filter(|l| words.iter().all(|w| l.contains(w)))
+            .cloned()
+            .collect()
     }
 
     /// A relay of the solver at `upstream` (`HOST:PORT`), presenting the
