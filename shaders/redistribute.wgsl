@@ -28,6 +28,10 @@
 // the tile's value, the same for all its texels), w = 1 once gathered.
 // `smooth_moving` interpolates it between tile centres.
 @group(0) @binding(22) var<storage, read_write> gathered: array<vec4<f32>>;
+// What `smooth_moving` gave an element beyond its tile's constant ρ H
+// (rgb): taken out of the shot radiosity the next move takes back, which
+// then equals what the tile shot.
+@group(0) @binding(23) var<storage, read_write> smoothed: array<vec4<f32>>;
 
 // Batch.mode: the kind in the low byte, flags above.
 const KIND_MASK: u32 = 0xffu;
@@ -69,8 +73,9 @@ fn reset_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (e >= batch.element_count || !is_moving(elements[e])) {
         return;
     }
-    old_shot[e] = radiosity[e] - unshot[e];
+    old_shot[e] = radiosity[e] - unshot[e] - smoothed[e];
     gathered[e] = vec4<f32>(0.0);
+    smoothed[e] = vec4<f32>(0.0);
     radiosity[e] = emission[e];
     unshot[e] = select(vec4<f32>(0.0), emission[e], (batch.mode & RESET_UNSHOT) != 0u);
 }
@@ -398,10 +403,8 @@ fn tile_centre(i: u32, n: u32, g: u32) -> f32 {
     return 0.5 * (f32(i * n / g) + f32((i + 1u) * n / g) - 1.0);
 }
 
-// The tiles texel `x` is interpolated between along an axis: the lower one
-// and the weight of the next (0 beyond the outermost centres, which keep
-// their tile's value).
-fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
+// The tile of texel `x` along an axis.
+fn tile_index(x: u32, n: u32, g: u32) -> u32 {
     var i = min(x * g / n, g - 1u);
     loop {
         if (i + 1u < g && (i + 1u) * n / g <= x) { i += 1u; } else { break; }
@@ -409,6 +412,14 @@ fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
     loop {
         if (i > 0u && i * n / g > x) { i -= 1u; } else { break; }
     }
+    return i;
+}
+
+// The tiles texel `x` is interpolated between along an axis: the lower one
+// and the weight of the next (0 beyond the outermost centres, which keep
+// their tile's value).
+fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
+    let i = tile_index(x, n, g);
     let c = tile_centre(i, n, g);
     let fx = f32(x);
     if (fx < c && i > 0u) {
@@ -421,12 +432,36 @@ fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
     return vec2<f32>(f32(i), 0.0);
 }
 
+// The gathered irradiance of the tile (i, j) of a patch (any of its
+// texels holds it).
+fn tile_h(range: PatchRange, g: vec2<u32>, i: u32, j: u32) -> vec3<f32> {
+    return gathered[range.first + (j * range.h / g.y) * range.w + i * range.w / g.x].rgb;
+}
+
+// H at texel (x, y) of a patch, bilinear between the tile centres.
+fn interpolated_h(range: PatchRange, g: vec2<u32>, x: u32, y: u32) -> vec3<f32> {
+    let lx = tile_lerp(x, range.w, g.x);
+    let ly = tile_lerp(y, range.h, g.y);
+    let i0 = u32(lx.x);
+    let j0 = u32(ly.x);
+    let i1 = min(i0 + 1u, g.x - 1u);
+    let j1 = min(j0 + 1u, g.y - 1u);
+    return mix(
+        mix(tile_h(range, g, i0, j0), tile_h(range, g, i1, j0), lx.y),
+        mix(tile_h(range, g, i0, j1), tile_h(range, g, i1, j1), lx.y),
+        ly.y,
+    );
+}
+
 // After the last cross batch of a move, per element of M that gathered: B
 // += ρ H with H interpolated bilinearly between the centres of the tiles
 // around the texel on its chart. Every tile's H is the value of a point
 // (its hemicube eye) standing for the tile (thesis Alg. 4.5 gathers once
 // per reduced element), so reading it as samples at tile centres rather
-// than as a constant per tile is the same data, without the steps.
+// than as a constant per tile is the same data without the steps. What
+// the tile shot (`energy`) is its constant H, so the difference is kept
+// in `smoothed` and left out of what the next move takes back: otherwise
+// every move would leave a little light behind (or take too much).
 @compute @workgroup_size(64)
 fn smooth_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     let e = gid.x;
@@ -435,19 +470,9 @@ fn smooth_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let range = patches[bitcast<u32>(elements[e].normal.w)];
     let local = e - range.first;
-    let gx = tile_count(range.w);
-    let gy = tile_count(range.h);
-    let lx = tile_lerp(local % range.w, range.w, gx);
-    let ly = tile_lerp(local / range.w, range.h, gy);
-    let i0 = u32(lx.x);
-    let j0 = u32(ly.x);
-    let i1 = min(i0 + 1u, gx - 1u);
-    let j1 = min(j0 + 1u, gy - 1u);
-    let at = range.first;
-    let h00 = gathered[at + (j0 * range.h / gy) * range.w + i0 * range.w / gx].rgb;
-    let h10 = gathered[at + (j0 * range.h / gy) * range.w + i1 * range.w / gx].rgb;
-    let h01 = gathered[at + (j1 * range.h / gy) * range.w + i0 * range.w / gx].rgb;
-    let h11 = gathered[at + (j1 * range.h / gy) * range.w + i1 * range.w / gx].rgb;
-    let h = mix(mix(h00, h10, lx.y), mix(h01, h11, lx.y), ly.y);
-    radiosity[e] += vec4<f32>(elements[e].albedo.rgb * h, 0.0);
+    let g = vec2<u32>(tile_count(range.w), tile_count(range.h));
+    let h = interpolated_h(range, g, local % range.w, local / range.w);
+    let extra = elements[e].albedo.rgb * (h - gathered[e].rgb);
+    radiosity[e] += vec4<f32>(elements[e].albedo.rgb * gathered[e].rgb + extra, 0.0);
+    smoothed[e] = vec4<f32>(extra, 0.0);
 }

@@ -269,6 +269,12 @@ impl ProgressiveSolver {
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
+        let smoothed = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("interpolation of moving tiles beyond their constant"),
+            size: u64::from(self.element_count.max(1)) * 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("back hemicube"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -304,6 +310,7 @@ impl ProgressiveSolver {
                 (15, b(&bufs.emission)),
                 (16, b(&old_shot)),
                 (22, b(&gathered)),
+                (23, b(&smoothed)),
             ],
         );
         let energy = compute_with(
@@ -352,6 +359,7 @@ impl ProgressiveSolver {
                 (9, b(&self.batch)),
                 (11, b(&self.flags_buffer)),
                 (22, b(&gathered)),
+                (23, b(&smoothed)),
             ],
         );
         let reconstruct = compute_with(
