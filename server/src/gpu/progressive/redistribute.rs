@@ -26,7 +26,12 @@
 //!   new position blocks (the non-incremental cross projection R_x(C, C),
 //!   eq. 3.3.1, with reprojection). Each tile then shoots its new total
 //!   radiosity and its negated old shot radiosity (area-weighted averages
-//!   over its texels).
+//!   over its texels). After the last batch the texels of M read the
+//!   tiles' gathered irradiance as samples at the tile centres, bilinear
+//!   between them (`smooth_moving`), so faces show no bands at tile
+//!   boundaries; what that adds beyond a tile's constant is kept apart and
+//!   left out of the old shot radiosity the next move takes back, which
+//!   therefore equals what the tile shot.
 //!
 //! Cross projection uses C's shot radiosity B^s; it cancels exactly only
 //! while B^s of C does not change. So progressive iterations never run
