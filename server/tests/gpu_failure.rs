@@ -14,16 +14,10 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use futures_util::{SinkExt, StreamExt};
-use lightwire_protocol::lightmap::Lightmap;
-use lightwire_protocol::{
-    ClientMessage, PROTOCOL_VERSION, Pose, Role, ServerMessage, decode_server, encode_client,
-};
-use tokio::net::TcpStream;
-use tokio_tungstenite::tungstenite::Message;
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+use lightwire_protocol::{ClientMessage, Pose, Role};
 
 use common::http;
+use common::peer::{Client, Read};
 use common::process::{DRIVER_TOKEN, Proc, VIEWER_TOKEN};
 
 /// The transform seq at which the hook destroys the device.
@@ -89,61 +83,7 @@ impl Server {
     }
 }
 
-type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
-
-/// A protocol client that keeps the lightmap it reconstructs and every
-/// version it applied.
-struct Client {
-    ws: Ws,
-    map: Option<Lightmap>,
-    role: Option<Role>,
-    /// (version, arrived as a keyframe) per applied frame.
-    applied: Vec<(u64, bool)>,
-    /// Latest transform seq per object reflected by the held version.
-    reflected: std::collections::HashMap<u32, u64>,
-    errors: Vec<String>,
-}
-
-enum Read {
-    Frame,
-    Timeout,
-    Closed,
-}
-
 impl Client {
-    async fn connect(url: &str, token: &str) -> Client {
-        let (mut ws, _) = tokio_tungstenite::connect_async(url)
-            .await
-            .expect("websocket connects");
-        let hello = ClientMessage::Hello {
-            protocol_version: PROTOCOL_VERSION,
-            client: "gpu-failure-test".into(),
-            token: Some(token.into()),
-            capabilities: 0,
-        };
-        ws.send(Message::Binary(encode_client(&hello).into()))
-            .await
-            .expect("send hello");
-        let mut client = Client {
-            ws,
-            map: None,
-            role: None,
-            applied: Vec::new(),
-            reflected: Default::default(),
-            errors: Vec::new(),
-        };
-        client.read_one(Duration::from_secs(10)).await;
-        assert!(client.role.is_some(), "Welcome is the first frame");
-        client
-    }
-
-    async fn send(&mut self, message: &ClientMessage) {
-        self.ws
-            .send(Message::Binary(encode_client(message).into()))
-            .await
-            .expect("send");
-    }
-
     async fn transform(&mut self, seq: u64, pose: Pose) {
         self.send(&ClientMessage::Transform {
             object: BOX,
@@ -154,49 +94,6 @@ impl Client {
         .await;
     }
 
-    /// Reads and applies one frame.
-    async fn read_one(&mut self, timeout: Duration) -> Read {
-        let frame = match tokio::time::timeout(timeout, self.ws.next()).await {
-            Ok(Some(Ok(Message::Binary(bytes)))) => bytes,
-            Ok(Some(Ok(Message::Close(_)))) | Ok(None) => return Read::Closed,
-            Err(_) => return Read::Timeout,
-            Ok(Some(Ok(_))) => return Read::Frame,
-            Ok(Some(Err(e))) => panic!("websocket error: {e}"),
-        };
-        match decode_server(&frame).expect("server frames decode") {
-            ServerMessage::Welcome { role, scene, .. } => {
-                self.role = Some(role);
-                self.map = Some(Lightmap::for_scene(&scene).expect("valid scene info"));
-            }
-            ServerMessage::Keyframe(k) => {
-                let map = self.map.as_mut().expect("Welcome came first");
-                map.apply_keyframe(&k).expect("keyframes always apply");
-                self.reflected = k.reflected.iter().map(|r| (r.object, r.seq)).collect();
-                self.applied.push((k.version, true));
-            }
-            ServerMessage::Delta(d) => {
-                let map = self.map.as_mut().expect("Welcome came first");
-                // The contract: a delta is only ever sent onto the exact
-                // version the client holds.
-                map.apply_delta(&d).unwrap_or_else(|e| {
-                    panic!(
-                        "delta {} -> {} onto {}: {e}",
-                        d.base_version, d.version, map.version
-                    )
-                });
-                self.applied.push((d.version, false));
-                for r in &d.reflected {
-                    self.reflected.insert(r.object, r.seq);
-                }
-            }
-            ServerMessage::Error { code, message } => {
-                self.errors.push(format!("{code:?}: {message}"))
-            }
-            ServerMessage::Stats(_) | ServerMessage::Pong { .. } => {}
-        }
-        Read::Frame
-    }
-
     /// Reads frames for `time`; the connection must stay open.
     async fn pump(&mut self, time: Duration) {
         let until = Instant::now() + time;
@@ -205,7 +102,7 @@ impl Client {
             if left.is_zero() {
                 return;
             }
-            match self.read_one(left).await {
+            match self.read_frame(left).await {
                 Read::Frame => {}
                 Read::Timeout => return,
                 Read::Closed => panic!(
@@ -227,10 +124,6 @@ impl Client {
             );
             self.pump(Duration::from_millis(50)).await;
         }
-    }
-
-    fn version(&self) -> u64 {
-        self.map.as_ref().map_or(0, |m| m.version)
     }
 
     fn texels(&self) -> &[u8] {

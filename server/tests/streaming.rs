@@ -7,154 +7,20 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
-use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
     ClientMessage, ErrorCode, PROTOCOL_VERSION, Pose, Role, ServerMessage, decode_server,
     encode_client,
 };
-use tokio::net::TcpStream;
+use tokio_tungstenite::MaybeTlsStream;
 use tokio_tungstenite::tungstenite::Message;
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 use common::http;
+use common::peer::Client;
 use common::process::{DRIVER_TOKEN, Proc, VIEWER_TOKEN};
 
 /// `GET path` on `server` with the viewer token (the REST routes need one).
 async fn http_get(server: &Proc, path: &str) -> http::Response {
     http::get(&server.addr, path, Some(VIEWER_TOKEN)).await
-}
-
-type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
-
-/// A protocol client that keeps the lightmap it reconstructs.
-struct Client {
-    ws: Ws,
-    map: Option<Lightmap>,
-    role: Option<Role>,
-    versions: Vec<u64>,
-    keyframes: usize,
-    errors: Vec<(ErrorCode, String)>,
-    /// Latest transform seq per object reflected by the held version.
-    reflected: std::collections::HashMap<u32, u64>,
-}
-
-impl Client {
-    async fn connect(url: &str, token: &str) -> Client {
-        let (ws, _) = tokio_tungstenite::connect_async(url)
-            .await
-            .expect("websocket connects");
-        Self::hello(ws, token).await
-    }
-
-    /// A client on an open socket that has not said `Hello` yet.
-    fn unhandshaken(ws: Ws) -> Client {
-        Client {
-            ws,
-            map: None,
-            role: None,
-            versions: Vec::new(),
-            keyframes: 0,
-            errors: Vec::new(),
-            reflected: Default::default(),
-        }
-    }
-
-    async fn hello(mut ws: Ws, token: &str) -> Client {
-        let hello = ClientMessage::Hello {
-            protocol_version: PROTOCOL_VERSION,
-            client: "streaming-test".into(),
-            token: Some(token.into()),
-            capabilities: 0,
-        };
-        ws.send(Message::Binary(encode_client(&hello).into()))
-            .await
-            .expect("send hello");
-        let mut client = Client::unhandshaken(ws);
-        client.read_one(Duration::from_secs(10)).await;
-        assert!(client.role.is_some(), "Welcome is the first frame");
-        client
-    }
-
-    async fn send(&mut self, message: &ClientMessage) {
-        self.ws
-            .send(Message::Binary(encode_client(message).into()))
-            .await
-            .expect("send");
-    }
-
-    /// Reads and applies one frame; false on close or timeout.
-    async fn read_one(&mut self, timeout: Duration) -> bool {
-        let frame = match tokio::time::timeout(timeout, self.ws.next()).await {
-            Ok(Some(Ok(Message::Binary(bytes)))) => bytes,
-            Ok(Some(Ok(Message::Close(_)))) | Ok(None) | Err(_) => return false,
-            Ok(Some(Ok(_))) => return true,
-            Ok(Some(Err(e))) => panic!("websocket error: {e}"),
-        };
-        match decode_server(&frame).expect("server frames decode") {
-            ServerMessage::Welcome {
-                role,
-                scene,
-                protocol_version,
-                ..
-            } => {
-                assert_eq!(protocol_version, PROTOCOL_VERSION);
-                self.role = Some(role);
-                self.map = Some(Lightmap::for_scene(&scene).expect("valid scene info"));
-            }
-            ServerMessage::Keyframe(k) => {
-                let map = self.map.as_mut().expect("Welcome came first");
-                map.apply_keyframe(&k).expect("keyframes always apply");
-                self.keyframes += 1;
-                self.reflected = k.reflected.iter().map(|r| (r.object, r.seq)).collect();
-                self.versions.push(k.version);
-            }
-            ServerMessage::Delta(d) => {
-                let map = self.map.as_mut().expect("Welcome came first");
-                // The contract: a delta is only ever sent onto the exact
-                // version the client holds.
-                map.apply_delta(&d).unwrap_or_else(|e| {
-                    panic!(
-                        "delta {} -> {} onto {}: {e}",
-                        d.base_version, d.version, map.version
-                    )
-                });
-                self.versions.push(d.version);
-                for r in &d.reflected {
-                    self.reflected.insert(r.object, r.seq);
-                }
-            }
-            ServerMessage::Error { code, message } => self.errors.push((code, message)),
-            ServerMessage::Stats(_) | ServerMessage::Pong { .. } => {}
-        }
-        true
-    }
-
-    fn version(&self) -> u64 {
-        self.map.as_ref().map_or(0, |m| m.version)
-    }
-
-    /// Reads until the client holds `version` (or fails after `limit`).
-    async fn read_until_version(&mut self, version: u64, limit: Duration) {
-        let deadline = Instant::now() + limit;
-        while self.version() < version {
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "stuck at version {} waiting for {version}",
-                self.version()
-            );
-            assert!(
-                self.read_one(left).await,
-                "connection ended at version {}",
-                self.version()
-            );
-        }
-        assert_eq!(
-            self.version(),
-            version,
-            "overshot: the server published more than expected"
-        );
-    }
 }
 
 /// Reads (and applies) frames on a task until `stop` flips.
