@@ -69,6 +69,8 @@ pub struct Applied {
     /// (empty for the first keyframe a buffer receives: it is a catch-up,
     /// not a delivery of anything this client saw being sent).
     pub newly_reflected: Vec<ObjectSeq>,
+    /// Tiles the frame wrote (every tile for a keyframe).
+    pub tiles: usize,
 }
 
 /// Front and back buffers for one scene layout; see the module docs.
@@ -123,7 +125,7 @@ impl DoubleBuffer {
             None => Vec::new(),
             Some(before) => newer(&self.back_reflected, &before),
         };
-        Ok(self.swap(newly))
+        Ok(self.swap(newly, k.tiles.len()))
     }
 
     /// Applies a delta onto exactly its base version and swaps it to the
@@ -137,14 +139,14 @@ impl DoubleBuffer {
                 base: d.base_version,
             });
         }
-        self.back.apply_delta(d)?;
+        let tiles = self.back.apply_delta_tiles(d)?.len();
         let before = self.back_reflected.clone();
         for r in &d.reflected {
             let seq = self.back_reflected.entry(r.object).or_insert(r.seq);
             *seq = (*seq).max(r.seq);
         }
         let newly = newer(&self.back_reflected, &before);
-        Ok(self.swap(newly))
+        Ok(self.swap(newly, tiles))
     }
 
     /// Gives a retired front back (e.g. the value a `watch` channel
@@ -160,7 +162,7 @@ impl DoubleBuffer {
 
     /// Moves the completed back buffer to the front and makes a new back
     /// buffer at the same version.
-    fn swap(&mut self, newly_reflected: Vec<ObjectSeq>) -> Applied {
+    fn swap(&mut self, newly_reflected: Vec<ObjectSeq>, tiles: usize) -> Applied {
         let mut next_back = match self.spare.take() {
             Some(mut spare) => {
                 spare.texels.copy_from_slice(&self.back.texels);
@@ -182,6 +184,7 @@ impl DoubleBuffer {
         Applied {
             frame,
             newly_reflected,
+            tiles,
         }
     }
 }
@@ -270,7 +273,7 @@ mod tests {
             Err(ApplyError::WrongBase { .. })
         ));
         let mut corrupt = d2.clone();
-        corrupt.tiles[0].data = vec![1, 2, 3];
+        corrupt.residual = vec![1, 2, 3];
         assert!(buf.apply_delta(&corrupt).is_err());
         assert!(
             Arc::ptr_eq(buf.front().expect("front"), &front),

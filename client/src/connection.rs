@@ -526,7 +526,8 @@ impl Session<'_> {
                 match self.task.buffer.apply_delta(&d) {
                     Ok(applied) => {
                         counters.deltas.fetch_add(1, Ordering::Relaxed);
-                        self.publish(applied, Some(d.base_version), d.tiles.len(), bytes.len());
+                        let tiles = applied.tiles;
+                        self.publish(applied, Some(d.base_version), tiles, bytes.len());
                     }
                     Err(ApplyError::WrongBase { base, .. }) => {
                         let have = self.task.buffer.version();

@@ -61,7 +61,9 @@ pub mod endpoint;
 pub mod error;
 pub mod latency;
 pub mod render;
-pub mod script;
+/// Transform scripts live in the protocol crate, so that the server's
+/// benchmarks replay the same streams as `drive` and `load`.
+pub use lightwire_protocol::script;
 pub mod view;
 
 pub use backoff::BackoffPolicy;

@@ -196,10 +196,10 @@ async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
         "frame #3 (after Welcome, keyframe), 3 bytes"
     );
 
-    // A delta with a corrupt tile: nothing applied, a resync requested.
+    // A delta with a corrupt payload: nothing applied, a resync requested.
     let d2 = enc.publish(&image(2.0), vec![]);
     let mut corrupt = d2.clone();
-    corrupt.tiles[0].data = vec![0x28, 0xb5, 0x2f, 0xfd, 0, 0];
+    corrupt.residual = vec![0x28, 0xb5, 0x2f, 0xfd, 0, 0];
     send(&mut ws, &ServerMessage::Delta(corrupt)).await;
     let message = until(&mut client, |e| match e {
         Event::Error(e @ ClientError::Apply { .. }) => Some(e.to_string()),

@@ -140,3 +140,22 @@ fn a_script_that_leaves_the_room_is_caught() {
         .expect("x = 5.0 + 0.8 > 5.56");
     assert!(exit.contains("outside the room"), "{exit}");
 }
+
+#[test]
+fn the_indirect_light_scripts_keep_its_box_inside_its_room() {
+    let dir = repo().join("scenes/scripts/indirect-light");
+    let info = scene_info(&repo().join("scenes/indirect-light.json"));
+    let object = info
+        .objects
+        .iter()
+        .position(|o| o.name == "box")
+        .expect("the box") as u32;
+    for name in ["rotate", "orbit"] {
+        let path = dir.join(format!("{name}.json"));
+        let script = Script::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert!(script.looping, "{}: examples loop", path.display());
+        if let Some(exit) = script.leaves_the_room(&info, object) {
+            panic!("{} in indirect-light: {exit}", path.display());
+        }
+    }
+}

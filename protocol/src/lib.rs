@@ -13,14 +13,19 @@
 //! [`decode_server`] (bincode 2, one fixed configuration: see [`codec`]).
 //!
 //! On the server, a [`lightmap::Encoder`] quantizes each solver output
-//! (RGB9E5 by default), compares it tile by tile with what it last published,
-//! and emits a [`Delta`] for the tiles that changed by more than its epsilon.
+//! (RGB9E5 by default), compares it with what it last published, and emits
+//! a [`Delta`] whose tiles are residuals for the texels that left its error
+//! budget (the rule is on [`lightmap::Encoder`]).
 //! On the client, a [`lightmap::Lightmap`] applies keyframes and deltas. The
 //! encoder keeps exactly the state a client reconstructs, so both sides hold
 //! bit-identical texels at every version.
 //!
 //! PROTOCOL.md at the repository root documents every byte; the golden
 //! vectors in `protocol/tests/vectors/` pin them.
+//!
+//! [`script`] reads transform scripts (keyframed poses over time), the
+//! streams `lightwire-client drive`/`load` send and the server's benchmarks
+//! replay.
 //!
 //! This crate must never depend on tokio or wgpu, so that every client — a
 //! game, a load tester, the dashboard's JavaScript twin — can share it.
@@ -29,6 +34,7 @@ pub mod codec;
 pub mod error_code;
 pub mod lightmap;
 pub mod messages;
+pub mod script;
 
 pub use codec::{DecodeError, decode_client, decode_server, encode_client, encode_server};
 pub use error_code::ErrorCode;
@@ -39,7 +45,22 @@ pub use messages::{
 
 /// The protocol version a peer announces in its handshake. Bumped on any
 /// incompatible change to PROTOCOL.md.
-pub const PROTOCOL_VERSION: u16 = 1;
+///
+/// Version 2 (from 1): `Delta` tiles are residuals onto the tile a receiver
+/// holds instead of the tile's new texels (PROTOCOL.md §5); no message
+/// layout changed.
+pub const PROTOCOL_VERSION: u16 = 2;
+
+/// The `UnsupportedVersion` message for a peer that announced `theirs`:
+/// what this side speaks and what to do about it.
+pub fn version_mismatch(theirs: u16) -> String {
+    let what = if theirs < PROTOCOL_VERSION {
+        "the client is older than this server: since version 2, delta tiles are residuals onto the tile the client holds, which a version 1 client would draw as texels; upgrade the client"
+    } else {
+        "the client is newer than this server; upgrade the server or use a client that speaks this version"
+    };
+    format!("this server speaks protocol {PROTOCOL_VERSION}, the client sent {theirs}: {what}")
+}
 
 /// The largest encoded message, in bytes, that a decoder accepts. Larger
 /// frames are rejected with [`DecodeError::TooLarge`] before any parsing, so

@@ -275,7 +275,7 @@ pub struct Keyframe {
     pub tiles: Vec<Tile>,
 }
 
-/// The tiles that changed between two versions.
+/// What changed between two versions: residuals of the tiles that changed.
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub struct Delta {
     /// Apply only onto exactly this version.
@@ -284,8 +284,10 @@ pub struct Delta {
     pub version: u64,
     /// Transform seqs newly included since `base_version` (latest per object).
     pub reflected: Vec<ObjectSeq>,
-    /// Changed tiles only, each index at most once.
-    pub tiles: Vec<Tile>,
+    /// Empty when no tile changed; otherwise one zstd frame holding which
+    /// tiles changed (a bitmap) and their residuals, in the layout of
+    /// PROTOCOL.md §5 ([`crate::lightmap::residual`] reads and writes it).
+    pub residual: Vec<u8>,
 }
 
 /// One tile's pixels.

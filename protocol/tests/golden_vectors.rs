@@ -78,11 +78,11 @@ fn layout_by_hand() {
     assert_eq!(read_vector("client_ping"), hex("03fcefbeadde"));
     // Resync: variant 2, Option tag 1, 42.
     assert_eq!(read_vector("client_resync_some"), hex("02012a"));
-    // Hello: variant 0, version 1, "lw/1", Some("t0k"), capabilities 0.
+    // Hello: variant 0, version 2, "lw/1", Some("t0k"), capabilities 0.
     assert_eq!(
         read_vector("client_hello"),
         hex(concat!(
-            "00", "01", "04", "6c772f31", "01", "03", "74306b", "00"
+            "00", "02", "04", "6c772f31", "01", "03", "74306b", "00"
         ))
     );
     // Error: variant 4, code 1000 as varint 0xFB + u16 LE, "future".
@@ -109,4 +109,58 @@ fn keyframe_and_delta_vectors_reconstruct_known_texels() {
     client.apply_delta(&d).unwrap();
     assert_eq!(client.version, 2);
     assert_eq!(client.to_rgb(), DELTA_RGB.to_vec());
+}
+
+/// The recorded streams of `sequences.json` (residual deltas compressed by
+/// the real zstd) reconstruct their final texels, frame by frame and
+/// through the merged delta; and the encoder today still makes the same
+/// decisions (same final state), whatever bytes its zstd writes.
+#[test]
+fn recorded_sequences_reconstruct_their_final_state() {
+    let path = vector_dir().join("sequences.json");
+    let text = std::fs::read_to_string(&path).expect("sequences.json");
+    let json: serde_json::Value = serde_json::from_str(&text).expect("json");
+    let recorded = json["sequences"].as_array().expect("sequences");
+    let expected = vectors::sequences();
+    assert_eq!(recorded.len(), expected.len());
+    for (r, e) in recorded.iter().zip(&expected) {
+        assert_eq!(r["name"], e.name);
+        let mut client = Lightmap::new(e.width, e.height, e.tile_size, e.format);
+        let frames: Vec<Vec<u8>> = r["frames"]
+            .as_array()
+            .expect("frames")
+            .iter()
+            .map(|f| hex(f.as_str().expect("hex")))
+            .collect();
+        let mut after_keyframe = None;
+        for (i, f) in frames.iter().enumerate() {
+            match decode_server(f).unwrap_or_else(|err| panic!("{} frame {i}: {err}", e.name)) {
+                ServerMessage::Keyframe(k) => {
+                    client.apply_keyframe(&k).expect("keyframe applies");
+                    after_keyframe = Some(client.clone());
+                }
+                ServerMessage::Delta(d) => client.apply_delta(&d).expect("delta applies"),
+                other => panic!("{} frame {i}: unexpected {other:?}", e.name),
+            }
+        }
+        let final_texels = hex(r["final_texels"].as_str().expect("hex"));
+        assert_eq!(client.texels, final_texels, "{}: frame by frame", e.name);
+        assert_eq!(
+            client.version,
+            r["final_version"].as_u64().expect("version")
+        );
+        assert_eq!(
+            final_texels, e.final_texels,
+            "{}: the encoder decides as it did",
+            e.name
+        );
+        let ServerMessage::Delta(m) =
+            decode_server(&hex(r["merged"].as_str().expect("hex"))).expect("merged decodes")
+        else {
+            panic!("merged is not a Delta")
+        };
+        let mut merged = after_keyframe.expect("a keyframe first");
+        merged.apply_delta(&m).expect("the merge applies");
+        assert_eq!(merged.texels, final_texels, "{}: through the merge", e.name);
+    }
 }

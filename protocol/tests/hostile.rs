@@ -93,8 +93,8 @@ fn huge_length_claims_fail_without_allocating_them() {
     // Keyframe claiming 2^32 tiles (would be 128 GiB of Tile slots).
     let e = decode_server(&[1, 0, 0, 0xfd, 0, 0, 0, 0, 1, 0, 0, 0]).unwrap_err();
     assert!(e.to_string().contains("decode budget"), "{e}");
-    // Delta whose first tile claims 8 MiB of data in a 12-byte frame.
-    let e = decode_server(&[2, 0, 1, 0, 1, 0, 0xfc, 0, 0, 0x80, 0]).unwrap_err();
+    // Delta whose residual claims 8 MiB of data in an 8-byte frame.
+    let e = decode_server(&[2, 0, 1, 0, 0xfc, 0, 0, 0x80, 0]).unwrap_err();
     assert!(matches!(e, DecodeError::Malformed(_)), "{e}");
 }
 
@@ -142,59 +142,72 @@ fn rejects(client: &mut Lightmap, d: &Delta, expected: ApplyError) {
     assert_eq!(*client, before, "state changed on {expected}");
 }
 
-#[test]
-fn bad_tiles_are_rejected_atomically() {
-    let (_, mut client, good) = published();
-    assert_eq!(good.tiles.len(), 4);
+/// A delta whose residual payload is `raw`, compressed.
+fn with_payload(good: &Delta, raw: &[u8]) -> Delta {
+    Delta {
+        residual: zstd::bulk::compress(raw, 3).unwrap(),
+        ..good.clone()
+    }
+}
 
-    let mut d = good.clone();
-    d.tiles[3].index = 4;
-    rejects(
-        &mut client,
-        &d,
-        ApplyError::TileOutOfRange { index: 4, count: 4 },
-    );
-
-    let mut d = good.clone();
-    d.tiles[3].index = 0;
-    rejects(&mut client, &d, ApplyError::DuplicateTile { index: 0 });
-
-    // A valid zstd frame of the wrong size (last tile, after three good ones).
-    let mut d = good.clone();
-    d.tiles[3].data = zstd::bulk::compress(&[0u8; 255], 3).unwrap();
-    rejects(
-        &mut client,
-        &d,
-        ApplyError::TileLength {
-            index: 3,
-            expected: 256,
-            got: 255,
-        },
-    );
-
-    // A zip bomb: 64 MiB of zeros in a few KiB.
-    let mut d = good.clone();
-    d.tiles[3].data = zstd::bulk::compress(&vec![0u8; 64 << 20], 19).unwrap();
-    assert!(d.tiles[3].data.len() < 64 << 10);
-    rejects(
-        &mut client,
-        &d,
-        ApplyError::TileLength {
-            index: 3,
-            expected: 256,
-            got: 64 << 20,
-        },
-    );
-
-    // Garbage payload.
-    let mut d = good.clone();
-    d.tiles[3].data = vec![1, 2, 3];
+/// The delta is refused with a residual error that mentions `why`, and
+/// changes nothing.
+fn refuses(client: &mut Lightmap, d: &Delta, why: &str) {
     let before = client.clone();
-    assert!(matches!(
-        client.apply_delta(&d),
-        Err(ApplyError::Decompress { index: 3, .. })
-    ));
-    assert_eq!(client, before);
+    match client.apply_delta(d) {
+        Err(ApplyError::Residual(reason)) => {
+            assert!(
+                reason.contains(why),
+                "refused for {reason:?}, expected {why:?}"
+            )
+        }
+        other => panic!("expected a residual error ({why}), got {other:?}"),
+    }
+    assert_eq!(*client, before, "state changed on a refused delta ({why})");
+}
+
+#[test]
+fn bad_residual_payloads_are_rejected_atomically() {
+    let (e, mut client, good) = published();
+    assert_eq!(
+        e.state().layout().delta_tiles(&good).unwrap(),
+        vec![0, 1, 2, 3]
+    );
+    // 16 x 16 texels, tile size 8: 4 tiles of 256 bytes, a 1-byte bitmap.
+    let residuals = vec![0u8; 4 * 256];
+
+    let mut raw = vec![0b0001_0111];
+    raw.extend_from_slice(&residuals);
+    refuses(&mut client, &with_payload(&good, &raw), "sets tile 4");
+
+    let mut raw = vec![0b0000_1111];
+    raw.extend_from_slice(&residuals[..4 * 256 - 1]);
+    refuses(
+        &mut client,
+        &with_payload(&good, &raw),
+        "ends inside tile 3",
+    );
+
+    let mut raw = vec![0b0000_0001];
+    raw.extend_from_slice(&[0; 257]);
+    refuses(&mut client, &with_payload(&good, &raw), "1 bytes left over");
+
+    refuses(
+        &mut client,
+        &with_payload(&good, &[]),
+        "cannot hold the 1-byte tile bitmap",
+    );
+
+    // A zip bomb: 64 MiB of zeros in a few KiB, refused from its header.
+    let bomb = with_payload(&good, &vec![0u8; 64 << 20]);
+    assert!(bomb.residual.len() < 64 << 10);
+    refuses(&mut client, &bomb, "at most 1025");
+
+    let garbage = Delta {
+        residual: vec![1, 2, 3],
+        ..good.clone()
+    };
+    refuses(&mut client, &garbage, "not a zstd frame");
 
     let mut d = good.clone();
     d.version = d.base_version;
@@ -211,7 +224,7 @@ fn bad_tiles_are_rejected_atomically() {
 }
 
 #[test]
-fn frames_without_a_declared_size_cannot_overflow_the_tile() {
+fn frames_without_a_declared_size_are_refused() {
     let (_, mut client, good) = published();
     // zstd frame without content size: stream-compress 1 MiB.
     let mut enc = zstd::stream::Encoder::new(Vec::new(), 3).unwrap();
@@ -222,17 +235,11 @@ fn frames_without_a_declared_size_cannot_overflow_the_tile() {
         zstd::zstd_safe::get_frame_content_size(&data),
         Ok(None)
     ));
-    let mut d = good.clone();
-    d.tiles[0].data = data;
-    rejects(
-        &mut client,
-        &d,
-        ApplyError::TileLength {
-            index: 0,
-            expected: 256,
-            got: 257,
-        },
-    );
+    let d = Delta {
+        residual: data,
+        ..good.clone()
+    };
+    refuses(&mut client, &d, "does not declare its content size");
 }
 
 #[test]
@@ -300,8 +307,9 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(300))]
 
     #[test]
-    fn random_tiles_never_panic_and_never_partially_apply(
-        tiles in proptest::collection::vec((0u32..6, proptest::collection::vec(any::<u8>(), 0..40)), 0..6)
+    fn random_payloads_never_panic_and_never_partially_apply(
+        raw in proptest::collection::vec(any::<u8>(), 0..1100),
+        compressed in any::<bool>(),
     ) {
         let (_, mut client, _) = published();
         let before = client.clone();
@@ -309,7 +317,7 @@ proptest! {
             base_version: 1,
             version: 2,
             reflected: vec![],
-            tiles: tiles.into_iter().map(|(index, data)| Tile { index, data }).collect(),
+            residual: if compressed { zstd::bulk::compress(&raw, 1).unwrap() } else { raw },
         };
         if client.apply_delta(&d).is_err() {
             prop_assert_eq!(client, before);

@@ -2,13 +2,23 @@
 //! publishes holds exactly the encoder's state, bit for bit, at every
 //! version; bad input changes nothing.
 
-use lightwire_protocol::lightmap::{ApplyError, Encoder, Lightmap, merge};
+use lightwire_protocol::lightmap::{
+    ApplyError, Encoder, Lightmap, dequantize, merge, quantize_into, residual,
+};
 use lightwire_protocol::*;
 use proptest::prelude::*;
 
 fn client_for(e: &Encoder) -> Lightmap {
     let s = e.state();
     Lightmap::new(s.width, s.height, s.tile_size, s.format)
+}
+
+/// The tiles a delta of `e`'s layout carries.
+fn tiles(e: &Encoder, d: &Delta) -> Vec<u32> {
+    e.state()
+        .layout()
+        .delta_tiles(d)
+        .expect("the delta decodes")
 }
 
 fn seqs(object: u32, seq: u64) -> Vec<ObjectSeq> {
@@ -50,7 +60,7 @@ fn first_publish_from_zero_sends_only_nonzero_tiles_and_keyframe_sends_all() {
     rgb[15] = [1.0, 1.0, 1.0]; // in tile 1 only
     let d = e.publish(&rgb, seqs(0, 1));
     assert_eq!((d.base_version, d.version), (0, 1));
-    assert_eq!(d.tiles.iter().map(|t| t.index).collect::<Vec<_>>(), vec![1]);
+    assert_eq!(tiles(&e, &d), vec![1]);
     let k = e.keyframe();
     assert_eq!(k.tiles.len(), 2);
     assert_eq!(k.version, 1);
@@ -72,7 +82,7 @@ fn a_change_below_epsilon_sends_no_tile_and_the_state_keeps_the_old_value() {
     rgb[10] = [1.03, 2.0, 4.0]; // 3 % < 5 %
     let d = e.publish(&rgb, seqs(3, 9));
     assert!(
-        d.tiles.is_empty(),
+        tiles(&e, &d).is_empty(),
         "a 3 % change must not be sent at epsilon 5 %"
     );
     assert_eq!(d.reflected, seqs(3, 9));
@@ -86,7 +96,7 @@ fn a_change_below_epsilon_sends_no_tile_and_the_state_keeps_the_old_value() {
 
     rgb[10] = [1.08, 2.0, 4.0]; // 8 % > 5 %
     let d = e.publish(&rgb, vec![]);
-    assert_eq!(d.tiles.len(), 1);
+    assert_eq!(tiles(&e, &d).len(), 1);
     client.apply_delta(&d).unwrap();
     assert_eq!(&client, e.state());
     assert!((client.texel(2, 1)[0] - 1.08).abs() < 1.08 / 500.0);
@@ -99,9 +109,9 @@ fn near_black_changes_are_judged_against_the_floor() {
     e.publish(&[[0.0; 3]; 16], vec![]);
     // 0 -> floor * 0.05 is an infinite relative change but below epsilon * floor.
     let d = e.publish(&[[floor * 0.05; 3]; 16], vec![]);
-    assert!(d.tiles.is_empty());
+    assert!(tiles(&e, &d).is_empty());
     let d = e.publish(&[[floor * 0.2; 3]; 16], vec![]);
-    assert_eq!(d.tiles.len(), 1);
+    assert_eq!(tiles(&e, &d).len(), 1);
 }
 
 #[test]
@@ -151,7 +161,8 @@ fn merged_deltas_equal_applying_them_in_turn() {
     one_by_one.apply_delta(&a).unwrap();
     one_by_one.apply_delta(&b).unwrap();
 
-    let m = merge(&a, &b).unwrap();
+    let layout = e.state().layout();
+    let m = merge(&layout, &a, &b).unwrap();
     assert_eq!((m.base_version, m.version), (a.base_version, b.version));
     assert_eq!(
         m.reflected,
@@ -166,7 +177,7 @@ fn merged_deltas_equal_applying_them_in_turn() {
     assert_eq!(&merged, e.state());
 
     assert_eq!(
-        merge(&b, &a),
+        merge(&layout, &b, &a),
         Err(ApplyError::WrongBase {
             have: b.version,
             base: a.base_version
@@ -262,7 +273,7 @@ proptest! {
                 late = Some(l);
             }
             pending = Some(match pending.take() {
-                Some(p) => merge(&p, &d).unwrap(),
+                Some(p) => merge(&e.state().layout(), &p, &d).unwrap(),
                 None => d,
             });
             if i % 2 == 1 {
@@ -270,5 +281,222 @@ proptest! {
                 prop_assert_eq!(&skipper, e.state());
             }
         }
+    }
+}
+
+/// The quantized form of `rgb`, texel by texel, as the encoder's targets.
+fn quantized(format: PixelFormat, rgb: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let mut bytes = vec![0u8; format.bytes_per_texel()];
+    rgb.iter()
+        .map(|&c| {
+            quantize_into(format, c, &mut bytes);
+            dequantize(format, &bytes)
+        })
+        .collect()
+}
+
+/// How many texels quantize differently in `a` and `b`.
+fn quantized_bytes(a: &[[f32; 3]], b: &[[f32; 3]]) -> usize {
+    let (mut x, mut y) = ([0u8; 4], [0u8; 4]);
+    a.iter()
+        .zip(b)
+        .filter(|(p, q)| {
+            quantize_into(PixelFormat::Rgb9e5, **p, &mut x);
+            quantize_into(PixelFormat::Rgb9e5, **q, &mut y);
+            x != y
+        })
+        .count()
+}
+
+/// The largest budget measure (|target - held| / max(held, target, floor),
+/// per channel) over every texel.
+fn worst_deviation(held: &Lightmap, target: &[[f32; 3]], floor: f32) -> f32 {
+    held.to_rgb()
+        .iter()
+        .zip(target)
+        .flat_map(|(h, t)| {
+            (0..3).map(move |c| {
+                let d = (h[c] - t[c]).abs();
+                if d == 0.0 {
+                    0.0
+                } else {
+                    d / h[c].max(t[c]).max(floor)
+                }
+            })
+        })
+        .fold(0.0, f32::max)
+}
+
+/// A light field sweeping across the atlas, like the light a moving box
+/// throws: a smooth base, a bright spot that travels, a shadow that turns.
+fn moving_light(w: u32, h: u32, frame: u32) -> Vec<[f32; 3]> {
+    let t = frame as f32 * 0.004;
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+            let spot = (-((x - 0.5 - 0.4 * t.cos()).powi(2) + (y - 0.5 - 0.4 * t.sin()).powi(2))
+                * 20.0)
+                .exp();
+            let shadow = 0.6 + 0.4 * ((x - 0.5) * t.cos() + (y - 0.5) * t.sin()).tanh();
+            let base = 0.2 + 0.3 * y;
+            [
+                (base + 2.0 * spot) * shadow,
+                (base * 0.8 + 1.5 * spot) * shadow,
+                (base * 0.5 + 0.2 * spot) * shadow + 1e-4,
+            ]
+        })
+        .collect()
+}
+
+#[test]
+fn ten_thousand_versions_stay_bit_exact_and_within_the_budget_then_converge() {
+    let (w, h, eps) = (40, 24, 1.0 / 64.0);
+    let mut e = Encoder::new(w, h, 8, PixelFormat::Rgb9e5, eps);
+    let floor = e.floor();
+    let mut client = client_for(&e);
+    // A second receiver that only ever gets merges of three deltas, and a
+    // third that joins from a keyframe half way.
+    let mut merging = client_for(&e);
+    let mut chain: Option<Delta> = None;
+    let mut late: Option<Lightmap> = None;
+    let mut worst = 0.0f32;
+    let (mut sent_texels, mut changed_texels) = (0usize, 0usize);
+    let mut previous = vec![[0.0f32; 3]; (w * h) as usize];
+    for frame in 0..10_000u32 {
+        let rgb = moving_light(w, h, frame);
+        let d = e.publish(&rgb, vec![]);
+        let before = client.texels.clone();
+        client.apply_delta(&d).expect("every delta applies");
+        sent_texels += before
+            .chunks_exact(4)
+            .zip(client.texels.chunks_exact(4))
+            .filter(|(a, b)| a != b)
+            .count();
+        changed_texels += quantized_bytes(&previous, &rgb);
+        previous = rgb.clone();
+        worst = worst.max(worst_deviation(
+            &client,
+            &quantized(PixelFormat::Rgb9e5, &rgb),
+            floor,
+        ));
+        if let Some(l) = late.as_mut() {
+            l.apply_delta(&d).expect("applies after the keyframe");
+        } else if frame == 5_000 {
+            let mut l = client_for(&e);
+            l.apply_keyframe(&e.keyframe()).expect("keyframe applies");
+            late = Some(l);
+        }
+        chain = Some(match chain.take() {
+            Some(c) => merge(&e.state().layout(), &c, &d).expect("consecutive deltas merge"),
+            None => d,
+        });
+        if frame % 3 == 2 {
+            merging
+                .apply_delta(&chain.take().expect("a chain"))
+                .expect("the merge applies");
+        }
+        if frame % 1000 == 999 {
+            assert_eq!(
+                &client,
+                e.state(),
+                "receiver and server part at version {}",
+                e.state().version
+            );
+        }
+    }
+    assert_eq!(&client, e.state());
+    assert_eq!(late.as_ref(), Some(e.state()));
+    if let Some(c) = chain.take() {
+        merging.apply_delta(&c).expect("the last merge applies");
+    }
+    assert_eq!(&merging, e.state());
+    assert!(
+        worst <= eps,
+        "a receiver deviated by {worst} of the budget measure; the budget is {eps}"
+    );
+    assert!(
+        e.pending_texels() > 0,
+        "the sequence must leave texels waiting, or the convergence below is not tested"
+    );
+    assert!(
+        sent_texels * 2 < changed_texels,
+        "the budget must hold changes back: {sent_texels} texel updates sent for {changed_texels} quantized changes"
+    );
+
+    // The scene holds still: one more publish of the same light sends
+    // everything that waited, exactly.
+    let last = moving_light(w, h, 9_999);
+    let d = e.publish(&last, vec![]);
+    client.apply_delta(&d).expect("applies");
+    assert_eq!(e.pending_texels(), 0);
+    let mut exact = Lightmap::new(w, h, 8, PixelFormat::Rgb9e5);
+    let mut bytes = vec![0u8; 4];
+    for (i, c) in last.iter().enumerate() {
+        quantize_into(PixelFormat::Rgb9e5, *c, &mut bytes);
+        exact.texels[i * 4..i * 4 + 4].copy_from_slice(&bytes);
+    }
+    assert_eq!(
+        client.texels, exact.texels,
+        "after settling, receivers hold the solver's lightmap exactly"
+    );
+}
+
+#[test]
+fn what_waits_is_sent_once_the_lightmap_holds_still() {
+    let mut e = Encoder::new(8, 8, 8, PixelFormat::Rgb9e5, 0.05);
+    let mut rgb = vec![[1.0, 2.0, 4.0]; 64];
+    let mut client = client_for(&e);
+    client.apply_delta(&e.publish(&rgb, vec![])).unwrap();
+    rgb[10] = [1.03, 2.0, 4.0];
+    let d = e.publish(&rgb, vec![]);
+    assert!(tiles(&e, &d).is_empty(), "3 % waits at a 5 % budget");
+    client.apply_delta(&d).unwrap();
+    assert_eq!(e.pending_texels(), 1);
+    let d = e.publish(&rgb, vec![]);
+    assert_eq!(
+        tiles(&e, &d).len(),
+        1,
+        "the same lightmap again sends what waited"
+    );
+    client.apply_delta(&d).unwrap();
+    assert_eq!(e.pending_texels(), 0);
+    assert!((client.texel(2, 1)[0] - 1.03).abs() < 1.03 / 500.0);
+    assert!(
+        {
+            let d = e.publish(&rgb, vec![]);
+            tiles(&e, &d).is_empty()
+        },
+        "nothing left to send"
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Residuals are exact on any texel bytes and compose like the deltas
+    /// they come from.
+    #[test]
+    fn residuals_apply_exactly_and_compose(
+        rgba in any::<bool>(),
+        a in proptest::collection::vec(any::<u8>(), 64),
+        b in proptest::collection::vec(any::<u8>(), 64),
+        c in proptest::collection::vec(any::<u8>(), 64),
+    ) {
+        let format = if rgba { PixelFormat::Rgba16f } else { PixelFormat::Rgb9e5 };
+        let (ab, bc) = (residual::encode(format, &a, &b), residual::encode(format, &b, &c));
+        let mut x = a.clone();
+        residual::apply(format, &mut x, &ab);
+        prop_assert_eq!(&x, &b);
+        let mut y = a.clone();
+        residual::apply(format, &mut y, &residual::compose(format, &ab, &bc));
+        prop_assert_eq!(&y, &c);
+        // Any bytes are a residual, and composing arbitrary ones is
+        // applying them in turn.
+        let mut one = a.clone();
+        residual::apply(format, &mut one, &b);
+        residual::apply(format, &mut one, &c);
+        let mut both = a.clone();
+        residual::apply(format, &mut both, &residual::compose(format, &b, &c));
+        prop_assert_eq!(one, both);
     }
 }

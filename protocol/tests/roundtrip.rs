@@ -152,14 +152,20 @@ fn arb_server() -> impl Strategy<Value = ServerMessage> {
                 tiles,
             })
         }),
-        (any::<u64>(), any::<u64>(), arb_reflected(), arb_tiles()).prop_map(
-            |(base_version, version, reflected, tiles)| ServerMessage::Delta(Delta {
-                base_version,
-                version,
-                reflected,
-                tiles
-            })
-        ),
+        (
+            any::<u64>(),
+            any::<u64>(),
+            arb_reflected(),
+            proptest::collection::vec(any::<u8>(), 0..64)
+        )
+            .prop_map(|(base_version, version, reflected, residual)| {
+                ServerMessage::Delta(Delta {
+                    base_version,
+                    version,
+                    reflected,
+                    residual,
+                })
+            }),
         (
             any::<u64>(),
             any::<f32>(),

@@ -25,6 +25,7 @@
 //! factors), which the reference never has, so this asks how long the
 //! reference takes to be as far from the answer as the GPU solver ends up.
 
+pub mod codec;
 pub mod dynamic;
 
 use std::path::Path;

@@ -153,6 +153,60 @@ enum BenchCommand {
         #[arg(long)]
         adapter: Option<String>,
     },
+    /// Per scene and transform script: records the solver's lightmap at
+    /// every version (the script sampled at --rate), then runs the stream
+    /// codecs over the recording side by side: bytes per version, encode
+    /// and decode time, and the deviation a viewer sees.
+    Codec {
+        /// Scene files, each with a dynamic object; default: the four
+        /// thesis scenes in scenes/.
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// Script names, comma-separated: scenes/scripts/<scene>/<name>.json
+        /// if the scene has its own, else scenes/scripts/<name>.json.
+        #[arg(long, value_delimiter = ',', default_value = "rotate,orbit")]
+        scripts: Vec<String>,
+        /// Directory of the scripts.
+        #[arg(long, default_value = "scenes/scripts")]
+        script_dir: PathBuf,
+        /// Versions recorded after the starting pose.
+        #[arg(long, default_value_t = 90)]
+        versions: u32,
+        /// Script samples (versions) per second.
+        #[arg(long, default_value_t = 30.0)]
+        rate: f64,
+        /// How the solver follows moves: full, incremental or cross.
+        #[arg(long, default_value = "cross")]
+        method: String,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Error budgets of the v2 codec, comma-separated.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "0,0.00390625,0.0078125,0.015625,0.03125"
+        )]
+        epsilons: Vec<f32>,
+        /// The v1 codec's epsilon (its default in lightwire serve).
+        #[arg(long, default_value_t = 1.0 / 256.0)]
+        v1_epsilon: f32,
+        /// Tile sizes, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "8")]
+        tile_sizes: Vec<u16>,
+        /// zstd levels, comma-separated (1..=22).
+        #[arg(long, value_delimiter = ',', default_value = "3")]
+        levels: Vec<i32>,
+        /// Where recordings are cached.
+        #[arg(long, default_value = "bench-out/codec")]
+        out: PathBuf,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -254,6 +308,48 @@ fn main() -> ExitCode {
             json,
             adapter.as_deref(),
         ),
+        Command::Bench {
+            what:
+                BenchCommand::Codec {
+                    scenes,
+                    scripts,
+                    script_dir,
+                    versions,
+                    rate,
+                    method,
+                    density_scale,
+                    epsilons,
+                    v1_epsilon,
+                    tile_sizes,
+                    levels,
+                    out,
+                    json,
+                    adapter,
+                },
+        } => gpu::Redistribution::ALL
+            .into_iter()
+            .find(|m| m.name() == method)
+            .with_context(|| format!("--method {method:?}: use full, incremental or cross"))
+            .and_then(|method| {
+                bench_codec_command(
+                    scenes,
+                    &scripts,
+                    &script_dir,
+                    bench::codec::Settings {
+                        versions,
+                        rate,
+                        method,
+                        density_scale,
+                        epsilons,
+                        v1_epsilon,
+                        tile_sizes,
+                        levels,
+                        out,
+                    },
+                    json,
+                    adapter.as_deref(),
+                )
+            }),
         Command::Serve(flags) => serve_command(flags),
         Command::Relay(flags) => relay_command(flags),
     };
@@ -631,6 +727,106 @@ fn bench_dynamic_command(
         results.push(result);
     }
     eprintln!("images: {}", settings.out.display());
+    if let Some(json) = json {
+        bench::write_json(&json, &results)?;
+    }
+    Ok(())
+}
+
+fn bench_codec_command(
+    mut scenes: Vec<PathBuf>,
+    scripts: &[String],
+    script_dir: &std::path::Path,
+    settings: bench::codec::Settings,
+    json: Option<PathBuf>,
+    adapter: Option<&str>,
+) -> Result<()> {
+    if !(settings.rate.is_finite() && settings.rate > 0.0) {
+        anyhow::bail!("--rate {} must be > 0", settings.rate);
+    }
+    if settings.versions == 0 {
+        anyhow::bail!("--versions must be at least 1");
+    }
+    if let Some(e) = settings
+        .epsilons
+        .iter()
+        .chain([&settings.v1_epsilon])
+        .find(|e| !(e.is_finite() && (0.0..1.0).contains(*e)))
+    {
+        anyhow::bail!("epsilon {e} must be >= 0 and < 1");
+    }
+    if let Some(t) = settings.tile_sizes.iter().find(|t| **t == 0) {
+        anyhow::bail!("tile size {t} must be positive");
+    }
+    if let Some(l) = settings.levels.iter().find(|l| !(1..=22).contains(*l)) {
+        anyhow::bail!("zstd level {l} must be within 1..=22");
+    }
+    if scenes.is_empty() {
+        for path in bench_scenes() {
+            if has_dynamic_object(&path, settings.density_scale)? {
+                scenes.push(path);
+            }
+        }
+    }
+    // Every script must exist before anything is recorded.
+    let mut plan = Vec::new();
+    for path in &scenes {
+        let scene = Scene::load_with(
+            path,
+            LoadOptions {
+                density_scale: settings.density_scale,
+            },
+        )
+        .with_context(|| format!("loading {}", path.display()))?;
+        for name in scripts {
+            let script = bench::codec::script_path(script_dir, &scene.name, name);
+            if !script.is_file() {
+                anyhow::bail!(
+                    "no script {name:?} for {}: {} does not exist",
+                    scene.name,
+                    script.display()
+                );
+            }
+            plan.push((path.clone(), name.clone(), script));
+        }
+    }
+    let gpu = gpu::Device::new(adapter)?;
+    eprintln!("adapter: {}", gpu.describe());
+    let configs = bench::codec::configs(&settings);
+    let mut results = Vec::new();
+    println!(
+        "| scene | script | codec | epsilon | tile | zstd | bytes/version (mean) | p95 | max | Mbit/s at 30/s | encode µs (median) | decode µs (median) | max deviation | RMS deviation | keyframe bytes | settle bytes |"
+    );
+    println!(
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
+    for (scene, name, script) in &plan {
+        let recording = bench::codec::record(&gpu, scene, name, script, &settings)
+            .with_context(|| format!("recording {} under {}", scene.display(), script.display()))?;
+        for config in &configs {
+            let r = bench::codec::run(&recording, *config)?;
+            println!(
+                "| {} | {} | {} | {:.5} | {} | {} | {:.0} | {} | {} | {:.3} | {:.0} | {:.0} | {:.4} | {:.5} | {} | {} |",
+                r.scene,
+                r.script,
+                r.codec,
+                r.epsilon,
+                r.tile_size,
+                r.zstd_level,
+                r.bytes_mean,
+                r.bytes_p95,
+                r.bytes_max,
+                r.mbit_s_at_30,
+                r.encode_us_median,
+                r.decode_us_median,
+                r.max_deviation,
+                r.rms_deviation,
+                r.keyframe_bytes,
+                r.settle_bytes
+            );
+            results.push(r);
+        }
+    }
     if let Some(json) = json {
         bench::write_json(&json, &results)?;
     }

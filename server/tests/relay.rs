@@ -606,14 +606,12 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     let state_v1 = solver.state().texels.clone();
     until("the viewer holds v1", || holds(&viewer, 1, &state_v1)).await;
 
-    // Garbage, a text frame, and a delta whose tile is not zstd: refused,
+    // Garbage, a text frame, and a delta whose payload is not zstd: refused,
     // and the relay asks for a resync.
     fake::raw(&mut peer, Message::Binary(vec![0xff, 0x00, 0x13].into())).await;
     fake::raw(&mut peer, Message::Text("hello?".into())).await;
     let mut corrupt = solver.publish(&fake::image(2.0, 1.0), vec![]);
-    for t in &mut corrupt.tiles {
-        t.data = vec![0xde, 0xad, 0xbe, 0xef];
-    }
+    corrupt.residual = vec![0xde, 0xad, 0xbe, 0xef];
     fake::delta(&mut peer, corrupt).await;
     assert!(matches!(
         fake::next(&mut peer).await,

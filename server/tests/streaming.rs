@@ -7,6 +7,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
+use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
     ClientMessage, ErrorCode, PROTOCOL_VERSION, Pose, Role, ServerMessage, decode_server,
     encode_client,
@@ -780,4 +781,84 @@ async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
         "the light at a pose on the bounds is finite"
     );
     assert_eq!(driver.errors.len(), 2);
+}
+
+/// The stream's error budget lets texels wait, never for good: a server
+/// with a large budget first publishes a move with texels still off (within
+/// the budget), then, once its solver is idle, holds exactly the lightmap a
+/// server with no budget publishes after the same move, and so do its
+/// viewers.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
+    let loose = Proc::solver_with(
+        "127.0.0.1:0",
+        "reference",
+        &[
+            ("LIGHTWIRE_EPSILON", "0.25".into()),
+            ("LIGHTWIRE_SETTLE_MS", "300".into()),
+        ],
+    );
+    let exact = Proc::solver_with(
+        "127.0.0.1:0",
+        "reference",
+        &[("LIGHTWIRE_EPSILON", "0".into())],
+    );
+    let mut held = Vec::new();
+    for server in [&loose, &exact] {
+        wait_ready(server).await;
+        let mut driver = Client::connect(&server.ws_url(), DRIVER_TOKEN).await;
+        let (first, _) = server_state(server).await;
+        driver
+            .read_until_version(first, Duration::from_secs(30))
+            .await;
+        driver
+            .send(&ClientMessage::Transform {
+                object: 1,
+                seq: 1,
+                pose: pose_at(7),
+                client_time_us: 0,
+            })
+            .await;
+        // The first version that reflects the move...
+        let deadline = Instant::now() + Duration::from_secs(120);
+        while driver.reflected.get(&1) != Some(&1) {
+            assert!(Instant::now() < deadline, "the move was never published");
+            driver.read_one(Duration::from_millis(100)).await;
+        }
+        let moved = driver.map.clone().expect("a lightmap");
+        // ... and the state once the server has settled.
+        let settled = settled_version(server, 1, &mut driver).await;
+        let (version, snapshot) = server_state(server).await;
+        assert_eq!(version, settled);
+        let map = driver.map.clone().expect("a lightmap");
+        assert_eq!(
+            map.to_rgb(),
+            snapshot,
+            "the viewer holds the server's state"
+        );
+        held.push((moved, map));
+    }
+    let (loose_moved, loose_settled) = &held[0];
+    let (exact_moved, exact_settled) = &held[1];
+    let differing = |a: &Lightmap, b: &Lightmap| {
+        a.texels
+            .chunks_exact(4)
+            .zip(b.texels.chunks_exact(4))
+            .filter(|(x, y)| x != y)
+            .count()
+    };
+    assert_eq!(
+        differing(exact_moved, exact_settled),
+        0,
+        "with no budget the move's first state is final (the reference solver solves to convergence)"
+    );
+    assert!(
+        differing(loose_moved, exact_settled) > 0,
+        "with a 25% budget some texels must wait after the move, or this tests nothing"
+    );
+    assert_eq!(
+        differing(loose_settled, exact_settled),
+        0,
+        "once settled, the viewers of the server with a budget hold the exact lightmap (texels differing)"
+    );
 }

@@ -3,7 +3,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{Lightmap, TileRect, ZSTD_LEVEL, compress_tile, dequantize, quantize_into};
+use super::{Lightmap, TileRect, ZSTD_LEVEL, compress_tile, dequantize, quantize_into, residual};
 use crate::{Delta, Keyframe, ObjectSeq, PixelFormat, Tile};
 
 /// Default absolute floor of the change rule: changes among values below
@@ -11,25 +11,43 @@ use crate::{Delta, Keyframe, ObjectSeq, PixelFormat, Tile};
 /// themselves, so that noise in near-black texels does not resend tiles.
 pub const DEFAULT_EPSILON_FLOOR: f32 = 1.0 / 1024.0;
 
-/// Owns the last published quantized state of one lightmap.
+/// Owns the last published quantized state of one lightmap, and the
+/// solver's quantized lightmap it follows.
 ///
-/// # The epsilon rule
+/// # What a delta carries: the error budget
 ///
-/// Let `old` and `new` be a channel of a texel *after* quantization and
-/// decoding (so both are exactly what a client could display). The texel
-/// changed if, for some channel,
+/// Let `held` be a channel of a texel as receivers hold it (the state after
+/// the last delta) and `target` the same channel of the solver's lightmap
+/// being published, both *after* quantization and decoding. The texel is
+/// within the budget if, for every channel,
 ///
 /// ```text
-/// |new - old| > epsilon * max(old, new, floor)
+/// |target - held| <= epsilon * max(held, target, floor)
 /// ```
 ///
-/// and a tile is sent if any of its texels changed. With `epsilon = 0` every
-/// tile whose quantized bits differ is sent. `floor` is
+/// [`Encoder::publish`] sends, as residuals (PROTOCOL.md §5), exactly
+///
+/// - every texel that is not within the budget (it is sent exactly), and
+/// - when the lightmap published is exactly the previous one (the scene
+///   holds still), every texel that still differs: receivers converge to
+///   the solver's lightmap bit for bit once the scene settles, one publish
+///   after it does (a server publishes its lightmap once more when its
+///   solver goes idle with texels waiting).
+///
+/// Every other texel waits, receivers keep what they have, and so does the
+/// encoder's state. After every publish, therefore, every texel receivers
+/// hold is within the budget of the lightmap just published. With
+/// `epsilon = 0` every texel whose quantized bits differ is sent. `floor` is
 /// [`DEFAULT_EPSILON_FLOOR`] unless set with [`Encoder::with_floor`].
 pub struct Encoder {
     current: Lightmap,
+    /// The quantized lightmap of the last publish (what the solver said),
+    /// in the layout of `current.texels`.
+    target: Vec<u8>,
     epsilon: f32,
     floor: f32,
+    /// Texels of `current` that differ from `target`.
+    pending: usize,
     /// Compressed payload of every tile of `current`, so keyframes cost a copy.
     compressed: Vec<Vec<u8>>,
     /// Latest seq per object included so far, for keyframes.
@@ -47,6 +65,7 @@ impl std::fmt::Debug for Encoder {
             .field("version", &self.current.version)
             .field("epsilon", &self.epsilon)
             .field("floor", &self.floor)
+            .field("pending", &self.pending)
             .finish_non_exhaustive()
     }
 }
@@ -83,9 +102,11 @@ impl Encoder {
             })
             .collect();
         Encoder {
+            target: current.texels.clone(),
             current,
             epsilon,
             floor: DEFAULT_EPSILON_FLOOR,
+            pending: 0,
             compressed,
             reflected: BTreeMap::new(),
             compressor,
@@ -105,7 +126,34 @@ impl Encoder {
         self
     }
 
-    /// The relative threshold of the epsilon rule.
+    /// Sets the zstd level of the tiles compressed from now on (default
+    /// [`ZSTD_LEVEL`]; 1 is fastest, 19 and up are slow).
+    ///
+    /// # Panics
+    /// If `level` is not within 1..=22.
+    pub fn with_zstd_level(mut self, level: i32) -> Self {
+        assert!(
+            (1..=22).contains(&level),
+            "zstd level must be within 1..=22, got {level}"
+        );
+        self.compressor =
+            zstd::bulk::Compressor::new(level).expect("a zstd compressor at a valid level");
+        self
+    }
+
+    /// The compressed texels of tile `index` of the current state, as a
+    /// keyframe carries them (`None` if out of range).
+    pub fn keyframe_tile(&self, index: u32) -> Option<&[u8]> {
+        self.compressed.get(index as usize).map(Vec::as_slice)
+    }
+
+    /// Texels whose held value differs from the last published target
+    /// (0: receivers hold the solver's lightmap exactly).
+    pub fn pending_texels(&self) -> usize {
+        self.pending
+    }
+
+    /// The relative error budget.
     pub fn epsilon(&self) -> f32 {
         self.epsilon
     }
@@ -115,14 +163,14 @@ impl Encoder {
         self.floor
     }
 
-    /// Quantizes `rgb` (`width * height` texels, row-major), compares each
-    /// tile with the current state by the epsilon rule, and returns the
-    /// delta from the current version to the next, carrying the tiles that
-    /// changed. The state becomes exactly what a client holds after applying
-    /// that delta: new texels in sent tiles, old texels elsewhere. The
-    /// version is bumped even when no tile changed (the delta then only
-    /// carries `reflected`); a server that drops such a delta must merge it
-    /// into the next one.
+    /// Quantizes `rgb` (`width * height` texels, row-major) as the new
+    /// target, and returns the delta from the current version to the next
+    /// that carries the texels the budget rule above selects, as residual
+    /// tiles. The state becomes exactly what a client holds after applying
+    /// that delta. The version is bumped even when no tile changed (the
+    /// delta then only carries `reflected`); a server that drops such a
+    /// delta must merge it into the next one. Publishing the same `rgb`
+    /// again sends whatever still waits.
     ///
     /// # Panics
     /// If `rgb.len() != width * height`.
@@ -137,32 +185,51 @@ impl Encoder {
         );
         let format = self.current.format;
         let bpt = format.bytes_per_texel();
-        let mut tiles = Vec::new();
-        let mut fresh = Vec::new();
-        for index in 0..self.current.tile_count() {
-            let rect = self.current.tile_rect(index).expect("index in range");
-            fresh.clear();
-            fresh.resize(rect.width as usize * rect.height as usize * bpt, 0);
-            let mut changed = false;
-            for (r, y) in (rect.y..rect.y + rect.height).enumerate() {
-                for (c, x) in (rect.x..rect.x + rect.width).enumerate() {
-                    let t = (r * rect.width as usize + c) * bpt;
-                    let out = &mut fresh[t..t + bpt];
-                    quantize_into(format, rgb[y as usize * w + x as usize], out);
-                    if !changed {
-                        let s = (y as usize * w + x as usize) * bpt;
-                        let old = &self.current.texels[s..s + bpt];
-                        changed = old != out && self.exceeds(old, out);
-                    }
-                }
-            }
-            if changed {
-                self.current.write_tile(rect, &fresh);
-                let data = compress_tile(&mut self.compressor, &fresh);
-                self.compressed[index as usize] = data.clone();
-                tiles.push(Tile { index, data });
+        let mut target = std::mem::take(&mut self.target);
+        let mut fresh = vec![0u8; bpt];
+        let mut settled = true;
+        for (i, &c) in rgb.iter().enumerate() {
+            quantize_into(format, c, &mut fresh);
+            let t = &mut target[i * bpt..(i + 1) * bpt];
+            if t != &fresh[..] {
+                settled = false;
+                t.copy_from_slice(&fresh);
             }
         }
+        self.target = target;
+        let mut tiles = Vec::new();
+        let (mut held, mut goal) = (Vec::new(), Vec::new());
+        let mut pending = 0;
+        for index in 0..self.current.tile_count() {
+            let rect = self.current.tile_rect(index).expect("index in range");
+            held.clear();
+            self.current.read_tile(rect, &mut held);
+            goal.clear();
+            read_rect(&self.target, w, bpt, rect, &mut goal);
+            // Sent: texels over the budget; once the whole lightmap holds
+            // still, every texel that differs.
+            let mut next = held.clone();
+            let mut sent = false;
+            for t in (0..held.len()).step_by(bpt) {
+                let (a, b) = (&held[t..t + bpt], &goal[t..t + bpt]);
+                if a == b {
+                    continue;
+                }
+                if settled || self.deviation(a, b) > self.epsilon {
+                    next[t..t + bpt].copy_from_slice(b);
+                    sent = true;
+                } else {
+                    pending += 1;
+                }
+            }
+            if sent {
+                tiles.push((index, residual::encode(format, &held, &next)));
+                self.compressed[index as usize] = compress_tile(&mut self.compressor, &next);
+                self.current.write_tile(rect, &next);
+            }
+        }
+        let residual = residual::pack(&self.current.layout(), &tiles, &mut self.compressor);
+        self.pending = pending;
         let base_version = self.current.version;
         self.current.version += 1;
         for r in &reflected {
@@ -172,17 +239,28 @@ impl Encoder {
             base_version,
             version: self.current.version,
             reflected,
-            tiles,
+            residual,
         }
     }
 
-    /// The epsilon rule for one texel.
-    fn exceeds(&self, old: &[u8], new: &[u8]) -> bool {
+    /// The budget rule's measure for one texel: the largest channel
+    /// deviation over `max(old, new, floor)` (so a texel is within the
+    /// budget when this is at most `epsilon`).
+    fn deviation(&self, old: &[u8], new: &[u8]) -> f32 {
         let (a, b) = (
             dequantize(self.current.format, old),
             dequantize(self.current.format, new),
         );
-        (0..3).any(|i| (b[i] - a[i]).abs() > self.epsilon * a[i].max(b[i]).max(self.floor))
+        (0..3)
+            .map(|i| {
+                let d = (b[i] - a[i]).abs();
+                if d == 0.0 {
+                    0.0
+                } else {
+                    d / a[i].max(b[i]).max(self.floor)
+                }
+            })
+            .fold(0.0, f32::max)
     }
 
     /// Every tile of the current state, with the latest seq per object
@@ -215,5 +293,14 @@ impl Encoder {
     /// The rectangle of tile `index` (see [`Lightmap::tile_rect`]).
     pub fn tile_rect(&self, index: u32) -> Option<TileRect> {
         self.current.tile_rect(index)
+    }
+}
+
+/// Appends the bytes of `rect` of a `width`-texel-wide row-major buffer.
+fn read_rect(texels: &[u8], width: usize, bpt: usize, rect: TileRect, out: &mut Vec<u8>) {
+    let row = rect.width as usize * bpt;
+    for y in rect.y..rect.y + rect.height {
+        let start = (y as usize * width + rect.x as usize) * bpt;
+        out.extend_from_slice(&texels[start..start + row]);
     }
 }

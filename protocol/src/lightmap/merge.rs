@@ -3,52 +3,57 @@
 
 use std::collections::BTreeMap;
 
-use super::ApplyError;
-use crate::{Delta, ObjectSeq, Tile};
+use super::{ApplyError, Layout, ZSTD_LEVEL, residual};
+use crate::{Delta, ObjectSeq};
 
-/// Merges `a: base -> v1` and `b: v1 -> v2` into `base -> v2`. Tiles are the
-/// union, `b`'s payload winning where both carry a tile; `reflected` is the
-/// union, `b`'s seq winning per object. Both outputs are sorted (tiles by
-/// index, reflected by object). Applying the result equals applying `a` then
-/// `b`.
+/// Merges `a: base -> v1` and `b: v1 -> v2` of a lightmap of `layout` into
+/// `base -> v2`. The tiles are the union; a tile both carry gets the
+/// composed residual ([`residual::compose`]), so applying the result equals
+/// applying `a` then `b`, whatever state they apply to. `reflected` is the
+/// union, `b`'s seq winning per object, sorted by object.
 ///
 /// Errors: [`ApplyError::WrongBase`] unless `b.base_version == a.version`,
-/// [`ApplyError::DuplicateTile`] if either input repeats a tile index
-/// (tile indices are otherwise checked when the merged delta is applied).
-pub fn merge(a: &Delta, b: &Delta) -> Result<Delta, ApplyError> {
+/// and any error applying either payload would give.
+pub fn merge(layout: &Layout, a: &Delta, b: &Delta) -> Result<Delta, ApplyError> {
     if b.base_version != a.version {
         return Err(ApplyError::WrongBase {
             have: a.version,
             base: b.base_version,
         });
     }
-    let mut tiles: BTreeMap<u32, &Vec<u8>> = BTreeMap::new();
-    for d in [a, b] {
-        let mut own = std::collections::HashSet::new();
-        for t in &d.tiles {
-            if !own.insert(t.index) {
-                return Err(ApplyError::DuplicateTile { index: t.index });
-            }
-            tiles.insert(t.index, &t.data);
-        }
-    }
     let mut reflected: BTreeMap<u32, u64> = BTreeMap::new();
     for r in a.reflected.iter().chain(&b.reflected) {
         reflected.insert(r.object, r.seq);
     }
+    let reflected = reflected
+        .into_iter()
+        .map(|(object, seq)| ObjectSeq { object, seq })
+        .collect();
+    let payload = if a.residual.is_empty() {
+        b.residual.clone()
+    } else if b.residual.is_empty() {
+        a.residual.clone()
+    } else {
+        let zstd = |e: std::io::Error| ApplyError::Residual(format!("zstd: {e}"));
+        let mut d = zstd::bulk::Decompressor::new().map_err(zstd)?;
+        let mut tiles: BTreeMap<u32, Vec<u8>> = residual::unpack(layout, &a.residual, &mut d)?
+            .into_iter()
+            .collect();
+        for (index, second) in residual::unpack(layout, &b.residual, &mut d)? {
+            let composed = match tiles.get(&index) {
+                Some(first) => residual::compose(layout.format, first, &second),
+                None => second,
+            };
+            tiles.insert(index, composed);
+        }
+        let tiles: Vec<(u32, Vec<u8>)> = tiles.into_iter().collect();
+        let mut c = zstd::bulk::Compressor::new(ZSTD_LEVEL).map_err(zstd)?;
+        residual::pack(layout, &tiles, &mut c)
+    };
     Ok(Delta {
         base_version: a.base_version,
         version: b.version,
-        reflected: reflected
-            .into_iter()
-            .map(|(object, seq)| ObjectSeq { object, seq })
-            .collect(),
-        tiles: tiles
-            .into_iter()
-            .map(|(index, data)| Tile {
-                index,
-                data: data.clone(),
-            })
-            .collect(),
+        reflected,
+        residual: payload,
     })
 }

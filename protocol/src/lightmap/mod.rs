@@ -19,6 +19,7 @@
 
 mod encoder;
 mod merge;
+pub mod residual;
 mod rgb9e5;
 mod texel;
 
@@ -90,6 +91,9 @@ pub enum ApplyError {
         /// it overflowed the bounded buffer without declaring a size).
         got: u64,
     },
+    /// A delta's residual payload that does not decode (PROTOCOL.md §5).
+    #[error("the delta's residual payload {0}")]
+    Residual(String),
     /// A tile payload that is not a valid zstd frame.
     #[error("tile {index} is not a valid zstd frame: {reason}")]
     Decompress {
@@ -102,6 +106,71 @@ pub enum ApplyError {
     /// a texel buffer of the wrong length).
     #[error("invalid lightmap layout: {0}")]
     Layout(String),
+}
+
+/// A lightmap's shape: what a [`merge`] needs to know about the tiles it
+/// composes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Layout {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Tile edge length in texels (positive).
+    pub tile_size: u16,
+    /// Texel format.
+    pub format: PixelFormat,
+}
+
+impl Layout {
+    /// The layout of a scene received in a Welcome.
+    pub fn of_scene(scene: &SceneInfo) -> Self {
+        Layout {
+            width: scene.atlas_width,
+            height: scene.atlas_height,
+            tile_size: scene.tile_size,
+            format: scene.format,
+        }
+    }
+
+    /// The indices of the tiles a delta of this layout carries, ascending
+    /// (decompressing its payload; the same checks as applying it).
+    pub fn delta_tiles(&self, d: &Delta) -> Result<Vec<u32>, ApplyError> {
+        if d.residual.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut dec = zstd::bulk::Decompressor::new()
+            .map_err(|e| ApplyError::Residual(format!("zstd: {e}")))?;
+        Ok(residual::unpack(self, &d.residual, &mut dec)?
+            .into_iter()
+            .map(|(index, _)| index)
+            .collect())
+    }
+
+    /// `ceil(width / tile_size) * ceil(height / tile_size)` (0 for tile size 0).
+    pub fn tile_count(&self) -> u32 {
+        if self.tile_size == 0 {
+            return 0;
+        }
+        let ts = u32::from(self.tile_size);
+        self.width.div_ceil(ts) * self.height.div_ceil(ts)
+    }
+
+    /// Decompressed bytes of tile `index`, or `None` if out of range (or
+    /// the tile size is 0).
+    pub fn tile_bytes(&self, index: u32) -> Option<usize> {
+        if self.tile_size == 0 {
+            return None;
+        }
+        let ts = u32::from(self.tile_size);
+        let tiles_x = self.width.div_ceil(ts);
+        if index >= tiles_x * self.height.div_ceil(ts) {
+            return None;
+        }
+        let (x, y) = ((index % tiles_x) * ts, (index / tiles_x) * ts);
+        let texels = ts.min(self.width - x) as usize * ts.min(self.height - y) as usize;
+        Some(texels * self.format.bytes_per_texel())
+    }
 }
 
 /// A tile's rectangle in the atlas, in texels.
@@ -269,10 +338,17 @@ impl Lightmap {
         Ok(())
     }
 
-    /// Applies a delta onto exactly its base version. Every tile is checked
-    /// and decompressed before the first texel is written, so on error
-    /// nothing changes.
+    /// Applies a delta onto exactly its base version: the residual of each
+    /// tile it carries is added onto the tile held (PROTOCOL.md §5). The
+    /// payload is checked and decompressed before the first texel is
+    /// written, so on error nothing changes.
     pub fn apply_delta(&mut self, d: &Delta) -> Result<(), ApplyError> {
+        self.apply_delta_tiles(d).map(|_| ())
+    }
+
+    /// [`Lightmap::apply_delta`], returning the indices of the tiles it
+    /// changed (ascending).
+    pub fn apply_delta_tiles(&mut self, d: &Delta) -> Result<Vec<u32>, ApplyError> {
         if d.base_version != self.version {
             return Err(ApplyError::WrongBase {
                 have: self.version,
@@ -286,12 +362,74 @@ impl Lightmap {
             });
         }
         self.check_layout()?;
-        let decoded = self.decode_tiles(&d.tiles)?;
-        for (rect, data) in decoded {
-            self.write_tile(rect, &data);
+        let tiles = if d.residual.is_empty() {
+            Vec::new()
+        } else {
+            let mut dec = zstd::bulk::Decompressor::new()
+                .map_err(|e| ApplyError::Residual(format!("zstd: {e}")))?;
+            residual::unpack(&self.layout(), &d.residual, &mut dec)?
+        };
+        let mut texels = Vec::new();
+        let mut changed = Vec::with_capacity(tiles.len());
+        for (index, planes) in tiles {
+            let rect = self.tile_rect(index).expect("unpack checked the index");
+            texels.clear();
+            self.read_tile(rect, &mut texels);
+            residual::apply(self.format, &mut texels, &planes);
+            self.write_tile(rect, &texels);
+            changed.push(index);
         }
         self.version = d.version;
-        Ok(())
+        Ok(changed)
+    }
+
+    /// Tile `index` of this state as a keyframe tile: its texels, compressed.
+    ///
+    /// # Panics
+    /// If `index` is out of range.
+    pub fn keyframe_tile(&self, index: u32) -> Tile {
+        let rect = self.tile_rect(index).expect("tile index in range");
+        let mut texels = Vec::new();
+        self.read_tile(rect, &mut texels);
+        Tile {
+            index,
+            data: compress_once(&texels),
+        }
+    }
+
+    /// The residual payload of a delta that takes this state to `to`'s
+    /// (same layout) in the tiles `indices` (ascending, distinct).
+    ///
+    /// # Panics
+    /// If the layouts differ or an index is out of range or repeated.
+    pub fn delta_payload(&self, to: &Lightmap, indices: &[u32]) -> Vec<u8> {
+        assert_eq!(
+            self.layout(),
+            to.layout(),
+            "delta_payload between different layouts"
+        );
+        let tiles: Vec<(u32, Vec<u8>)> = indices
+            .iter()
+            .map(|&index| {
+                let rect = self.tile_rect(index).expect("tile index in range");
+                let (mut old, mut new) = (Vec::new(), Vec::new());
+                self.read_tile(rect, &mut old);
+                to.read_tile(rect, &mut new);
+                (index, residual::encode(self.format, &old, &new))
+            })
+            .collect();
+        let mut c = zstd::bulk::Compressor::new(ZSTD_LEVEL).expect("zstd compressor");
+        residual::pack(&self.layout(), &tiles, &mut c)
+    }
+
+    /// The layout (dimensions, tile size, format) without the texels.
+    pub fn layout(&self) -> Layout {
+        Layout {
+            width: self.width,
+            height: self.height,
+            tile_size: self.tile_size,
+            format: self.format,
+        }
     }
 
     fn check_layout(&self) -> Result<(), ApplyError> {
@@ -343,7 +481,7 @@ impl Lightmap {
 /// Decompresses one tile into a buffer of exactly `expected` bytes: zstd
 /// cannot write past it, so a hostile payload cannot inflate beyond the
 /// tile's size.
-fn decompress_tile(
+pub(crate) fn decompress_tile(
     dec: &mut zstd::bulk::Decompressor<'_>,
     tile: &Tile,
     expected: usize,
@@ -390,6 +528,12 @@ fn decompress_tile(
         });
     }
     Ok(buf)
+}
+
+/// Compresses one tile's bytes at level [`ZSTD_LEVEL`] with a fresh context.
+fn compress_once(data: &[u8]) -> Vec<u8> {
+    zstd::bulk::compress(data, ZSTD_LEVEL)
+        .expect("zstd compression of an in-memory tile cannot fail")
 }
 
 /// Compresses one tile's uncompressed bytes with `c` (level [`ZSTD_LEVEL`]).

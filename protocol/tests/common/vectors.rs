@@ -73,8 +73,11 @@ pub const ATLAS: (u32, u32, u16) = (3, 2, 2);
 pub const KEY_TILE0: &str = "28b52ffd201081000000010181000000000001028cff0100f8";
 /// Tile 1 (clipped to 1x2 texels) of the keyframe: (0.125, 0.0625, 1), (3, 0, 0).
 pub const KEY_TILE1: &str = "28b52ffd20084100002020008480010088";
-/// Tile 1 in the delta: (1, 1, 1), (0, 0, 0).
-pub const DELTA_TILE1: &str = "28b52ffd20084100000001028400000000";
+/// The delta's residual payload (PROTOCOL.md §5), one zstd frame holding a
+/// raw block of 9 bytes: the tile bitmap `02` (tile 1 only), then tile 1's
+/// residual in byte planes, taking the keyframe's (0.125, 0.0625, 1),
+/// (3, 0, 0) to (1, 1, 1), (0, 0, 0).
+pub const DELTA_RESIDUAL: &str = "28b52ffd200949000002c000e000000003f1";
 
 /// The decoded texels, row-major, after the keyframe.
 pub const KEY_RGB: [[f32; 3]; 6] = [
@@ -128,10 +131,7 @@ pub fn delta() -> Delta {
             object: 0,
             seq: 300,
         }],
-        tiles: vec![Tile {
-            index: 1,
-            data: hex(DELTA_TILE1),
-        }],
+        residual: hex(DELTA_RESIDUAL),
     }
 }
 
@@ -173,7 +173,7 @@ pub fn all() -> Vec<Vector> {
     vec![
         Vector {
             name: "client_hello",
-            description: "Hello with a token: protocol 1, client \"lw/1\", token \"t0k\", no capabilities",
+            description: "Hello with a token: protocol 2, client \"lw/1\", token \"t0k\", no capabilities",
             msg: Msg::Client(C::Hello {
                 protocol_version: PROTOCOL_VERSION,
                 client: "lw/1".into(),
@@ -240,7 +240,7 @@ pub fn all() -> Vec<Vector> {
         },
         Vector {
             name: "server_delta",
-            description: "Delta 1 -> 2 onto server_keyframe: tile 1 only, reflecting object 0 at seq 300",
+            description: "Delta 1 -> 2 onto server_keyframe: tile 1 only (a residual), reflecting object 0 at seq 300",
             msg: Msg::Server(S::Delta(delta())),
         },
         Vector {
@@ -278,4 +278,89 @@ pub fn all() -> Vec<Vector> {
             msg: Msg::Server(S::Pong { nonce: 0xDEAD_BEEF }),
         },
     ]
+}
+
+/// A recorded stream for receivers in other languages: what an [`Encoder`]
+/// at a 1/64 budget publishes while a light field moves, as the frames a
+/// client receives (a keyframe, then deltas of residual tiles compressed by
+/// the real zstd), with the state a receiver must end with. Written to
+/// `tests/vectors/sequences.json`; only decoding is normative (another zstd
+/// may compress the same tiles to other bytes).
+pub struct Sequence {
+    pub name: &'static str,
+    pub format: PixelFormat,
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u16,
+    pub epsilon: f32,
+    /// Encoded `ServerMessage`s in order: one `Keyframe`, then `Delta`s.
+    pub frames: Vec<Vec<u8>>,
+    /// One `Delta` from the keyframe's version to the last: the merge of
+    /// every delta.
+    pub merged: Vec<u8>,
+    /// The texels a receiver holds after the last frame (wire layout).
+    pub final_texels: Vec<u8>,
+    pub final_version: u64,
+}
+
+/// The light field of the sequences: a spot travelling over a gradient.
+pub fn sequence_light(w: u32, h: u32, frame: u32) -> Vec<[f32; 3]> {
+    let t = frame as f32 * 0.15;
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+            let spot = (-((x - 0.5 - 0.3 * t.cos()).powi(2) + (y - 0.5 - 0.3 * t.sin()).powi(2))
+                * 12.0)
+                .exp();
+            [
+                0.1 + 0.4 * y + 3.0 * spot,
+                0.05 + 0.3 * x + 2.0 * spot,
+                0.02 + 0.5 * spot,
+            ]
+        })
+        .collect()
+}
+
+pub fn sequences() -> Vec<Sequence> {
+    use lightwire_protocol::lightmap::{Encoder, merge};
+    [
+        ("rgb9e5", PixelFormat::Rgb9e5),
+        ("rgba16f", PixelFormat::Rgba16f),
+    ]
+    .into_iter()
+    .map(|(name, format)| {
+        let (width, height, tile_size, epsilon) = (21, 11, 4, 1.0 / 64.0);
+        let mut e = Encoder::new(width, height, tile_size, format, epsilon);
+        e.publish(&sequence_light(width, height, 0), vec![]);
+        let mut frames = vec![encode_server(&ServerMessage::Keyframe(e.keyframe()))];
+        let mut merged: Option<Delta> = None;
+        for frame in 1..=24 {
+            // The last frame repeats the one before: what waited is sent.
+            let d = e.publish(
+                &sequence_light(width, height, frame.min(23)),
+                vec![ObjectSeq {
+                    object: 0,
+                    seq: u64::from(frame),
+                }],
+            );
+            frames.push(encode_server(&ServerMessage::Delta(d.clone())));
+            merged = Some(match merged {
+                Some(m) => merge(&e.state().layout(), &m, &d).expect("consecutive"),
+                None => d,
+            });
+        }
+        Sequence {
+            name,
+            format,
+            width,
+            height,
+            tile_size,
+            epsilon,
+            frames,
+            merged: encode_server(&ServerMessage::Delta(merged.expect("deltas"))),
+            final_texels: e.state().texels.clone(),
+            final_version: e.state().version,
+        }
+    })
+    .collect()
 }

@@ -1,4 +1,4 @@
-// The Lightwire wire protocol (PROTOCOL.md, version 1) in JavaScript: the
+// The Lightwire wire protocol (PROTOCOL.md, version 2) in JavaScript: the
 // JavaScript twin of `protocol/src/messages.rs` and `protocol/src/codec.rs`.
 //
 // Every message is one WebSocket binary frame, encoded with bincode 2 in one
@@ -19,7 +19,7 @@
 // (`server/dashboard/test/protocol.test.mjs`).
 
 /** The protocol version this code speaks (`Hello.protocol_version`). */
-export const PROTOCOL_VERSION = 1;
+export const PROTOCOL_VERSION = 2;
 
 /** The largest frame either side accepts, checked before parsing (§1). */
 export const MAX_FRAME_BYTES = 8 * 1024 * 1024;
@@ -386,7 +386,9 @@ const Delta = struct([
   ['base_version', T.u64],
   ['version', T.u64],
   ['reflected', vec(ObjectSeq)],
-  ['tiles', vec(Tile)],
+  /** Empty, or one zstd frame: a tile bitmap, then the residuals of the
+   * tiles it sets (PROTOCOL.md §5; `Lightmap.unpackResidual` reads it). */
+  ['residual', T.bytes],
 ]);
 const Stats = struct([
   ['version', T.u64],

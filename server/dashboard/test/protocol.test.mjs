@@ -3,7 +3,9 @@
 // `.bin` must decode to the value in `manifest.json`, and that value must
 // encode to the identical bytes. Then the lightmap: the golden keyframe and
 // delta applied, texel by texel, to the values PROTOCOL.md §8 spells out,
-// and the refusals §5 requires.
+// the refusals §5 requires, a delta's residual payload (protocol version 2:
+// a tile bitmap and the residuals of the tiles it sets, in one zstd frame)
+// and the streams of `sequences.json` applied frame by frame and merged.
 
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -22,12 +24,66 @@ import {
   errorName,
   poseProblem,
 } from '../src/protocol.js';
-import { ApplyError, Lightmap, rgb9e5Decode, zstdFrameProblem } from '../src/lightmap.js';
+import { ApplyError, Lightmap, applyResidual, halfToFloat, rgb9e5Decode, zstdFrameProblem } from '../src/lightmap.js';
+import { decompress } from '../src/vendor/fzstd.js';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const vectors = path.resolve(here, '../../../protocol/tests/vectors');
 const manifest = JSON.parse(fs.readFileSync(path.join(vectors, 'manifest.json'), 'utf8'));
 const bin = (name) => new Uint8Array(fs.readFileSync(path.join(vectors, `${name}.bin`)));
+const sequences = JSON.parse(fs.readFileSync(path.join(vectors, 'sequences.json'), 'utf8'));
+const fromHex = (hex) => Uint8Array.from(Buffer.from(hex, 'hex'));
+const toHex = (bytes) => Buffer.from(bytes).toString('hex');
+
+/** `bytes` as one zstd frame of a single raw block (at most 255 bytes), with
+ * its content size declared: what a hand-written tile payload looks like. */
+function rawZstd(bytes) {
+  assert.ok(bytes.length <= 255);
+  const header = (bytes.length << 3) | 1; // last block, raw
+  return Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd, 0x20, bytes.length, header & 0xff, header >> 8, 0, ...bytes]);
+}
+
+/** A zstd block header (RFC 8878 §3.1.1.2): `type` 0 raw, 1 RLE, 2 compressed. */
+const blockHeader = (type, size, last) => {
+  const word = (size << 3) | (type << 1) | (last ? 1 : 0);
+  return [word & 0xff, (word >> 8) & 0xff, word >> 16];
+};
+
+/** `content` as one single-segment zstd frame of raw blocks of at most
+ * `blockSize` bytes, declaring `declared` (by default its true length) as its
+ * 4-byte content size; `rle` appends RLE blocks of that many zero bytes (each
+ * at most 128 KiB) after the raw ones. */
+function zstdFrame(content, { declared = content.length, blockSize = 128 * 1024, rle = [] } = {}) {
+  const out = [0x28, 0xb5, 0x2f, 0xfd, 0xa0, ...new Uint8Array(Uint32Array.of(declared).buffer)];
+  const raw = [];
+  for (let at = 0; at < content.length; at += blockSize) raw.push(content.subarray(at, at + blockSize));
+  if (raw.length === 0 && rle.length === 0) raw.push(content); // an empty frame: one empty raw block
+  raw.forEach((chunk, i) => out.push(...blockHeader(0, chunk.length, i === raw.length - 1 && rle.length === 0), ...chunk));
+  rle.forEach((size, i) => out.push(...blockHeader(1, size, i === rle.length - 1), 0));
+  return Uint8Array.from(out);
+}
+
+/** A delta payload content: the tile bitmap of `bitmapBytes` bytes with the
+ * bits of `indices` set, then `tiles` (each a residual's planes). */
+function residualContent(bitmapBytes, indices, ...tiles) {
+  const bitmap = new Uint8Array(bitmapBytes);
+  for (const i of indices) bitmap[i >> 3] |= 1 << (i & 7);
+  return Uint8Array.from([...bitmap, ...tiles.flatMap((t) => Array.from(t))]);
+}
+
+/** The tile indices a delta's payload sets, read independently of the
+ * lightmap code: fzstd's own decompression, then the bitmap's bits. Also
+ * checks the payload's length against the tiles it sets. */
+function payloadTiles(map, residual) {
+  if (residual.length === 0) return [];
+  const raw = decompress(residual);
+  const bitmap = Math.ceil(map.tileCount / 8);
+  const indices = [];
+  for (let i = 0; i < bitmap * 8; i++) if ((raw[i >> 3] >> (i & 7)) & 1) indices.push(i);
+  const sizes = indices.map((i) => map.tileRect(i).width * map.tileRect(i).height * map.bytesPerTexel);
+  assert.equal(raw.length, bitmap + sizes.reduce((a, b) => a + b, 0), 'the payload is the bitmap and its tiles');
+  return indices;
+}
 
 /** Our JavaScript form -> the serde JSON form the manifest uses. */
 function toSerde(message) {
@@ -60,6 +116,7 @@ function fromSerde(serde) {
         : Number(Object.entries({ ...errorNames() }).find(([, n]) => n === code)[0]);
   }
   for (const tile of message.tiles ?? []) tile.data = Uint8Array.from(tile.data);
+  if (message.residual) message.residual = Uint8Array.from(message.residual);
   return message;
 }
 
@@ -188,45 +245,358 @@ test('the golden keyframe then delta reconstruct the texels of §8', () => {
   assert.ok(close(map.texel(2, 0), [1, 1, 1]));
   assert.ok(close(map.texel(2, 1), [0, 0, 0]));
   assert.ok(close(map.texel(0, 0), [1, 0.5, 0.25]), 'tiles not in the delta keep their texels');
+  // Row-major words: (0,0) (1,0) (2,0) / (0,1) (1,1) (2,1); (2,0) is (1, 1, 1), (2,1) is 0.
+  assert.deepEqual(Array.from(new Uint32Array(map.bytes.buffer)), [0x81010100, 0, 0x84020100, 0x8c020100, 0xf80001ff, 0]);
 });
 
-test('bad tiles are refused and leave the lightmap unchanged', () => {
+/** Asserts that `apply` throws ApplyError('bad-frame') matching `message`
+ * and leaves `map`'s texels, decoded texels and version as they were. */
+function assertRefused(map, apply, message, name) {
+  const bytes = Uint8Array.from(map.bytes);
+  const rgb = Float32Array.from(map.rgb);
+  const version = map.version;
+  assert.throws(
+    apply,
+    (e) => {
+      assert.ok(e instanceof ApplyError, `${name}: ${e}`);
+      assert.equal(e.kind, 'bad-frame', `${name}: ${e.message}`);
+      assert.match(e.message, message, name);
+      return true;
+    },
+    name,
+  );
+  assert.deepEqual(map.bytes, bytes, `${name}: texels unchanged`);
+  assert.deepEqual(map.rgb, rgb, `${name}: decoded texels unchanged`);
+  assert.equal(map.version, version, `${name}: version unchanged`);
+}
+
+test('bad keyframe tiles are refused and leave the lightmap unchanged', () => {
   const welcome = decodeServer(bin('server_welcome'));
   const keyframe = decodeServer(bin('server_keyframe'));
-  const delta = decodeServer(bin('server_delta'));
+  const [tile0, tile1] = keyframe.tiles;
+  const next = (tiles) => ({ ...keyframe, version: 2, tiles });
+  const cases = [
+    ['out of range', [tile0, { ...tile1, index: 2 }], /tile 2 is out of range/],
+    ['repeated', [tile0, tile0], /tile 0 appears twice/],
+    ['not zstd', [tile0, { index: 1, data: Uint8Array.from([1, 2, 3, 4, 5, 6, 7]) }], /no zstd frame magic/],
+    // Tile 0's payload (16 bytes) sent as tile 1 (8 bytes).
+    ['wrong size', [tile0, { index: 1, data: tile0.data }], /content size 16, expected 8/],
+    ['trailing', [tile0, { index: 1, data: Uint8Array.from([...tile1.data, 0]) }], /1 bytes after the zstd frame/],
+    ['truncated', [tile0, { index: 1, data: tile1.data.subarray(0, tile1.data.length - 1) }], /truncated block/],
+    // A valid tile 0 followed by a bad one: nothing may be written.
+    ['partly bad', [tile0, { index: 1, data: Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd]) }], /tile 1/],
+  ];
+  for (const [name, tiles, message] of cases) {
+    const map = Lightmap.forScene(welcome.scene);
+    map.applyKeyframe(keyframe);
+    map.bytes.fill(7); // so that rewriting tile 0 with its keyframe texels would show
+    assertRefused(map, () => map.applyKeyframe(next(tiles)), message, name);
+  }
+  const map = Lightmap.forScene(welcome.scene);
+  map.applyKeyframe(keyframe);
+  assert.throws(() => map.applyDelta({ ...decodeServer(bin('server_delta')), base_version: 5, version: 6 }), (e) => e.kind === 'wrong-base');
+  assert.throws(() => map.applyKeyframe({ ...keyframe, tiles: [tile0] }), /keyframe has 1 tiles, the atlas has 2/);
+  assert.throws(() => new Lightmap(8193, 8193, 8, 'Rgb9e5'), /more than/);
+});
+
+test('zstd frame checks: content size must be declared and exact, blocks at most 128 KiB', () => {
+  const frame = decodeServer(bin('server_keyframe')).tiles[1].data;
+  assert.equal(zstdFrameProblem(frame, 8), null);
+  assert.match(zstdFrameProblem(frame, 9), /content size 8, expected 9/);
+  const noSize = Uint8Array.from(frame);
+  noSize[4] = 0x00; // no single segment, no content size: needs a window byte
+  assert.match(zstdFrameProblem(noSize, 8), /does not declare its content size/);
+  assert.equal(zstdFrameProblem(zstdFrame(new Uint8Array(300), { blockSize: 100 }), 300), null, 'several blocks');
+  const huge = Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd, 0xa0, 1, 0, 2, 0, ...blockHeader(1, 128 * 1024 + 1, true), 0]);
+  assert.match(zstdFrameProblem(huge, 128 * 1024 + 1), /block of 131073 bytes, above the 131072-byte maximum/);
+});
+
+test('the golden delta is the hand-computed residual of §5 and applies bit for bit', () => {
+  // One 1x2 tile of (0.125, 0.0625, 1), (3, 0, 0), as in server_keyframe's tile 1.
+  const word = (r, g, b, e) => (r | (g << 9) | (b << 18) | (e << 27)) >>> 0;
+  const le = (...words) => new Uint8Array(Uint32Array.from(words).buffer);
+  const held = le(word(32, 16, 256, 16), word(384, 0, 0, 17));
+  assert.deepEqual(rgb9e5Decode(word(32, 16, 256, 16)), [0.125, 0.0625, 1]);
+  assert.deepEqual(rgb9e5Decode(word(384, 0, 0, 17)), [3, 0, 0]);
+  // To (1, 1, 1) = (256, 256, 256, 16) and (0, 0, 0) = all zero:
+  // texel 0: dr +224 -> z 448, dg +240 -> z 480, db 0, de 0;
+  // texel 1: dr -384 = +128 mod 512 -> z 256, dg db 0, de -17 = +15 mod 32 -> z 30.
+  const planes = fromHex('c000e000000003f1');
+  const map = new Lightmap(1, 2, 2, 'Rgb9e5');
+  map.applyKeyframe({ version: 1, reflected: [], tiles: [{ index: 0, data: rawZstd(held) }] });
+  assert.deepEqual(map.bytes, held);
+  // A one-tile atlas: bitmap 0x01, then the tile's planes.
+  const rects = map.applyDelta({ base_version: 1, version: 2, reflected: [], residual: rawZstd([0x01, ...planes]) });
+  assert.deepEqual(rects, [{ x: 0, y: 0, width: 1, height: 2 }]);
+  assert.deepEqual(map.bytes, le(word(256, 256, 256, 16), 0));
+  assert.deepEqual(map.texel(0, 0), [1, 1, 1]);
+  assert.deepEqual(map.texel(0, 1), [0, 0, 0]);
+  assert.equal(map.version, 2);
+  // The golden server_delta carries exactly this residual as tile 1 of two:
+  // a raw-block frame of bitmap 0x02 and the planes.
+  const golden = decodeServer(bin('server_delta'));
+  assert.deepEqual(golden.residual, fromHex('28b52ffd200949000002c000e000000003f1'));
+  assert.deepEqual(golden.residual, rawZstd([0x02, ...planes]));
+  assert.equal(golden.tiles, undefined, 'a delta carries no tile list');
+  // An all-zero residual changes nothing; Rgba16f fields wrap modulo 2^16.
+  const same = Uint8Array.from(held);
+  applyResidual('Rgb9e5', same, new Uint8Array(8));
+  assert.deepEqual(same, held);
+  const half = Uint8Array.from([0x00, 0x3c, 0xff, 0xff, 0, 0, 0x00, 0x3c]); // R 1.0, G 0xffff, B 0, A 1.0
+  // zR = 0x800 (+0x400: 1.0 -> 2.0), zG = 2 (+1: wraps to 0), zB = 1 (-1: wraps to 0xffff), zA = 0.
+  applyResidual('Rgba16f', half, Uint8Array.from([0x00, 0x02, 0x01, 0x00, 0x08, 0x00, 0x00, 0x00]));
+  assert.deepEqual(half, Uint8Array.from([0x00, 0x40, 0, 0, 0xff, 0xff, 0x00, 0x3c]));
+});
+
+test('a delta payload applies its tiles in bitmap order, from any block layout', () => {
+  const welcome = decodeServer(bin('server_welcome'));
+  const keyframe = decodeServer(bin('server_keyframe'));
   const fresh = () => {
     const map = Lightmap.forScene(welcome.scene);
     map.applyKeyframe(keyframe);
     return map;
   };
-  const cases = [
-    ['out of range', { ...delta, tiles: [{ ...delta.tiles[0], index: 2 }] }, /out of range/],
-    ['repeated', { ...delta, tiles: [delta.tiles[0], delta.tiles[0]] }, /appears twice/],
-    ['not zstd', { ...delta, tiles: [{ index: 1, data: Uint8Array.from([1, 2, 3, 4, 5, 6, 7]) }] }, /no zstd frame magic/],
-    // Tile 0's payload (16 bytes) sent as tile 1 (8 bytes).
-    ['wrong size', { ...delta, tiles: [{ index: 1, data: keyframe.tiles[0].data }] }, /content size 16, expected 8/],
-    ['trailing', { ...delta, tiles: [{ index: 1, data: Uint8Array.from([...delta.tiles[0].data, 0]) }] }, /1 bytes after the zstd frame/],
-    ['truncated', { ...delta, tiles: [{ index: 1, data: delta.tiles[0].data.subarray(0, 12) }] }, /truncated block/],
-    // A valid tile 0 followed by a bad one: nothing may be written.
-    ['partly bad', { ...delta, tiles: [keyframe.tiles[0], { index: 1, data: Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd]) }] }, /tile 1/],
-  ];
-  for (const [name, bad, message] of cases) {
+  // Tile 0 is 2x2 (16 bytes), tile 1 is 1x2 (8 bytes); the bitmap is 1 byte.
+  const base = fresh();
+  const old0 = base.readTile(base.tileRect(0));
+  const old1 = base.readTile(base.tileRect(1));
+  const new0 = Uint8Array.from({ length: 16 }, (_, i) => (i * 37 + 11) & 0xff);
+  const new1 = Uint8Array.from({ length: 8 }, (_, i) => (i * 53 + 5) & 0xff);
+  const r0 = encodeResidual('Rgb9e5', old0, new0);
+  const r1 = encodeResidual('Rgb9e5', old1, new1);
+  const both = residualContent(1, [0, 1], r0, r1);
+  for (const [name, residual] of [
+    ['one raw block', zstdFrame(both)],
+    ['raw blocks of 5 bytes', zstdFrame(both, { blockSize: 5 })],
+    ['1-byte content size', rawZstd(both)],
+  ]) {
     const map = fresh();
-    const before = Uint8Array.from(map.bytes);
-    assert.throws(() => map.applyDelta(bad), (e) => e instanceof ApplyError && e.kind === 'bad-frame' && message.test(e.message), name);
-    assert.deepEqual(map.bytes, before, `${name}: texels unchanged`);
-    assert.equal(map.version, 1, `${name}: version unchanged`);
+    const rects = map.applyDelta({ base_version: 1, version: 3, reflected: [], residual });
+    assert.deepEqual(rects, [map.tileRect(0), map.tileRect(1)], name);
+    assert.deepEqual(map.readTile(map.tileRect(0)), new0, `${name}: tile 0`);
+    assert.deepEqual(map.readTile(map.tileRect(1)), new1, `${name}: tile 1`);
+    assert.deepEqual(map.rgb, decodeAll('Rgb9e5', map.bytes), `${name}: decoded texels follow`);
+    assert.equal(map.version, 3);
   }
+  // Tile 1 alone: tile 0 keeps its texels.
   const map = fresh();
-  assert.throws(() => map.applyDelta({ ...delta, base_version: 5, version: 6 }), (e) => e.kind === 'wrong-base');
-  assert.throws(() => map.applyKeyframe({ ...keyframe, tiles: [keyframe.tiles[0]] }), /keyframe has 1 tiles, the atlas has 2/);
-  assert.throws(() => new Lightmap(8193, 8193, 8, 'Rgb9e5'), /more than/);
+  const rects = map.applyDelta({ base_version: 1, version: 2, reflected: [], residual: zstdFrame(residualContent(1, [1], r1)) });
+  assert.deepEqual(rects, [map.tileRect(1)]);
+  assert.deepEqual(map.readTile(map.tileRect(0)), old0);
+  assert.deepEqual(map.readTile(map.tileRect(1)), new1);
+  // A bitmap spanning two bytes: tile 8 of a 3x3-tile atlas.
+  const big = new Lightmap(9, 9, 3, 'Rgb9e5');
+  assert.equal(big.tileCount, 9);
+  const planes = Uint8Array.from({ length: 36 }, (_, i) => i);
+  const expected = new Uint8Array(36); // the residual applied onto all-zero texels
+  applyResidual('Rgb9e5', expected, planes);
+  assert.deepEqual(big.applyDelta({ base_version: 0, version: 1, reflected: [], residual: zstdFrame(residualContent(2, [8], planes)) }), [big.tileRect(8)]);
+  assert.deepEqual(big.readTile(big.tileRect(8)), expected);
+  assert.ok(big.readTile(big.tileRect(7)).every((b) => b === 0), 'tile 7 untouched');
 });
 
-test('zstd frame checks: content size must be declared and exact', () => {
-  const frame = decodeServer(bin('server_delta')).tiles[0].data;
-  assert.equal(zstdFrameProblem(frame, 8), null);
-  const noSize = Uint8Array.from(frame);
-  noSize[4] = 0x00; // no single segment, no content size: needs a window byte
-  assert.match(zstdFrameProblem(noSize, 8), /does not declare its content size/);
+test('an empty residual payload only moves the version', () => {
+  const welcome = decodeServer(bin('server_welcome'));
+  const map = Lightmap.forScene(welcome.scene);
+  map.applyKeyframe(decodeServer(bin('server_keyframe')));
+  const bytes = Uint8Array.from(map.bytes);
+  const rgb = Float32Array.from(map.rgb);
+  const frame = encodeServer({ type: 'Delta', base_version: 1, version: 4, reflected: [], residual: new Uint8Array(0) });
+  assert.equal(toHex(frame), '0201040000', 'tag, base, version, no reflected, empty residual');
+  assert.deepEqual(map.applyDelta(decodeServer(frame)), []);
+  assert.equal(map.version, 4);
+  assert.deepEqual(map.bytes, bytes);
+  assert.deepEqual(map.rgb, rgb);
 });
+
+test('a bad residual payload is refused whole and leaves the lightmap unchanged', () => {
+  const welcome = decodeServer(bin('server_welcome'));
+  const keyframe = decodeServer(bin('server_keyframe'));
+  // 2 tiles (16 + 8 bytes of residual), a 1-byte bitmap: at most 25 bytes.
+  const t0 = Uint8Array.from({ length: 16 }, (_, i) => i + 1); // a nonzero residual for tile 0
+  const t1 = Uint8Array.from({ length: 8 }, (_, i) => 0x80 + i);
+  const good = zstdFrame(residualContent(1, [0, 1], t0, t1));
+  const noSize = Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd, 0x00, 0x00, ...blockHeader(0, 25, true), ...residualContent(1, [0, 1], t0, t1)]);
+  const cases = [
+    // Tile 0 is valid and read before the bad bit: it must not be written.
+    ['bit beyond the last tile', zstdFrame(residualContent(1, [0, 2], t0)), /sets tile 2 in its bitmap; the atlas has 2 tiles/],
+    ['the last bit of the bitmap byte', zstdFrame(residualContent(1, [0, 1, 7], t0, t1)), /sets tile 7/],
+    ['ending inside a tile', zstdFrame(residualContent(1, [0, 1], t0, t1.subarray(0, 4))), /ends inside tile 1 \(21 bytes, 8 needed from byte 17\)/],
+    ['ending inside the first tile', zstdFrame(residualContent(1, [0], t0.subarray(0, 15))), /ends inside tile 0/],
+    ['bytes left over', zstdFrame(Uint8Array.from([...residualContent(1, [0], t0), 0])), /1 bytes left over after the tiles its bitmap sets/],
+    ['a tile not in the bitmap', zstdFrame(residualContent(1, [0], t0, t1)), /8 bytes left over/],
+    ['an empty bitmap with a tile', zstdFrame(residualContent(1, [], t1)), /8 bytes left over/],
+    ['shorter than the bitmap', zstdFrame(new Uint8Array(0)), /of 0 bytes cannot hold the 1-byte tile bitmap/],
+    ['zip bomb declared one byte too large', zstdFrame(residualContent(1, [0, 1], t0, t1), { declared: 26 }), /declares 26 bytes; a delta of this atlas holds at most 25/],
+    // 2^52 bytes, 8-byte content size: allocating it would throw a RangeError, not an ApplyError.
+    ['zip bomb of 2^52 bytes', Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd, 0xe0, 0, 0, 0, 0, 0, 0, 0x10, 0, ...blockHeader(1, 128 * 1024, true), 0]), /declares 4503599627370496 bytes/],
+    ['holding more than it declares', zstdFrame(residualContent(1, [0], t0), { rle: Array(64).fill(128 * 1024) }), /holds more than the 17 bytes it declares/],
+    ['holding one byte more than it declares', zstdFrame(residualContent(1, [0, 1], t0, t1), { declared: 24 }), /holds more than the 24 bytes it declares/],
+    ['holding less than it declares', zstdFrame(residualContent(1, [0], t0), { declared: 25 }), /holds 17 bytes but declares 25/],
+    ['not zstd', Uint8Array.from([1, 2, 3, 4, 5, 6, 7]), /is not a zstd frame: no zstd frame magic/],
+    ['too short for a frame', Uint8Array.from([0x28, 0xb5, 0x2f]), /is not a zstd frame/],
+    ['no declared content size', noSize, /does not declare its content size/],
+    ['trailing bytes after the frame', Uint8Array.from([...good, 0]), /1 bytes after the zstd frame/],
+    ['a second frame after the frame', Uint8Array.from([...good, ...good]), /bytes after the zstd frame/],
+    ['truncated', good.subarray(0, good.length - 1), /truncated block/],
+    ['reserved block type', Uint8Array.from([...good.subarray(0, 9), ...blockHeader(3, 25, true), ...good.subarray(12)]), /reserved block type/],
+    ['a corrupt compressed block', Uint8Array.from([0x28, 0xb5, 0x2f, 0xfd, 0xa0, 17, 0, 0, 0, ...blockHeader(2, 4, true), 0xff, 0xff, 0xff, 0xff]), /is not a valid zstd frame/],
+  ];
+  for (const [name, residual, message] of cases) {
+    const map = Lightmap.forScene(welcome.scene);
+    map.applyKeyframe(keyframe);
+    assertRefused(map, () => map.applyDelta({ base_version: 1, version: 2, reflected: [], residual }), message, name);
+  }
+  // The good payload applies, and a delta in the old shape (a tile list) is refused.
+  const map = Lightmap.forScene(welcome.scene);
+  map.applyKeyframe(keyframe);
+  const before = Uint8Array.from(map.bytes);
+  assert.equal(map.applyDelta({ base_version: 1, version: 2, reflected: [], residual: good }).length, 2);
+  assert.notDeepEqual(map.bytes, before);
+  const old = Lightmap.forScene(welcome.scene);
+  old.applyKeyframe(keyframe);
+  assertRefused(old, () => old.applyDelta({ base_version: 1, version: 2, reflected: [], tiles: [] }), /no residual payload/, 'tile list');
+  assertRefused(old, () => old.applyDelta({ base_version: 1, version: 1, reflected: [], residual: good }), /not above its base/, 'version not above base');
+});
+
+test('real zstd residual payloads whose declared size is off by one are refused', () => {
+  // sequences.json holds payloads compressed by the real zstd (compressed
+  // blocks, Huffman literals, sequences): the content length must be counted
+  // exactly, not taken from the header. Every delta of every sequence, one
+  // byte short and one byte long, then the delta itself.
+  let checked = 0;
+  for (const seq of sequences.sequences) {
+    const [keyframe, ...deltas] = seq.frames.map((hex) => decodeServer(fromHex(hex)));
+    const map = new Lightmap(seq.atlas_width, seq.atlas_height, seq.tile_size, seq.format);
+    const most = Math.ceil(map.tileCount / 8) + map.bytes.length;
+    map.applyKeyframe(keyframe);
+    for (const delta of deltas) {
+      const payload = delta.residual;
+      assert.equal(payload[4] & 0xc0, 0x40, `${seq.name}: a 2-byte content size`);
+      const declared = payload[5] + (payload[6] << 8) + 256;
+      for (const [change, message] of [
+        [+1, declared < most ? new RegExp(`holds ${declared} bytes but declares ${declared + 1}`) : /a delta of this atlas holds at most/],
+        [-1, new RegExp(`holds more than the ${declared - 1} bytes it declares`)],
+      ]) {
+        const bad = Uint8Array.from(payload);
+        const size = declared + change - 256;
+        [bad[5], bad[6]] = [size & 0xff, size >> 8];
+        assertRefused(map, () => map.applyDelta({ ...delta, residual: bad }), message, `${seq.name} ${delta.version} ${change}`);
+        checked++;
+      }
+      map.applyDelta(delta);
+    }
+    assert.equal(toHex(map.bytes), seq.final_texels);
+  }
+  assert.ok(checked > 40);
+});
+
+/** Test-side encoder, straight from the definition in PROTOCOL.md §5: the
+ * residual that takes `old` to `new`. */
+function encodeResidual(format, old, next) {
+  const widths = format === 'Rgb9e5' ? [9, 9, 9, 5] : [16, 16, 16, 16];
+  const bpt = format === 'Rgb9e5' ? 4 : 8;
+  const fields = (b, t) => {
+    const v = new DataView(b.buffer, b.byteOffset + t * bpt, bpt);
+    if (format === 'Rgb9e5') {
+      const w = v.getUint32(0, true);
+      return [w & 0x1ff, (w >>> 9) & 0x1ff, (w >>> 18) & 0x1ff, w >>> 27];
+    }
+    return [0, 2, 4, 6].map((k) => v.getUint16(k, true));
+  };
+  const n = old.length / bpt;
+  const planes = new Uint8Array(old.length);
+  for (let t = 0; t < n; t++) {
+    const [a, b] = [fields(old, t), fields(next, t)];
+    const z = widths.map((w, i) => {
+      const m = 2 ** w;
+      let s = (((b[i] - a[i]) % m) + m) % m;
+      if (s >= m / 2) s -= m;
+      return s >= 0 ? 2 * s : -2 * s - 1;
+    });
+    if (format === 'Rgb9e5') {
+      for (let c = 0; c < 3; c++) planes[c * n + t] = z[c] & 0xff;
+      planes[3 * n + t] = (z[0] >> 8) | ((z[1] >> 8) << 1) | ((z[2] >> 8) << 2) | (z[3] << 3);
+    } else {
+      for (let c = 0; c < 4; c++) {
+        planes[c * n + t] = z[c] & 0xff;
+        planes[(c + 4) * n + t] = z[c] >> 8;
+      }
+    }
+  }
+  return planes;
+}
+
+test('residuals of random texels, extremes included, take old to new exactly', () => {
+  let seed = 12345;
+  const random = () => (seed = (Math.imul(seed, 1103515245) + 12345) >>> 0) >>> 24;
+  for (const format of ['Rgb9e5', 'Rgba16f']) {
+    for (let round = 0; round < 50; round++) {
+      const len = (format === 'Rgb9e5' ? 4 : 8) * (1 + (round % 7));
+      const pick = () => (round % 5 === 0 ? [0, 0xff][random() & 1] : random());
+      const old = Uint8Array.from({ length: len }, pick);
+      const next = Uint8Array.from({ length: len }, pick);
+      const texels = Uint8Array.from(old);
+      applyResidual(format, texels, encodeResidual(format, old, next));
+      assert.deepEqual(texels, next, `${format} round ${round}`);
+    }
+  }
+  assert.throws(() => applyResidual('Rgb9e5', new Uint8Array(8), new Uint8Array(4)), RangeError);
+});
+
+/** Linear RGB of every texel of `bytes`, decoded afresh. */
+function decodeAll(format, bytes) {
+  const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const bpt = format === 'Rgb9e5' ? 4 : 8;
+  const out = new Float32Array((bytes.length / bpt) * 3);
+  for (let t = 0; t < bytes.length / bpt; t++) {
+    const rgb =
+      format === 'Rgb9e5'
+        ? rgb9e5Decode(view.getUint32(t * bpt, true))
+        : [0, 2, 4].map((k) => halfToFloat(view.getUint16(t * bpt + k, true)));
+    out.set(rgb, t * 3);
+  }
+  return out;
+}
+
+test('sequences.json is for the protocol version this decoder speaks', () => {
+  assert.equal(sequences.protocol_version, PROTOCOL_VERSION);
+  assert.ok(sequences.sequences.length >= 2);
+  assert.deepEqual(new Set(sequences.sequences.map((s) => s.format)), new Set(['Rgb9e5', 'Rgba16f']));
+});
+
+for (const seq of sequences.sequences) {
+  const fresh = () => new Lightmap(seq.atlas_width, seq.atlas_height, seq.tile_size, seq.format);
+
+  test(`sequence ${seq.name}: a keyframe then residual deltas, in order, end at final_texels`, () => {
+    const frames = seq.frames.map((hex) => decodeServer(fromHex(hex)));
+    assert.equal(frames[0].type, 'Keyframe');
+    assert.ok(frames.length > 2 && frames.slice(1).every((f) => f.type === 'Delta'));
+    const map = fresh();
+    map.applyKeyframe(frames[0]);
+    for (const delta of frames.slice(1)) {
+      const indices = payloadTiles(map, delta.residual);
+      const rects = map.applyDelta(delta);
+      assert.deepEqual(rects, indices.map((i) => map.tileRect(i)), 'the rectangles of the tiles the bitmap sets');
+      assert.equal(map.version, delta.version);
+    }
+    assert.equal(map.version, seq.final_version);
+    assert.equal(toHex(map.bytes), seq.final_texels);
+    assert.deepEqual(map.rgb, decodeAll(seq.format, map.bytes), 'the decoded cache follows the texels');
+  });
+
+  test(`sequence ${seq.name}: the keyframe then the merged delta end at final_texels`, () => {
+    const keyframe = decodeServer(fromHex(seq.frames[0]));
+    const merged = decodeServer(fromHex(seq.merged));
+    assert.equal(merged.type, 'Delta');
+    assert.equal(merged.base_version, keyframe.version);
+    assert.equal(merged.version, seq.final_version);
+    const map = fresh();
+    map.applyKeyframe(keyframe);
+    const indices = payloadTiles(map, merged.residual);
+    assert.deepEqual(map.applyDelta(merged), indices.map((i) => map.tileRect(i)));
+    assert.equal(map.version, seq.final_version);
+    assert.equal(toHex(map.bytes), seq.final_texels);
+    assert.deepEqual(map.rgb, decodeAll(seq.format, map.bytes));
+  });
+}

@@ -59,9 +59,10 @@ pub struct Mirror {
     pub info: Arc<SceneInfo>,
     /// Exactly what the relay's viewers hold at relay version `map.version`.
     map: Lightmap,
-    /// The newest compressed payload of every tile (each decodes to the
-    /// tile's texels in `map`), from which relay keyframes are built
-    /// without recompressing.
+    /// The newest compressed texels of every tile (each decodes to the
+    /// tile's texels in `map`), from which relay keyframes are built: an
+    /// upstream keyframe's tiles as they came, tiles a delta changed
+    /// compressed again from `map` (delta tiles are residuals).
     tiles: Vec<Vec<u8>>,
     /// The latest seq per object the state reflects.
     reflected: BTreeMap<u32, u64>,
@@ -154,19 +155,16 @@ impl Mirror {
                 .ok_or(MirrorError::VersionOverflow(k.version))?,
         );
         next.version = version;
-        self.map = next;
+        // Delta tiles are residuals onto what the viewers hold (the old
+        // state), so they are computed here; keyframe tiles are the
+        // upstream's, as they came.
         let delta = (!self.fresh).then(|| Delta {
             base_version: base,
             version,
             reflected,
-            tiles: changed
-                .iter()
-                .map(|&index| Tile {
-                    index,
-                    data: self.tiles[index as usize].clone(),
-                })
-                .collect(),
+            residual: self.map.delta_payload(&next, &changed),
         });
+        self.map = next;
         self.fresh = false;
         Ok(Some(Publish {
             keyframe: self.keyframe(),
@@ -202,12 +200,14 @@ impl Mirror {
             base_version: base,
             version,
             reflected: d.reflected.clone(),
-            tiles: d.tiles.clone(),
+            residual: d.residual.clone(),
         };
-        // Checks every tile before writing any: on error nothing changed.
-        self.map.apply_delta(&renumbered)?;
-        for t in &d.tiles {
-            self.tiles[t.index as usize] = t.data.clone();
+        // Checks the whole payload before writing any texel: on error
+        // nothing changed.
+        let changed = self.map.apply_delta_tiles(&renumbered)?;
+        // Delta tiles are residuals; keyframes need the tiles' texels.
+        for index in changed {
+            self.tiles[index as usize] = self.map.keyframe_tile(index).data;
         }
         for r in &d.reflected {
             self.reflected.insert(r.object, r.seq);
@@ -318,8 +318,7 @@ mod tests {
         assert_eq!(p.keyframe.version, 4, "relay versions never go back");
         let delta = p.delta.as_ref().expect("a delta resyncs viewers");
         assert_eq!(delta.base_version, 3);
-        let mut indices: Vec<u32> = delta.tiles.iter().map(|t| t.index).collect();
-        indices.sort();
+        let indices = viewer.layout().delta_tiles(delta).expect("decodes");
         assert_eq!(indices, vec![0, 3], "exactly the tiles that differ");
         viewer_applies(&mut viewer, &p);
         assert_eq!(viewer.texels, run2.state().texels, "viewer resynced");
@@ -360,10 +359,10 @@ mod tests {
         mirror.on_keyframe(&run.keyframe()).expect("ok");
         let before = mirror.keyframe();
         let mut d = run.publish(&image([2.0; 4]), vec![]);
-        d.tiles[0].data = vec![0xde, 0xad];
+        d.residual = vec![0xde, 0xad];
         assert!(matches!(
             mirror.on_delta(&d),
-            Err(MirrorError::Apply(ApplyError::Decompress { .. }))
+            Err(MirrorError::Apply(ApplyError::Residual(_)))
         ));
         let wrong_base = Delta {
             base_version: 9,
@@ -377,7 +376,7 @@ mod tests {
             base_version: 2,
             version: u64::MAX,
             reflected: vec![],
-            tiles: vec![],
+            residual: vec![],
         };
         let mut high = Mirror::new(info(), u64::MAX - 1).expect("layout");
         high.on_keyframe(&run.keyframe()).expect("ok");

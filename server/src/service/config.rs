@@ -14,6 +14,8 @@
 //! cornell-low = "incremental"
 //! tick_hz = 60
 //! budget_ms = 8.0
+//! epsilon = 0.0039                    # error budget of the stream (PROTOCOL.md §5)
+//! settle_ms = 500                     # idle time before waiting texels are sent
 //! density_scale = 1.0
 //! dev_mode = false                    # no tokens: everyone is admin (loud)
 //! allowed_origins = ["https://dash.example"]
@@ -33,6 +35,7 @@
 //!
 //! Environment: `LIGHTWIRE_LISTEN`, `LIGHTWIRE_DEV=1`,
 //! `LIGHTWIRE_SEND_BUFFER=<bytes>`, `LIGHTWIRE_METRICS=open|token`,
+//! `LIGHTWIRE_EPSILON=<fraction>`, `LIGHTWIRE_SETTLE_MS=<ms>`,
 //! `LIGHTWIRE_TOKENS="viewer:abc,driver:def,admin:ghi"` (added to the
 //! file's tokens), and for the relay `LIGHTWIRE_UPSTREAM=url,url` (replaces
 //! the file's `upstreams`) and `LIGHTWIRE_UPSTREAM_TOKEN`.
@@ -143,8 +146,15 @@ pub struct Config {
     pub max_bad_frames: u32,
     /// Seconds a client has to send `Hello` after connecting.
     pub hello_timeout_secs: f64,
-    /// Change threshold for sending a tile (see the protocol's epsilon rule).
+    /// The relative error budget of the lightmap stream (PROTOCOL.md §5,
+    /// "The error budget"): a texel viewers hold may differ from the
+    /// solver's by this fraction of its value before it is sent; 0 sends
+    /// every change.
     pub epsilon: f32,
+    /// Milliseconds the solver must have been idle, with no transform
+    /// arriving, before the texels waiting within the budget are sent (one
+    /// more version), so viewers hold the solver's lightmap exactly.
+    pub settle_ms: f64,
     /// Solver per scene.
     pub solver: SolverChoice,
     /// How the GPU solver follows moved objects, for every scene not named
@@ -233,6 +243,7 @@ impl Default for Config {
             max_bad_frames: 20,
             hello_timeout_secs: 5.0,
             epsilon: 1.0 / 256.0,
+            settle_ms: 500.0,
             socket_send_buffer: 256 * 1024,
             solver: SolverChoice::Progressive,
             redistribution: crate::gpu::Redistribution::default(),
@@ -267,6 +278,16 @@ impl Config {
                 "LIGHTWIRE_SEND_BUFFER" => {
                     self.socket_send_buffer = value.parse().with_context(|| {
                         format!("LIGHTWIRE_SEND_BUFFER={value:?} is not a byte count")
+                    })?;
+                }
+                "LIGHTWIRE_EPSILON" => {
+                    self.epsilon = value.parse().with_context(|| {
+                        format!("LIGHTWIRE_EPSILON={value:?} is not a number (the stream's relative error budget, e.g. 0.0039)")
+                    })?;
+                }
+                "LIGHTWIRE_SETTLE_MS" => {
+                    self.settle_ms = value.parse().with_context(|| {
+                        format!("LIGHTWIRE_SETTLE_MS={value:?} is not a number of milliseconds")
                     })?;
                 }
                 "LIGHTWIRE_METRICS" => {
@@ -363,8 +384,14 @@ impl Config {
                 self.max_message_bytes
             );
         }
-        if !(self.epsilon.is_finite() && self.epsilon >= 0.0) {
-            bail!("epsilon = {} must be >= 0", self.epsilon);
+        if !(self.epsilon.is_finite() && (0.0..1.0).contains(&self.epsilon)) {
+            bail!(
+                "epsilon = {} must be >= 0 and < 1 (a fraction of the texel's value)",
+                self.epsilon
+            );
+        }
+        if !(self.settle_ms.is_finite() && self.settle_ms >= 0.0) {
+            bail!("settle_ms = {} must be >= 0", self.settle_ms);
         }
         if self.tokens.is_empty() && !self.dev_mode {
             bail!(
@@ -377,6 +404,11 @@ impl Config {
     /// Tick period.
     pub fn tick(&self) -> std::time::Duration {
         std::time::Duration::from_secs_f64(1.0 / self.tick_hz)
+    }
+
+    /// How long the solver must be idle before waiting texels are sent.
+    pub fn settle(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64(self.settle_ms / 1000.0)
     }
 
     /// Solver budget per tick.

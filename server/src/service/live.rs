@@ -52,6 +52,10 @@ pub trait LiveSolver: Send {
     fn radiosity(&self) -> &[Vec3];
     /// The transform seq per object that [`LiveSolver::radiosity`] reflects.
     fn reflected(&self) -> &[u64];
+    /// Whether the solver has nothing left to do for the poses it has
+    /// (its state is complete and refined as far as it refines), so that
+    /// [`LiveSolver::radiosity`] will not change until poses do.
+    fn is_idle(&self) -> bool;
     /// Why the solver is unusable, if something outside `step` has
     /// noticed (a device-lost callback): the tick loop's reason when a
     /// step panicked.
@@ -163,6 +167,9 @@ impl LiveSolver for ReferenceLive {
 
     fn reflected(&self) -> &[u64] {
         &self.reflected
+    }
+    fn is_idle(&self) -> bool {
+        !self.dirty
     }
 
     fn inject_failure(&mut self) {
@@ -302,5 +309,8 @@ impl LiveSolver for GpuLive {
     }
     fn reflected(&self) -> &[u64] {
         &self.reflected
+    }
+    fn is_idle(&self) -> bool {
+        self.session.is_idle()
     }
 }

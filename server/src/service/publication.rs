@@ -6,7 +6,8 @@
 //!
 //! - the **delta** when the client holds exactly its base version;
 //! - a **merged delta** (`lightwire_protocol::lightmap::merge` of the last
-//!   few deltas) when the client holds one of the [`CATCH_UP`] versions
+//!   few deltas: tiles only one carries pass through, residuals of a tile
+//!   several carry are composed) when the client holds one of the [`CATCH_UP`] versions
 //!   before that, and the merge is smaller than a keyframe: a client that
 //!   fell a little behind catches up for the price of the tiles that
 //!   changed, not the whole atlas;
@@ -21,7 +22,7 @@
 use std::sync::{Arc, OnceLock};
 
 use bytes::Bytes;
-use lightwire_protocol::lightmap::merge;
+use lightwire_protocol::lightmap::{Layout, merge};
 use lightwire_protocol::{Delta, Keyframe, SceneInfo, ServerMessage, encode_server};
 use tokio::sync::watch;
 
@@ -86,13 +87,14 @@ impl Publication {
         self.catch_up[start]
             .get_or_init(|| {
                 let chain = &self.recent[start..];
+                let layout = Layout::of_scene(&self.scene);
                 let mut merged = (*chain[0]).clone();
                 for next in &chain[1..] {
                     // The chain is consecutive by construction; a broken
                     // link means a keyframe, never a wrong delta.
-                    merged = merge(&merged, next).ok()?;
+                    merged = merge(&layout, &merged, next).ok()?;
                 }
-                if chain.len() > 1 && tile_bytes(&merged.tiles) >= self.keyframe_bytes {
+                if chain.len() > 1 && merged.residual.len() >= self.keyframe_bytes {
                     return None;
                 }
                 Some(Bytes::from(encode_server(&ServerMessage::Delta(merged))))
@@ -228,7 +230,16 @@ mod tests {
                 panic!("a delta frame")
             };
             assert_eq!((d.base_version, d.version), (held, 6));
-            assert_eq!(d.tiles.len(), 2, "only the tiles that changed");
+            assert_eq!(
+                encoder
+                    .state()
+                    .layout()
+                    .delta_tiles(&d)
+                    .expect("decodes")
+                    .len(),
+                2,
+                "only the tiles that changed"
+            );
             let mut map = states[held as usize - 1].clone();
             map.apply_delta(&d).expect("applies onto its base");
             assert_eq!(&map, encoder.state(), "held {held}: state after catch-up");
@@ -245,12 +256,27 @@ mod tests {
 
     #[test]
     fn a_merge_as_large_as_a_keyframe_is_not_sent() {
-        let (w, h) = (16, 8); // two tiles, both change every version
+        // Noise, other noise, then a flat light: the newest keyframe
+        // compresses to almost nothing, while the merged residual from the
+        // first noise to it cannot be compressed at all.
+        let (w, h) = (16, 8); // two tiles
         let info = scene(w, h);
         let mut encoder = Encoder::new(w, h, 8, PixelFormat::Rgb9e5, 0.0);
         let (publisher, _rx) = Publisher::new();
-        for step in 1..=3 {
-            let delta = encoder.publish(&image(w, h, step, 2), vec![]);
+        let mut seed = 12345u32;
+        let mut noise = || {
+            (0..w * h)
+                .map(|_| {
+                    [0; 3].map(|_| {
+                        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                        (seed >> 8) as f32 / (1 << 24) as f32 * 4.0
+                    })
+                })
+                .collect::<Vec<[f32; 3]>>()
+        };
+        let flat = vec![[0.5f32, 0.25, 0.125]; (w * h) as usize];
+        for image in [noise(), noise(), flat] {
+            let delta = encoder.publish(&image, vec![]);
             publisher.publish(info.clone(), encoder.keyframe(), Some(delta));
         }
         let newest = publisher.latest().expect("published");

@@ -269,6 +269,7 @@ impl SceneRuntime {
             shutdown,
             period: config.tick(),
             budget: config.budget(),
+            settle: config.settle(),
         };
         let handle = std::thread::Builder::new()
             .name(format!("tick-{}", runtime.info.id))
@@ -330,6 +331,8 @@ struct TickLoop {
     shutdown: watch::Receiver<bool>,
     period: Duration,
     budget: Duration,
+    /// Idle time before the encoder's waiting texels are sent.
+    settle: Duration,
 }
 
 fn unix_ms() -> u64 {
@@ -471,6 +474,8 @@ impl TickLoop {
         tracing::info!(scene = %id, solver = self.name, elements = self.runtime.atlas.elements.len(), "tick loop started");
         let mut next = Instant::now();
         let mut published_seqs: Vec<u64> = vec![0; self.seqs.len()];
+        // Since when the solver has had nothing to do (and no transform came).
+        let mut idle_since: Option<Instant> = None;
         let mut last = StepReport {
             completed: false,
             unshot_fraction: 1.0,
@@ -531,7 +536,22 @@ impl TickLoop {
                 .collect();
             // A new (or rebuilt) solver's `radiosity` means nothing before
             // its first complete state: no echo-only version until then.
-            if report.completed || (self.has_state && !reflected.is_empty()) {
+            // Once the solver has been idle for `settle` (no transform in
+            // between) with texels still waiting within the encoder's error
+            // budget, its unchanged lightmap is published once more, which
+            // sends them (the encoder sends everything that differs when
+            // the lightmap holds still): viewers then hold the solver's
+            // lightmap exactly. Waiting first keeps a driver that pauses
+            // between moves from paying for a flush after every move.
+            if moved || !solver.is_idle() {
+                idle_since = None;
+            } else if idle_since.is_none() {
+                idle_since = Some(Instant::now());
+            }
+            let settle = self.has_state
+                && idle_since.is_some_and(|t| t.elapsed() >= self.settle)
+                && self.encoder.pending_texels() > 0;
+            if report.completed || settle || (self.has_state && !reflected.is_empty()) {
                 self.has_state = true;
                 published_seqs = solved.to_vec();
                 let image = self.runtime.atlas.to_image(solver.radiosity());
@@ -615,6 +635,9 @@ mod tests {
         }
         fn reflected(&self) -> &[u64] {
             &[]
+        }
+        fn is_idle(&self) -> bool {
+            false
         }
         fn failure(&self) -> Option<String> {
             self.lost.clone()

@@ -152,9 +152,7 @@ pub async fn run(
                     metrics.bad_frame("unsupported_version");
                     let frame = error_frame(
                         ErrorCode::UnsupportedVersion,
-                        format!(
-                            "this server speaks protocol {PROTOCOL_VERSION}, the client sent {protocol_version}"
-                        ),
+                        lightwire_protocol::version_mismatch(protocol_version),
                     );
                     let _ = sink.send(Message::Binary(frame)).await;
                     close(&mut sink, CLOSE_PROTOCOL, "unsupported protocol version").await;

@@ -38,8 +38,8 @@
 
 use std::path::Path;
 
+use crate::{Pose, SceneInfo};
 use glam::{Quat, Vec3};
-use lightwire_protocol::{Pose, SceneInfo};
 use serde::Deserialize;
 
 /// Why a script was refused: the file and where in it.
