@@ -14,7 +14,7 @@
 //! cornell-low = "incremental"
 //! tick_hz = 60
 //! budget_ms = 8.0
-//! epsilon = 0.0039                    # error budget of the stream (PROTOCOL.md §5)
+//! epsilon = 0.015625                  # error budget of the stream (PROTOCOL.md §5)
 //! settle_ms = 500                     # idle time before waiting texels are sent
 //! density_scale = 1.0
 //! dev_mode = false                    # no tokens: everyone is admin (loud)
@@ -242,7 +242,10 @@ impl Default for Config {
             transforms_per_second: 120.0,
             max_bad_frames: 20,
             hello_timeout_secs: 5.0,
-            epsilon: 1.0 / 256.0,
+            // Measured (BENCHMARKS.md, "Bandwidth"): a 1.6% budget, about
+            // Weber's fraction, brings a rotating box on cornell-large to
+            // 3.5 KB per version.
+            epsilon: 1.0 / 64.0,
             settle_ms: 500.0,
             socket_send_buffer: 256 * 1024,
             solver: SolverChoice::Progressive,
