@@ -862,3 +862,40 @@ async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
         "once settled, the viewers of the server with a budget hold the exact lightmap (texels differing)"
     );
 }
+
+/// PROTOCOL.md §1 and §9: a version 1 client (whole delta tiles) is
+/// refused, told what changed and what to do, and closed with 1002; a
+/// client from the future likewise.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_old_client_is_refused_with_a_message_that_says_why() {
+    let server = Proc::solver("127.0.0.1:0");
+    let url = server.ws_url();
+    wait_ready(&server).await;
+    for (theirs, says) in [
+        (1, "upgrade the client"),
+        (PROTOCOL_VERSION + 1, "newer than this server"),
+    ] {
+        let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .expect("connects");
+        let mut old = Client::unhandshaken(ws);
+        old.send(&ClientMessage::Hello {
+            protocol_version: theirs,
+            client: "lw/old".into(),
+            token: Some(VIEWER_TOKEN.into()),
+            capabilities: 0,
+        })
+        .await;
+        assert_eq!(old.read_to_close(Duration::from_secs(10)).await, Some(1002));
+        assert_eq!(old.errors.len(), 1, "one Error before the close");
+        let (code, message) = &old.errors[0];
+        assert_eq!(*code, ErrorCode::UnsupportedVersion);
+        assert!(
+            message.contains(&format!("speaks protocol {PROTOCOL_VERSION}"))
+                && message.contains(&format!("sent {theirs}"))
+                && message.contains(says),
+            "{message}"
+        );
+        assert!(old.role.is_none(), "never welcomed");
+    }
+}
