@@ -17,6 +17,7 @@ use lightwire_server::gpu::{
 };
 use lightwire_server::metrics::{accuracy, accuracy_where};
 use lightwire_server::scene::{Pose, Scene};
+use lightwire_server::validity::Validity;
 
 /// One device shared by all tests of this binary.
 fn gpu() -> &'static Device {
@@ -537,4 +538,69 @@ fn cross_light_on_a_moved_box_has_no_steps_at_tile_boundaries() {
         }
     }
     assert!(checked > 20, "only {checked} tile boundaries checked");
+}
+
+/// The floor a moved box uncovers gets its light back: texels that were
+/// under the box (invalid, never lit) and are visible after the move hold,
+/// after the redistribution settles, about what a from-scratch solve at the
+/// new pose gives them. Without this they stay black: the dark wedges at
+/// the box's base in a view of cornell-large.
+///
+/// Incremental redistribution holds (measured 95.2% of the light on
+/// average, the darkest texel 88.5%). Cross redistribution does not yet:
+/// its uncovered texels hold 0.0% (not verified why; probably they are
+/// receivers of no batch of a cross move, since the removal reaches only
+/// what the old position's hemicubes saw, and a face resting on the floor
+/// sees nothing of it), so there is no cross variant of this test until
+/// that is fixed (issue 15).
+fn uncovered_texels_get_their_light(method: Redistribution) {
+    let (scene, atlas) = common::load("cornell-large.json", 0.35);
+    let start = scene.initial_poses();
+    let target = box_pose(&scene, 30.0, Vec3::new(0.4, 0.0, -0.3));
+    let before = Validity::compute(&scene, &atlas, &start);
+    let after = Validity::compute(&scene, &atlas, &target);
+    let uncovered: Vec<usize> = (0..atlas.elements.len())
+        .filter(|&i| before.is_invalid(i) && !after.is_invalid(i))
+        .collect();
+    assert!(
+        uncovered.len() > 4,
+        "the move must uncover texels, or this tests nothing ({})",
+        uncovered.len()
+    );
+    let mut d = session(&scene, &atlas, method);
+    settle(&mut d);
+    d.set_poses(&target, &[1]);
+    settle(&mut d);
+    let b = radiosity(&d);
+    let expected = from_scratch(&scene, &atlas, &target);
+    let lum = |v: Vec3| f64::from(v.x + v.y + v.z);
+    let (got, want): (f64, f64) = uncovered
+        .iter()
+        .map(|&i| (lum(b[i]), lum(expected[i])))
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+    let darkest = uncovered
+        .iter()
+        .map(|&i| lum(b[i]) / lum(expected[i]).max(1e-9))
+        .fold(f64::INFINITY, f64::min);
+    eprintln!(
+        "{method}: {} uncovered texels hold {:.1}% of their from-scratch light, darkest {:.1}%",
+        uncovered.len(),
+        100.0 * got / want,
+        100.0 * darkest
+    );
+    assert!(
+        (got / want - 1.0).abs() < 0.1,
+        "{method}: the uncovered texels hold {:.1}% of their from-scratch light",
+        100.0 * got / want
+    );
+    assert!(
+        darkest > 0.5,
+        "{method}: an uncovered texel holds {:.1}% of its light",
+        100.0 * darkest
+    );
+}
+
+#[test]
+fn incremental_lights_the_floor_a_moved_box_uncovers() {
+    uncovered_texels_get_their_light(Redistribution::Incremental);
 }
