@@ -157,56 +157,60 @@ enum BenchCommand {
     /// every version (the script sampled at --rate), then runs the stream
     /// codecs over the recording side by side: bytes per version, encode
     /// and decode time, and the deviation a viewer sees.
-    Codec {
-        /// Scene files, each with a dynamic object; default: the four
-        /// thesis scenes in scenes/.
-        #[arg(long = "scene")]
-        scenes: Vec<PathBuf>,
-        /// Script names, comma-separated: scenes/scripts/<scene>/<name>.json
-        /// if the scene has its own, else scenes/scripts/<name>.json.
-        #[arg(long, value_delimiter = ',', default_value = "rotate,orbit")]
-        scripts: Vec<String>,
-        /// Directory of the scripts.
-        #[arg(long, default_value = "scenes/scripts")]
-        script_dir: PathBuf,
-        /// Versions recorded after the starting pose.
-        #[arg(long, default_value_t = 90)]
-        versions: u32,
-        /// Script samples (versions) per second.
-        #[arg(long, default_value_t = 30.0)]
-        rate: f64,
-        /// How the solver follows moves: full, incremental or cross.
-        #[arg(long, default_value = "cross")]
-        method: String,
-        /// Multiply every texel density by this factor.
-        #[arg(long, default_value_t = 1.0)]
-        density_scale: f32,
-        /// Error budgets of the v2 codec, comma-separated.
-        #[arg(
-            long,
-            value_delimiter = ',',
-            default_value = "0,0.00390625,0.0078125,0.015625,0.03125"
-        )]
-        epsilons: Vec<f32>,
-        /// The v1 codec's epsilon (its default in lightwire serve).
-        #[arg(long, default_value_t = 1.0 / 256.0)]
-        v1_epsilon: f32,
-        /// Tile sizes, comma-separated.
-        #[arg(long, value_delimiter = ',', default_value = "8")]
-        tile_sizes: Vec<u16>,
-        /// zstd levels, comma-separated (1..=22).
-        #[arg(long, value_delimiter = ',', default_value = "3")]
-        levels: Vec<i32>,
-        /// Where recordings are cached.
-        #[arg(long, default_value = "bench-out/codec")]
-        out: PathBuf,
-        /// Also write the results as JSON here.
-        #[arg(long)]
-        json: Option<PathBuf>,
-        /// Use the adapter whose name contains this.
-        #[arg(long)]
-        adapter: Option<String>,
-    },
+    Codec(CodecArgs),
+}
+
+/// `lightwire bench codec`'s arguments.
+#[derive(clap::Args)]
+struct CodecArgs {
+    /// Scene files, each with a dynamic object; default: the four
+    /// thesis scenes in scenes/.
+    #[arg(long = "scene")]
+    scenes: Vec<PathBuf>,
+    /// Script names, comma-separated: scenes/scripts/<scene>/<name>.json
+    /// if the scene has its own, else scenes/scripts/<name>.json.
+    #[arg(long, value_delimiter = ',', default_value = "rotate,orbit")]
+    scripts: Vec<String>,
+    /// Directory of the scripts.
+    #[arg(long, default_value = "scenes/scripts")]
+    script_dir: PathBuf,
+    /// Versions recorded after the starting pose.
+    #[arg(long, default_value_t = 90)]
+    versions: u32,
+    /// Script samples (versions) per second.
+    #[arg(long, default_value_t = 30.0)]
+    rate: f64,
+    /// How the solver follows moves: full, incremental or cross.
+    #[arg(long, default_value = "cross")]
+    method: gpu::Redistribution,
+    /// Multiply every texel density by this factor.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    /// Error budgets of the v2 codec, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,0.00390625,0.0078125,0.015625,0.03125"
+    )]
+    epsilons: Vec<f32>,
+    /// The v1 codec's epsilon (its default in lightwire serve).
+    #[arg(long, default_value_t = 1.0 / 256.0)]
+    v1_epsilon: f32,
+    /// Tile sizes, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "8")]
+    tile_sizes: Vec<u16>,
+    /// zstd levels, comma-separated (1..=22).
+    #[arg(long, value_delimiter = ',', default_value = "3")]
+    levels: Vec<i32>,
+    /// Where recordings are cached.
+    #[arg(long, default_value = "bench-out/codec")]
+    out: PathBuf,
+    /// Also write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Use the adapter whose name contains this.
+    #[arg(long)]
+    adapter: Option<String>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -309,47 +313,8 @@ fn main() -> ExitCode {
             adapter.as_deref(),
         ),
         Command::Bench {
-            what:
-                BenchCommand::Codec {
-                    scenes,
-                    scripts,
-                    script_dir,
-                    versions,
-                    rate,
-                    method,
-                    density_scale,
-                    epsilons,
-                    v1_epsilon,
-                    tile_sizes,
-                    levels,
-                    out,
-                    json,
-                    adapter,
-                },
-        } => gpu::Redistribution::ALL
-            .into_iter()
-            .find(|m| m.name() == method)
-            .with_context(|| format!("--method {method:?}: use full, incremental or cross"))
-            .and_then(|method| {
-                bench_codec_command(
-                    scenes,
-                    &scripts,
-                    &script_dir,
-                    bench::codec::Settings {
-                        versions,
-                        rate,
-                        method,
-                        density_scale,
-                        epsilons,
-                        v1_epsilon,
-                        tile_sizes,
-                        levels,
-                        out,
-                    },
-                    json,
-                    adapter.as_deref(),
-                )
-            }),
+            what: BenchCommand::Codec(args),
+        } => bench_codec_command(args),
         Command::Serve(flags) => serve_command(flags),
         Command::Relay(flags) => relay_command(flags),
     };
@@ -733,14 +698,34 @@ fn bench_dynamic_command(
     Ok(())
 }
 
-fn bench_codec_command(
-    mut scenes: Vec<PathBuf>,
-    scripts: &[String],
-    script_dir: &std::path::Path,
-    settings: bench::codec::Settings,
-    json: Option<PathBuf>,
-    adapter: Option<&str>,
-) -> Result<()> {
+fn bench_codec_command(args: CodecArgs) -> Result<()> {
+    let CodecArgs {
+        mut scenes,
+        scripts,
+        script_dir,
+        versions,
+        rate,
+        method,
+        density_scale,
+        epsilons,
+        v1_epsilon,
+        tile_sizes,
+        levels,
+        out,
+        json,
+        adapter,
+    } = args;
+    let settings = bench::codec::Settings {
+        versions,
+        rate,
+        method,
+        density_scale,
+        epsilons,
+        v1_epsilon,
+        tile_sizes,
+        levels,
+        out,
+    };
     if !(settings.rate.is_finite() && settings.rate > 0.0) {
         anyhow::bail!("--rate {} must be > 0", settings.rate);
     }
@@ -778,8 +763,8 @@ fn bench_codec_command(
             },
         )
         .with_context(|| format!("loading {}", path.display()))?;
-        for name in scripts {
-            let script = bench::codec::script_path(script_dir, &scene.name, name);
+        for name in &scripts {
+            let script = bench::codec::script_path(&script_dir, &scene.name, name);
             if !script.is_file() {
                 anyhow::bail!(
                     "no script {name:?} for {}: {} does not exist",
@@ -790,7 +775,7 @@ fn bench_codec_command(
             plan.push((path.clone(), name.clone(), script));
         }
     }
-    let gpu = gpu::Device::new(adapter)?;
+    let gpu = gpu::Device::new(adapter.as_deref())?;
     eprintln!("adapter: {}", gpu.describe());
     let configs = bench::codec::configs(&settings);
     let mut results = Vec::new();

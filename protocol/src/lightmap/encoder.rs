@@ -11,6 +11,19 @@ use crate::{Delta, Keyframe, ObjectSeq, PixelFormat, Tile};
 /// themselves, so that noise in near-black texels does not resend tiles.
 pub const DEFAULT_EPSILON_FLOOR: f32 = 1.0 / 1024.0;
 
+/// The error budget's measure of one channel: `|target - held| /
+/// max(held, target, floor)` (0 when they are equal, whatever the floor).
+/// A texel is within a budget `epsilon` when this is at most `epsilon` for
+/// every channel.
+pub fn budget_measure(held: f32, target: f32, floor: f32) -> f32 {
+    let d = (target - held).abs();
+    if d == 0.0 {
+        0.0
+    } else {
+        d / held.max(target).max(floor)
+    }
+}
+
 /// Owns the last published quantized state of one lightmap, and the
 /// solver's quantized lightmap it follows.
 ///
@@ -198,7 +211,7 @@ impl Encoder {
         }
         self.target = target;
         let mut tiles = Vec::new();
-        let (mut held, mut goal) = (Vec::new(), Vec::new());
+        let (mut held, mut goal, mut next) = (Vec::new(), Vec::new(), Vec::new());
         let mut pending = 0;
         for index in 0..self.current.tile_count() {
             let rect = self.current.tile_rect(index).expect("index in range");
@@ -208,7 +221,8 @@ impl Encoder {
             read_rect(&self.target, w, bpt, rect, &mut goal);
             // Sent: texels over the budget; once the whole lightmap holds
             // still, every texel that differs.
-            let mut next = held.clone();
+            next.clear();
+            next.extend_from_slice(&held);
             let mut sent = false;
             for t in (0..held.len()).step_by(bpt) {
                 let (a, b) = (&held[t..t + bpt], &goal[t..t + bpt]);
@@ -252,14 +266,7 @@ impl Encoder {
             dequantize(self.current.format, new),
         );
         (0..3)
-            .map(|i| {
-                let d = (b[i] - a[i]).abs();
-                if d == 0.0 {
-                    0.0
-                } else {
-                    d / a[i].max(b[i]).max(self.floor)
-                }
-            })
+            .map(|i| budget_measure(a[i], b[i], self.floor))
             .fold(0.0, f32::max)
     }
 

@@ -23,7 +23,7 @@ pub mod residual;
 mod rgb9e5;
 mod texel;
 
-pub use encoder::{DEFAULT_EPSILON_FLOOR, Encoder};
+pub use encoder::{DEFAULT_EPSILON_FLOOR, Encoder, budget_measure};
 pub use merge::merge;
 pub use rgb9e5::{RGB9E5_MAX, rgb9e5_decode, rgb9e5_encode};
 pub use texel::{dequantize, max_value, quantize_into};

@@ -33,7 +33,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use lightwire_protocol::lightmap::{Encoder, Lightmap, dequantize, quantize_into};
+use lightwire_protocol::lightmap::{Encoder, Lightmap, budget_measure, dequantize, quantize_into};
 use lightwire_protocol::script::Script;
 use lightwire_protocol::{
     Keyframe, PixelFormat, ServerMessage, Tile, decode_server, encode_server,
@@ -331,14 +331,9 @@ fn quantize(rgb: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
-/// The budget measure of one channel pair.
+/// The budget measure of one channel pair, in f64 for the sums.
 fn measure(a: f32, b: f32, floor: f32) -> f64 {
-    let d = (a - b).abs();
-    if d == 0.0 {
-        0.0
-    } else {
-        f64::from(d / a.max(b).max(floor))
-    }
+    f64::from(budget_measure(a, b, floor))
 }
 
 /// Protocol version 1's encoder, which this codec replaced: a tile is sent
