@@ -2,8 +2,13 @@
 //!
 //! ```text
 //! cargo run --release -p lightwire-server --example accuracy_by_surface -- \
-//!     scenes/cornell-blocks.json [--density-scale 0.5] [--direct] [--gather]
+//!     scenes/cornell-blocks.json [--density-scale 0.5] [--direct] [--gather] \
+//!     [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]...
 //! ```
+//!
+//! `--close` adds a white front wall (cornell-blocks' open side, z = 5.592)
+//! so that no light escapes: a shot should then deliver all of its power,
+//! and `energy:` shows how much each shot loses.
 //!
 //! Solves the scene with the reference solver and with the progressive (or,
 //! with `--gather`, the gather) GPU solver, then prints the metric of
@@ -33,7 +38,8 @@ use lightwire_server::validity::Validity;
 
 fn main() -> Result<()> {
     let mut scene_path = None;
-    let (mut density, mut direct, mut gather) = (1.0f32, false, false);
+    let (mut density, mut direct, mut gather, mut close) = (1.0f32, false, false, false);
+    let mut gpu_options = gpu::ProgressiveOptions::default();
     let mut dump: Vec<String> = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
@@ -43,6 +49,17 @@ fn main() -> Result<()> {
                 density = v.parse().with_context(|| format!("--density-scale {v}"))?;
             }
             "--direct" => direct = true,
+            "--close" => close = true,
+            "--max-shooters" => {
+                let v = args.next().context("--max-shooters needs a number")?;
+                gpu_options.max_shooters =
+                    v.parse().with_context(|| format!("--max-shooters {v}"))?;
+            }
+            "--resolution" => {
+                let v = args.next().context("--resolution needs a number")?;
+                gpu_options.hemicube_resolution =
+                    v.parse().with_context(|| format!("--resolution {v}"))?;
+            }
             "--dump" => dump.push(args.next().context("--dump needs a surface name")?),
             "--gather" => gather = true,
             flag if flag.starts_with("--") => bail!("unknown option {flag}"),
@@ -50,14 +67,26 @@ fn main() -> Result<()> {
         }
     }
     let path = scene_path.context(
-        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather] [--dump SURFACE]...",
+        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather] [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]...",
     )?;
-    let scene = Scene::load_with(
-        &path,
-        LoadOptions {
-            density_scale: density,
-        },
-    )?;
+    let options = LoadOptions {
+        density_scale: density,
+    };
+    let scene = if close {
+        let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+        let mut json: serde_json::Value = serde_json::from_str(&text)?;
+        json["surfaces"]
+            .as_array_mut()
+            .context("the scene has no surfaces array")?
+            .push(serde_json::json!({
+                "name": "front",
+                "material": "white",
+                "quad": { "origin": [0, 0, 5.592], "u": [0, 5.488, 0], "v": [5.56, 0, 0] }
+            }));
+        Scene::parse_with(&json.to_string(), &path.display().to_string(), options)?
+    } else {
+        Scene::load_with(&path, options)?
+    };
     let atlas = Atlas::build(&scene).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let poses = scene.initial_poses();
     let validity = Validity::compute(&scene, &atlas, &poses);
@@ -86,18 +115,18 @@ fn main() -> Result<()> {
         solver.solve(1e-4)?;
         solver.radiosity()?
     } else {
-        let mut solver = gpu::ProgressiveSolver::new(
-            &device,
-            &scene,
-            &atlas,
-            &poses,
-            gpu::ProgressiveOptions::default(),
-        )?;
+        let mut solver = gpu::ProgressiveSolver::new(&device, &scene, &atlas, &poses, gpu_options)?;
+        let started = std::time::Instant::now();
         if direct {
             solver.step(std::time::Duration::ZERO)?;
         } else {
             solver.solve(1e-4)?;
         }
+        println!(
+            "progressive: {:.3} s, {} shots",
+            started.elapsed().as_secs_f64(),
+            solver.total_shots()
+        );
         let balance = solver.energy_balance()?;
         println!(
             "energy: shot {:.3} W, received {:.3} W ({:.4} of shot)",

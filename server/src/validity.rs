@@ -72,7 +72,7 @@ impl Validity {
     /// Re-tests, at `poses`, the elements whose world sample lies within
     /// `margin` of the world bounds of `objects` at `poses` or at `old`
     /// (the poses the current mask was computed at), and every element of
-    /// those objects. Returns how many elements changed state.
+    /// those objects. Returns the elements it re-tested, in order.
     pub fn update_near(
         &mut self,
         scene: &Scene,
@@ -80,7 +80,7 @@ impl Validity {
         (old, poses): (&[Pose], &[Pose]),
         objects: &[u32],
         margin: f32,
-    ) -> usize {
+    ) -> Vec<usize> {
         let boxes: Vec<(Vec3, Vec3)> = objects
             .iter()
             .flat_map(|&o| {
@@ -105,23 +105,19 @@ impl Validity {
             })
             .collect();
         if near.is_empty() {
-            return 0;
+            return near;
         }
         let caster = Raycaster::new(scene, poses);
         let extent = extent(&caster);
         use rayon::prelude::*;
-        let tested: Vec<(usize, bool)> = near
-            .into_par_iter()
-            .map(|i| (i, encloses(&caster, scene, atlas, poses, i, extent)))
+        let tested: Vec<bool> = near
+            .par_iter()
+            .map(|&i| encloses(&caster, scene, atlas, poses, i, extent))
             .collect();
-        let mut changed = 0;
-        for (i, invalid) in tested {
-            if self.invalid[i] != invalid {
-                self.invalid[i] = invalid;
-                changed += 1;
-            }
+        for (&i, invalid) in near.iter().zip(tested) {
+            self.invalid[i] = invalid;
         }
-        changed
+        near
     }
 
     /// Whether element `i` is invalid.
@@ -323,8 +319,13 @@ mod tests {
         // Lift the box off the floor: the texels under it become valid.
         let old = poses.clone();
         poses[1].translation.y = 1.0;
-        let changed = v.update_near(&scene, &atlas, (&old, &poses), &[1], 0.1);
-        assert!(changed > 0);
+        let before = v.clone();
+        let tested = v.update_near(&scene, &atlas, (&old, &poses), &[1], 0.1);
+        assert!(
+            tested.contains(&under),
+            "the texel under the box is re-tested"
+        );
+        assert_ne!(v, before, "lifting the box changes validity");
         assert!(!v.is_invalid(under), "the floor once the box is lifted");
         assert_eq!(
             v,

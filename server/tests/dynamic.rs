@@ -60,24 +60,29 @@ fn from_scratch_with(
 /// Issue 15 asks for 2%. Measured on 2026-12-01 with the visibility and
 /// contact changes of that day (lavapipe): incremental 3.21%, cross 11.04%
 /// (cross is first-order for the moving object, thesis §4.5.2; under the
-/// old all-texel metric it read 1.44%). The bounds hold the measured values
-/// with a margin until the methods are fixed; they are not the target.
+/// old all-texel metric it read 1.44%). Measured on 2026-12-02 with
+/// shooter tiles split at contacts and the texels near a cross move
+/// gathered again: cross 5.00% (incremental does not split tiles, see
+/// `ProgressiveOptions::split_contacts`; with the split it read 1.52%). The
+/// bounds hold the measured values with a margin until the methods are
+/// fixed; they are not the target.
 fn after_move_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.04,
-        Redistribution::Cross => 0.12,
+        Redistribution::Cross => 0.06,
         Redistribution::Full => 0.02,
     }
 }
 
 /// The same, at the checkpoints of 1,000 moves (measured on 2026-12-01:
 /// incremental 6.32% at move 99, cross 13.34% at move 99 and 15.58% at
-/// move 499). That error must not grow
+/// move 499; on 2026-12-02, with the changes above, the worst cross
+/// checkpoint 8.22%). That error must not grow
 /// with the number of moves is asserted separately (`last <= first + ...`).
 fn drift_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.08,
-        Redistribution::Cross => 0.18,
+        Redistribution::Cross => 0.10,
         Redistribution::Full => 0.02,
     }
 }
@@ -543,16 +548,16 @@ fn cross_light_on_a_moved_box_has_no_steps_at_tile_boundaries() {
 /// The floor a moved box uncovers gets its light back: texels that were
 /// under the box (invalid, never lit) and are visible after the move hold,
 /// after the redistribution settles, about what a from-scratch solve at the
-/// new pose gives them. Without this they stay black: the dark wedges at
-/// the box's base in a view of cornell-large.
+/// new pose gives them (within 10% on average, none below half). Without
+/// this they stay black: the dark wedges at the box's base in a view of
+/// cornell-large.
 ///
-/// Incremental redistribution holds (measured 95.2% of the light on
-/// average, the darkest texel 88.5%). Cross redistribution does not yet:
-/// its uncovered texels hold 0.0% (not verified why; probably they are
-/// receivers of no batch of a cross move, since the removal reaches only
-/// what the old position's hemicubes saw, and a face resting on the floor
-/// sees nothing of it), so there is no cross variant of this test until
-/// that is fixed (issue 15).
+/// Incremental redistribution reaches them by reshooting (measured 95.2%
+/// of the light on average, the darkest texel 88.5%). Cross redistribution
+/// did not (0.0%: the removal reaches only what the old position's
+/// hemicubes saw); the texels near a cross move now gather when it
+/// completes (`gpu/progressive/regather.rs`; measured 93.2%, darkest
+/// 87.7%).
 fn uncovered_texels_get_their_light(method: Redistribution) {
     let (scene, atlas) = common::load("cornell-large.json", 0.35);
     let start = scene.initial_poses();
@@ -603,4 +608,9 @@ fn uncovered_texels_get_their_light(method: Redistribution) {
 #[test]
 fn incremental_lights_the_floor_a_moved_box_uncovers() {
     uncovered_texels_get_their_light(Redistribution::Incremental);
+}
+
+#[test]
+fn cross_lights_the_floor_a_moved_box_uncovers() {
+    uncovered_texels_get_their_light(Redistribution::Cross);
 }

@@ -114,11 +114,12 @@ fn plates_implied_form_factor_within_two_percent_of_0_19982() {
 /// On the large Cornell box (at a test density), the progressive solver
 /// agrees with the independent CPU reference solver: NRMSE
 /// ([`lightwire_server::metrics::accuracy`]: area-weighted, over the
-/// visible non-emitting elements) at most 4%. Issue 15 asks for 1%;
+/// visible non-emitting elements) at most 3%. Issue 15 asks for 1%;
 /// measured 3.56% on 2026-12-01 (under the old all-texel metric this read
-/// 0.83%). The bound guards what is reached, it is not the target.
+/// 0.83%), 2.61% on 2026-12-02 with shooter tiles split at contacts. The
+/// bound guards what is reached, it is not the target.
 #[test]
-fn cornell_large_nrmse_against_reference_at_most_four_percent() {
+fn cornell_large_nrmse_against_reference_at_most_three_percent() {
     let (scene, atlas) = common::load("cornell-large.json", 0.35);
     let reference = ReferenceSolver::new(&scene, &atlas, &scene.initial_poses(), &Silent)
         .unwrap_or_else(|e| panic!("{e}"));
@@ -132,7 +133,7 @@ fn cornell_large_nrmse_against_reference_at_most_four_percent() {
         atlas.elements.len(),
         report.shots
     );
-    assert!(error.nrmse <= 0.04, "{error}");
+    assert!(error.nrmse <= 0.03, "{error}");
 }
 
 /// Energy conservation in an open scene: the unshot power only ever

@@ -137,8 +137,12 @@ impl DynamicSolver {
         scene: &Scene,
         atlas: &Atlas,
         poses: &[Pose],
-        options: DynamicOptions,
+        mut options: DynamicOptions,
     ) -> Result<Self, GpuError> {
+        if options.method == Redistribution::Incremental {
+            // See `ProgressiveOptions::split_contacts`.
+            options.progressive.split_contacts = false;
+        }
         let dynamic: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
         let (solver, phase) = match options.method {
             Redistribution::Cross => (

@@ -615,6 +615,14 @@ impl ProgressiveSolver {
                 encoder = self.device.create_command_encoder(&Default::default());
             }
             self.write_flags(&[]);
+            if mv.method == Redistribution::Cross {
+                // Before the next shooter is chosen: what the texels near
+                // the move now reflect is unshot.
+                self.regather(&mv.moving)?;
+            } else {
+                // Incremental reshooting reaches them (tests/dynamic.rs).
+                self.regather.clear();
+            }
             self.encode_selection(&mut encoder);
             self.queue.submit([encoder.finish()]);
             self.selection = self.read_selection()?;
@@ -656,7 +664,8 @@ impl ProgressiveSolver {
             Job::Negative { patch, shooters } => {
                 let wp = old_patches[patch as usize];
                 let grid = self.shooter_grid_for_count(&wp, shooters);
-                let list = self.tile_shooters(patch, &wp, &old_areas, grid);
+                let list =
+                    self.tile_shooters(patch, &wp, &old_areas, grid, self.job_split_limit(grid));
                 let n = list.len() as u32;
                 self.upload(&list, self.batch_uniform(patch, n, 0, KIND_NEGATIVE));
                 let d = self.dynamic.as_ref().expect("built in begin_move");
@@ -671,7 +680,8 @@ impl ProgressiveSolver {
             Job::Static { patch, shooters } => {
                 let wp = self.patches[patch as usize];
                 let grid = self.shooter_grid_for_count(&wp, shooters);
-                let mut list = self.tile_shooters(patch, &wp, &self.areas, grid);
+                let mut list =
+                    self.tile_shooters(patch, &wp, &self.areas, grid, self.job_split_limit(grid));
                 let n = list.len() as u32;
                 list.extend_from_within(..);
                 self.upload(&list, self.batch_uniform(patch, n, n, KIND_STATIC));
@@ -766,6 +776,17 @@ impl ProgressiveSolver {
         }
         self.queue.submit([encoder.finish()]);
         Ok(())
+    }
+
+    /// Most tiles a redistribution job's grid may be split into at
+    /// contacts: one and a half times the grid within the half of the
+    /// batch a job gets, or the grid itself without `split_contacts`.
+    fn job_split_limit(&self, grid: (u32, u32)) -> usize {
+        if self.options.split_contacts {
+            super::contact_limit(grid, self.batch_capacity / 2)
+        } else {
+            (grid.0 * grid.1) as usize
+        }
     }
 
     /// A grid of about `count` shooters over a patch.

@@ -1,0 +1,204 @@
+//! The static elements next to a moved object gather their light again
+//! when a cross move completes (issue 15, item 4: a box put down on the
+//! floor, then moved away).
+//!
+//! Two things go wrong there without it. While an element is invalid
+//! (inside or under geometry, `crate::validity`) it receives nothing, and
+//! cross redistribution carries only the change the moved set makes to
+//! light that was already shot (thesis §3.3): the floor a box stood on
+//! stays black once the box moves away (the dark wedges at a box's base),
+//! and the removal of the box's old light even takes from it light it never
+//! got (measured -2 to -6 W/m² on cornell-low's floor, where the light is
+//! about 1). And the texels at a contact receive the largest, most
+//! sensitive part of the moved object's light (their form factor to its
+//! bottom row is large), so what one move gives and the next takes back
+//! there does not cancel: a floor texel beside the box grew from 1.0 to 4.8
+//! in 100 small moves (expected 1.4).
+//!
+//! So when a cross move completes, every static element whose validity was
+//! re-tested (those within a texel of the moved objects' bounds, before
+//! and after the move) and that is valid gathers: `B = E + ρ H`, `H`
+//! estimated on the CPU from the current radiosity ([`gather`]). The
+//! change of `B` is added to the element's unshot radiosity as well, as
+//! every change of `B` is in progressive refinement (thesis §2.2.5): what
+//! the element passes on always matches what it holds, whatever the moves
+//! handed it before.
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::super::device::GpuError;
+use super::ProgressiveSolver;
+use crate::atlas::Atlas;
+use crate::raycast::Raycaster;
+use crate::scene::{Pose, Scene};
+
+/// Cosine-distributed rays per gathering element, as a `SIDE` x `SIDE`
+/// stratified grid.
+const SIDE: usize = 16;
+/// Samples per emitting patch for next-event estimation, `GRID` x `GRID`.
+const GRID: usize = 8;
+
+impl ProgressiveSolver {
+    /// Gathers the light of the valid elements re-tested since the last
+    /// cross move completed (see the module documentation), except those
+    /// of the objects flagged in `moving`: cross redistribution relights
+    /// those itself and keeps its own account of what they shot. Call
+    /// while no batch is pending, before the next shooter is selected.
+    pub(super) fn regather(&mut self, moving: &[bool]) -> Result<(), GpuError> {
+        let mut elements = std::mem::take(&mut self.regather);
+        elements.sort_unstable();
+        elements.dedup();
+        elements.retain(|&i| {
+            let object = self.element_objects[i] as usize;
+            !self.validity.is_invalid(i) && !moving.get(object).copied().unwrap_or(false)
+        });
+        if elements.is_empty() {
+            return Ok(());
+        }
+        let radiosity = self.read_vec4(&self.radiosity)?;
+        let unshot = self.read_vec4(&self.buffers.unshot)?;
+        let lit = gather(&self.scene, &self.atlas, &self.poses, &radiosity, &elements);
+        for (&i, b) in elements.iter().zip(lit) {
+            let (old, u) = (radiosity[i], unshot[i]);
+            let delta = b - Vec3::new(old[0], old[1], old[2]);
+            let offset = i as u64 * 16;
+            self.queue.write_buffer(
+                &self.radiosity,
+                offset,
+                bytemuck::bytes_of(&[b.x, b.y, b.z, old[3]]),
+            );
+            self.queue.write_buffer(
+                &self.buffers.unshot,
+                offset,
+                bytemuck::bytes_of(&[u[0] + delta.x, u[1] + delta.y, u[2] + delta.z, u[3]]),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// `B = E + ρ H` of each element of `elements`, `H` the radiosity it sees
+/// over its hemisphere in `radiosity` (one RGBA value per element), against
+/// the scene at `poses`: emitters by next-event estimation (`GRID`² samples
+/// per emitting patch, a shadow ray each), everything else by `SIDE`²
+/// stratified cosine-distributed rays (Malley's method), each reading the
+/// element nearest to the point it hits; a back face gives nothing.
+fn gather(
+    scene: &Scene,
+    atlas: &Atlas,
+    poses: &[Pose],
+    radiosity: &[[f32; 4]],
+    elements: &[usize],
+) -> Vec<Vec3> {
+    let caster = Raycaster::new(scene, poses);
+    let extent = caster
+        .patches()
+        .iter()
+        .flat_map(|p| [p.origin, p.origin + p.u + p.v])
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(c), hi.max(c))
+        });
+    let offset = 1e-5 * (extent.1 - extent.0).length().max(1e-3);
+    let emits = |p: u32| {
+        let m = &scene.materials[scene.patches[p as usize].material as usize];
+        m.emission.max_element() > 0.0
+    };
+    let emitters: Vec<u32> = (0..scene.patches.len() as u32)
+        .filter(|&p| emits(p))
+        .collect();
+    let value = |j: usize| {
+        let b = radiosity[j];
+        Vec3::new(b[0], b[1], b[2])
+    };
+    elements
+        .par_iter()
+        .map(|&i| {
+            let e = &atlas.elements[i];
+            let pose = &poses[e.object as usize];
+            let n = pose.transform_normal(e.normal).as_dvec3();
+            let x = pose.transform_point(e.position).as_dvec3() + n * offset;
+            let t1 = n.any_orthonormal_vector();
+            let t2 = n.cross(t1);
+            let mut h = Vec3::ZERO;
+            for j in 0..SIDE {
+                for k in 0..SIDE {
+                    let u1 = (j as f64 + 0.5) / SIDE as f64;
+                    let phi = std::f64::consts::TAU * (k as f64 + 0.5) / SIDE as f64;
+                    let r = u1.sqrt();
+                    let d = t1 * (r * phi.cos())
+                        + t2 * (r * phi.sin())
+                        + n * (1.0 - u1).max(0.0).sqrt();
+                    let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
+                        continue;
+                    };
+                    // Emitters are sampled on their own below.
+                    if !hit.front || emits(hit.patch) {
+                        continue;
+                    }
+                    if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
+                        h += value(j);
+                    }
+                }
+            }
+            h /= (SIDE * SIDE) as f32;
+            for &p in &emitters {
+                let wp = &caster.patches()[p as usize];
+                for a in 0..GRID {
+                    for b in 0..GRID {
+                        let y = wp.origin
+                            + wp.u * ((a as f64 + 0.5) / GRID as f64)
+                            + wp.v * ((b as f64 + 0.5) / GRID as f64);
+                        let to = y - x;
+                        let r2 = to.length_squared();
+                        if r2 <= 0.0 {
+                            continue;
+                        }
+                        let dir = to / r2.sqrt();
+                        let (cos_x, cos_y) = (n.dot(dir), -wp.normal.dot(dir));
+                        if cos_x <= 0.0 || cos_y <= 0.0 {
+                            continue;
+                        }
+                        let blocked = caster
+                            .closest_hit(x, dir, r2.sqrt() * (1.0 - 1e-6))
+                            .is_some_and(|hit| hit.patch != p);
+                        if blocked {
+                            continue;
+                        }
+                        if let Some(j) = element_at(&caster, atlas, p, y) {
+                            let w = cos_x * cos_y / (std::f64::consts::PI * r2) * wp.area
+                                / (GRID * GRID) as f64;
+                            h += value(j) * w as f32;
+                        }
+                    }
+                }
+            }
+            let material = &scene.materials[scene.patches[e.patch as usize].material as usize];
+            material.emission + material.albedo * h
+        })
+        .collect()
+}
+
+/// The element of `patch` nearest to the world point `x` on it.
+fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Option<usize> {
+    let wp = caster.patches().get(patch as usize)?;
+    let d = x - wp.origin;
+    let (uu, uv, vv) = (wp.u.dot(wp.u), wp.u.dot(wp.v), wp.v.dot(wp.v));
+    let det = uu * vv - uv * uv;
+    if det <= 0.0 {
+        return None;
+    }
+    let (du, dv) = (d.dot(wp.u), d.dot(wp.v));
+    let s = ((du * vv - dv * uv) / det).clamp(0.0, 1.0);
+    let t = ((dv * uu - du * uv) / det).clamp(0.0, 1.0);
+    let chart = atlas.charts.get(patch as usize)?;
+    let c = (s * f64::from(chart.w.saturating_sub(1))).round() as u32;
+    let r = (t * f64::from(chart.h.saturating_sub(1))).round() as u32;
+    let range = atlas.elements_of(patch);
+    let texel = [chart.x + c, chart.y + r];
+    let guess = range.start + (r * chart.w + c) as usize;
+    if range.contains(&guess) && atlas.elements[guess].texel == texel {
+        return Some(guess);
+    }
+    range.clone().find(|&e| atlas.elements[e].texel == texel)
+}
