@@ -699,33 +699,25 @@ fn bench_dynamic_command(
 }
 
 fn bench_codec_command(args: CodecArgs) -> Result<()> {
+    let settings = bench::codec::Settings {
+        versions: args.versions,
+        rate: args.rate,
+        method: args.method,
+        density_scale: args.density_scale,
+        epsilons: args.epsilons,
+        v1_epsilon: args.v1_epsilon,
+        tile_sizes: args.tile_sizes,
+        levels: args.levels,
+        out: args.out,
+    };
     let CodecArgs {
         mut scenes,
         scripts,
         script_dir,
-        versions,
-        rate,
-        method,
-        density_scale,
-        epsilons,
-        v1_epsilon,
-        tile_sizes,
-        levels,
-        out,
         json,
         adapter,
+        ..
     } = args;
-    let settings = bench::codec::Settings {
-        versions,
-        rate,
-        method,
-        density_scale,
-        epsilons,
-        v1_epsilon,
-        tile_sizes,
-        levels,
-        out,
-    };
     if !(settings.rate.is_finite() && settings.rate > 0.0) {
         anyhow::bail!("--rate {} must be > 0", settings.rate);
     }

@@ -226,6 +226,23 @@ impl Raycaster {
         &self.patches
     }
 
+    /// The diagonal of the scene's bounds, for scale-relative offsets.
+    pub fn extent(&self) -> f64 {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for p in &self.patches {
+            for c in [
+                p.origin,
+                p.origin + p.u,
+                p.origin + p.v,
+                p.origin + p.u + p.v,
+            ] {
+                lo = lo.min(c);
+                hi = hi.max(c);
+            }
+        }
+        (hi - lo).length().max(1e-9)
+    }
+
     /// The first patch the ray `origin + t dir`, `0 < t < t_max`, hits.
     /// `dir` must be a unit vector (distances are ray parameters).
     pub fn closest_hit(&self, origin: DVec3, dir: DVec3, t_max: f64) -> Option<Hit> {
@@ -429,6 +446,25 @@ fn build(bounds: &[Aabb], ids: &mut [u32], first: usize, nodes: &mut Vec<Node>) 
     let r = build(bounds, right, first + mid, nodes);
     nodes[index as usize].right = r;
     index
+}
+
+/// `side`² cosine-distributed directions over the hemisphere of unit normal
+/// `n`, stratified: cell `(j, k)` of a uniform grid on the unit disk lifted
+/// to the hemisphere (Malley's method).
+pub fn cosine_grid(n: DVec3, side: usize) -> impl Iterator<Item = DVec3> {
+    let t1 = n.any_orthonormal_vector();
+    let t2 = n.cross(t1);
+    (0..side).flat_map(move |j| {
+        (0..side).map(move |k| {
+            let (u1, u2) = (
+                (j as f64 + 0.5) / side as f64,
+                (k as f64 + 0.5) / side as f64,
+            );
+            let r = u1.sqrt();
+            let phi = std::f64::consts::TAU * u2;
+            t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()
+        })
+    })
 }
 
 #[cfg(test)]

@@ -28,7 +28,7 @@
 //! poses, so a box put down on the floor invalidates the texels under it
 //! and a box moved away gives them back.
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 
 use crate::atlas::Atlas;
 use crate::raycast::Raycaster;
@@ -60,7 +60,7 @@ impl Validity {
     /// Tests every element of `atlas` with the scene at `poses`.
     pub fn compute(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> Self {
         let caster = Raycaster::new(scene, poses);
-        let extent = extent(&caster);
+        let extent = caster.extent();
         use rayon::prelude::*;
         let invalid = (0..atlas.elements.len())
             .into_par_iter()
@@ -108,7 +108,7 @@ impl Validity {
             return near;
         }
         let caster = Raycaster::new(scene, poses);
-        let extent = extent(&caster);
+        let extent = caster.extent();
         use rayon::prelude::*;
         let tested: Vec<bool> = near
             .par_iter()
@@ -193,23 +193,6 @@ impl Validity {
     }
 }
 
-/// The diagonal of the scene's bounds, for scale-relative offsets.
-fn extent(caster: &Raycaster) -> f64 {
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for p in caster.patches() {
-        for c in [
-            p.origin,
-            p.origin + p.u,
-            p.origin + p.v,
-            p.origin + p.u + p.v,
-        ] {
-            lo = lo.min(c);
-            hi = hi.max(c);
-        }
-    }
-    (hi - lo).length().max(1e-9)
-}
-
 /// World bounds of object `object`'s patches at `pose` (`None` if it has
 /// none).
 fn bounds(scene: &Scene, object: u32, pose: &Pose) -> Option<(Vec3, Vec3)> {
@@ -245,28 +228,14 @@ fn encloses(
     };
     let inward = (centre - x).normalize_or_zero();
     let origin = x + (n + inward) * (OFFSET * extent);
-    let t1 = n.any_orthonormal_vector();
-    let t2 = n.cross(t1);
     let side = (RAYS as f64).sqrt() as usize;
-    let mut back = 0usize;
-    for j in 0..side {
-        for k in 0..side {
-            // Stratified Malley's method: a uniform disk point lifted to
-            // the hemisphere is cosine distributed.
-            let (u1, u2) = (
-                (j as f64 + 0.5) / side as f64,
-                (k as f64 + 0.5) / side as f64,
-            );
-            let r = u1.sqrt();
-            let phi = std::f64::consts::TAU * u2;
-            let d = t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt();
-            if let Some(hit) = caster.closest_hit(origin, d, f64::INFINITY) {
-                if !hit.front {
-                    back += 1;
-                }
-            }
-        }
-    }
+    let back = crate::raycast::cosine_grid(n, side)
+        .filter(|&d| {
+            caster
+                .closest_hit(origin, d, f64::INFINITY)
+                .is_some_and(|hit| !hit.front)
+        })
+        .count();
     back as f64 > BACK_FACE_LIMIT * (side * side) as f64
 }
 

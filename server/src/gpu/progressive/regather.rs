@@ -30,11 +30,11 @@ use rayon::prelude::*;
 use super::super::device::GpuError;
 use super::ProgressiveSolver;
 use crate::atlas::Atlas;
-use crate::raycast::Raycaster;
+use crate::raycast::{Raycaster, cosine_grid};
 use crate::scene::{Pose, Scene};
 
 /// Cosine-distributed rays per gathering element, as a `SIDE` x `SIDE`
-/// stratified grid.
+/// stratified grid (`raycast::cosine_grid`).
 const SIDE: usize = 16;
 /// Samples per emitting patch for next-event estimation, `GRID` x `GRID`.
 const GRID: usize = 8;
@@ -92,14 +92,7 @@ fn gather(
     elements: &[usize],
 ) -> Vec<Vec3> {
     let caster = Raycaster::new(scene, poses);
-    let extent = caster
-        .patches()
-        .iter()
-        .flat_map(|p| [p.origin, p.origin + p.u + p.v])
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), c| {
-            (lo.min(c), hi.max(c))
-        });
-    let offset = 1e-5 * (extent.1 - extent.0).length().max(1e-3);
+    let offset = 1e-5 * caster.extent();
     let emits = |p: u32| {
         let m = &scene.materials[scene.patches[p as usize].material as usize];
         m.emission.max_element() > 0.0
@@ -118,27 +111,17 @@ fn gather(
             let pose = &poses[e.object as usize];
             let n = pose.transform_normal(e.normal).as_dvec3();
             let x = pose.transform_point(e.position).as_dvec3() + n * offset;
-            let t1 = n.any_orthonormal_vector();
-            let t2 = n.cross(t1);
             let mut h = Vec3::ZERO;
-            for j in 0..SIDE {
-                for k in 0..SIDE {
-                    let u1 = (j as f64 + 0.5) / SIDE as f64;
-                    let phi = std::f64::consts::TAU * (k as f64 + 0.5) / SIDE as f64;
-                    let r = u1.sqrt();
-                    let d = t1 * (r * phi.cos())
-                        + t2 * (r * phi.sin())
-                        + n * (1.0 - u1).max(0.0).sqrt();
-                    let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
-                        continue;
-                    };
-                    // Emitters are sampled on their own below.
-                    if !hit.front || emits(hit.patch) {
-                        continue;
-                    }
-                    if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
-                        h += value(j);
-                    }
+            for d in cosine_grid(n, SIDE) {
+                let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
+                    continue;
+                };
+                // Emitters are sampled on their own below.
+                if !hit.front || emits(hit.patch) {
+                    continue;
+                }
+                if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
+                    h += value(j);
                 }
             }
             h /= (SIDE * SIDE) as f32;
@@ -194,11 +177,6 @@ fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Option
     let chart = atlas.charts.get(patch as usize)?;
     let c = (s * f64::from(chart.w.saturating_sub(1))).round() as u32;
     let r = (t * f64::from(chart.h.saturating_sub(1))).round() as u32;
-    let range = atlas.elements_of(patch);
-    let texel = [chart.x + c, chart.y + r];
-    let guess = range.start + (r * chart.w + c) as usize;
-    if range.contains(&guess) && atlas.elements[guess].texel == texel {
-        return Some(guess);
-    }
-    range.clone().find(|&e| atlas.elements[e].texel == texel)
+    let e = atlas.element_at(chart.x + c, chart.y + r)? as usize;
+    (atlas.elements[e].patch == patch).then_some(e)
 }
