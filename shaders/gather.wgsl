@@ -50,6 +50,9 @@ struct GatherElement {
     emission: vec4<f32>,
     // rgb: albedo ρ.
     albedo: vec4<f32>,
+    // rgb: irradiance D from the emission of the emitters, integrated on
+    // the CPU by next-event estimation (server/src/direct.rs).
+    direct: vec4<f32>,
 };
 
 @group(0) @binding(0) var<storage, read> vertices: array<GatherVertex>;
@@ -67,7 +70,8 @@ struct GatherElement {
 @group(0) @binding(8) var<storage, read> elements: array<GatherElement>;
 // Per element: A_i Σ_channels |B_i(new) - B_i(old)|.
 @group(0) @binding(9) var<storage, read_write> change: array<f32>;
-// Per element: the gathered irradiance H_i = Σ ΔF_p B_p (for bookkeeping).
+// Per element: the gathered irradiance H_i = D_i + Σ ΔF_p (B_p - E_p) (for
+// bookkeeping).
 @group(0) @binding(10) var<storage, read_write> irradiance: array<vec4<f32>>;
 // x: Σ change over all elements.
 @group(0) @binding(11) var<storage, read_write> totals: vec4<f32>;
@@ -101,9 +105,11 @@ fn vs_gather(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
     return out;
 }
 
-// The radiosity a pixel shows: that of the element of the seen patch
-// nearest to the fragment on the patch's chart (texel centres lie on the
-// patch edges, thesis §4.1; the same lookup as `fs_rad` in hemicube.wgsl).
+// The radiosity a pixel shows: the reflected part B - E of the element of
+// the seen patch nearest to the fragment on the patch's chart (texel
+// centres lie on the patch edges, thesis §4.1; the same lookup as `fs_rad`
+// in hemicube.wgsl). The emission reaches receivers through
+// `GatherElement::direct` instead: a few pixels of a small light alias.
 // The back of a surface occludes but leaves no light (radiosity leaves a
 // patch on its normal's side only).
 @fragment
@@ -115,15 +121,17 @@ fn fs_gather(in: HemicubeOut) -> @location(0) vec4<f32> {
     let st = clamp(in.st, vec2<f32>(0.0), vec2<f32>(1.0));
     let a = u32(round(st.x * f32(p.w - 1u)));
     let b = u32(round(st.y * f32(p.h - 1u)));
-    return vec4<f32>(radiosity[p.first + b * p.w + a].rgb, 1.0);
+    let k = p.first + b * p.w + a;
+    return vec4<f32>(radiosity[k].rgb - elements[k].emission.rgb, 1.0);
 }
 
 const GATHER_WG: u32 = 64u;
 var<workgroup> tile_sums: array<vec3<f32>, 64>;
 var<workgroup> change_sums: array<f32, 256>;
 
-// One workgroup per element of the pass: H = Σ_p ΔF_p B_p over the tile's
-// pixels (thesis Alg. 4.1 lines 4-5), then B_i = E_i + ρ_i H (eq. 2.2.4).
+// One workgroup per element of the pass: H = D + Σ_p ΔF_p (B_p - E_p) over
+// the tile's pixels (thesis Alg. 4.1 lines 4-5, the emitters' share D
+// integrated apart), then B_i = E_i + ρ_i H (eq. 2.2.4).
 @compute @workgroup_size(64)
 fn gather_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let slot = wid.x;
@@ -147,7 +155,7 @@ fn gather_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_
     let e = params.first + slot;
     if (lid == 0u && slot < params.count) {
         let el = elements[e];
-        let h = tile_sums[0];
+        let h = el.direct.rgb + tile_sums[0];
         let b = el.emission.rgb + el.albedo.rgb * h;
         let d = abs(b - radiosity[e].rgb);
         updated[e] = vec4<f32>(b, 0.0);

@@ -20,8 +20,9 @@
 //! neighbours are right points at visibility.
 //!
 //! `--direct` compares the first shot only: the progressive solver stops
-//! after its first batch (the brightest emitter's shot) and the reference
-//! does no Jacobi sweep, so both hold emission plus direct light. The
+//! after its first batch (the brightest emitter's shot), the gather solver
+//! after its first bounce, and the reference does no Jacobi sweep, so all
+//! hold emission plus direct light. The
 //! numbers of BENCHMARKS.md's "Where the GPU solvers deviate" come from
 //! here.
 
@@ -112,7 +113,13 @@ fn main() -> Result<()> {
     let values = if gather {
         let mut solver =
             gpu::GatherSolver::new(&device, &scene, &atlas, &poses, Default::default())?;
-        solver.solve(1e-4)?;
+        let started = std::time::Instant::now();
+        if direct {
+            solver.bounce()?;
+        } else {
+            solver.solve(1e-4)?;
+        }
+        println!("gather: {:.3} s", started.elapsed().as_secs_f64());
         solver.radiosity()?
     } else {
         let mut solver = gpu::ProgressiveSolver::new(&device, &scene, &atlas, &poses, gpu_options)?;

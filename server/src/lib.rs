@@ -13,6 +13,7 @@
 pub mod atlas;
 pub mod bake;
 pub mod bench;
+pub mod direct;
 pub mod gpu;
 pub mod metrics;
 pub mod pathtrace;

@@ -68,11 +68,11 @@ fn furnace_every_texel_within_one_percent_of_e_over_one_minus_rho() {
 /// Two directly opposed, parallel unit squares one unit apart exchange a
 /// form factor of 0.19982. The emitter (E = 1, ρ = 0) stays at E; after
 /// one bounce the receiver (ρ = 0.5) holds B = ρ E F, so its area-weighted
-/// mean radiosity divided by ρ E is the form factor as the hemicubes'
-/// pixel counts measure it (scenes/plates.json). A second bounce changes
+/// mean radiosity divided by ρ E is the form factor as the gather's direct
+/// light integrates it (scenes/plates.json; `lightwire_server::direct`). A second bounce changes
 /// nothing: the emitter reflects nothing.
 #[test]
-fn plates_implied_form_factor_within_two_percent_of_0_19982() {
+fn plates_implied_form_factor_within_one_percent_of_0_19982() {
     let started = Instant::now();
     let (scene, atlas) = common::load("plates.json", 1.0);
     assert_eq!(scene.patches.len(), 2, "plates.json has two patches");
@@ -97,7 +97,7 @@ fn plates_implied_form_factor_within_two_percent_of_0_19982() {
         100.0 * (f - 0.19982) / 0.19982,
         started.elapsed().as_secs_f64()
     );
-    assert!((f - 0.19982).abs() / 0.19982 < 0.02, "F = {f}");
+    assert!((f - 0.19982).abs() / 0.19982 < 0.01, "F = {f}");
     for i in atlas.elements_of(0) {
         assert_eq!(b[i], Vec3::ONE, "the emitter keeps B = E");
     }
@@ -106,14 +106,15 @@ fn plates_implied_form_factor_within_two_percent_of_0_19982() {
 /// On the large Cornell box (at the test density of gpu_solver.rs), the
 /// gather solver agrees with the independent CPU reference solver: NRMSE
 /// ([`lightwire_server::metrics::accuracy`]: area-weighted, over the
-/// non-emitting elements) at most 8%. Both converge to a change of 1e-4 of
+/// non-emitting elements) at most 2%. Both converge to a change of 1e-4 of
 /// the emitted power per sweep or bounce.
 ///
-/// Issue 15 asks for 1%; measured 7.38% on 2026-12-01 over the visible
-/// non-emitting elements (gather is about 3.5% too dark in every channel,
-/// not yet explained). The bound guards what is reached, not the target.
+/// Issue 15 asks for 1%. Measured 1.38% at this density (0.77% at the
+/// file's density) since the emitters' direct light is integrated by
+/// next-event estimation; 7.38% before, when the hemicubes saw the lamp as
+/// a few pixels. The bound guards what is reached, not the target.
 #[test]
-fn cornell_large_nrmse_against_reference_at_most_eight_percent() {
+fn cornell_large_nrmse_against_reference_at_most_two_percent() {
     let (scene, atlas) = common::load("cornell-large.json", 0.35);
     let reference = ReferenceSolver::new(&scene, &atlas, &scene.initial_poses(), &Silent)
         .unwrap_or_else(|e| panic!("{e}"));
@@ -129,7 +130,7 @@ fn cornell_large_nrmse_against_reference_at_most_eight_percent() {
         report.bounces,
         started.elapsed().as_secs_f64()
     );
-    assert!(error.nrmse <= 0.08, "{error}");
+    assert!(error.nrmse <= 0.02, "{error}");
 }
 
 /// Budgeted stepping and indirect-only output (gems §39.4) on the small

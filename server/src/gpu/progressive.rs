@@ -216,6 +216,17 @@ pub(super) struct WorldPatch {
 }
 
 impl WorldPatch {
+    /// The point an element at patch parameters `st` receives at: its
+    /// sample moved `offset` towards the patch centre and `offset` off the
+    /// surface, as `place_elements` (progressive.wgsl) moves it.
+    pub(super) fn receiving_point(&self, st: [f32; 2], offset: f32) -> Vec3 {
+        let [s, t] = st;
+        let sample = self.origin + self.u * s + self.v * t;
+        let centre = self.origin + (self.u + self.v) * 0.5;
+        let inward = (centre - sample).normalize_or_zero();
+        sample + (inward + self.normal) * offset
+    }
+
     pub(super) fn corners(&self) -> [Vec3; 4] {
         [
             self.origin,

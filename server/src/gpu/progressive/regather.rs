@@ -24,12 +24,13 @@
 //! the element passes on always matches what it holds, whatever the moves
 //! handed it before.
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::super::device::GpuError;
 use super::ProgressiveSolver;
 use crate::atlas::Atlas;
+use crate::direct::{Emitters, element_at};
 use crate::raycast::{Raycaster, cosine_grid};
 use crate::scene::{Pose, Scene};
 
@@ -81,9 +82,10 @@ impl ProgressiveSolver {
 /// `B = E + ρ H` of each element of `elements`, `H` the radiosity it sees
 /// over its hemisphere in `radiosity` (one RGBA value per element), against
 /// the scene at `poses`: emitters by next-event estimation (`GRID`² samples
-/// per emitting patch, a shadow ray each), everything else by `SIDE`²
-/// stratified cosine-distributed rays (Malley's method), each reading the
-/// element nearest to the point it hits; a back face gives nothing.
+/// per emitting patch, a shadow ray each, `crate::direct`), everything else
+/// by `SIDE`² stratified cosine-distributed rays (Malley's method), each
+/// reading the element nearest to the point it hits; a back face gives
+/// nothing.
 fn gather(
     scene: &Scene,
     atlas: &Atlas,
@@ -93,13 +95,7 @@ fn gather(
 ) -> Vec<Vec3> {
     let caster = Raycaster::new(scene, poses);
     let offset = 1e-5 * caster.extent();
-    let emits = |p: u32| {
-        let m = &scene.materials[scene.patches[p as usize].material as usize];
-        m.emission.max_element() > 0.0
-    };
-    let emitters: Vec<u32> = (0..scene.patches.len() as u32)
-        .filter(|&p| emits(p))
-        .collect();
+    let emitters = Emitters::of(scene);
     let value = |j: usize| {
         let b = radiosity[j];
         Vec3::new(b[0], b[1], b[2])
@@ -117,7 +113,7 @@ fn gather(
                     continue;
                 };
                 // Emitters are sampled on their own below.
-                if !hit.front || emits(hit.patch) {
+                if !hit.front || emitters.contains(hit.patch) {
                     continue;
                 }
                 if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
@@ -125,58 +121,9 @@ fn gather(
                 }
             }
             h /= (SIDE * SIDE) as f32;
-            for &p in &emitters {
-                let wp = &caster.patches()[p as usize];
-                for a in 0..GRID {
-                    for b in 0..GRID {
-                        let y = wp.origin
-                            + wp.u * ((a as f64 + 0.5) / GRID as f64)
-                            + wp.v * ((b as f64 + 0.5) / GRID as f64);
-                        let to = y - x;
-                        let r2 = to.length_squared();
-                        if r2 <= 0.0 {
-                            continue;
-                        }
-                        let dir = to / r2.sqrt();
-                        let (cos_x, cos_y) = (n.dot(dir), -wp.normal.dot(dir));
-                        if cos_x <= 0.0 || cos_y <= 0.0 {
-                            continue;
-                        }
-                        let blocked = caster
-                            .closest_hit(x, dir, r2.sqrt() * (1.0 - 1e-6))
-                            .is_some_and(|hit| hit.patch != p);
-                        if blocked {
-                            continue;
-                        }
-                        if let Some(j) = element_at(&caster, atlas, p, y) {
-                            let w = cos_x * cos_y / (std::f64::consts::PI * r2) * wp.area
-                                / (GRID * GRID) as f64;
-                            h += value(j) * w as f32;
-                        }
-                    }
-                }
-            }
+            h += emitters.irradiance(&caster, atlas, x, n, GRID, value);
             let material = &scene.materials[scene.patches[e.patch as usize].material as usize];
             material.emission + material.albedo * h
         })
         .collect()
-}
-
-/// The element of `patch` nearest to the world point `x` on it.
-fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Option<usize> {
-    let wp = caster.patches().get(patch as usize)?;
-    let d = x - wp.origin;
-    let (uu, uv, vv) = (wp.u.dot(wp.u), wp.u.dot(wp.v), wp.v.dot(wp.v));
-    let det = uu * vv - uv * uv;
-    if det <= 0.0 {
-        return None;
-    }
-    let (du, dv) = (d.dot(wp.u), d.dot(wp.v));
-    let s = ((du * vv - dv * uv) / det).clamp(0.0, 1.0);
-    let t = ((dv * uu - du * uv) / det).clamp(0.0, 1.0);
-    let chart = atlas.charts.get(patch as usize)?;
-    let c = (s * f64::from(chart.w.saturating_sub(1))).round() as u32;
-    let r = (t * f64::from(chart.h.saturating_sub(1))).round() as u32;
-    let e = atlas.element_at(chart.x + c, chart.y + r)? as usize;
-    (atlas.elements[e].patch == patch).then_some(e)
 }
