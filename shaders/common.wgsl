@@ -4,7 +4,7 @@
 // projection, so it lives here once.
 
 // One shooter: a rectangle of elements of the shooting patch (thesis §4.3.3,
-// dynamic shooter subdivision). Mirrors `Shooter` in server/src/gpu/progressive.rs.
+// dynamic shooter subdivision). Mirrors `GpuShooter` in server/src/gpu/progressive.rs.
 struct Shooter {
     // xyz: corner of the shooter's region (world), w: its area (m²).
     corner: vec4<f32>,

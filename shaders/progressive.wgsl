@@ -9,7 +9,8 @@
 //   select_shooter  FINDSHOOTINGQUAD: the patch with the most unshot power,
 //                   and the total, into `selection` (read back by the CPU).
 
-// One element (lightmap texel). Mirrors `GpuElement` in progressive.rs.
+// One element (lightmap texel), written only by `place_elements`; its size
+// is `ELEMENT_BYTES` in server/src/gpu/progressive.rs.
 struct Element {
     // xyz: world sample position, nudged a hair towards the patch centre
     // and off the surface (so that a sample on an edge is in front of the

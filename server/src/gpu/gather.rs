@@ -47,14 +47,12 @@ use wgpu::util::DeviceExt;
 
 use super::device::{Device, GpuError};
 use super::progressive::{
-    COMMON_WGSL, FACES, GpuShooter, SURFACE_OFFSET, bind, compute, map_read, place_patches, v4,
-    world_areas,
+    FACES, GpuShooter, SURFACE_OFFSET, bind, compute, map_read, place_patches, v4, world_areas,
 };
+use super::shaders;
 use crate::atlas::Atlas;
 use crate::direct::direct_light;
 use crate::scene::{PatchShape, Pose, Scene};
-
-const GATHER_WGSL: &str = include_str!("../../../shaders/gather.wgsl");
 
 /// Upper bound on the memory of the hemicube target (colour and depth) of
 /// one pass; fewer elements are batched at high resolutions.
@@ -125,26 +123,28 @@ pub struct GatherBalance {
 /// One patch corner (`GatherVertex` in gather.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GatherVertex {
+pub(super) struct GatherVertex {
     pos: [f32; 4],
     normal: [f32; 4],
     st: [f32; 4],
 }
+const _: () = assert!(std::mem::size_of::<GatherVertex>() == 48);
 
 /// One element's emission, area, albedo and direct irradiance
 /// (`GatherElement`).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GatherElement {
+pub(super) struct GatherElement {
     emission: [f32; 4],
     albedo: [f32; 4],
     direct: [f32; 4],
 }
+const _: () = assert!(std::mem::size_of::<GatherElement>() == 48);
 
 /// Constants of one pass (`GatherParams` in gather.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GatherParams {
+pub(super) struct GatherParams {
     first: u32,
     count: u32,
     resolution: u32,
@@ -153,6 +153,7 @@ struct GatherParams {
     near: f32,
     pad: [u32; 2],
 }
+const _: () = assert!(std::mem::size_of::<GatherParams>() == 32);
 
 /// Delta form factors of one tile, row-major over its `3 res x res`
 /// pixels: the top face in columns `0..res`, then the upper halves of the
@@ -530,7 +531,7 @@ impl GatherSolver {
 
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("gather.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{GATHER_WGSL}").into()),
+            source: wgpu::ShaderSource::Wgsl(shaders::gather().into()),
         });
         fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
             buffer.as_entire_binding()

@@ -30,12 +30,15 @@
 //!    both the next batch's shooter and the convergence measure.
 //!
 //! Shader sources live in `shaders/` at the repository root and are
-//! compiled into the binary with `include_str!`.
+//! compiled into the binary with `include_str!`; `shaders.rs` assembles
+//! them into modules, and its tests validate every module with naga and
+//! tie each struct shared with WGSL to its Rust mirror's size.
 
 mod device;
 mod dynamic;
 mod gather;
 mod progressive;
+mod shaders;
 
 pub use device::{Device, GpuError};
 pub use dynamic::{DynamicOptions, DynamicSolver, DynamicStep};

@@ -13,16 +13,12 @@ use glam::Vec3;
 use wgpu::util::DeviceExt;
 
 use super::device::{Device, GpuError};
+use super::shaders;
 use crate::atlas::Atlas;
 use crate::scene::{PatchShape, Pose, Scene};
 use crate::validity::Validity;
 
 /// WGSL shared by both shaders, prepended to each.
-pub(super) const COMMON_WGSL: &str = include_str!("../../../shaders/common.wgsl");
-const HEMICUBE_WGSL: &str = include_str!("../../../shaders/hemicube.wgsl");
-const PROGRESSIVE_WGSL: &str = include_str!("../../../shaders/progressive.wgsl");
-const REDISTRIBUTE_WGSL: &str = include_str!("../../../shaders/redistribute.wgsl");
-
 mod redistribute;
 mod regather;
 pub use redistribute::{Move, Redistribution};
@@ -141,25 +137,27 @@ pub struct EnergyBalance {
 /// `place_elements` derives the world-space `Element` from it and the pose.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct LocalElement {
+pub(super) struct LocalElement {
     position: [f32; 4],
     normal: [f32; 4],
     lookup: [f32; 4],
     albedo: [f32; 4],
     nudge: [f32; 4],
 }
+const _: () = assert!(std::mem::size_of::<LocalElement>() == 80);
 
 /// Size of a world-space element (`Element` in progressive.wgsl: position
 /// and area, normal and patch, lookup point and object, albedo).
-const ELEMENT_BYTES: u64 = 64;
+pub(super) const ELEMENT_BYTES: u64 = 64;
 
 /// One patch corner for the hemicube rasterizer (`Vertex` in hemicube.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GpuVertex {
+pub(super) struct GpuVertex {
     pos: [f32; 4],
     st: [f32; 4],
 }
+const _: () = assert!(std::mem::size_of::<GpuVertex>() == 32);
 
 /// One shooter (`Shooter` in common.wgsl).
 #[repr(C)]
@@ -174,11 +172,12 @@ pub(super) struct GpuShooter {
     pub(super) n: [f32; 4],
     pub(super) tile: [u32; 4],
 }
+const _: () = assert!(std::mem::size_of::<GpuShooter>() == 128);
 
 /// Per-batch constants (`Batch` in common.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct BatchUniform {
+pub(super) struct BatchUniform {
     patch_id: u32,
     shooters: u32,
     resolution: u32,
@@ -192,16 +191,18 @@ struct BatchUniform {
     old_from_slot: u32,
     mode: u32,
 }
+const _: () = assert!(std::mem::size_of::<BatchUniform>() == 48);
 
 /// The reduction's answer (`Selection` in progressive.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug)]
-struct Selection {
+pub(super) struct Selection {
     patch_id: u32,
     power: f32,
     total: f32,
     _pad: f32,
 }
+const _: () = assert!(std::mem::size_of::<Selection>() == 16);
 
 /// A patch placed in the world, as the CPU needs it to place shooters.
 #[derive(Debug, Clone, Copy)]
@@ -485,11 +486,6 @@ fn pose_matrix(pose: &Pose) -> [[f32; 4]; 4] {
         pose.translation,
     )
     .to_cols_array_2d()
-}
-
-/// The WGSL sources of the compute passes, in one module.
-fn compute_source() -> String {
-    format!("{COMMON_WGSL}\n{PROGRESSIVE_WGSL}\n{REDISTRIBUTE_WGSL}")
 }
 
 impl ProgressiveSolver {
@@ -794,11 +790,11 @@ impl ProgressiveSolver {
 
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("progressive.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(compute_source().into()),
+            source: wgpu::ShaderSource::Wgsl(shaders::compute().into()),
         });
         let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("hemicube.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{HEMICUBE_WGSL}").into()),
+            source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
         });
         fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
             buffer.as_entire_binding()

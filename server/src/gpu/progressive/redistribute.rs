@@ -51,8 +51,9 @@ use glam::Vec3;
 
 use super::{
     BatchUniform, FACES, GpuError, GpuShooter, ProgressiveSolver, WORKGROUP, WorldPatch, bind,
-    compute_source, compute_with, hemicube_pipeline, place_patches, world_areas,
+    compute_with, hemicube_pipeline, place_patches, world_areas,
 };
+use crate::gpu::shaders;
 use crate::scene::Pose;
 
 /// How the solver follows a move of the dynamic objects.
@@ -288,13 +289,11 @@ impl ProgressiveSolver {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("redistribute.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(compute_source().into()),
+            source: wgpu::ShaderSource::Wgsl(shaders::compute().into()),
         });
         let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("hemicube.wgsl (radiosity)"),
-            source: wgpu::ShaderSource::Wgsl(
-                format!("{}\n{}", super::COMMON_WGSL, super::HEMICUBE_WGSL).into(),
-            ),
+            source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
         });
         let bufs = &self.buffers;
         fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
