@@ -25,7 +25,9 @@ use std::time::Instant;
 
 use glam::{DVec3, Vec3};
 use lightwire_server::atlas::Atlas;
-use lightwire_server::gpu::{Device, ProgressiveOptions, ProgressiveSolver};
+use lightwire_server::gpu::{
+    Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver,
+};
 use lightwire_server::pathtrace::{self, Estimate, PathTracer, SurfacePoint};
 use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
 use lightwire_server::scene::{PatchShape, Pose, Scene};
@@ -347,6 +349,33 @@ fn progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
         raw.darkest,
         verdict.darkest
     );
+}
+
+/// The gather GPU solver converged to a change of 1e-4 of the emitted power
+/// per bounce: none darker than half the path tracer (see
+/// `assert_contract`).
+#[test]
+fn gather_lightmap_at_contacts_agrees_with_the_path_tracer() {
+    let setup = setup();
+    let gpu = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
+    let started = Instant::now();
+    let mut solver = GatherSolver::new(
+        &gpu,
+        &setup.scene,
+        &setup.atlas,
+        &setup.poses,
+        GatherOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    eprintln!(
+        "gather: {} bounces in {:.1} s",
+        report.bounces,
+        started.elapsed().as_secs_f64()
+    );
+    let verdict = check(setup, "gather", values, true);
+    assert_contract(&verdict, "gather", setup.contacts.len());
 }
 
 /// Floor texels under a block are invalid and those clear of both blocks
