@@ -453,7 +453,7 @@ mod tests {
             "\"texel_density\": 7.3 }",
             "\"texel_density\": 7.3, \"max_atlas_size\": 16 }",
         );
-        let err = Scene::parse(&text, "test")
+        let err = crate::load::parse_scene(&text, "test", Default::default())
             .expect_err("must overflow")
             .to_string();
         assert!(

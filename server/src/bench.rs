@@ -37,9 +37,10 @@ use serde::Serialize;
 
 use crate::atlas::Atlas;
 use crate::gpu::{Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver};
+use crate::load::load_scene;
 use crate::metrics::accuracy_where;
 use crate::reference::{self, ReferenceSolver, SolveOptions};
-use crate::scene::{LoadOptions, Scene};
+use crate::scene::LoadOptions;
 use crate::validity::Validity;
 
 /// The unshot-power fractions at which times are recorded.
@@ -160,9 +161,7 @@ pub fn solve_scene(
     options: ProgressiveOptions,
     gather_options: GatherOptions,
 ) -> Result<SceneResult> {
-    let scene = Scene::load_with(path, LoadOptions { density_scale })?;
-    let atlas =
-        Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
+    let (scene, atlas) = load_scene(path, LoadOptions { density_scale })?;
     let poses = scene.initial_poses();
 
     // Progressive: setup (upload, pipeline compilation) is not counted.

@@ -3,9 +3,11 @@
 //!
 //! Data flows one way: a scene file is parsed and validated into a
 //! [`scene::Scene`]; [`atlas::Atlas::build`] charts every patch into one
-//! lightmap texture whose texels are the radiosity elements; a solver (today
-//! the CPU [`reference`] solver) computes radiosity per element; [`bake`]
-//! scatters it into the atlas and writes images and metadata. [`service`]
+//! lightmap texture whose texels are the radiosity elements (both at once:
+//! [`load::load_scene`]); a solver (the GPU solvers of [`gpu`], the CPU
+//! [`reference`] solver, or the [`pathtrace`] oracle) computes radiosity
+//! per element; [`bake`] scatters it into the atlas and writes images and
+//! metadata. [`service`]
 //! runs the same pipeline continuously behind HTTP and WebSocket
 //! (`lightwire serve`); [`relay`] fans a solver's streams out to many
 //! viewers (`lightwire relay`).
@@ -15,6 +17,7 @@ pub mod bake;
 pub mod bench;
 pub mod direct;
 pub mod gpu;
+pub mod load;
 pub mod metrics;
 pub mod pathtrace;
 pub mod raycast;

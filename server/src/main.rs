@@ -12,6 +12,7 @@ use lightwire_server::atlas::Atlas;
 use lightwire_server::bake::{self, BakeStats};
 use lightwire_server::bench;
 use lightwire_server::gpu;
+use lightwire_server::load::load_scene;
 use lightwire_server::pathtrace::{self, PathTracer};
 use lightwire_server::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_server::scene::{LoadOptions, Scene};
@@ -328,10 +329,7 @@ fn main() -> ExitCode {
 }
 
 fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
-    let scene = Scene::load_with(path, LoadOptions { density_scale })?;
-    let atlas =
-        Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
-    Ok((scene, atlas))
+    Ok(load_scene(path, LoadOptions { density_scale })?)
 }
 
 fn validate_command(paths: &[PathBuf], density_scale: f32) -> Result<()> {

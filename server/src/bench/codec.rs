@@ -42,6 +42,7 @@ use serde::Serialize;
 
 use crate::atlas::Atlas;
 use crate::gpu::{Device, Redistribution};
+use crate::load::load_scene;
 use crate::scene::{LoadOptions, Scene};
 use crate::service::live::{GpuLive, LiveSolver};
 use crate::service::runtime::from_wire;
@@ -204,7 +205,7 @@ pub fn record(
     script_path: &Path,
     settings: &Settings,
 ) -> Result<Recording> {
-    let scene = Scene::load_with(
+    let (scene, atlas) = load_scene(
         scene_path,
         LoadOptions {
             density_scale: settings.density_scale,
@@ -223,8 +224,6 @@ pub fn record(
         return load(&cache, &scene.name, script_name);
     }
     let script = Script::load(script_path)?;
-    let atlas = Atlas::build(&scene)
-        .map_err(|issue| anyhow::anyhow!("{}: {issue}", scene_path.display()))?;
     let object =
         match &script.object {
             Some(name) => scene

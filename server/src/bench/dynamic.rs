@@ -28,15 +28,15 @@ use anyhow::{Context, Result};
 use glam::{Quat, Vec3};
 use serde::Serialize;
 
-use crate::atlas::Atlas;
 use crate::bake::{white_point, write_png_with};
 use crate::gpu::{
     Device, DynamicOptions, DynamicSolver, GatherOptions, GatherSolver, ProgressiveOptions,
     ProgressiveSolver, Redistribution,
 };
+use crate::load::load_scene;
 use crate::metrics::accuracy_where;
 use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
-use crate::scene::{LoadOptions, Pose, Scene};
+use crate::scene::{LoadOptions, Pose};
 use crate::validity::Validity;
 
 /// A method the benchmark compares (thesis Table 5.2's rows).
@@ -141,14 +141,12 @@ fn median_ms(times: &mut [Duration]) -> (f64, f64, f64) {
 
 /// Runs the benchmark on one scene file.
 pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<SceneResult> {
-    let scene = Scene::load_with(
+    let (scene, atlas) = load_scene(
         path,
         LoadOptions {
             density_scale: settings.density_scale,
         },
     )?;
-    let atlas =
-        Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
     let object = scene.dynamic_objects().next().with_context(|| {
         format!(
             "{} has no dynamic object to move (add one under \"objects\")",

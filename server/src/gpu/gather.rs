@@ -47,7 +47,8 @@ use wgpu::util::DeviceExt;
 
 use super::device::{Device, GpuError};
 use super::progressive::{
-    FACES, GpuShooter, SURFACE_OFFSET, bind, compute, map_read, place_patches, v4, world_areas,
+    FACES, GpuShooter, SURFACE_OFFSET, bind, compute, map_read, place_patches, read_vec4,
+    received_and_absorbed, v4, world_areas,
 };
 use super::shaders;
 use crate::atlas::Atlas;
@@ -716,12 +717,7 @@ impl GatherSolver {
     /// passes already run show the running bounce instead).
     pub fn energy_balance(&self) -> Result<GatherBalance, GpuError> {
         let h = self.read_vec4(&self.irradiance)?;
-        let (mut received, mut absorbed) = (0.0f64, 0.0f64);
-        for ((hv, a), rho) in h.iter().zip(&self.areas).zip(&self.albedo) {
-            let hv = Vec3::new(hv[0], hv[1], hv[2]);
-            received += f64::from(*a) * f64::from(hv.element_sum());
-            absorbed += f64::from(*a) * f64::from(((Vec3::ONE - *rho) * hv).element_sum());
-        }
+        let (received, absorbed) = received_and_absorbed(&h, &self.areas, &self.albedo);
         Ok(GatherBalance {
             emitted: self.emitted,
             received,
@@ -828,20 +824,7 @@ impl GatherSolver {
 
     /// Copies a vec4 buffer with one entry per element back to the CPU.
     fn read_vec4(&self, buffer: &wgpu::Buffer) -> Result<Vec<[f32; 4]>, GpuError> {
-        let size = u64::from(self.element_count.max(1)) * 16;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("gather readback"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        self.queue.submit([encoder.finish()]);
-        let bytes = map_read(&self.device, &staging)?;
-        let mut values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
-        values.truncate(self.element_count as usize);
-        Ok(values)
+        read_vec4(&self.device, &self.queue, buffer, self.element_count)
     }
 }
 

@@ -1147,12 +1147,7 @@ impl ProgressiveSolver {
     /// Where the power went so far (reads the irradiance back).
     pub fn energy_balance(&self) -> Result<EnergyBalance, GpuError> {
         let h = self.read_vec4(&self.irradiance)?;
-        let (mut received, mut absorbed) = (0.0f64, 0.0f64);
-        for ((hv, a), rho) in h.iter().zip(&self.areas).zip(&self.albedo) {
-            let hv = Vec3::new(hv[0], hv[1], hv[2]);
-            received += f64::from(*a) * f64::from(hv.element_sum());
-            absorbed += f64::from(*a) * f64::from(((Vec3::ONE - *rho) * hv).element_sum());
-        }
+        let (received, absorbed) = received_and_absorbed(&h, &self.areas, &self.albedo);
         Ok(EnergyBalance {
             emitted: self.emitted,
             shot: self.shot_power,
@@ -1535,21 +1530,45 @@ impl ProgressiveSolver {
 
     /// Copies a vec4 buffer with one entry per element back to the CPU.
     fn read_vec4(&self, buffer: &wgpu::Buffer) -> Result<Vec<[f32; 4]>, GpuError> {
-        let size = u64::from(self.element_count.max(1)) * 16;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        self.queue.submit([encoder.finish()]);
-        let bytes = map_read(&self.device, &staging)?;
-        let mut values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
-        values.truncate(self.element_count as usize);
-        Ok(values)
+        read_vec4(&self.device, &self.queue, buffer, self.element_count)
     }
+}
+
+/// Copies the first `count` entries of a vec4 buffer (one per element)
+/// back to the CPU through a staging buffer.
+pub(super) fn read_vec4(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    buffer: &wgpu::Buffer,
+    count: u32,
+) -> Result<Vec<[f32; 4]>, GpuError> {
+    let size = u64::from(count.max(1)) * 16;
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+    queue.submit([encoder.finish()]);
+    let bytes = map_read(device, &staging)?;
+    let mut values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+    values.truncate(count as usize);
+    Ok(values)
+}
+
+/// Power that arrived at the elements, `Σ A_i H_i`, and the part of it they
+/// absorbed, `Σ A_i (1 - ρ_i) H_i` (W, channels summed), from the
+/// irradiance `h` read back per element.
+pub(super) fn received_and_absorbed(h: &[[f32; 4]], areas: &[f32], albedo: &[Vec3]) -> (f64, f64) {
+    let (mut received, mut absorbed) = (0.0f64, 0.0f64);
+    for ((hv, a), rho) in h.iter().zip(areas).zip(albedo) {
+        let hv = Vec3::new(hv[0], hv[1], hv[2]);
+        received += f64::from(*a) * f64::from(hv.element_sum());
+        absorbed += f64::from(*a) * f64::from(((Vec3::ONE - *rho) * hv).element_sum());
+    }
+    (received, absorbed)
 }
 
 /// Waits for the GPU and copies a mappable buffer's contents out.

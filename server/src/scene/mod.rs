@@ -221,9 +221,7 @@ impl Scene {
             origin: origin.to_string(),
             issues,
         };
-        let scene = validate::validate(raw, options).map_err(invalid)?;
-        crate::atlas::plan(&scene).map_err(|issue| invalid(vec![issue]))?;
-        Ok(scene)
+        validate::validate(raw, options).map_err(invalid)
     }
 
     /// Indices of the dynamic objects.

@@ -51,6 +51,7 @@ use super::live::{GpuLive, LiveSolver, ReferenceLive, SolverFailure, StepReport}
 use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
 use crate::atlas::Atlas;
+use crate::load::load_scene;
 use crate::reference::MAX_ELEMENTS;
 use crate::scene::{LoadOptions, Pose, Scene};
 
@@ -157,14 +158,12 @@ impl SceneRuntime {
         metrics: Arc<Metrics>,
         shutdown: watch::Receiver<bool>,
     ) -> Result<Arc<Self>> {
-        let scene = Scene::load_with(
+        let (scene, atlas) = load_scene(
             path,
             LoadOptions {
                 density_scale: config.density_scale,
             },
         )?;
-        let atlas =
-            Atlas::build(&scene).map_err(|issue| anyhow::anyhow!("{}: {issue}", path.display()))?;
         // A keyframe must fit in one frame: bound it by its uncompressed
         // size plus per-tile overhead (zstd never grows data much).
         let texels = u64::from(atlas.width) * u64::from(atlas.height);
