@@ -61,6 +61,31 @@ pub struct BakeStats {
     pub escaped_power: f64,
 }
 
+impl BakeStats {
+    /// The statistics of a bake of `scene` by `solver`: the scene and atlas
+    /// fields filled in, every measurement zero for the solver to set.
+    pub fn new(scene: &Scene, atlas: &Atlas, solver: &str) -> Self {
+        let dynamic = atlas.dynamic_element_count(scene);
+        Self {
+            scene: scene.name.clone(),
+            solver: solver.to_string(),
+            elements: atlas.elements.len(),
+            static_elements: atlas.elements.len() - dynamic,
+            dynamic_elements: dynamic,
+            atlas_width: atlas.width,
+            atlas_height: atlas.height,
+            iterations: 0,
+            residual_fraction: 0.0,
+            seconds: 0.0,
+            form_factor_seconds: 0.0,
+            solve_seconds: 0.0,
+            emitted_power: 0.0,
+            absorbed_power: 0.0,
+            escaped_power: 0.0,
+        }
+    }
+}
+
 /// Describes the atlas for `atlas.json`.
 pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
     AtlasFile {

@@ -1,0 +1,252 @@
+//! `lightwire`: the Lightwire server command. This file parses the command
+//! line and dispatches; each subcommand lives in its own module.
+
+mod bake;
+mod bench;
+mod serve;
+mod validate;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use lightwire_server::gpu;
+
+use bake::{SolveSettings, SolverKind, bake_command};
+use bench::{CodecArgs, bench_codec_command, bench_dynamic_command, bench_solve_command};
+use serve::{RelayFlags, ServeFlags, relay_command, serve_command};
+use validate::validate_command;
+
+#[derive(Parser)]
+#[command(
+    name = "lightwire",
+    version,
+    about = "Lightwire: a networked radiosity service"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Solve a scene once and write lightmap.exr, lightmap.png, atlas.json
+    /// and stats.json.
+    Bake {
+        /// The scene file (JSON, see scenes/README.md).
+        #[arg(long)]
+        scene: PathBuf,
+        /// Which solver computes the lightmap.
+        #[arg(long, value_enum, default_value_t = SolverKind::Reference)]
+        solver: SolverKind,
+        /// Output directory (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Multiply every texel density of the scene by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Reference: stop when one sweep adds less than this fraction of
+        /// the emitted power. Progressive: stop when the unshot power is
+        /// below this fraction of the emitted power. Gather: stop when one
+        /// bounce changes less than this fraction of the emitted power.
+        #[arg(long, default_value_t = 1e-4)]
+        tolerance: f64,
+        /// GPU solvers: use the adapter whose name contains this
+        /// (case-insensitive); default: prefer a discrete GPU.
+        #[arg(long)]
+        adapter: Option<String>,
+        /// GPU solvers: top-face resolution of the hemicubes [default: 64
+        /// for progressive, 32 for gather].
+        #[arg(long)]
+        hemicube_resolution: Option<u32>,
+        /// GPU solvers: write indirect light only (gems §39.4).
+        #[arg(long)]
+        indirect_only: bool,
+        /// Path tracer: paths per element [default: 256].
+        #[arg(long)]
+        spp: Option<u32>,
+    },
+    /// Benchmarks (run the release build).
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
+    },
+    /// Serve scenes over HTTP and WebSocket: live lightmaps, REST, metrics.
+    Serve(ServeFlags),
+    /// Relay scenes of solvers to many viewers: subscribes to each upstream
+    /// scene as a client and serves it with the same protocol, forwarding
+    /// drivers' transforms; keeps serving the last version while an
+    /// upstream is down.
+    Relay(RelayFlags),
+    /// Check scene files and print what they contain.
+    Validate {
+        /// Scene files.
+        #[arg(required = true)]
+        scenes: Vec<PathBuf>,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Per scene: the progressive solver's time to 10%, 1% and 0.1%
+    /// unshot power and shots per second; the reference and the gather
+    /// solver on the same atlas, timed to the same fractions of power
+    /// changed per sweep or bounce; NRMSE and p95 relative error against
+    /// the reference over the non-emitting elements.
+    Solve {
+        /// Scene files; default: the four thesis scenes and cornell-blocks
+        /// in scenes/.
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+        /// Progressive solver: top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 64)]
+        hemicube_resolution: u32,
+        /// Gather solver: top-face resolution of the hemicubes.
+        #[arg(long, default_value_t = 32)]
+        gather_resolution: u32,
+    },
+    /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
+    /// rotates a few degrees per frame; milliseconds per frame of gather,
+    /// full progressive, incremental and cross redistribution, their NRMSE
+    /// and p95 relative error (non-emitting elements) against a
+    /// high-quality reference, and atlas PNGs with x5 difference images.
+    Dynamic {
+        /// Scene files, each with a dynamic object; default: the four
+        /// thesis scenes in scenes/ (cornell-blocks, static only, is
+        /// skipped).
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// Multiply every texel density by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Frames each redistribution method follows.
+        #[arg(long, default_value_t = 10)]
+        frames: u32,
+        /// Frames the gather solver follows (it solves from scratch).
+        #[arg(long, default_value_t = 2)]
+        gather_frames: u32,
+        /// Rotation of the box per frame, degrees.
+        #[arg(long, default_value_t = 2.0)]
+        degrees: f32,
+        /// Methods to run, comma-separated: gather, progressive,
+        /// incremental, cross (default: all four).
+        #[arg(long, value_delimiter = ',', default_values_t = lightwire_server::bench::dynamic::Method::ALL)]
+        methods: Vec<lightwire_server::bench::dynamic::Method>,
+        /// Directory for the images (a subdirectory per scene).
+        #[arg(long, default_value = "bench-out/dynamic")]
+        out: PathBuf,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+    },
+    /// Per scene and transform script: records the solver's lightmap at
+    /// every version (the script sampled at --rate), then runs the stream
+    /// codecs over the recording side by side: bytes per version, encode
+    /// and decode time, and the deviation a viewer sees.
+    Codec(CodecArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Bake {
+            scene,
+            solver,
+            out,
+            density_scale,
+            tolerance,
+            adapter,
+            hemicube_resolution,
+            indirect_only,
+            spp,
+        } => bake_command(
+            scene,
+            solver,
+            out,
+            density_scale,
+            SolveSettings {
+                tolerance,
+                adapter,
+                hemicube_resolution,
+                indirect_only,
+                spp,
+            },
+        ),
+        Command::Validate {
+            scenes,
+            density_scale,
+        } => validate_command(&scenes, density_scale),
+        Command::Bench {
+            what:
+                BenchCommand::Solve {
+                    scenes,
+                    density_scale,
+                    json,
+                    adapter,
+                    hemicube_resolution,
+                    gather_resolution,
+                },
+        } => bench_solve_command(
+            scenes,
+            density_scale,
+            json,
+            adapter.as_deref(),
+            (hemicube_resolution, gather_resolution),
+        ),
+        Command::Bench {
+            what:
+                BenchCommand::Dynamic {
+                    scenes,
+                    density_scale,
+                    frames,
+                    gather_frames,
+                    degrees,
+                    methods,
+                    out,
+                    json,
+                    adapter,
+                },
+        } => bench_dynamic_command(
+            scenes,
+            lightwire_server::bench::dynamic::Settings {
+                frames,
+                gather_frames,
+                degrees_per_frame: degrees,
+                methods,
+                density_scale,
+                progressive: gpu::ProgressiveOptions::default(),
+                gather: gpu::GatherOptions::default(),
+                out,
+            },
+            json,
+            adapter.as_deref(),
+        ),
+        Command::Bench {
+            what: BenchCommand::Codec(args),
+        } => bench_codec_command(args),
+        Command::Serve(flags) => serve_command(flags),
+        Command::Relay(flags) => relay_command(flags),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

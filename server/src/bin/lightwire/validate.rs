@@ -1,0 +1,42 @@
+//! `lightwire validate`: load scene files and say what is wrong with them.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use lightwire_server::atlas::Atlas;
+use lightwire_server::load::load_scene;
+use lightwire_server::scene::{LoadOptions, Scene};
+
+pub(crate) fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
+    Ok(load_scene(path, LoadOptions { density_scale })?)
+}
+
+pub(crate) fn validate_command(paths: &[PathBuf], density_scale: f32) -> Result<()> {
+    let mut failed = 0;
+    for path in paths {
+        match load(path, density_scale) {
+            Ok((scene, atlas)) => {
+                let dynamic = atlas.dynamic_element_count(&scene);
+                println!(
+                    "{}: ok: scene \"{}\", {} surfaces, {} objects, atlas {}x{}, {} static + {} dynamic elements",
+                    path.display(),
+                    scene.name,
+                    scene.patches.len(),
+                    scene.objects.len(),
+                    atlas.width,
+                    atlas.height,
+                    atlas.elements.len() - dynamic,
+                    dynamic
+                );
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                failed += 1;
+            }
+        }
+    }
+    if failed > 0 {
+        anyhow::bail!("{failed} of {} scene files are invalid", paths.len());
+    }
+    Ok(())
+}
