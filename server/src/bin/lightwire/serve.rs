@@ -48,15 +48,10 @@ pub(crate) struct ServeFlags {
 }
 
 pub(crate) fn serve_command(flags: ServeFlags) -> Result<()> {
-    init_logging();
-    let mut config = load_config(flags.config.as_deref())?;
+    let mut config = configure(flags.config.as_deref(), flags.listen, flags.dev)?;
     if !flags.scenes.is_empty() {
         config.scenes = flags.scenes;
     }
-    if let Some(listen) = flags.listen {
-        config.listen = listen;
-    }
-    config.dev_mode |= flags.dev;
     if let Some(v) = flags.tick_hz {
         config.tick_hz = v;
     }
@@ -108,6 +103,23 @@ pub(crate) struct RelayFlags {
     dev: bool,
 }
 
+/// Logging on, then the configuration `serve` and `relay` share: the
+/// config file (or defaults) and `LIGHTWIRE_*` variables, overridden by
+/// `--listen` and `--dev`.
+fn configure(
+    path: Option<&std::path::Path>,
+    listen: Option<SocketAddr>,
+    dev: bool,
+) -> Result<Config> {
+    init_logging();
+    let mut config = load_config(path)?;
+    if let Some(listen) = listen {
+        config.listen = listen;
+    }
+    config.dev_mode |= dev;
+    Ok(config)
+}
+
 /// Logs to stderr, `RUST_LOG` or `info`.
 fn init_logging() {
     tracing_subscriber::fmt()
@@ -131,15 +143,10 @@ fn load_config(path: Option<&std::path::Path>) -> Result<Config> {
 }
 
 pub(crate) fn relay_command(flags: RelayFlags) -> Result<()> {
-    init_logging();
-    let mut config = load_config(flags.config.as_deref())?;
+    let mut config = configure(flags.config.as_deref(), flags.listen, flags.dev)?;
     if !flags.upstreams.is_empty() {
         config.upstreams = flags.upstreams;
     }
-    if let Some(listen) = flags.listen {
-        config.listen = listen;
-    }
-    config.dev_mode |= flags.dev;
     config.validate_relay()?;
     start(
         config,
