@@ -24,12 +24,12 @@ use std::time::Duration;
 use lightwire_protocol::{ErrorCode, Pose, Role, SceneInfo, Stats};
 use tokio::sync::{Notify, mpsc, watch};
 
-use crate::backoff::{Backoff, BackoffPolicy};
 use crate::buffer::{DoubleBuffer, Frame};
 use crate::connection::{self, Task};
 use crate::endpoint::Endpoint;
 use crate::error::ClientError;
 use crate::latency::{LatencyBook, SeqSource};
+use lightwire_protocol::backoff::{Backoff, BackoffPolicy};
 
 /// Connection settings. `Options::default()` suits a game client.
 #[derive(Clone, Debug)]

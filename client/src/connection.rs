@@ -17,7 +17,7 @@
 //!   server sends `Stats` every 250 ms, so silence means a dead peer).
 //!
 //! When a session ends for a reason that retrying can fix, [`run`] waits
-//! a [`Backoff`] delay and opens a new one; the front keeps showing the
+//! a [`Backoff`](lightwire_protocol::backoff::Backoff) delay and opens a new one; the front keeps showing the
 //! last complete version meanwhile, and the new session's first keyframe
 //! brings it up to date.
 
@@ -37,11 +37,11 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-use crate::backoff::Backoff;
 use crate::buffer::{Applied, DoubleBuffer};
 use crate::client::{Delivered, Event, Options, Shared, VersionEvent};
 use crate::error::ClientError;
 use crate::latency::unix_micros;
+use lightwire_protocol::backoff::Backoff;
 
 /// The socket type.
 pub(crate) type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;

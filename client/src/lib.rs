@@ -53,7 +53,7 @@
 //!
 //! Transform scripts for drivers and load tests are in [`script`].
 
-pub mod backoff;
+pub use lightwire_protocol::backoff;
 pub mod buffer;
 mod client;
 mod connection;

@@ -23,6 +23,10 @@
 //! PROTOCOL.md at the repository root documents every byte; the golden
 //! vectors in `protocol/tests/vectors/` pin them.
 //!
+//! [`backoff`] is the reconnect policy every peer that dials another (the
+//! client library, the relay's upstream) follows, so that a fleet does not
+//! reconnect to a restarted server in lockstep.
+//!
 //! [`script`] reads transform scripts (keyframed poses over time), the
 //! streams `lightwire-client drive`/`load` send and the server's benchmarks
 //! replay.
@@ -30,6 +34,7 @@
 //! This crate must never depend on tokio or wgpu, so that every client — a
 //! game, a load tester, the dashboard's JavaScript twin — can share it.
 
+pub mod backoff;
 pub mod codec;
 pub mod error_code;
 pub mod lightmap;

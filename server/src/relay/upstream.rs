@@ -27,6 +27,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, anyhow, bail};
 use futures_util::{SinkExt, StreamExt};
+use lightwire_protocol::backoff::{Backoff, BackoffPolicy};
 use lightwire_protocol::{
     ClientMessage, ErrorCode, MAX_FRAME_BYTES, PROTOCOL_VERSION, SceneInfo, ServerMessage, Stats,
     decode_server, encode_client,
@@ -142,38 +143,16 @@ fn now_us() -> u64 {
         .unwrap_or(0)
 }
 
-/// Exponential backoff with jitter (so a fleet of relays does not
-/// reconnect to a restarted solver in lockstep).
-struct Backoff {
-    next: Duration,
-    seed: u64,
-}
-
-impl Backoff {
-    fn new(salt: &str) -> Self {
-        let seed = salt
-            .bytes()
-            .fold(now_us() | 1, |h, b| h.rotate_left(5) ^ u64::from(b));
-        Self {
-            next: BACKOFF_FIRST,
-            seed,
-        }
-    }
-
-    fn reset(&mut self) {
-        self.next = BACKOFF_FIRST;
-    }
-
-    /// The next delay: the current step, +-25 %, then the step doubles.
-    fn delay(&mut self) -> Duration {
-        // xorshift64: good enough for jitter.
-        self.seed ^= self.seed << 13;
-        self.seed ^= self.seed >> 7;
-        self.seed ^= self.seed << 17;
-        let jitter = 0.75 + (self.seed % 1000) as f64 / 2000.0;
-        let delay = self.next.mul_f64(jitter);
-        self.next = (self.next * 2).min(BACKOFF_MAX);
-        delay
+/// The relay's reconnect policy (`lightwire_protocol::backoff`, the one
+/// the client library follows): 100 ms doubling to 5 s, +-25 %, so that a
+/// fleet of relays does not reconnect to a restarted solver in lockstep.
+fn backoff_policy() -> BackoffPolicy {
+    BackoffPolicy {
+        initial: BACKOFF_FIRST,
+        max: BACKOFF_MAX,
+        factor: 2.0,
+        jitter: 0.25,
+        max_attempts: None,
     }
 }
 
@@ -181,7 +160,7 @@ impl Upstream {
     /// Runs until shutdown: connect, relay, reconnect.
     pub async fn run(mut self) {
         let mut mirror: Option<Mirror> = None;
-        let mut backoff = Backoff::new(&self.url.url);
+        let mut backoff = Backoff::new(backoff_policy());
         loop {
             let ended = self.connection(&mut mirror).await;
             if self.status.connected.swap(false, Ordering::Relaxed) {
@@ -199,7 +178,7 @@ impl Upstream {
                 Err(e) => format!("{e:#}"),
             };
             self.relay_metrics.upstream_failures.inc();
-            let delay = backoff.delay();
+            let delay = backoff.next_delay().unwrap_or(BACKOFF_MAX);
             let serving = if self.publisher.latest().is_some() {
                 "serving the last version"
             } else {
@@ -533,10 +512,10 @@ mod tests {
 
     #[test]
     fn backoff_doubles_to_its_cap_with_bounded_jitter() {
-        let mut b = Backoff::new("x");
+        let mut b = Backoff::new(backoff_policy());
         let mut step = BACKOFF_FIRST;
         for _ in 0..10 {
-            let d = b.delay();
+            let d = b.next_delay().expect("the relay never gives up");
             assert!(
                 d >= step.mul_f64(0.75) && d <= step.mul_f64(1.25),
                 "{d:?} vs {step:?}"
@@ -544,6 +523,6 @@ mod tests {
             step = (step * 2).min(BACKOFF_MAX);
         }
         b.reset();
-        assert!(b.delay() <= BACKOFF_FIRST.mul_f64(1.25));
+        assert!(b.next_delay().expect("never gives up") <= BACKOFF_FIRST.mul_f64(1.25));
     }
 }
