@@ -23,7 +23,7 @@
 use std::collections::{HashMap, VecDeque};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 /// The default capacity of a [`LatencyBook`]: at 30 poses/s and two
 /// drivers, about a minute of history.
@@ -138,12 +138,7 @@ impl SeqSource {
     }
 }
 
-/// Microseconds since the Unix epoch (0 if the clock is before it).
-pub fn unix_micros() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
-}
+pub use lightwire_protocol::unix_micros;
 
 /// How old a seq is if it follows the "seq = Unix µs at send" convention:
 /// `Some(now - seq)` when that is between 0 and 10 minutes, else `None`

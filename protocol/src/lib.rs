@@ -45,7 +45,7 @@ pub use codec::{DecodeError, decode_client, decode_server, encode_client, encode
 pub use error_code::ErrorCode;
 pub use messages::{
     ClientMessage, Delta, Keyframe, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, Pose, Role,
-    SceneInfo, ServerMessage, Stats, SurfaceInfo, Tile,
+    SceneInfo, ServerMessage, Stats, SurfaceInfo, Tile, unix_micros,
 };
 
 /// The protocol version a peer announces in its handshake. Bumped on any

@@ -8,6 +8,14 @@ use serde::{Deserialize, Serialize};
 
 use crate::ErrorCode;
 
+/// Microseconds since the Unix epoch (0 if the clock is before it): the
+/// clock of `Stats::server_time_us` and of a transform's `client_time_us`.
+pub fn unix_micros() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
 /// What a token lets a connection do. Decided by the server, announced in
 /// [`ServerMessage::Welcome`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode, Serialize, Deserialize)]

@@ -51,7 +51,6 @@ pub mod upstream;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use anyhow::{Result, bail};
 use axum::Router;
@@ -125,9 +124,7 @@ pub async fn relay(
             solve_ms: 0.0,
             redistribution_ms: 0.0,
             clients: 0,
-            server_time_us: SystemTime::now()
-                .duration_since(UNIX_EPOCH)
-                .map_or(0, |d| d.as_micros() as u64),
+            server_time_us: lightwire_protocol::unix_micros(),
         });
         let feed = Arc::new(Feed::new(url.scene.clone(), None, publications, stats_rx));
         let status = Arc::new(UpstreamStatus::default());

@@ -23,11 +23,12 @@
 use std::sync::Arc;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::backoff::{Backoff, BackoffPolicy};
+use lightwire_protocol::unix_micros;
 use lightwire_protocol::{
     ClientMessage, ErrorCode, MAX_FRAME_BYTES, PROTOCOL_VERSION, SceneInfo, ServerMessage, Stats,
     decode_server, encode_client,
@@ -134,13 +135,6 @@ enum Ended {
     Shutdown,
     /// Lost after it had delivered a keyframe: reconnect quickly.
     LostAfterSync(String),
-}
-
-fn now_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_micros() as u64)
-        .unwrap_or(0)
 }
 
 /// The relay's reconnect policy (`lightwire_protocol::backoff`, the one
@@ -347,7 +341,7 @@ impl Upstream {
                             self.stats.send_replace(Stats {
                                 version: mirror.version(),
                                 clients: self.feed.clients.load(Ordering::Relaxed),
-                                server_time_us: now_us(),
+                                server_time_us: unix_micros(),
                                 ..s
                             });
                             None
@@ -398,7 +392,7 @@ impl Upstream {
                             object: object as u32,
                             seq: pending.seq,
                             pose: pending.pose,
-                            client_time_us: now_us(),
+                            client_time_us: unix_micros(),
                         };
                         if let Err(e) = ws.send(Message::Binary(encode_client(&transform).into())).await {
                             return lost(format!("forwarding a transform: {e}"), synced);

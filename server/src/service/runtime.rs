@@ -34,11 +34,12 @@ use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use glam::{Quat, Vec3};
 use lightwire_protocol::lightmap::Encoder;
+use lightwire_protocol::unix_micros;
 use lightwire_protocol::{
     DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat,
     Pose as WirePose, SceneInfo, Stats, SurfaceInfo,
@@ -143,13 +144,6 @@ pub fn rebuild_delay(attempts: u32) -> Duration {
         .min(REBUILD_MAX)
 }
 
-fn now_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_micros() as u64)
-        .unwrap_or(0)
-}
-
 impl SceneRuntime {
     /// Loads a scene and starts its tick thread.
     pub fn start(
@@ -220,7 +214,7 @@ impl SceneRuntime {
             solve_ms: 0.0,
             redistribution_ms: 0.0,
             clients: 0,
-            server_time_us: now_us(),
+            server_time_us: unix_micros(),
         });
         let feed = Arc::new(Feed::new(
             info.id.clone(),
@@ -335,7 +329,7 @@ struct TickLoop {
 }
 
 fn unix_ms() -> u64 {
-    now_us() / 1000
+    unix_micros() / 1000
 }
 
 /// The text of a panic's payload.
@@ -590,7 +584,7 @@ impl TickLoop {
             solve_ms: report.solve.as_secs_f32() * 1000.0,
             redistribution_ms: report.redistribution.as_secs_f32() * 1000.0,
             clients: self.runtime.feed.clients.load(Ordering::Relaxed),
-            server_time_us: now_us(),
+            server_time_us: unix_micros(),
         });
     }
 
