@@ -111,15 +111,20 @@ fn main() -> Result<()> {
 
     let device = gpu::Device::new(None)?;
     let values = if gather {
+        let setup = std::time::Instant::now();
         let mut solver =
             gpu::GatherSolver::new(&device, &scene, &atlas, &poses, Default::default())?;
+        let setup = setup.elapsed().as_secs_f64();
         let started = std::time::Instant::now();
         if direct {
             solver.bounce()?;
         } else {
             solver.solve(1e-4)?;
         }
-        println!("gather: {:.3} s", started.elapsed().as_secs_f64());
+        println!(
+            "gather: setup {setup:.3} s (direct light by rays included), solve {:.3} s",
+            started.elapsed().as_secs_f64()
+        );
         solver.radiosity()?
     } else {
         let mut solver = gpu::ProgressiveSolver::new(&device, &scene, &atlas, &poses, gpu_options)?;
