@@ -45,11 +45,12 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use wgpu::util::DeviceExt;
 
+use super::binding::{Kind, Pass, Resources, Slot};
+use super::buffers::{map_read, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
-use super::progressive::{
-    FACES, GpuShooter, SURFACE_OFFSET, bind, compute, map_read, place_patches, read_vec4,
-    received_and_absorbed, v4, world_areas,
-};
+use super::hemicube::{FACES, render_pipeline};
+use super::placement::{self, SURFACE_OFFSET, place_patches, world_areas};
+use super::progressive::GpuShooter;
 use super::shaders;
 use crate::atlas::Atlas;
 use crate::direct::direct_light;
@@ -200,6 +201,58 @@ fn face_viewport(origin: (u32, u32), face: u32, res: u32) -> (u32, u32, u32) {
     }
 }
 
+/// The bindings of gather.wgsl.
+mod slot {
+    use super::{Kind, Slot};
+
+    pub(super) const VERTICES: Slot = Slot::new("vertices", 0, Kind::StorageRead);
+    pub(super) const RECEIVERS: Slot = Slot::new("receivers", 1, Kind::StorageRead);
+    pub(super) const PARAMS: Slot = Slot::new("params", 2, Kind::Uniform);
+    pub(super) const RADIOSITY: Slot = Slot::new("radiosity", 3, Kind::StorageRead);
+    pub(super) const PATCHES: Slot = Slot::new("patches", 4, Kind::StorageRead);
+    pub(super) const UPDATED: Slot = Slot::new("updated", 5, Kind::Storage);
+    pub(super) const HEMICUBES: Slot =
+        Slot::new("hemicubes", 6, Kind::FloatTexture { filterable: false });
+    pub(super) const MULTIPLIERS: Slot = Slot::new("multipliers", 7, Kind::StorageRead);
+    pub(super) const ELEMENTS: Slot = Slot::new("elements", 8, Kind::StorageRead);
+    pub(super) const CHANGE: Slot = Slot::new("change", 9, Kind::Storage);
+    pub(super) const IRRADIANCE: Slot = Slot::new("irradiance", 10, Kind::Storage);
+    pub(super) const TOTALS: Slot = Slot::new("totals", 11, Kind::Storage);
+}
+
+use slot::*;
+
+/// "Render all B_j to a hemicube placed on patch i" (thesis Alg. 4.1).
+const RADIOSITY_HEMICUBES: Pass = Pass {
+    entries: &["vs_gather", "fs_gather"],
+    slots: &[VERTICES, RECEIVERS, PARAMS, RADIOSITY, PATCHES, ELEMENTS],
+};
+
+/// Integrate each tile against the delta form factors.
+const GATHER: Pass = Pass {
+    entries: &["gather_main"],
+    slots: &[
+        PARAMS,
+        RADIOSITY,
+        UPDATED,
+        HEMICUBES,
+        MULTIPLIERS,
+        ELEMENTS,
+        CHANGE,
+        IRRADIANCE,
+    ],
+};
+
+/// The power a bounce changed, for the convergence test.
+const TOTAL_CHANGE: Pass = Pass {
+    entries: &["total_change"],
+    slots: &[PARAMS, CHANGE, TOTALS],
+};
+
+/// Every pass of gather.wgsl, for the naga check in shaders.rs.
+#[cfg(test)]
+pub(super) const ALL_PASSES: [Pass; 3] = [RADIOSITY_HEMICUBES, GATHER, TOTAL_CHANGE];
+
 /// Gather radiosity on the GPU (thesis Alg. 4.1): every bounce renders a
 /// hemicube of the current radiosity at every element.
 pub struct GatherSolver {
@@ -243,49 +296,6 @@ pub struct GatherSolver {
     gather: wgpu::ComputePipeline,
     gather_groups: [wgpu::BindGroup; 2],
     total_change: (wgpu::ComputePipeline, wgpu::BindGroup),
-}
-
-/// The render pipeline of `vs_gather`/`fs_gather`: no culling (surfaces
-/// are opaque from both sides), reversed depth (see gather.wgsl).
-fn radiosity_hemicube_pipeline(
-    device: &wgpu::Device,
-    module: &wgpu::ShaderModule,
-) -> wgpu::RenderPipeline {
-    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("gather hemicubes"),
-        layout: None,
-        vertex: wgpu::VertexState {
-            module,
-            entry_point: Some("vs_gather"),
-            compilation_options: Default::default(),
-            buffers: &[],
-        },
-        primitive: wgpu::PrimitiveState {
-            topology: wgpu::PrimitiveTopology::TriangleList,
-            cull_mode: None,
-            ..Default::default()
-        },
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: wgpu::TextureFormat::Depth32Float,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::Greater),
-            stencil: Default::default(),
-            bias: Default::default(),
-        }),
-        multisample: Default::default(),
-        fragment: Some(wgpu::FragmentState {
-            module,
-            entry_point: Some("fs_gather"),
-            compilation_options: Default::default(),
-            targets: &[Some(wgpu::ColorTargetState {
-                format: wgpu::TextureFormat::Rgba32Float,
-                blend: None,
-                write_mask: wgpu::ColorWrites::ALL,
-            })],
-        }),
-        multiview_mask: None,
-        cache: None,
-    })
 }
 
 impl GatherSolver {
@@ -339,13 +349,7 @@ impl GatherSolver {
             .map(|(p, c)| [atlas.patch_elements[p], c.w, c.h])
             .collect();
         let patches = place_patches(&shapes, &patch_objects, &layout, poses);
-        let mut lo = Vec3::splat(f32::INFINITY);
-        let mut hi = Vec3::splat(f32::NEG_INFINITY);
-        for corner in patches.iter().flat_map(|p| p.corners()) {
-            lo = lo.min(corner);
-            hi = hi.max(corner);
-        }
-        let extent = (hi - lo).length().max(1e-6);
+        let extent = placement::extent(&patches);
         let offset = extent * SURFACE_OFFSET;
 
         // Receiving points and hemicube frames: the sample nudged towards
@@ -534,50 +538,41 @@ impl GatherSolver {
             label: Some("gather.wgsl"),
             source: wgpu::ShaderSource::Wgsl(shaders::gather().into()),
         });
-        fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
-            buffer.as_entire_binding()
-        }
-        let hemicube = radiosity_hemicube_pipeline(&device, &module);
-        let hemicube_groups = [0, 1].map(|k| {
-            bind(
-                &device,
-                "gather hemicube",
-                &hemicube.get_bind_group_layout(0),
-                &[
-                    (0, b(&vertex_buffer)),
-                    (1, b(&receiver_buffer)),
-                    (2, b(&params)),
-                    (3, b(&radiosity[k])),
-                    (4, b(&patch_buffer)),
-                    (8, b(&element_buffer)),
-                ],
-            )
-        });
-        let gather_resources = |k: usize| {
-            vec![
-                (2, b(&params)),
-                (3, b(&radiosity[k])),
-                (5, b(&radiosity[1 - k])),
-                (6, wgpu::BindingResource::TextureView(&color_view)),
-                (7, b(&multiplier_buffer)),
-                (8, b(&element_buffer)),
-                (9, b(&change)),
-                (10, b(&irradiance)),
-            ]
+        // Bind group `k` reads `radiosity[k]` and writes the other buffer.
+        let resources = |k: usize| {
+            Resources::new()
+                .buffer(slot::VERTICES, &vertex_buffer)
+                .buffer(slot::RECEIVERS, &receiver_buffer)
+                .buffer(slot::PARAMS, &params)
+                .buffer(slot::RADIOSITY, &radiosity[k])
+                .buffer(slot::PATCHES, &patch_buffer)
+                .buffer(slot::UPDATED, &radiosity[1 - k])
+                .view(slot::HEMICUBES, &color_view)
+                .buffer(slot::MULTIPLIERS, &multiplier_buffer)
+                .buffer(slot::ELEMENTS, &element_buffer)
+                .buffer(slot::CHANGE, &change)
+                .buffer(slot::IRRADIANCE, &irradiance)
+                .buffer(slot::TOTALS, &totals)
         };
-        let (gather, gather0) = compute(&device, &module, "gather_main", &gather_resources(0));
-        let gather1 = bind(
-            &device,
-            "gather_main",
-            &gather.get_bind_group_layout(0),
-            &gather_resources(1),
-        );
-        let total_change = compute(
+        let bound = [resources(0), resources(1)];
+        // Reversed depth (see gather.wgsl): nearer is greater.
+        let hemicube_layout = RADIOSITY_HEMICUBES.layout(&device);
+        let hemicube = render_pipeline(
             &device,
             &module,
-            "total_change",
-            &[(2, b(&params)), (9, b(&change)), (11, b(&totals))],
+            &RADIOSITY_HEMICUBES,
+            &hemicube_layout,
+            wgpu::TextureFormat::Rgba32Float,
+            1,
+            wgpu::CompareFunction::Greater,
         );
+        let hemicube_groups = [0, 1]
+            .map(|k| RADIOSITY_HEMICUBES.bind(&device, &hemicube_layout, |s| bound[k].get(s)));
+        let (gather, gather0) = GATHER.compute(&device, &module, &[], |s| bound[0].get(s));
+        let gather1 = GATHER.bind(&device, &gather.get_bind_group_layout(0), |s| {
+            bound[1].get(s)
+        });
+        let total_change = TOTAL_CHANGE.compute(&device, &module, &[], |s| bound[0].get(s));
 
         Ok(Self {
             device,

@@ -31,12 +31,32 @@
 //!
 //! Shader sources live in `shaders/` at the repository root and are
 //! compiled into the binary with `include_str!`; `shaders.rs` assembles
-//! them into modules, and its tests validate every module with naga and
-//! tie each struct shared with WGSL to its Rust mirror's size.
+//! them into modules, and its tests validate every module with naga, tie
+//! each struct shared with WGSL to its Rust mirror's size, and check every
+//! pipeline's bindings against the WGSL.
+//!
+//! The building blocks, one concept per file:
+//!
+//! - `device.rs`: the adapter, the device and its health;
+//! - `binding.rs`: bind group layouts declared once per WGSL binding
+//!   (named slots, and the passes that list them);
+//! - `buffers.rs`: helpers the solvers share (textures, dispatch,
+//!   readback, energy sums);
+//! - `placement.rs`: elements and patches placed at the objects' poses;
+//! - `hemicube.rs`: the hemicube rasterizer (item buffers and shot
+//!   radiosity);
+//! - `shaders.rs`: the WGSL modules;
+//! - `progressive/`: progressive refinement and redistribution;
+//! - `gather.rs`: gather radiosity;
+//! - `dynamic.rs`: the solver session that follows moves.
 
+mod binding;
+mod buffers;
 mod device;
 mod dynamic;
 mod gather;
+mod hemicube;
+mod placement;
 mod progressive;
 mod shaders;
 

@@ -34,10 +34,11 @@ pub(super) fn gather() -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::super::gather::{GatherElement, GatherParams, GatherVertex};
-    use super::super::progressive::{
-        BatchUniform, ELEMENT_BYTES, GpuShooter, GpuVertex, LocalElement, Selection,
-    };
+    use super::super::binding::{Pass, check};
+    use super::super::gather::{self, GatherElement, GatherParams, GatherVertex};
+    use super::super::hemicube::{self, GpuVertex};
+    use super::super::placement::{ELEMENT_BYTES, LocalElement};
+    use super::super::progressive::{self, BatchUniform, GpuShooter, Selection};
     use super::*;
 
     /// Every module the solvers build, by the label they give it.
@@ -114,6 +115,28 @@ mod tests {
         }
         for ((name, _), count) in shared.iter().zip(found) {
             assert!(count > 0, "no module declares {name}");
+        }
+    }
+
+    /// Every pipeline's explicit bind group layout lists exactly the
+    /// bindings its entry points use, at the indices and of the kinds the
+    /// WGSL declares: a binding changed on one side only fails here.
+    #[test]
+    fn every_pass_binds_what_its_shader_declares() {
+        let passes: [(&str, String, Vec<Pass>); 3] = [
+            ("compute", compute(), progressive::ALL_PASSES.to_vec()),
+            (
+                "hemicube",
+                hemicube(),
+                vec![hemicube::ITEM_BUFFERS, hemicube::SHOT_RADIOSITY],
+            ),
+            ("gather", gather(), gather::ALL_PASSES.to_vec()),
+        ];
+        for (label, source, list) in passes {
+            let (module, info) = parse(label, &source);
+            for pass in &list {
+                check::pass_matches(label, &module, &info, pass);
+            }
         }
     }
 }

@@ -49,10 +49,14 @@ use std::str::FromStr;
 
 use glam::Vec3;
 
-use super::{
-    BatchUniform, FACES, GpuError, GpuShooter, ProgressiveSolver, WORKGROUP, WorldPatch, bind,
-    compute_with, hemicube_pipeline, place_patches, world_areas,
+use super::pipelines::{
+    GATHER_MOVING, RECONSTRUCT_DYN, RESET_MOVING, SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
 };
+use super::shooters::contact_limit;
+use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
+use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
+use crate::gpu::hemicube::{self, FACES};
+use crate::gpu::placement::{WorldPatch, place_patches, world_areas};
 use crate::gpu::shaders;
 use crate::scene::Pose;
 
@@ -183,32 +187,6 @@ pub(in crate::gpu) struct DynamicPasses {
     back_depth_view: wgpu::TextureView,
 }
 
-fn texture(
-    device: &wgpu::Device,
-    label: &str,
-    (width, height): (u32, u32),
-    format: wgpu::TextureFormat,
-    samples: u32,
-    usage: wgpu::TextureUsages,
-) -> wgpu::TextureView {
-    device
-        .create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: samples,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage,
-            view_formats: &[],
-        })
-        .create_view(&Default::default())
-}
-
 impl ProgressiveSolver {
     fn dynamic_passes(&mut self) -> &DynamicPasses {
         if self.dynamic.is_none() {
@@ -295,129 +273,51 @@ impl ProgressiveSolver {
             label: Some("hemicube.wgsl (radiosity)"),
             source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
         });
-        let bufs = &self.buffers;
-        fn b(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
-            buffer.as_entire_binding()
-        }
         let grid = [("CROSS_GRID", f64::from(self.options.cross_grid.max(1)))];
-        let reset = compute_with(
-            device,
-            &module,
-            "reset_moving",
-            &[],
-            &[
-                (0, b(&bufs.elements)),
-                (1, b(&self.radiosity)),
-                (2, b(&bufs.unshot)),
-                (9, b(&self.batch)),
-                (11, b(&self.flags_buffer)),
-                (15, b(&bufs.emission)),
-                (16, b(&old_shot)),
-                (22, b(&gathered)),
-                (23, b(&smoothed)),
-            ],
-        );
-        let energy = compute_with(
-            device,
-            &module,
-            "shooter_energy_dyn",
-            &[],
-            &[
-                (0, b(&bufs.elements)),
-                (1, b(&self.radiosity)),
-                (2, b(&bufs.unshot)),
-                (7, b(&self.shooters)),
-                (8, b(&bufs.energy)),
-                (9, b(&self.batch)),
-                (16, b(&old_shot)),
-            ],
-        );
-        let gather = compute_with(
-            device,
-            &module,
-            "gather_moving",
-            &[],
-            &[
-                (0, b(&bufs.elements)),
-                (13, b(&bufs.local_elements)),
-                (1, b(&self.radiosity)),
-                (2, b(&bufs.unshot)),
-                (7, b(&self.shooters)),
-                (8, b(&bufs.energy)),
-                (9, b(&self.batch)),
-                (16, b(&old_shot)),
-                (17, wgpu::BindingResource::TextureView(&front_view)),
-                (22, b(&gathered)),
-            ],
-        );
         let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
-        let smooth = compute_with(
-            device,
-            &module,
-            "smooth_moving",
-            &tile,
-            &[
-                (0, b(&bufs.elements)),
-                (1, b(&self.radiosity)),
-                (4, b(&bufs.patches)),
-                (9, b(&self.batch)),
-                (11, b(&self.flags_buffer)),
-                (22, b(&gathered)),
-                (23, b(&smoothed)),
-            ],
-        );
-        let reconstruct = compute_with(
-            device,
-            &module,
-            "reconstruct_dyn",
-            &grid,
-            &[
-                (0, b(&bufs.elements)),
-                (1, b(&self.radiosity)),
-                (2, b(&bufs.unshot)),
-                (4, b(&bufs.patches)),
-                (7, b(&self.shooters)),
-                (8, b(&bufs.energy)),
-                (9, b(&self.batch)),
-                (10, wgpu::BindingResource::TextureView(&self.item_view)),
-                (11, b(&self.flags_buffer)),
-                (12, b(&self.pose_buffer)),
-                (13, b(&bufs.local_elements)),
-                (18, wgpu::BindingResource::TextureView(&back_view)),
-                (19, wgpu::BindingResource::Sampler(&sampler)),
-                (20, b(&back_shooters)),
-                (21, b(&back_batch)),
-            ],
-        );
-        let rad_group =
-            |pipeline: &wgpu::RenderPipeline, shooters: &wgpu::Buffer, batch: &wgpu::Buffer| {
-                bind(
-                    device,
-                    "radiosity hemicube",
-                    &pipeline.get_bind_group_layout(0),
-                    &[
-                        (0, b(&bufs.vertices)),
-                        (1, b(shooters)),
-                        (2, b(batch)),
-                        (3, b(&self.pose_buffer)),
-                        (4, b(&self.radiosity)),
-                        (5, b(&bufs.unshot)),
-                        (6, b(&bufs.patches)),
-                        (7, b(&self.flags_buffer)),
-                    ],
-                )
-            };
-        let front_pipeline =
-            hemicube_pipeline(device, &hemicube_module, ("vs_rad", "fs_rad"), rgba, 1);
-        let front_group = rad_group(&front_pipeline, &self.shooters, &self.batch);
-        let back_pipeline = hemicube_pipeline(
-            device,
-            &hemicube_module,
-            ("vs_rad", "fs_rad"),
-            rgba,
-            BACK_SAMPLES,
-        );
-        let back_group = rad_group(&back_pipeline, &back_shooters, &back_batch);
+        let resources = self
+            .buffers
+            .resources()
+            .buffer(slot::OLD_SHOT, &old_shot)
+            .buffer(slot::GATHERED, &gathered)
+            .buffer(slot::SMOOTHED, &smoothed)
+            .view(slot::FRONT_RAD, &front_view)
+            .view(slot::BACK_RAD, &back_view)
+            .sampler(slot::BACK_SAMPLER, &sampler)
+            .buffer(slot::BACK_SHOOTERS, &back_shooters)
+            .buffer(slot::BACK, &back_batch);
+        let compute = |pass: crate::gpu::binding::Pass, constants: &[(&str, f64)]| {
+            pass.compute(device, &module, constants, |s| resources.get(s))
+        };
+        let reset = compute(RESET_MOVING, &[]);
+        let energy = compute(SHOOTER_ENERGY_DYN, &[]);
+        let gather = compute(GATHER_MOVING, &[]);
+        let smooth = compute(SMOOTH_MOVING, &tile);
+        let reconstruct = compute(RECONSTRUCT_DYN, &grid);
+        // Shot radiosity hemicubes: the front ones at the batch's shooters,
+        // the back ones (multisampled) at their own shooters and constants.
+        let rad = &hemicube::SHOT_RADIOSITY;
+        let rad_layout = rad.layout(device);
+        let rad_pipeline = |samples: u32| {
+            hemicube::render_pipeline(
+                device,
+                &hemicube_module,
+                rad,
+                &rad_layout,
+                rgba,
+                samples,
+                wgpu::CompareFunction::Less,
+            )
+        };
+        let front_pipeline = rad_pipeline(1);
+        let front_group = rad.bind(device, &rad_layout, |s| resources.get(s));
+        let back_resources = self
+            .buffers
+            .resources()
+            .buffer(hemicube::slot::SHOOTERS, &back_shooters)
+            .buffer(hemicube::slot::BATCH, &back_batch);
+        let back_pipeline = rad_pipeline(BACK_SAMPLES);
+        let back_group = rad.bind(device, &rad_layout, |s| back_resources.get(s));
         DynamicPasses {
             reset,
             energy,
@@ -505,14 +405,14 @@ impl ProgressiveSolver {
         };
         let uniform = self.batch_uniform(u32::MAX, 0, u32::MAX, reset_mode);
         self.queue
-            .write_buffer(&self.batch, 0, bytemuck::bytes_of(&uniform));
+            .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
         self.dynamic_passes();
         let mut encoder = self.device.create_command_encoder(&Default::default());
         // The reset reads the elements only for their objects, so it may
         // run after placement.
         self.encode_place(&mut encoder);
         if let Some(d) = &self.dynamic {
-            Self::encode_compute(
+            encode_compute(
                 &mut encoder,
                 &d.reset,
                 self.element_count.div_ceil(WORKGROUP),
@@ -605,7 +505,7 @@ impl ProgressiveSolver {
                 // While M is still marked: the tiles' gathered light, read
                 // between tile centres, becomes the texels' radiosity.
                 let d = self.dynamic.as_ref().expect("built in begin_move");
-                Self::encode_compute(
+                encode_compute(
                     &mut encoder,
                     &d.smooth,
                     self.element_count.div_ceil(WORKGROUP),
@@ -638,7 +538,7 @@ impl ProgressiveSolver {
 
     /// Number of shooters for a patch holding `power`, at most `capacity`.
     fn grid_count(&self, patch: usize, power: f64, capacity: u32) -> u32 {
-        let (gx, gy) = self.shooter_grid(&self.patches[patch], power, capacity);
+        let (gx, gy) = self.tiling().grid(&self.patches[patch], power, capacity);
         gx * gy
     }
 
@@ -663,14 +563,19 @@ impl ProgressiveSolver {
             Job::Negative { patch, shooters } => {
                 let wp = old_patches[patch as usize];
                 let grid = self.shooter_grid_for_count(&wp, shooters);
-                let list =
-                    self.tile_shooters(patch, &wp, &old_areas, grid, self.job_split_limit(grid));
+                let list = self.tiling().shooters(
+                    patch,
+                    &wp,
+                    &old_areas,
+                    grid,
+                    self.job_split_limit(grid),
+                );
                 let n = list.len() as u32;
                 self.upload(&list, self.batch_uniform(patch, n, 0, KIND_NEGATIVE));
                 let d = self.dynamic.as_ref().expect("built in begin_move");
-                Self::encode_compute(&mut encoder, &d.energy, n);
+                encode_compute(&mut encoder, &d.energy, n);
                 self.encode_item_buffers(&mut encoder, n);
-                Self::encode_compute(
+                encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
@@ -679,15 +584,20 @@ impl ProgressiveSolver {
             Job::Static { patch, shooters } => {
                 let wp = self.patches[patch as usize];
                 let grid = self.shooter_grid_for_count(&wp, shooters);
-                let mut list =
-                    self.tile_shooters(patch, &wp, &self.areas, grid, self.job_split_limit(grid));
+                let mut list = self.tiling().shooters(
+                    patch,
+                    &wp,
+                    &self.areas,
+                    grid,
+                    self.job_split_limit(grid),
+                );
                 let n = list.len() as u32;
                 list.extend_from_within(..);
                 self.upload(&list, self.batch_uniform(patch, n, n, KIND_STATIC));
                 let d = self.dynamic.as_ref().expect("built in begin_move");
-                Self::encode_compute(&mut encoder, &d.energy, n);
+                encode_compute(&mut encoder, &d.energy, n);
                 self.encode_item_buffers(&mut encoder, 2 * n);
-                Self::encode_compute(
+                encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
@@ -707,12 +617,13 @@ impl ProgressiveSolver {
                 // floor under a box resting on it) loses the light the
                 // patch blocks from its front side.
                 let mut list = Vec::with_capacity(4 * count as usize);
+                let tiling = self.tiling();
                 for (placed, areas) in [(&self.patches, &self.areas), (&old_patches, &old_areas)] {
                     let front: Vec<GpuShooter> = tiles
                         .iter()
                         .map(|t| {
                             let wp = &placed[t.patch as usize];
-                            let mut s = self.shooter(t.patch, wp, areas, t.texels);
+                            let mut s = tiling.shooter(t.patch, wp, areas, t.texels);
                             // gather_moving walks the tile's texels.
                             s.eye[3] = f32::from_bits(wp.first);
                             s.su[3] = f32::from_bits(wp.w);
@@ -744,29 +655,35 @@ impl ProgressiveSolver {
                 self.encode_item_buffers(&mut encoder, 4 * count);
                 let clear = wgpu::Color::TRANSPARENT;
                 if has_new {
-                    self.encode_hemicubes(
+                    hemicube::encode(
                         &mut encoder,
                         (&d.rad_front.0, &d.rad_front.1),
-                        &d.front_view,
-                        None,
-                        &self.depth_view,
-                        clear,
-                        res,
+                        &hemicube::Target {
+                            view: &d.front_view,
+                            resolve: None,
+                            depth: &self.buffers.depth_view,
+                            clear,
+                            resolution: res,
+                        },
                         count,
+                        self.triangle_vertices,
                     );
                 }
-                self.encode_hemicubes(
+                hemicube::encode(
                     &mut encoder,
                     (&d.rad_back.0, &d.rad_back.1),
-                    &d.back_msaa_view,
-                    Some(&d.back_view),
-                    &d.back_depth_view,
-                    clear,
-                    back_uniform.resolution,
+                    &hemicube::Target {
+                        view: &d.back_msaa_view,
+                        resolve: Some(&d.back_view),
+                        depth: &d.back_depth_view,
+                        clear,
+                        resolution: back_uniform.resolution,
+                    },
                     4 * count,
+                    self.triangle_vertices,
                 );
-                Self::encode_compute(&mut encoder, &d.gather, count);
-                Self::encode_compute(
+                encode_compute(&mut encoder, &d.gather, count);
+                encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
@@ -782,7 +699,7 @@ impl ProgressiveSolver {
     /// batch a job gets, or the grid itself without `split_contacts`.
     fn job_split_limit(&self, grid: (u32, u32)) -> usize {
         if self.options.split_contacts {
-            super::contact_limit(grid, self.batch_capacity / 2)
+            contact_limit(grid, self.batch_capacity / 2)
         } else {
             (grid.0 * grid.1) as usize
         }
@@ -807,17 +724,17 @@ impl ProgressiveSolver {
         let eye = corner + (su + sv) * 0.5 - n * (self.near * 2.0);
         let t2 = Vec3::from_slice(&s.t2[..3]);
         GpuShooter {
-            eye: super::v4(eye, s.eye[3]),
-            t2: super::v4(-t2, 0.0),
-            n: super::v4(-n, s.n[3]),
+            eye: v4(eye, s.eye[3]),
+            t2: v4(-t2, 0.0),
+            n: v4(-n, s.n[3]),
             ..*s
         }
     }
 
     fn upload(&self, shooters: &[GpuShooter], uniform: BatchUniform) {
         self.queue
-            .write_buffer(&self.shooters, 0, bytemuck::cast_slice(shooters));
+            .write_buffer(&self.buffers.shooters, 0, bytemuck::cast_slice(shooters));
         self.queue
-            .write_buffer(&self.batch, 0, bytemuck::bytes_of(&uniform));
+            .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
     }
 }

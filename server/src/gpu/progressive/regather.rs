@@ -57,7 +57,7 @@ impl ProgressiveSolver {
         if elements.is_empty() {
             return Ok(());
         }
-        let radiosity = self.read_vec4(&self.radiosity)?;
+        let radiosity = self.read_vec4(&self.buffers.radiosity)?;
         let unshot = self.read_vec4(&self.buffers.unshot)?;
         let lit = gather(&self.scene, &self.atlas, &self.poses, &radiosity, &elements);
         for (&i, b) in elements.iter().zip(lit) {
@@ -65,7 +65,7 @@ impl ProgressiveSolver {
             let delta = b - Vec3::new(old[0], old[1], old[2]);
             let offset = i as u64 * 16;
             self.queue.write_buffer(
-                &self.radiosity,
+                &self.buffers.radiosity,
                 offset,
                 bytemuck::bytes_of(&[b.x, b.y, b.z, old[3]]),
             );

@@ -1,0 +1,215 @@
+//! Hemicubes rasterized at shooters (thesis §4.3.2): one large target
+//! holds a row of five face viewports per shooter slot, all drawn in one
+//! render pass from the patches' triangles, which live in object space and
+//! are placed by the poses in the vertex shader (hemicube.wgsl).
+//!
+//! Two kinds of target come from the same geometry: item buffers of patch
+//! ids (`vs_main`/`fs_main`, R32Uint), which decide visibility in
+//! progressive refinement and redistribution, and shot radiosity
+//! (`vs_rad`/`fs_rad`, Rgba16Float, optionally multisampled as a blur,
+//! thesis §4.5.2), which cross redistribution gathers and projects. The
+//! gather solver's radiosity hemicubes use [`render_pipeline`] too.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::binding::{Kind, Pass, Slot};
+use super::buffers::v4;
+use crate::scene::PatchShape;
+
+/// Hemicube faces per shooter: top and four sides.
+pub(super) const FACES: u32 = 5;
+
+/// Patch id of item-buffer pixels that see no surface.
+pub(super) const NO_PATCH: u32 = u32::MAX;
+
+/// One patch corner for the hemicube rasterizer (`Vertex` in hemicube.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+pub(super) struct GpuVertex {
+    pos: [f32; 4],
+    st: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<GpuVertex>() == 32);
+
+/// The bindings of hemicube.wgsl.
+pub(super) mod slot {
+    use super::{Kind, Slot};
+
+    pub(in crate::gpu) const VERTICES: Slot = Slot::new("vertices", 0, Kind::StorageRead);
+    pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 1, Kind::StorageRead);
+    pub(in crate::gpu) const BATCH: Slot = Slot::new("batch", 2, Kind::Uniform);
+    pub(in crate::gpu) const POSES: Slot = Slot::new("poses", 3, Kind::StorageRead);
+    pub(in crate::gpu) const RADIOSITY: Slot = Slot::new("radiosity", 4, Kind::StorageRead);
+    pub(in crate::gpu) const UNSHOT: Slot = Slot::new("unshot", 5, Kind::StorageRead);
+    pub(in crate::gpu) const PATCHES: Slot = Slot::new("patches", 6, Kind::StorageRead);
+    pub(in crate::gpu) const OBJECT_FLAGS: Slot = Slot::new("object_flags", 7, Kind::StorageRead);
+}
+
+/// Item buffers: the nearest patch id per pixel.
+pub(super) const ITEM_BUFFERS: Pass = Pass {
+    entries: &["vs_main", "fs_main"],
+    slots: &[slot::VERTICES, slot::SHOOTERS, slot::BATCH, slot::POSES],
+};
+
+/// Shot radiosity `B - B^u` of the static surfaces and the distance from
+/// the eye (thesis Alg. 4.4-4.5).
+pub(super) const SHOT_RADIOSITY: Pass = Pass {
+    entries: &["vs_rad", "fs_rad"],
+    slots: &[
+        slot::VERTICES,
+        slot::SHOOTERS,
+        slot::BATCH,
+        slot::POSES,
+        slot::RADIOSITY,
+        slot::UNSHOT,
+        slot::PATCHES,
+        slot::OBJECT_FLAGS,
+    ],
+};
+
+/// Two triangles per patch in object space, with the patch id, the patch
+/// parameters of each corner and the object id; `triangle_vertices` is the
+/// count to draw (the buffer is padded to one vertex when there is none).
+pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<GpuVertex>, u32) {
+    let mut vertices: Vec<GpuVertex> = Vec::with_capacity(shapes.len() * 6);
+    for (p, shape) in shapes.iter().enumerate() {
+        let PatchShape::Quad { origin, u, v } = *shape;
+        let corners = [
+            (origin, [0.0, 0.0]),
+            (origin + u, [1.0, 0.0]),
+            (origin + u + v, [1.0, 1.0]),
+            (origin + v, [0.0, 1.0]),
+        ];
+        let object = f32::from_bits(objects[p]);
+        for i in [0, 1, 2, 0, 2, 3] {
+            let (c, st) = corners[i];
+            vertices.push(GpuVertex {
+                pos: v4(c, f32::from_bits(p as u32)),
+                st: [st[0], st[1], object, 0.0],
+            });
+        }
+    }
+    let count = vertices.len() as u32;
+    if vertices.is_empty() {
+        vertices.push(GpuVertex::zeroed());
+    }
+    (vertices, count)
+}
+
+/// A hemicube render pipeline of `pass` with its explicit layout: no
+/// culling (surfaces are opaque from both sides), a 32-bit depth buffer
+/// compared with `depth_compare`, one colour target of `format`, `samples`
+/// samples.
+pub(super) fn render_pipeline(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    pass: &Pass,
+    layout: &wgpu::BindGroupLayout,
+    format: wgpu::TextureFormat,
+    samples: u32,
+    depth_compare: wgpu::CompareFunction,
+) -> wgpu::RenderPipeline {
+    let label = pass.entries.join("/");
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(&label),
+        layout: Some(&pass.pipeline_layout(device, layout)),
+        vertex: wgpu::VertexState {
+            module,
+            entry_point: Some(pass.entries[0]),
+            compilation_options: Default::default(),
+            buffers: &[],
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            // Surfaces are opaque from both sides.
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: wgpu::TextureFormat::Depth32Float,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(depth_compare),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: wgpu::MultisampleState {
+            count: samples,
+            ..Default::default()
+        },
+        fragment: Some(wgpu::FragmentState {
+            module,
+            entry_point: Some(pass.entries[1]),
+            compilation_options: Default::default(),
+            targets: &[Some(wgpu::ColorTargetState {
+                format,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+/// Where one hemicube render pass draws.
+pub(super) struct Target<'a> {
+    pub(super) view: &'a wgpu::TextureView,
+    /// Resolve target of a multisampled `view` (then `view` is discarded).
+    pub(super) resolve: Option<&'a wgpu::TextureView>,
+    pub(super) depth: &'a wgpu::TextureView,
+    pub(super) clear: wgpu::Color,
+    /// Top-face resolution in pixels.
+    pub(super) resolution: u32,
+}
+
+/// Rasterizes hemicube slots `0..slots` of the bound shooters into
+/// `target` (thesis §4.3.2: one large target, a viewport per face per
+/// shooter, all in one render pass); `triangle_vertices` of the patch
+/// triangles are drawn once per face.
+pub(super) fn encode(
+    encoder: &mut wgpu::CommandEncoder,
+    (pipeline, group): (&wgpu::RenderPipeline, &wgpu::BindGroup),
+    target: &Target<'_>,
+    slots: u32,
+    triangle_vertices: u32,
+) {
+    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("hemicubes"),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view: target.view,
+            depth_slice: None,
+            resolve_target: target.resolve,
+            ops: wgpu::Operations {
+                load: wgpu::LoadOp::Clear(target.clear),
+                store: if target.resolve.is_some() {
+                    wgpu::StoreOp::Discard
+                } else {
+                    wgpu::StoreOp::Store
+                },
+            },
+        })],
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: target.depth,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Clear(1.0),
+                store: wgpu::StoreOp::Discard,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    let res = target.resolution;
+    for slot in 0..slots {
+        for face in 0..FACES {
+            let (x, y) = (face * res, slot * res);
+            pass.set_viewport(x as f32, y as f32, res as f32, res as f32, 0.0, 1.0);
+            pass.set_scissor_rect(x, y, res, res);
+            let instance = slot * FACES + face;
+            pass.draw(0..triangle_vertices, instance..instance + 1);
+        }
+    }
+}

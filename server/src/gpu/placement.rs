@@ -1,0 +1,190 @@
+//! Elements and patches placed in the world at the objects' poses.
+//!
+//! Elements are uploaded once in their object's space ([`LocalElement`]);
+//! `place_elements` (progressive.wgsl) puts them in the world at the current
+//! poses after every move. The CPU keeps the same placement for what it
+//! needs itself: the patches as parallelograms ([`WorldPatch`], to cut
+//! shooters), element areas at the objects' scales, and the scene's extent
+//! (for depth ranges and surface offsets).
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::atlas::Atlas;
+use crate::scene::{PatchShape, Pose};
+use crate::validity::Validity;
+
+use super::buffers::v4;
+
+/// Receiving points are moved this fraction of the scene's extent off
+/// edges and off their surface (like the reference solver's offset).
+pub(super) const SURFACE_OFFSET: f32 = 1e-5;
+
+/// One element in its object's space (`LocalElement` in progressive.wgsl);
+/// `place_elements` derives the world-space `Element` from it and the pose.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+pub(super) struct LocalElement {
+    pub(super) position: [f32; 4],
+    pub(super) normal: [f32; 4],
+    pub(super) lookup: [f32; 4],
+    pub(super) albedo: [f32; 4],
+    pub(super) nudge: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<LocalElement>() == 80);
+
+/// Size of a world-space element (`Element` in progressive.wgsl: position
+/// and area, normal and patch, lookup point and object, albedo).
+pub(super) const ELEMENT_BYTES: u64 = 64;
+
+/// Byte offset of `albedo.w`, the invalid flag, in a [`LocalElement`] and
+/// in a world-space `Element` (both put `albedo` fourth).
+pub(super) const INVALID_FLAG_OFFSET: u64 = 60;
+
+/// `albedo.w` of an element: 1 when it is invalid (`is_invalid` in
+/// progressive.wgsl: it receives nothing).
+pub(super) fn invalid_flag(invalid: bool) -> f32 {
+    if invalid { 1.0 } else { 0.0 }
+}
+
+/// A patch placed in the world, as the CPU needs it to place shooters.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct WorldPatch {
+    pub(super) origin: Vec3,
+    pub(super) u: Vec3,
+    pub(super) v: Vec3,
+    pub(super) normal: Vec3,
+    pub(super) first: u32,
+    pub(super) w: u32,
+    pub(super) h: u32,
+}
+
+impl WorldPatch {
+    /// The point an element at patch parameters `st` receives at: its
+    /// sample moved `offset` towards the patch centre and `offset` off the
+    /// surface, as `place_elements` (progressive.wgsl) moves it.
+    pub(super) fn receiving_point(&self, st: [f32; 2], offset: f32) -> Vec3 {
+        let [s, t] = st;
+        let sample = self.origin + self.u * s + self.v * t;
+        let centre = self.origin + (self.u + self.v) * 0.5;
+        let inward = (centre - sample).normalize_or_zero();
+        sample + (inward + self.normal) * offset
+    }
+
+    pub(super) fn corners(&self) -> [Vec3; 4] {
+        [
+            self.origin,
+            self.origin + self.u,
+            self.origin + self.u + self.v,
+            self.origin + self.v,
+        ]
+    }
+}
+
+/// Every patch placed at its object's pose; `layout` gives each patch's
+/// first element and chart size.
+pub(super) fn place_patches(
+    shapes: &[PatchShape],
+    objects: &[u32],
+    layout: &[[u32; 3]],
+    poses: &[Pose],
+) -> Vec<WorldPatch> {
+    shapes
+        .iter()
+        .enumerate()
+        .map(|(p, shape)| {
+            let PatchShape::Quad { origin, u, v } = shape.transformed(&poses[objects[p] as usize]);
+            let [first, w, h] = layout[p];
+            WorldPatch {
+                origin,
+                u,
+                v,
+                normal: u.cross(v).normalize(),
+                first,
+                w,
+                h,
+            }
+        })
+        .collect()
+}
+
+/// The length of the diagonal of the box around `patches` (at least a
+/// micrometre), the scale of depth ranges and offsets.
+pub(super) fn extent(patches: &[WorldPatch]) -> f32 {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for wp in patches {
+        for corner in wp.corners() {
+            lo = lo.min(corner);
+            hi = hi.max(corner);
+        }
+    }
+    (hi - lo).length().max(1e-6)
+}
+
+/// World areas of elements: scale-1 areas times their object's scale².
+pub(super) fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec<f32> {
+    local
+        .iter()
+        .zip(objects)
+        .map(|(a, o)| {
+            let s = poses[*o as usize].scale;
+            a * s * s
+        })
+        .collect()
+}
+
+/// The object-to-world matrix of a pose.
+pub(super) fn pose_matrix(pose: &Pose) -> [[f32; 4]; 4] {
+    glam::Mat4::from_scale_rotation_translation(
+        Vec3::splat(pose.scale),
+        pose.rotation,
+        pose.translation,
+    )
+    .to_cols_array_2d()
+}
+
+/// Every atlas element in its object's space, with the invalid flag of
+/// `validity`; `extent` scales the distance receiving points are moved off
+/// edges and surfaces.
+pub(super) fn local_elements(
+    shapes: &[PatchShape],
+    atlas: &Atlas,
+    validity: &Validity,
+    extent: f32,
+) -> Vec<LocalElement> {
+    atlas
+        .elements
+        .iter()
+        .enumerate()
+        .map(|(i, e)| {
+            let p = e.patch as usize;
+            let PatchShape::Quad { origin, u, v } = shapes[p];
+            let chart = atlas.charts[p];
+            let normal = u.cross(v).normalize();
+            let [s, t] = e.st;
+            let sample = origin + u * s + v * t;
+            let centre = origin + (u + v) * 0.5;
+            // Edge samples look up visibility a quarter cell inside their
+            // own patch, so the item buffer shows their patch, not the
+            // neighbour sharing the edge.
+            let inset = |x: f32, cells: u32| {
+                let q = 0.25 / (cells.max(2) - 1) as f32;
+                x.clamp(q, 1.0 - q)
+            };
+            let lookup = origin + u * inset(s, chart.w) + v * inset(t, chart.h);
+            LocalElement {
+                position: v4(sample, e.area),
+                normal: v4(normal, f32::from_bits(e.patch)),
+                lookup: v4(lookup, f32::from_bits(e.object)),
+                albedo: v4(e.albedo, invalid_flag(validity.is_invalid(i))),
+                // Receiving points are moved a hair towards the patch centre
+                // and off the surface (like the reference solver's offset).
+                nudge: v4(
+                    (centre - sample).normalize_or_zero(),
+                    extent * SURFACE_OFFSET,
+                ),
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,608 @@
+//! GPU progressive refinement radiosity (thesis Alg. 4.2, gems §39.2).
+//!
+//! One *batch* is one SHOOTINGITERATION of the thesis: the patch with the
+//! most unshot power (found by the previous batch's reduction) is split into
+//! shooters, every shooter gets a hemicube item buffer, and every element
+//! gathers from all shooters at once. See the module doc of [`crate::gpu`]
+//! for the data flow.
+//!
+//! The solver in parts, one concept per file:
+//!
+//! - this file: the options, the solver's state and its public interface;
+//! - `resources.rs`: the buffers and targets it keeps, and the slot each is
+//!   bound at;
+//! - `pipelines.rs`: the compute passes and their bindings by name;
+//! - `shooters.rs`: cutting the shooting patch into shooters (§4.3.3);
+//! - `shoot.rs`: one batch and the selection of the next patch;
+//! - `redistribute.rs`: following moves (incremental and cross
+//!   redistribution, thesis §4.4-4.5);
+//! - `regather.rs`: the texels next to a moved object gather again.
+
+use std::time::{Duration, Instant};
+
+use bytemuck::Zeroable;
+use glam::Vec3;
+
+use super::buffers::{WORKGROUP, read_vec4, received_and_absorbed, v4};
+use super::device::{Device, GpuError};
+use super::hemicube::{FACES, patch_vertices};
+use super::placement::{
+    self, ELEMENT_BYTES, INVALID_FLAG_OFFSET, LocalElement, WorldPatch, invalid_flag,
+    place_patches, pose_matrix, world_areas,
+};
+use crate::atlas::Atlas;
+use crate::scene::{PatchShape, Pose, Scene};
+use crate::validity::Validity;
+
+mod pipelines;
+mod redistribute;
+mod regather;
+mod resources;
+mod shoot;
+mod shooters;
+
+#[cfg(test)]
+pub(in crate::gpu) use pipelines::ALL as ALL_PASSES;
+pub use redistribute::{Move, Redistribution};
+pub(in crate::gpu) use shoot::{BatchUniform, Selection};
+pub(in crate::gpu) use shooters::GpuShooter;
+
+use pipelines::Pipelines;
+use resources::{Buffers, Upload, non_empty};
+use shooters::Tiling;
+
+/// Tuning of [`ProgressiveSolver`].
+#[derive(Debug, Clone, Copy)]
+pub struct ProgressiveOptions {
+    /// Top-face resolution of the hemicube item buffers in pixels (thesis
+    /// §4.3.1: with the disk approximation the form factor does not depend
+    /// on it, only visibility does, so it can be low).
+    pub hemicube_resolution: u32,
+    /// Most shooters one patch is split into (thesis §4.3.3); the count
+    /// for a patch grows with the square root of its share of the emitted
+    /// power.
+    pub max_shooters: u32,
+    /// Form-factor subdivision: a shooter of area `A` at distance `r` is
+    /// split into `ceil(subdivision * sqrt(A) / r)²` sub-disks (thesis
+    /// §4.3.3, adaptive form factor subdivision).
+    ///
+    /// The disk approximation (thesis eq. 2.2.7) is biased low: each
+    /// sub-disk of area `a` at distance `r` loses about `a / (π r²)` of its
+    /// form factor to the `+ a` in the denominator, so a closed room
+    /// receives less than is shot. Measured on a closed albedo-0.9 box
+    /// (`furnace.json` repainted), power received per power shot:
+    /// 0.9974 at 4, 0.9992 at 8, 0.9998 at 16, 1.0000 with the exact form
+    /// factor; a room that needs ten bounces multiplies that loss tenfold.
+    pub subdivision: f32,
+    /// Upper bound on sub-disks per axis; closer shooters use the exact
+    /// (infinitely subdivided) form factor: Lambert's contour integral,
+    /// four arctangents for an unclipped quad.
+    pub max_subdivision: u32,
+    /// Publish indirect light only (gems §39.4): [`ProgressiveSolver::radiosity`]
+    /// returns `B - E - D`, where `D` is the first bounce of the emitted
+    /// light, for clients that draw direct light and shadows themselves.
+    /// Every emitting patch shoots its emission once before anything else;
+    /// `D` is what that delivered. (Emitters that light each other mix a
+    /// little of their received light into `D`.)
+    pub indirect_only: bool,
+    /// Side length of the cross projection's sampling grid on each moving
+    /// shooter (thesis Alg. 4.5 gridSize).
+    pub cross_grid: u32,
+    /// Cross redistribution shoots from tiles of at most this many texels
+    /// per side on each moving patch, not from every texel: a tile gathers
+    /// the static scene's light once (its texels share it), shoots once
+    /// and casts its shadow once. The thesis does the same by giving the
+    /// rotating box far fewer elements under cross redistribution (§5.1:
+    /// 918 → 90 on the large Cornell box, 270 → 24 on the low-quality
+    /// one); 4 gives about those counts on our scenes. 1 shoots per texel.
+    pub cross_tile: u32,
+    /// Top-face resolution of the back hemicubes of shot radiosity used by
+    /// the cross projection (thesis §4.5.2 renders them as low as 16, with
+    /// multisampling as a blur).
+    pub back_resolution: u32,
+    /// Split shooter tiles that straddle a contact (valid and invalid
+    /// elements), up to 1.5 times the tiles of the power-based grid
+    /// (`ProgressiveSolver::split_contacts`). Off for sessions that follow
+    /// moves by incremental reshooting: with it, incremental on
+    /// indirect-light read 20.3% NRMSE after five frames instead of 3.9%
+    /// (`bench dynamic`; not understood yet, see BENCHMARKS.md).
+    pub split_contacts: bool,
+}
+
+impl Default for ProgressiveOptions {
+    fn default() -> Self {
+        Self {
+            hemicube_resolution: 64,
+            max_shooters: 128,
+            subdivision: 8.0,
+            max_subdivision: 2,
+            indirect_only: false,
+            cross_grid: 4,
+            cross_tile: 4,
+            back_resolution: 16,
+            split_contacts: true,
+        }
+    }
+}
+
+/// What a call to [`ProgressiveSolver::step`] or `solve` did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// Shooters shot during the call.
+    pub shots: u64,
+    /// Batches (one patch each) during the call.
+    pub batches: u64,
+    /// Unshot power as a fraction of the emitted power, afterwards.
+    pub unshot_fraction: f64,
+}
+
+/// Power bookkeeping (W, summed over the RGB channels).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnergyBalance {
+    /// `Σ A_e E_e`.
+    pub emitted: f64,
+    /// Power taken out of the unshot buffers by shots so far.
+    pub shot: f64,
+    /// Power that arrived at elements: `Σ A_e H_e`.
+    pub received: f64,
+    /// Power absorbed by elements: `Σ A_e (1 - ρ_e) H_e`.
+    pub absorbed: f64,
+    /// Power still waiting to be shot.
+    pub unshot: f64,
+}
+
+/// Progressive refinement radiosity on the GPU: elements, B, B^u and the
+/// per-patch unshot power live in GPU buffers for the solver's lifetime;
+/// the CPU only places shooters and reads one 16-byte selection per batch.
+///
+/// Objects can move ([`ProgressiveSolver::redistribute`]): elements are kept
+/// in object space and placed at the current poses by a compute pass, and
+/// the hemicube rasterizer places triangles with one of two pose sets (the
+/// current and the old one), so that a redistribution sees the scene before
+/// and after a move.
+pub struct ProgressiveSolver {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    options: ProgressiveOptions,
+    /// Shooters per batch the item-buffer target can hold.
+    batch_capacity: u32,
+    /// Patches in object space (the scene's shapes) and their objects.
+    shapes: Vec<PatchShape>,
+    patch_objects: Vec<u32>,
+    /// First element and chart size of every patch.
+    layout: Vec<[u32; 3]>,
+    /// Patches placed at the current poses.
+    patches: Vec<WorldPatch>,
+    /// The current pose of every object.
+    poses: Vec<Pose>,
+    /// Elements inside or under geometry at `poses` (crate::validity):
+    /// they do not receive, and shooters look from their tiles' valid part.
+    validity: Validity,
+    /// Elements re-tested for validity in moves since the last cross move
+    /// completed (those near the moved objects): cross redistribution has
+    /// them gather their light when the move completes (regather.rs).
+    regather: Vec<usize>,
+    /// The scene and atlas, to re-test validity after a move.
+    scene: Scene,
+    atlas: Atlas,
+    /// Objects removed from the simulation (thesis §4.5.2).
+    absent: Vec<bool>,
+    /// Element areas at scale 1 and their objects, for shooter areas.
+    local_areas: Vec<f32>,
+    element_objects: Vec<u32>,
+    /// World areas of the elements at the current poses.
+    areas: Vec<f32>,
+    albedo: Vec<Vec3>,
+    element_count: u32,
+    emitted: f64,
+    near: f32,
+    far: f32,
+    /// Latest selection read back: what the next batch shoots.
+    selection: Selection,
+    shots: u64,
+    batches: u64,
+    shot_power: f64,
+    /// `E + D` per element when publishing indirect light only.
+    direct: Option<Vec<Vec3>>,
+
+    buffers: Buffers,
+    pipelines: Pipelines,
+    /// Vertices of the patches' triangles to draw per hemicube face.
+    triangle_vertices: u32,
+    /// Redistribution passes and targets, built on first use.
+    dynamic: Option<redistribute::DynamicPasses>,
+}
+
+impl ProgressiveSolver {
+    /// Uploads the scene at `poses` (one per object) and finds the first
+    /// shooting patch. Every element starts with `B = B^u = E`.
+    pub fn new(
+        gpu: &Device,
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        options: ProgressiveOptions,
+    ) -> Result<Self, GpuError> {
+        Self::with_absent(gpu, scene, atlas, poses, &[], options)
+    }
+
+    /// Like [`ProgressiveSolver::new`], with the objects flagged in `absent`
+    /// removed from the simulation (for cross redistribution, which solves
+    /// the static scene first and inserts the moving objects afterwards,
+    /// thesis §4.5.2).
+    pub fn with_absent(
+        gpu: &Device,
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        absent: &[bool],
+        options: ProgressiveOptions,
+    ) -> Result<Self, GpuError> {
+        let device = gpu.device.clone();
+        let queue = gpu.queue.clone();
+        let limits = &gpu.limits;
+        let res = options.hemicube_resolution.max(1);
+        if FACES * res > limits.max_texture_dimension_2d {
+            return Err(GpuError::TooLarge(format!(
+                "a hemicube resolution of {res} needs a {} pixel wide item buffer; the adapter allows {}",
+                FACES * res,
+                limits.max_texture_dimension_2d
+            )));
+        }
+        // Redistribution batches render two hemicubes per shooter, so the
+        // capacity is even.
+        let batch_capacity = (options
+            .max_shooters
+            .max(2)
+            .min(limits.max_texture_dimension_2d / res)
+            / 2)
+            * 2;
+        let n = atlas.elements.len();
+        let element_bytes = n as u64 * std::mem::size_of::<LocalElement>() as u64;
+        if element_bytes > limits.max_storage_buffer_binding_size
+            || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
+        {
+            return Err(GpuError::TooLarge(format!(
+                "{n} elements do not fit the adapter's storage buffer or dispatch limits"
+            )));
+        }
+        let absent: Vec<bool> = (0..poses.len())
+            .map(|o| absent.get(o).copied().unwrap_or(false))
+            .collect();
+
+        let shapes: Vec<PatchShape> = scene.patches.iter().map(|p| p.shape).collect();
+        let patch_objects: Vec<u32> = scene.patches.iter().map(|p| p.object).collect();
+        let layout: Vec<[u32; 3]> = atlas
+            .charts
+            .iter()
+            .enumerate()
+            .map(|(p, c)| [atlas.patch_elements[p], c.w, c.h])
+            .collect();
+        let patches = place_patches(&shapes, &patch_objects, &layout, poses);
+        // Scene extent at the given poses, for depth ranges and offsets.
+        let extent = placement::extent(&patches);
+        let (vertices, triangle_vertices) = patch_vertices(&shapes, &patch_objects);
+
+        let validity = Validity::compute(scene, atlas, poses);
+        let locals = non_empty(placement::local_elements(&shapes, atlas, &validity, extent));
+        let local_areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
+        let element_objects: Vec<u32> = atlas.elements.iter().map(|e| e.object).collect();
+        let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
+        let emission = non_empty(atlas.elements.iter().map(|e| v4(e.emission, 0.0)).collect());
+        let areas = world_areas(&local_areas, &element_objects, poses);
+        let emitted: f64 = atlas
+            .elements
+            .iter()
+            .zip(&areas)
+            .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
+            .sum();
+        let patch_ranges: Vec<[u32; 4]> = patches
+            .iter()
+            .enumerate()
+            .map(|(p, wp)| [wp.first, atlas.patch_elements[p + 1] - wp.first, wp.w, wp.h])
+            .collect();
+        // Absent objects start dark: they neither hold nor shoot light.
+        let start: Vec<[f32; 4]> = emission
+            .iter()
+            .zip(
+                atlas
+                    .elements
+                    .iter()
+                    .map(|e| e.object as usize)
+                    .chain(std::iter::once(0)),
+            )
+            .map(|(e, o)| {
+                if absent.get(o).copied().unwrap_or(false) {
+                    [0.0; 4]
+                } else {
+                    *e
+                }
+            })
+            .collect();
+
+        let buffers = Buffers::new(
+            &device,
+            &Upload {
+                locals: &locals,
+                emission: &emission,
+                start: &start,
+                patch_ranges: &patch_ranges,
+                vertices: &vertices,
+                objects: poses.len(),
+                capacity: batch_capacity,
+                resolution: res,
+            },
+        );
+        let pipelines = Pipelines::new(&device, &buffers);
+
+        let mut solver = Self {
+            device,
+            queue,
+            options,
+            batch_capacity,
+            shapes,
+            patch_objects,
+            layout,
+            patches,
+            poses: poses.to_vec(),
+            validity,
+            regather: Vec::new(),
+            scene: scene.clone(),
+            atlas: atlas.clone(),
+            absent,
+            local_areas,
+            element_objects,
+            areas,
+            albedo,
+            element_count: n as u32,
+            emitted,
+            near: extent * 1e-4,
+            far: extent * 4.0,
+            selection: Selection::zeroed(),
+            shots: 0,
+            batches: 0,
+            shot_power: 0.0,
+            direct: None,
+            buffers,
+            pipelines,
+            triangle_vertices,
+            dynamic: None,
+        };
+        let current = solver.poses.clone();
+        solver.write_poses(&current, &current, &[]);
+        solver.write_flags(&[]);
+        let mut encoder = solver.device.create_command_encoder(&Default::default());
+        solver.encode_place(&mut encoder);
+        solver.encode_selection(&mut encoder);
+        solver.queue.submit([encoder.finish()]);
+        solver.selection = solver.read_selection()?;
+        if options.indirect_only {
+            solver.shoot_direct(scene, poses)?;
+        }
+        Ok(solver)
+    }
+
+    /// Writes both pose sets and the object flags: `current` (zero for
+    /// absent objects), `old` (zero for objects absent before), and which
+    /// objects are `moving`.
+    fn write_poses(&self, current: &[Pose], old: &[Pose], old_absent: &[bool]) {
+        let objects = current.len();
+        let mut matrices = vec![[[0.0f32; 4]; 4]; objects.max(1) * 2];
+        for o in 0..objects {
+            if !self.absent[o] {
+                matrices[o] = pose_matrix(&current[o]);
+            }
+            if !old_absent.get(o).copied().unwrap_or(false) {
+                matrices[objects.max(1) + o] = pose_matrix(&old[o]);
+            }
+        }
+        self.queue
+            .write_buffer(&self.buffers.poses, 0, bytemuck::cast_slice(&matrices));
+    }
+
+    /// Writes the per-object flags (`moving` marks the set M).
+    fn write_flags(&self, moving: &[bool]) {
+        let flags: Vec<u32> = (0..self.absent.len().max(1))
+            .map(|o| {
+                let mut f = 0;
+                if moving.get(o).copied().unwrap_or(false) {
+                    f |= 1;
+                }
+                if self.absent.get(o).copied().unwrap_or(false) {
+                    f |= 2;
+                }
+                f
+            })
+            .collect();
+        self.queue
+            .write_buffer(&self.buffers.flags, 0, bytemuck::cast_slice(&flags));
+    }
+
+    /// Places every element at the current poses (`place_elements`).
+    fn encode_place(&self, encoder: &mut wgpu::CommandEncoder) {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&self.pipelines.place.0);
+        pass.set_bind_group(0, &self.pipelines.place.1, &[]);
+        pass.dispatch_workgroups(self.element_count.div_ceil(WORKGROUP).max(1), 1, 1);
+    }
+
+    /// Emitted power `Σ A_e E_e` (W, channels summed).
+    pub fn emitted_power(&self) -> f64 {
+        self.emitted
+    }
+
+    /// Unshot power as a fraction of the emitted power.
+    pub fn unshot_fraction(&self) -> f64 {
+        if self.emitted > 0.0 {
+            f64::from(self.selection.total.max(0.0)) / self.emitted
+        } else {
+            0.0
+        }
+    }
+
+    /// Shooters shot since the solver was created.
+    pub fn total_shots(&self) -> u64 {
+        self.shots
+    }
+
+    /// Runs whole batches until `budget` is spent (at least one batch, so
+    /// that every call makes progress) or nothing is left to shoot.
+    pub fn step(&mut self, budget: Duration) -> Result<StepReport, GpuError> {
+        let started = Instant::now();
+        let (shots, batches) = (self.shots, self.batches);
+        loop {
+            if !self.batch_once()? || started.elapsed() >= budget {
+                break;
+            }
+        }
+        Ok(StepReport {
+            shots: self.shots - shots,
+            batches: self.batches - batches,
+            unshot_fraction: self.unshot_fraction(),
+        })
+    }
+
+    /// Runs batches until the unshot power is at most `threshold` of the
+    /// emitted power (or nothing is left to shoot).
+    pub fn solve(&mut self, threshold: f64) -> Result<StepReport, GpuError> {
+        let (shots, batches) = (self.shots, self.batches);
+        while self.unshot_fraction() > threshold {
+            if !self.batch_once()? {
+                break;
+            }
+        }
+        Ok(StepReport {
+            shots: self.shots - shots,
+            batches: self.batches - batches,
+            unshot_fraction: self.unshot_fraction(),
+        })
+    }
+
+    /// Radiosity per element (W/m² per channel), in atlas element order:
+    /// `B`, or `B - E - D` with [`ProgressiveOptions::indirect_only`].
+    /// Invalid elements ([`ProgressiveSolver::validity`]) hold what they
+    /// happen to hold; whoever publishes fills them ([`Validity::dilate`]).
+    pub fn radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        let total = self.total_radiosity()?;
+        Ok(match &self.direct {
+            None => total,
+            Some(direct) => total
+                .iter()
+                .zip(direct)
+                .map(|(b, d)| (*b - *d).max(Vec3::ZERO))
+                .collect(),
+        })
+    }
+
+    /// Which elements are invalid at the current poses.
+    pub fn validity(&self) -> &Validity {
+        &self.validity
+    }
+
+    /// Re-tests validity near the objects flagged in `moving` after the
+    /// poses changed from `old` to the current ones, and uploads the
+    /// elements whose state changed.
+    pub(super) fn update_validity(&mut self, old: &[Pose], moving: &[bool]) {
+        let objects: Vec<u32> = (0..moving.len() as u32)
+            .filter(|&o| moving[o as usize])
+            .collect();
+        if objects.is_empty() {
+            return;
+        }
+        let before = self.validity.clone();
+        // A texel's reach: the coarsest texel spacing of the scene.
+        let margin = 1.0
+            / self
+                .scene
+                .patches
+                .iter()
+                .map(|p| p.texel_density)
+                .fold(f32::INFINITY, f32::min);
+        let poses = self.poses.clone();
+        let near =
+            self.validity
+                .update_near(&self.scene, &self.atlas, (old, &poses), &objects, margin);
+        self.regather.extend(near);
+        if self.regather.len() > self.element_count as usize {
+            // Moves that never complete must not grow the list.
+            self.regather.sort_unstable();
+            self.regather.dedup();
+        }
+        for i in 0..before.mask().len() {
+            let now = self.validity.is_invalid(i);
+            if now != before.is_invalid(i) {
+                let flag = invalid_flag(now).to_le_bytes();
+                self.queue.write_buffer(
+                    &self.buffers.local_elements,
+                    i as u64 * std::mem::size_of::<LocalElement>() as u64 + INVALID_FLAG_OFFSET,
+                    &flag,
+                );
+                self.queue.write_buffer(
+                    &self.buffers.elements,
+                    i as u64 * ELEMENT_BYTES + INVALID_FLAG_OFFSET,
+                    &flag,
+                );
+            }
+        }
+    }
+
+    /// Shoots every emitting patch once, in patch order, and remembers what
+    /// that delivered (plus the emission itself) as the direct part.
+    fn shoot_direct(&mut self, scene: &Scene, poses: &[Pose]) -> Result<(), GpuError> {
+        let after = self.selection;
+        for (p, patch) in scene.patches.iter().enumerate() {
+            let material = &scene.materials[patch.material as usize];
+            let scale = poses[patch.object as usize].scale;
+            let power = material.emission.element_sum() * patch.shape.area() * scale * scale;
+            if power <= 0.0 {
+                continue;
+            }
+            self.selection = Selection {
+                patch_id: p as u32,
+                power,
+                ..after
+            };
+            self.batch_once()?;
+        }
+        // `B` now holds E plus the first bounce of E.
+        self.direct = Some(self.total_radiosity()?);
+        Ok(())
+    }
+
+    /// Radiosity B per element (W/m² per channel), direct light included.
+    pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        Ok(self
+            .read_vec4(&self.buffers.radiosity)?
+            .into_iter()
+            .map(|v| Vec3::new(v[0], v[1], v[2]))
+            .collect())
+    }
+
+    /// Where the power went so far (reads the irradiance back).
+    pub fn energy_balance(&self) -> Result<EnergyBalance, GpuError> {
+        let h = self.read_vec4(&self.buffers.irradiance)?;
+        let (received, absorbed) = received_and_absorbed(&h, &self.areas, &self.albedo);
+        Ok(EnergyBalance {
+            emitted: self.emitted,
+            shot: self.shot_power,
+            received,
+            absorbed,
+            unshot: f64::from(self.selection.total.max(0.0)),
+        })
+    }
+
+    /// What cutting a patch into shooters needs of the solver.
+    fn tiling(&self) -> Tiling<'_> {
+        Tiling {
+            emitted: self.emitted,
+            validity: &self.validity,
+            atlas: &self.atlas,
+            lift: self.near * 2.0,
+        }
+    }
+
+    /// Copies a vec4 buffer with one entry per element back to the CPU.
+    fn read_vec4(&self, buffer: &wgpu::Buffer) -> Result<Vec<[f32; 4]>, GpuError> {
+        read_vec4(&self.device, &self.queue, buffer, self.element_count)
+    }
+}

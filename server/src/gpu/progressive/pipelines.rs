@@ -1,0 +1,225 @@
+//! The compute passes of progressive.wgsl and redistribute.wgsl (one
+//! assembled module, `shaders::compute`), their bindings by name, and the
+//! pipelines a progressive batch runs.
+
+use super::resources::Buffers;
+use crate::gpu::binding::{Kind, Pass, Slot};
+use crate::gpu::hemicube;
+use crate::gpu::shaders;
+
+/// The bindings of the compute module: progressive.wgsl declares 0-14,
+/// redistribute.wgsl 15-23.
+pub(in crate::gpu) mod slot {
+    use super::{Kind, Slot};
+
+    pub(in crate::gpu) const ELEMENTS: Slot = Slot::new("elements", 0, Kind::StorageRead);
+    pub(in crate::gpu) const RADIOSITY: Slot = Slot::new("radiosity", 1, Kind::Storage);
+    pub(in crate::gpu) const UNSHOT: Slot = Slot::new("unshot", 2, Kind::Storage);
+    pub(in crate::gpu) const IRRADIANCE: Slot = Slot::new("irradiance", 3, Kind::Storage);
+    pub(in crate::gpu) const PATCHES: Slot = Slot::new("patches", 4, Kind::StorageRead);
+    pub(in crate::gpu) const PATCH_POWER: Slot = Slot::new("patch_power", 5, Kind::Storage);
+    pub(in crate::gpu) const SELECTION: Slot = Slot::new("selection", 6, Kind::Storage);
+    pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 7, Kind::StorageRead);
+    pub(in crate::gpu) const ENERGY: Slot = Slot::new("energy", 8, Kind::Storage);
+    pub(in crate::gpu) const BATCH: Slot = Slot::new("batch", 9, Kind::Uniform);
+    pub(in crate::gpu) const ITEM: Slot = Slot::new("item", 10, Kind::UintTexture);
+    pub(in crate::gpu) const OBJECT_FLAGS: Slot = Slot::new("object_flags", 11, Kind::StorageRead);
+    pub(in crate::gpu) const POSES: Slot = Slot::new("poses", 12, Kind::StorageRead);
+    pub(in crate::gpu) const LOCAL_ELEMENTS: Slot =
+        Slot::new("local_elements", 13, Kind::StorageRead);
+    pub(in crate::gpu) const PLACED: Slot = Slot::new("placed", 14, Kind::Storage);
+    pub(in crate::gpu) const EMISSION: Slot = Slot::new("emission", 15, Kind::StorageRead);
+    pub(in crate::gpu) const OLD_SHOT: Slot = Slot::new("old_shot", 16, Kind::Storage);
+    pub(in crate::gpu) const FRONT_RAD: Slot =
+        Slot::new("front_rad", 17, Kind::FloatTexture { filterable: false });
+    pub(in crate::gpu) const BACK_RAD: Slot =
+        Slot::new("back_rad", 18, Kind::FloatTexture { filterable: true });
+    pub(in crate::gpu) const BACK_SAMPLER: Slot = Slot::new("back_sampler", 19, Kind::Sampler);
+    pub(in crate::gpu) const BACK_SHOOTERS: Slot =
+        Slot::new("back_shooters", 20, Kind::StorageRead);
+    pub(in crate::gpu) const BACK: Slot = Slot::new("back", 21, Kind::Uniform);
+    pub(in crate::gpu) const GATHERED: Slot = Slot::new("gathered", 22, Kind::Storage);
+    pub(in crate::gpu) const SMOOTHED: Slot = Slot::new("smoothed", 23, Kind::Storage);
+}
+
+use slot::*;
+
+/// GENERATESHOOTINGPATCHES: each shooter's unshot power into `energy`.
+pub(in crate::gpu) const SHOOTER_ENERGY: Pass = Pass {
+    entries: &["shooter_energy"],
+    slots: &[ELEMENTS, UNSHOT, SHOOTERS, ENERGY, BATCH],
+};
+
+/// RECONSTRUCTIONSHADER: every element gathers from the batch's shooters.
+pub(in crate::gpu) const RECONSTRUCT: Pass = Pass {
+    entries: &["reconstruct"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        UNSHOT,
+        IRRADIANCE,
+        PATCHES,
+        SHOOTERS,
+        ENERGY,
+        BATCH,
+        ITEM,
+        OBJECT_FLAGS,
+        POSES,
+        LOCAL_ELEMENTS,
+    ],
+};
+
+/// Unshot power per patch.
+pub(in crate::gpu) const PATCH_POWER_PASS: Pass = Pass {
+    entries: &["patch_power_main"],
+    slots: &[ELEMENTS, UNSHOT, PATCHES, PATCH_POWER, OBJECT_FLAGS],
+};
+
+/// FINDSHOOTINGQUAD: the arg-max and the total of the patch powers.
+pub(in crate::gpu) const SELECT_SHOOTER: Pass = Pass {
+    entries: &["select_shooter"],
+    slots: &[PATCH_POWER, SELECTION],
+};
+
+/// Elements placed at the current poses.
+pub(in crate::gpu) const PLACE_ELEMENTS: Pass = Pass {
+    entries: &["place_elements"],
+    slots: &[POSES, LOCAL_ELEMENTS, PLACED],
+};
+
+/// Redistribution: moving elements back to their emission.
+pub(in crate::gpu) const RESET_MOVING: Pass = Pass {
+    entries: &["reset_moving"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        UNSHOT,
+        BATCH,
+        OBJECT_FLAGS,
+        EMISSION,
+        OLD_SHOT,
+        GATHERED,
+        SMOOTHED,
+    ],
+};
+
+/// Redistribution: what each shooter of a job shoots.
+pub(in crate::gpu) const SHOOTER_ENERGY_DYN: Pass = Pass {
+    entries: &["shooter_energy_dyn"],
+    slots: &[
+        ELEMENTS, RADIOSITY, UNSHOT, SHOOTERS, ENERGY, BATCH, OLD_SHOT,
+    ],
+};
+
+/// Cross redistribution: moving tiles gather the static scene's light.
+pub(in crate::gpu) const GATHER_MOVING: Pass = Pass {
+    entries: &["gather_moving"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        UNSHOT,
+        SHOOTERS,
+        ENERGY,
+        BATCH,
+        LOCAL_ELEMENTS,
+        OLD_SHOT,
+        FRONT_RAD,
+        GATHERED,
+    ],
+};
+
+/// Cross redistribution: a moving face's light read between tile centres.
+pub(in crate::gpu) const SMOOTH_MOVING: Pass = Pass {
+    entries: &["smooth_moving"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        PATCHES,
+        BATCH,
+        OBJECT_FLAGS,
+        GATHERED,
+        SMOOTHED,
+    ],
+};
+
+/// Redistribution: every element takes what a job's shooters change.
+pub(in crate::gpu) const RECONSTRUCT_DYN: Pass = Pass {
+    entries: &["reconstruct_dyn"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        UNSHOT,
+        PATCHES,
+        SHOOTERS,
+        ENERGY,
+        BATCH,
+        ITEM,
+        OBJECT_FLAGS,
+        POSES,
+        LOCAL_ELEMENTS,
+        BACK_RAD,
+        BACK_SAMPLER,
+        BACK_SHOOTERS,
+        BACK,
+    ],
+};
+
+/// Every pass of the compute module, for the naga check in shaders.rs.
+#[cfg(test)]
+pub(in crate::gpu) const ALL: [Pass; 10] = [
+    SHOOTER_ENERGY,
+    RECONSTRUCT,
+    PATCH_POWER_PASS,
+    SELECT_SHOOTER,
+    PLACE_ELEMENTS,
+    RESET_MOVING,
+    SHOOTER_ENERGY_DYN,
+    GATHER_MOVING,
+    SMOOTH_MOVING,
+    RECONSTRUCT_DYN,
+];
+
+/// The pipelines of a progressive batch, each with its bind group.
+pub(super) struct Pipelines {
+    pub(super) shooter_energy: (wgpu::ComputePipeline, wgpu::BindGroup),
+    pub(super) reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
+    pub(super) patch_power: (wgpu::ComputePipeline, wgpu::BindGroup),
+    pub(super) select: (wgpu::ComputePipeline, wgpu::BindGroup),
+    pub(super) place: (wgpu::ComputePipeline, wgpu::BindGroup),
+    /// Item buffers of patch ids (hemicube.wgsl).
+    pub(super) item_buffers: (wgpu::RenderPipeline, wgpu::BindGroup),
+}
+
+impl Pipelines {
+    pub(super) fn new(device: &wgpu::Device, buffers: &Buffers) -> Self {
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("progressive.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(shaders::compute().into()),
+        });
+        let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("hemicube.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
+        });
+        let resources = buffers.resources();
+        let compute = |pass: Pass| pass.compute(device, &module, &[], |s| resources.get(s));
+        let item_layout = hemicube::ITEM_BUFFERS.layout(device);
+        let item_pipeline = hemicube::render_pipeline(
+            device,
+            &hemicube_module,
+            &hemicube::ITEM_BUFFERS,
+            &item_layout,
+            wgpu::TextureFormat::R32Uint,
+            1,
+            wgpu::CompareFunction::Less,
+        );
+        let item_group = hemicube::ITEM_BUFFERS.bind(device, &item_layout, |s| resources.get(s));
+        Self {
+            shooter_energy: compute(SHOOTER_ENERGY),
+            reconstruct: compute(RECONSTRUCT),
+            patch_power: compute(PATCH_POWER_PASS),
+            select: compute(SELECT_SHOOTER),
+            place: compute(PLACE_ELEMENTS),
+            item_buffers: (item_pipeline, item_group),
+        }
+    }
+}
