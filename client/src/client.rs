@@ -2,269 +2,30 @@
 //!
 //! `Client::connect` opens the WebSocket, completes the handshake and then
 //! hands the socket to a background task (see [`crate::connection`]). The
-//! handle and the task share:
-//!
-//! - the **front** lightmap, a `watch` of `Arc<Frame>` (newest only), which
-//!   renderers read without locking;
-//! - the scene (a `watch`, replaced only if a reconnect finds a different
-//!   scene) and the role;
-//! - the **outbox** of poses to send: one slot per object, newest wins;
-//! - counters and the latest `Stats`;
-//! - the [`LatencyBook`] of send times.
-//!
+//! handle and the task share the front lightmap, the scene and role, the
+//! outbox of poses, the counters and the send times ([`crate::shared`]).
 //! Everything else the task reports goes through a bounded event channel;
 //! when the application does not read it, events are dropped and counted
 //! ([`Event::Lagged`]), never queued without bound.
+//!
+//! Dependencies run one way: this handle over the connection task, both
+//! over the shared state, the [`Event`]s and the [`Options`].
 
-use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
-use lightwire_protocol::{ErrorCode, Pose, Role, SceneInfo, Stats};
-use tokio::sync::{Notify, mpsc, watch};
+use lightwire_protocol::backoff::Backoff;
+use lightwire_protocol::{Pose, Role, SceneInfo, Stats};
+use tokio::sync::{mpsc, watch};
 
 use crate::buffer::{DoubleBuffer, Frame};
 use crate::connection::{self, Task};
 use crate::endpoint::Endpoint;
 use crate::error::ClientError;
-use crate::latency::{LatencyBook, SeqSource};
-use lightwire_protocol::backoff::{Backoff, BackoffPolicy};
-
-/// Connection settings. `Options::default()` suits a game client.
-#[derive(Clone, Debug)]
-pub struct Options {
-    /// Access token (`None` only for a `--dev` server).
-    pub token: Option<String>,
-    /// Sent in `Hello`, for the server's logs.
-    pub client_name: String,
-    /// Reconnect delays.
-    pub backoff: BackoffPolicy,
-    /// Limit for TCP connect, upgrade and Welcome together (each step).
-    pub connect_timeout: Duration,
-    /// A session that receives nothing for this long is considered dead
-    /// (the server sends `Stats` every 250 ms).
-    pub idle_timeout: Duration,
-    /// Capacity of the event channel; events beyond it are dropped and
-    /// counted.
-    pub event_capacity: usize,
-    /// Where send times are kept; share one between clients to measure
-    /// delivery of one client's poses to others (the load tester does).
-    pub latency: Arc<LatencyBook>,
-    /// Where seqs come from; share one between drivers of the same object.
-    pub seqs: Arc<SeqSource>,
-}
-
-impl Default for Options {
-    fn default() -> Self {
-        Options {
-            token: None,
-            client_name: concat!("lightwire-client/", env!("CARGO_PKG_VERSION")).to_string(),
-            backoff: BackoffPolicy::default(),
-            connect_timeout: Duration::from_secs(10),
-            idle_timeout: Duration::from_secs(10),
-            event_capacity: 256,
-            latency: Arc::new(LatencyBook::default()),
-            seqs: Arc::new(SeqSource::new()),
-        }
-    }
-}
-
-/// Something the connection task wants the application to know.
-#[derive(Clone, Debug)]
-pub enum Event {
-    /// A session opened (after a reconnect: `reconnect` is true; the first
-    /// session is reported by `connect` returning).
-    Connected {
-        /// The role granted.
-        role: Role,
-        /// The server's name.
-        server: String,
-        /// The scene (a new `Arc` if it changed).
-        scene: Arc<SceneInfo>,
-        /// Always true: the first connection is `connect` itself.
-        reconnect: bool,
-    },
-    /// A new complete lightmap version is in front.
-    Version(VersionEvent),
-    /// The server's statistics (every 250 ms).
-    Stats(Stats),
-    /// A delta did not fit the version held; a `Resync` was sent.
-    Resync {
-        /// The version held (`None` before the first keyframe).
-        have: Option<u64>,
-        /// The delta's base.
-        delta_base: u64,
-    },
-    /// The server refused something this client sent.
-    ServerError {
-        /// The protocol code (e.g. `StaleSeq` when another driver's pose
-        /// of the same object arrived first).
-        code: ErrorCode,
-        /// The server's reason.
-        message: String,
-    },
-    /// A frame could not be used (it was ignored or a resync asked for),
-    /// or a reconnect attempt failed; the client carries on.
-    Error(ClientError),
-    /// The session ended; a reconnect follows (see `Reconnecting`).
-    Disconnected(ClientError),
-    /// Waiting `delay` before reconnect attempt `attempt`.
-    Reconnecting {
-        /// 1 for the first attempt after a disconnect.
-        attempt: u32,
-        /// The backoff delay.
-        delay: Duration,
-    },
-    /// This many events were dropped because the channel was full.
-    Lagged {
-        /// Dropped since the previous `Lagged`.
-        dropped: u64,
-    },
-    /// The task ended: closed by the application (`None`) or for good
-    /// (permanent refusal, or reconnecting gave up). No events follow.
-    Closed(Option<ClientError>),
-}
-
-/// A version that became the front.
-#[derive(Clone, Debug, PartialEq)]
-pub struct VersionEvent {
-    /// The new version.
-    pub version: u64,
-    /// The delta's base, or `None` for a keyframe.
-    pub base: Option<u64>,
-    /// Tiles the frame carried.
-    pub tiles: usize,
-    /// Size of the frame on the wire.
-    pub bytes: usize,
-    /// Transforms this version newly reflects, with their latency when
-    /// the send time is known to this client's [`LatencyBook`].
-    pub delivered: Vec<Delivered>,
-}
-
-/// One transform that reached the light.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Delivered {
-    /// Object index.
-    pub object: u32,
-    /// The transform's seq.
-    pub seq: u64,
-    /// Send to applied, if the send time is known.
-    pub latency: Option<Duration>,
-}
-
-/// Cumulative counts since `connect` (across reconnects).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct Counters {
-    /// Binary frames received.
-    pub frames: u64,
-    /// Bytes of binary frames received.
-    pub bytes: u64,
-    /// Keyframes applied.
-    pub keyframes: u64,
-    /// Deltas applied.
-    pub deltas: u64,
-    /// Deltas ignored while waiting for a resync keyframe.
-    pub deltas_ignored: u64,
-    /// `Resync`s sent.
-    pub resyncs: u64,
-    /// Sessions re-opened after a disconnect.
-    pub reconnects: u64,
-    /// Failed reconnect attempts.
-    pub connect_errors: u64,
-    /// Server frames that did not decode (or were text).
-    pub decode_errors: u64,
-    /// Keyframes/deltas that decoded but did not apply.
-    pub apply_errors: u64,
-    /// `Error` frames other than `StaleSeq` and `RateLimited`.
-    pub server_errors: u64,
-    /// `StaleSeq` refusals: another pose of the object was newer.
-    pub stale_seqs: u64,
-    /// `RateLimited` refusals.
-    pub rate_limited: u64,
-    /// Transforms written to the socket.
-    pub poses_sent: u64,
-    /// Poses replaced in the outbox by a newer one before being sent.
-    pub poses_coalesced: u64,
-    /// Events dropped because the event channel was full.
-    pub events_dropped: u64,
-}
-
-/// The atomics behind [`Counters`].
-#[derive(Debug, Default)]
-pub(crate) struct AtomicCounters {
-    pub frames: AtomicU64,
-    pub bytes: AtomicU64,
-    pub keyframes: AtomicU64,
-    pub deltas: AtomicU64,
-    pub deltas_ignored: AtomicU64,
-    pub resyncs: AtomicU64,
-    pub reconnects: AtomicU64,
-    pub connect_errors: AtomicU64,
-    pub decode_errors: AtomicU64,
-    pub apply_errors: AtomicU64,
-    pub server_errors: AtomicU64,
-    pub stale_seqs: AtomicU64,
-    pub rate_limited: AtomicU64,
-    pub poses_sent: AtomicU64,
-    pub poses_coalesced: AtomicU64,
-    pub events_dropped: AtomicU64,
-}
-
-impl AtomicCounters {
-    fn snapshot(&self) -> Counters {
-        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
-        Counters {
-            frames: get(&self.frames),
-            bytes: get(&self.bytes),
-            keyframes: get(&self.keyframes),
-            deltas: get(&self.deltas),
-            deltas_ignored: get(&self.deltas_ignored),
-            resyncs: get(&self.resyncs),
-            reconnects: get(&self.reconnects),
-            connect_errors: get(&self.connect_errors),
-            decode_errors: get(&self.decode_errors),
-            apply_errors: get(&self.apply_errors),
-            server_errors: get(&self.server_errors),
-            stale_seqs: get(&self.stale_seqs),
-            rate_limited: get(&self.rate_limited),
-            poses_sent: get(&self.poses_sent),
-            poses_coalesced: get(&self.poses_coalesced),
-            events_dropped: get(&self.events_dropped),
-        }
-    }
-}
-
-/// What the handle and the task share; see the module docs.
-pub(crate) struct Shared {
-    pub endpoint: Endpoint,
-    pub scene: watch::Sender<Arc<SceneInfo>>,
-    role: Mutex<Role>,
-    pub frames: watch::Sender<Option<Arc<Frame>>>,
-    pub stats: watch::Sender<Option<Stats>>,
-    pub counters: AtomicCounters,
-    /// Events dropped that a `Lagged` event has already reported.
-    pub lag_reported: AtomicU64,
-    /// Newest pose per object, waiting for the socket: (seq, pose).
-    outbox: Mutex<BTreeMap<u32, (u64, Pose)>>,
-    pub outbox_ready: Notify,
-    pub latency: Arc<LatencyBook>,
-    seqs: Arc<SeqSource>,
-}
-
-impl Shared {
-    pub(crate) fn set_role(&self, role: Role) {
-        *self.role.lock().unwrap_or_else(|p| p.into_inner()) = role;
-    }
-
-    fn role(&self) -> Role {
-        *self.role.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    pub(crate) fn take_outbox(&self) -> BTreeMap<u32, (u64, Pose)> {
-        std::mem::take(&mut *self.outbox.lock().unwrap_or_else(|p| p.into_inner()))
-    }
-}
+use crate::events::Event;
+use crate::latency::LatencyBook;
+use crate::options::Options;
+use crate::shared::{Counters, Shared};
 
 /// A connection to one scene of a `lightwire serve`; see the crate docs.
 ///
@@ -305,19 +66,13 @@ impl Client {
             url: url.clone(),
             reason: format!("the Welcome's atlas is unusable: {e}"),
         })?;
-        let shared = Arc::new(Shared {
+        let shared = Arc::new(Shared::new(
             endpoint,
-            scene: watch::Sender::new(scene),
-            role: Mutex::new(opened.role),
-            frames: watch::Sender::new(None),
-            stats: watch::Sender::new(None),
-            counters: AtomicCounters::default(),
-            lag_reported: AtomicU64::new(0),
-            outbox: Mutex::new(BTreeMap::new()),
-            outbox_ready: Notify::new(),
-            latency: options.latency.clone(),
-            seqs: options.seqs.clone(),
-        });
+            scene,
+            opened.role,
+            options.latency.clone(),
+            options.seqs.clone(),
+        ));
         let (events_tx, events) = mpsc::channel(options.event_capacity.max(1));
         let (shutdown, shutdown_rx) = watch::channel(false);
         let task = Task {
@@ -447,21 +202,7 @@ impl Client {
         if self.task.as_ref().is_none_or(|t| t.is_finished()) {
             return Err(ClientError::Closed);
         }
-        let seq = self.shared.seqs.next();
-        let replaced = self
-            .shared
-            .outbox
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .insert(object, (seq, pose));
-        if replaced.is_some() {
-            self.shared
-                .counters
-                .poses_coalesced
-                .fetch_add(1, Ordering::Relaxed);
-        }
-        self.shared.outbox_ready.notify_one();
-        Ok(seq)
+        Ok(self.shared.queue_pose(object, pose))
     }
 
     /// [`Client::send_pose`] by object name.

@@ -38,9 +38,11 @@ use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 use crate::buffer::{Applied, DoubleBuffer};
-use crate::client::{Delivered, Event, Options, Shared, VersionEvent};
 use crate::error::ClientError;
+use crate::events::{Delivered, Event, VersionEvent};
 use crate::latency::unix_micros;
+use crate::options::Options;
+use crate::shared::Shared;
 use lightwire_protocol::backoff::Backoff;
 
 /// The socket type.

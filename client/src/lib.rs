@@ -59,8 +59,11 @@ mod client;
 mod connection;
 pub mod endpoint;
 pub mod error;
+mod events;
 pub mod latency;
+mod options;
 pub mod render;
+mod shared;
 /// Transform scripts live in the protocol crate, so that the server's
 /// benchmarks replay the same streams as `drive` and `load`.
 pub use lightwire_protocol::script;
@@ -68,7 +71,10 @@ pub mod view;
 
 pub use backoff::BackoffPolicy;
 pub use buffer::Frame;
-pub use client::{Client, Counters, Delivered, Event, Options, VersionEvent};
+pub use client::Client;
 pub use endpoint::Endpoint;
 pub use error::ClientError;
+pub use events::{Delivered, Event, VersionEvent};
 pub use lightwire_protocol::{ErrorCode, PROTOCOL_VERSION, Pose, Role, SceneInfo, Stats};
+pub use options::Options;
+pub use shared::Counters;

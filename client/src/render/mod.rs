@@ -47,17 +47,13 @@ pub use renderer::{BACKGROUND, LightmapTexels, Renderer, Settings};
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
     /// No adapter on any backend.
-    #[error(
-        "no GPU adapter found on any backend (Vulkan, GL, Metal, DX12). Install a Vulkan driver; \
-         without a GPU, the software driver lavapipe works: `apt-get install mesa-vulkan-drivers` \
-         (Debian/Ubuntu) or `dnf install mesa-vulkan-drivers` (Fedora)"
-    )]
+    #[error("{}", lightwire_adapter::NO_ADAPTER)]
     NoAdapter,
     /// `--adapter NAME` matched none of the adapters present.
-    #[error("no GPU adapter name contains \"{wanted}\"; available: {available}")]
+    #[error("{}", lightwire_adapter::no_matching_adapter(.wanted, .available))]
     NoMatchingAdapter { wanted: String, available: String },
     /// The adapter refused to create a device.
-    #[error("could not create a device on {adapter}: {message}")]
+    #[error("{}", lightwire_adapter::request_device_failed(.adapter, .message))]
     RequestDevice { adapter: String, message: String },
     /// The scene description cannot be drawn (a surface naming a missing
     /// object, a rectangle outside the atlas, non-finite corners, ...).

@@ -305,7 +305,7 @@ impl Renderer {
 
     /// "NAME (BACKEND)" of the adapter in use, for logs.
     pub fn adapter(&self) -> String {
-        format!("{} ({:?})", self.info.name, self.info.backend)
+        lightwire_adapter::describe(&self.info)
     }
 
     /// Renders `scene` with its objects at `poses` (one per object), lit by

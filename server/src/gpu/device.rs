@@ -1,11 +1,13 @@
-//! Adapter selection and device creation, and what a long-running owner
-//! (the service's tick thread) needs to notice a device going bad: the
-//! device-lost callback and uncaptured errors are recorded in a
-//! [`DeviceHealth`], and [`Device::capture`] runs work inside wgpu error
-//! scopes.
+//! Device creation on the adapter [`lightwire_adapter`] chooses, and what
+//! a long-running owner (the service's tick thread) needs to notice a
+//! device going bad: the device-lost callback and uncaptured errors are
+//! recorded in a [`DeviceHealth`], and [`Device::capture`] runs work inside
+//! wgpu error scopes.
 
 use std::fmt;
 use std::sync::{Arc, Mutex};
+
+use lightwire_adapter::AdapterError;
 
 /// Why the GPU could not be used or a GPU operation failed.
 ///
@@ -15,17 +17,13 @@ use std::sync::{Arc, Mutex};
 pub enum GpuError {
     /// No adapter on any backend: the machine has neither a GPU driver nor
     /// a software rasterizer.
-    #[error(
-        "no GPU adapter found on any backend (Vulkan, GL, Metal, DX12). Install a Vulkan driver; \
-         without a GPU, the software driver lavapipe works: `apt-get install mesa-vulkan-drivers` \
-         (Debian/Ubuntu) or `dnf install mesa-vulkan-drivers` (Fedora)"
-    )]
+    #[error("{}", lightwire_adapter::NO_ADAPTER)]
     NoAdapter,
     /// `--adapter NAME` matched none of the adapters present.
-    #[error("no GPU adapter name contains \"{wanted}\"; available: {available}")]
+    #[error("{}", lightwire_adapter::no_matching_adapter(.wanted, .available))]
     NoMatchingAdapter { wanted: String, available: String },
     /// The adapter refused to create a device.
-    #[error("could not create a device on {adapter}: {message}")]
+    #[error("{}", lightwire_adapter::request_device_failed(.adapter, .message))]
     RequestDevice { adapter: String, message: String },
     /// Mapping a buffer back to the CPU failed (device lost, ...).
     #[error("reading GPU results back failed: {0}")]
@@ -92,24 +90,23 @@ impl fmt::Debug for Device {
     }
 }
 
-/// Preference order among adapter types: discrete first, software last.
-fn rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
-    let kind = match info.device_type {
-        wgpu::DeviceType::DiscreteGpu => 0,
-        wgpu::DeviceType::IntegratedGpu => 1,
-        wgpu::DeviceType::VirtualGpu => 2,
-        wgpu::DeviceType::Cpu => 3,
-        wgpu::DeviceType::Other => 4,
-    };
-    let backend = match info.backend {
-        wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
-        _ => 1,
-    };
-    (kind, backend)
+impl From<AdapterError> for GpuError {
+    fn from(e: AdapterError) -> GpuError {
+        match e {
+            AdapterError::NoAdapter => GpuError::NoAdapter,
+            AdapterError::NoMatchingAdapter { wanted, available } => {
+                GpuError::NoMatchingAdapter { wanted, available }
+            }
+            AdapterError::RequestDevice { adapter, message } => {
+                GpuError::RequestDevice { adapter, message }
+            }
+        }
+    }
 }
 
 impl Device {
-    /// Picks an adapter and creates a device with the adapter's limits.
+    /// Picks an adapter and creates a device with the adapter's limits, by
+    /// the rule of [`lightwire_adapter`] that the client's renderer shares.
     ///
     /// `name` (case-insensitive substring of the adapter name, e.g. from
     /// `--adapter`) chooses among the adapters; without it a discrete GPU is
@@ -120,47 +117,10 @@ impl Device {
     }
 
     async fn new_async(name: Option<&str>) -> Result<Device, GpuError> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let mut adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
-        if adapters.is_empty() {
-            return Err(GpuError::NoAdapter);
-        }
-        if let Some(wanted) = name {
-            let needle = wanted.to_lowercase();
-            let available = adapters
-                .iter()
-                .map(|a| {
-                    let i = a.get_info();
-                    format!("\"{}\" ({:?})", i.name, i.backend)
-                })
-                .collect::<Vec<_>>()
-                .join(", ");
-            adapters.retain(|a| a.get_info().name.to_lowercase().contains(&needle));
-            if adapters.is_empty() {
-                return Err(GpuError::NoMatchingAdapter {
-                    wanted: wanted.to_string(),
-                    available,
-                });
-            }
-        }
-        adapters.sort_by_key(|a| rank(&a.get_info()));
-        let adapter = adapters.swap_remove(0);
+        let adapter = lightwire_adapter::choose(name).await?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        let (device, queue) = adapter
-            .request_device(&wgpu::DeviceDescriptor {
-                label: Some("lightwire"),
-                required_features: wgpu::Features::empty(),
-                required_limits: limits.clone(),
-                memory_hints: wgpu::MemoryHints::Performance,
-                ..Default::default()
-            })
-            .await
-            .map_err(|e| GpuError::RequestDevice {
-                adapter: info.name.clone(),
-                message: e.to_string(),
-            })?;
+        let (device, queue) = lightwire_adapter::request_device(&adapter, "lightwire").await?;
         let health = Arc::new(DeviceHealth::default());
         let lost = health.clone();
         device.set_device_lost_callback(move |reason, message| {
@@ -222,6 +182,6 @@ impl Device {
 
     /// "NAME (BACKEND)", for logs.
     pub fn describe(&self) -> String {
-        format!("{} ({:?})", self.info.name, self.info.backend)
+        lightwire_adapter::describe(&self.info)
     }
 }

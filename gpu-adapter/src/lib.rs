@@ -1,0 +1,255 @@
+//! Which GPU adapter Lightwire runs on, and a device on it: the one rule
+//! that the server's solvers (`lightwire_server::gpu::Device`) and the thin
+//! client's renderer (`lightwire_client::render`) both follow.
+//!
+//! The rule:
+//!
+//! - ask every backend wgpu has (Vulkan, Metal, DX12, GL), as the
+//!   environment lets it: wgpu's own variables such as `WGPU_BACKEND`
+//!   narrow the instance ([`wgpu::InstanceDescriptor::with_env`]);
+//! - with a name (`--adapter NAME`), keep only the adapters whose name
+//!   contains it, case-insensitively, and say which names exist when none
+//!   does;
+//! - otherwise prefer a discrete GPU, then integrated, virtual, and
+//!   software ones last (lavapipe, the fallback on a machine without a
+//!   GPU), and among equals a native backend over GL ([`rank`]); ties keep
+//!   wgpu's enumeration order;
+//! - no adapter at all is an error that says what to install.
+//!
+//! The device is created with the adapter's own limits (large atlases and
+//! images need more than wgpu's defaults) and no optional features.
+//!
+//! This crate depends on nothing of ours, only on wgpu (and thiserror): the
+//! client may not link the server, and `lightwire-protocol` knows no wgpu.
+
+/// Why no adapter or no device could be had. The messages are meant for
+/// the person running the command: they say what to install or which
+/// adapter names exist.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum AdapterError {
+    /// No adapter on any backend: the machine has neither a GPU driver nor
+    /// a software rasterizer.
+    #[error("{}", NO_ADAPTER)]
+    NoAdapter,
+    /// The wanted name matched none of the adapters present.
+    #[error("{}", no_matching_adapter(.wanted, .available))]
+    NoMatchingAdapter {
+        /// The name asked for.
+        wanted: String,
+        /// Every adapter present, as `"NAME" (BACKEND)`, comma-separated.
+        available: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("{}", request_device_failed(.adapter, .message))]
+    RequestDevice {
+        /// The adapter's name.
+        adapter: String,
+        /// wgpu's reason.
+        message: String,
+    },
+}
+
+/// The message of [`AdapterError::NoAdapter`], for error types that keep a
+/// variant of their own for it.
+pub const NO_ADAPTER: &str = "no GPU adapter found on any backend (Vulkan, GL, Metal, DX12). \
+     Install a Vulkan driver; without a GPU, the software driver lavapipe works: \
+     `apt-get install mesa-vulkan-drivers` (Debian/Ubuntu) or \
+     `dnf install mesa-vulkan-drivers` (Fedora)";
+
+/// The message of [`AdapterError::NoMatchingAdapter`].
+pub fn no_matching_adapter(wanted: &str, available: &str) -> String {
+    format!("no GPU adapter name contains \"{wanted}\"; available: {available}")
+}
+
+/// The message of [`AdapterError::RequestDevice`].
+pub fn request_device_failed(adapter: &str, message: &str) -> String {
+    format!("could not create a device on {adapter}: {message}")
+}
+
+/// Preference order among adapters, smallest first: by type (discrete,
+/// integrated, virtual, software, other), then native backends (Vulkan,
+/// Metal, DX12) before the rest (GL).
+pub fn rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
+    let kind = match info.device_type {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    };
+    let backend = match info.backend {
+        wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
+        _ => 1,
+    };
+    (kind, backend)
+}
+
+/// The rule on a list of adapters (see the crate doc): the index of the
+/// one to use among `adapters`, in wgpu's enumeration order.
+pub fn pick(adapters: &[wgpu::AdapterInfo], name: Option<&str>) -> Result<usize, AdapterError> {
+    if adapters.is_empty() {
+        return Err(AdapterError::NoAdapter);
+    }
+    let needle = name.map(str::to_lowercase);
+    let matches = |info: &wgpu::AdapterInfo| {
+        needle
+            .as_ref()
+            .is_none_or(|n| info.name.to_lowercase().contains(n))
+    };
+    adapters
+        .iter()
+        .enumerate()
+        .filter(|(_, info)| matches(info))
+        // The first of the best: ties keep the enumeration order.
+        .min_by_key(|(_, info)| rank(info))
+        .map(|(i, _)| i)
+        .ok_or_else(|| AdapterError::NoMatchingAdapter {
+            wanted: name.unwrap_or_default().to_string(),
+            available: adapters
+                .iter()
+                .map(|i| format!("\"{}\" ({:?})", i.name, i.backend))
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+}
+
+/// Enumerates the adapters of every backend the environment allows and
+/// returns the one [`pick`] chooses.
+pub async fn choose(name: Option<&str>) -> Result<wgpu::Adapter, AdapterError> {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let mut adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
+    let infos = adapters.iter().map(|a| a.get_info()).collect::<Vec<_>>();
+    let chosen = pick(&infos, name)?;
+    Ok(adapters.swap_remove(chosen))
+}
+
+/// Creates a device and its queue on `adapter` with the adapter's own
+/// limits, no optional features and memory hints for performance;
+/// `label` names it in wgpu's messages.
+pub async fn request_device(
+    adapter: &wgpu::Adapter,
+    label: &str,
+) -> Result<(wgpu::Device, wgpu::Queue), AdapterError> {
+    adapter
+        .request_device(&wgpu::DeviceDescriptor {
+            label: Some(label),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| AdapterError::RequestDevice {
+            adapter: adapter.get_info().name,
+            message: e.to_string(),
+        })
+}
+
+/// "NAME (BACKEND)" of an adapter, for logs and benchmark reports.
+pub fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!("{} ({:?})", info.name, info.backend)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use wgpu::{AdapterInfo, Backend, DeviceType};
+
+    fn adapter(name: &str, kind: DeviceType, backend: Backend) -> AdapterInfo {
+        AdapterInfo {
+            name: name.to_string(),
+            ..AdapterInfo::new(kind, backend)
+        }
+    }
+
+    /// What a machine with a GPU and Mesa's drivers typically lists.
+    fn machine() -> Vec<AdapterInfo> {
+        vec![
+            adapter(
+                "llvmpipe (LLVM 19.1.7, 256 bits)",
+                DeviceType::Cpu,
+                Backend::Vulkan,
+            ),
+            adapter(
+                "Intel(R) UHD Graphics",
+                DeviceType::IntegratedGpu,
+                Backend::Gl,
+            ),
+            adapter(
+                "Intel(R) UHD Graphics",
+                DeviceType::IntegratedGpu,
+                Backend::Vulkan,
+            ),
+            adapter(
+                "NVIDIA GeForce RTX 3060",
+                DeviceType::DiscreteGpu,
+                Backend::Vulkan,
+            ),
+        ]
+    }
+
+    #[test]
+    fn a_discrete_gpu_before_integrated_before_software() {
+        assert_eq!(pick(&machine(), None), Ok(3));
+        assert_eq!(pick(&machine()[..3], None), Ok(2), "integrated on Vulkan");
+        assert_eq!(
+            pick(&machine()[..1], None),
+            Ok(0),
+            "lavapipe as the fallback"
+        );
+    }
+
+    #[test]
+    fn a_native_backend_before_gl_and_ties_in_enumeration_order() {
+        let gl_first = machine()[1..3].to_vec();
+        assert_eq!(pick(&gl_first, None), Ok(1));
+        let twins = vec![
+            adapter("first", DeviceType::Cpu, Backend::Vulkan),
+            adapter("second", DeviceType::Cpu, Backend::Vulkan),
+        ];
+        assert_eq!(pick(&twins, None), Ok(0));
+    }
+
+    #[test]
+    fn a_name_chooses_by_case_insensitive_substring_then_by_rank() {
+        assert_eq!(pick(&machine(), Some("LLVMPIPE")), Ok(0));
+        assert_eq!(pick(&machine(), Some("intel")), Ok(2));
+    }
+
+    #[test]
+    fn no_match_names_every_adapter_present() {
+        let err = pick(&machine()[..2], Some("radeon")).unwrap_err();
+        assert_eq!(
+            err,
+            AdapterError::NoMatchingAdapter {
+                wanted: "radeon".into(),
+                available: "\"llvmpipe (LLVM 19.1.7, 256 bits)\" (Vulkan), \
+                            \"Intel(R) UHD Graphics\" (Gl)"
+                    .into(),
+            }
+        );
+        assert_eq!(
+            err.to_string(),
+            "no GPU adapter name contains \"radeon\"; available: \
+             \"llvmpipe (LLVM 19.1.7, 256 bits)\" (Vulkan), \"Intel(R) UHD Graphics\" (Gl)"
+        );
+    }
+
+    #[test]
+    fn no_adapter_says_what_to_install() {
+        assert_eq!(pick(&[], None), Err(AdapterError::NoAdapter));
+        assert_eq!(pick(&[], Some("any")), Err(AdapterError::NoAdapter));
+        let message = AdapterError::NoAdapter.to_string();
+        assert!(
+            message.contains("apt-get install mesa-vulkan-drivers"),
+            "{message}"
+        );
+        assert!(message.contains("lavapipe"), "{message}");
+    }
+
+    #[test]
+    fn described_as_name_and_backend() {
+        assert_eq!(describe(&machine()[3]), "NVIDIA GeForce RTX 3060 (Vulkan)");
+    }
+}
