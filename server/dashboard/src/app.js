@@ -1,7 +1,7 @@
 // The dashboard: one WebSocket per watched scene, speaking the binary
 // protocol (protocol.js), holding the lightmap (lightmap.js), and showing it
-// as a tone-mapped atlas and a 3D view (view3d.js) next to live statistics
-// (chart.js).
+// as an atlas tone-mapped with the one tone curve (tone.js) and a 3D view
+// (view3d.js) next to live statistics (chart.js).
 //
 // Data flow: frames arrive -> decoded -> keyframes/deltas applied to the
 // Lightmap (deltas only onto their exact base, else Resync) and Stats pushed
@@ -14,6 +14,7 @@
 import { Chart } from './chart.js';
 import { ApplyError, Lightmap } from './lightmap.js';
 import { DecodeError, PROTOCOL_VERSION, decodeServer, encodeClient, errorName, poseProblem } from './protocol.js';
+import { ToneTable, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
 
 const CLIENT_NAME = 'lightwire-dashboard/0.1';
@@ -89,59 +90,13 @@ try {
 
 const atlasCtx = ui.atlas.getContext('2d');
 let atlasImage = null;
-/** 1 / white point: from the 95th percentile of luminance (like `lightwire bake`). */
+/** The white point of the lightmap held (tone.js: the 95th percentile of
+ * covered texels' luminance, the rule of `lightwire bake`). */
 let autoWhite = 1;
 
-/** Texels of emitting surfaces (1), left out of the auto white point so that
- * a bright light does not darken the rest. */
-let emitterMask = null;
-
-function buildEmitterMask(scene) {
-  emitterMask = new Uint8Array(scene.atlas_width * scene.atlas_height);
-  for (const s of scene.surfaces) {
-    const emission = scene.materials[s.material]?.emission ?? [0, 0, 0];
-    if (!emission.some((e) => e > 0)) continue;
-    const [x, y, w, h] = s.rect;
-    for (let row = y; row < Math.min(y + h, scene.atlas_height); row++) {
-      emitterMask.fill(1, row * scene.atlas_width + x, row * scene.atlas_width + Math.min(x + w, scene.atlas_width));
-    }
-  }
-}
-
-/** 95th percentile of the luminance of lit, non-emitting texels, from a
- * log2 histogram (the rule of `lightwire bake`, without the lights). */
-function percentileWhite(rgb) {
-  const bins = new Uint32Array(512); // log2 from -32 to +32 in 1/8 steps
-  let count = 0;
-  for (let i = 0, t = 0; i < rgb.length; i += 3, t++) {
-    if (emitterMask?.[t]) continue;
-    const l = 0.2126 * rgb[i] + 0.7152 * rgb[i + 1] + 0.0722 * rgb[i + 2];
-    if (l > 0) {
-      const b = Math.max(0, Math.min(511, Math.floor((Math.log2(l) + 32) * 8)));
-      bins[b]++;
-      count++;
-    }
-  }
-  if (!count) return 1;
-  let seen = 0;
-  const target = count * 0.95;
-  for (let b = 0; b < 512; b++) {
-    seen += bins[b];
-    if (seen >= target) return 2 ** ((b + 1) / 8 - 32);
-  }
-  return 1;
-}
-
+/** The exposure: 1 / white point, times the slider's 2^EV. */
 function exposure() {
   return 2 ** Number(ui.exposure.value) / autoWhite;
-}
-
-/** Linear [0, 1) to an sRGB byte, tabulated. */
-const SRGB = new Uint8Array(4096);
-for (let i = 0; i < 4096; i++) {
-  const y = i / 4095;
-  const s = y <= 0.0031308 ? 12.92 * y : 1.055 * y ** (1 / 2.4) - 0.055;
-  SRGB[i] = Math.round(Math.min(1, Math.max(0, s)) * 255);
 }
 
 function drawAtlas() {
@@ -152,13 +107,13 @@ function drawAtlas() {
     ui.atlas.height = map.height;
     atlasImage = atlasCtx.createImageData(map.width, map.height);
   }
-  const k = exposure();
+  const tone = new ToneTable(exposure());
   const px = atlasImage.data;
   const rgb = map.rgb;
   for (let i = 0, j = 0; i < rgb.length; i += 3, j += 4) {
-    px[j] = SRGB[Math.floor((1 - Math.exp(-rgb[i] * k)) * 4095)];
-    px[j + 1] = SRGB[Math.floor((1 - Math.exp(-rgb[i + 1] * k)) * 4095)];
-    px[j + 2] = SRGB[Math.floor((1 - Math.exp(-rgb[i + 2] * k)) * 4095)];
+    px[j] = tone.byte(rgb[i]);
+    px[j + 1] = tone.byte(rgb[i + 1]);
+    px[j + 2] = tone.byte(rgb[i + 2]);
     px[j + 3] = 255;
   }
   atlasCtx.putImageData(atlasImage, 0, 0);
@@ -171,7 +126,7 @@ function exposureChanged() {
 }
 ui.exposure.addEventListener('input', exposureChanged);
 ui.autoExposure.addEventListener('change', () => {
-  if (ui.autoExposure.checked && conn?.map) autoWhite = percentileWhite(conn.map.rgb);
+  if (ui.autoExposure.checked && conn?.map) autoWhite = whitePoint(conn.map.rgb);
   exposureChanged();
 });
 
@@ -278,7 +233,6 @@ class Connection {
     }
     this.state = 'connected';
     atlasImage = null;
-    buildEmitterMask(w.scene);
     convergence.clear();
     timings.clear();
     view?.setScene(w.scene);
@@ -317,7 +271,7 @@ class Connection {
       driver.reflected(object, seq, now);
     }
     if (keyframe || ui.autoExposure.checked) {
-      if (ui.autoExposure.checked || autoWhite === 1) autoWhite = percentileWhite(this.map.rgb);
+      if (ui.autoExposure.checked || autoWhite === 1) autoWhite = whitePoint(this.map.rgb);
       view?.setExposure(exposure());
     }
     dirty.atlas = true;

@@ -45,6 +45,7 @@ const ASSETS: &[Asset] = &[
     asset!("app.js", JS),
     asset!("protocol.js", JS),
     asset!("lightmap.js", JS),
+    asset!("tone.js", JS),
     asset!("chart.js", JS),
     asset!("view3d.js", JS),
     asset!("vendor/fzstd.js", JS),
