@@ -43,6 +43,7 @@ const ASSETS: &[Asset] = &[
     asset!("index.html", "text/html; charset=utf-8"),
     asset!("style.css", "text/css; charset=utf-8"),
     asset!("app.js", JS),
+    asset!("connection.js", JS),
     asset!("protocol.js", JS),
     asset!("lightmap.js", JS),
     asset!("tone.js", JS),
