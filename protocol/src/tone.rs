@@ -30,12 +30,22 @@
 //!    IEC 61966-2-1) of `y` clamped to [0, 1], then
 //!    `round(clamp(s, 0, 1) * 255)`, halves away from zero.
 //!
-//! This is the curve `lightwire bake` has always used. The dashboard used
-//! to approximate it (a white point from a log2 histogram in 1/8-stop bins
-//! that left out emitting surfaces, and a 4096-entry sRGB table indexed by
-//! truncation); it now computes this one exactly. Emitters are not left
-//! out: a light usually covers far fewer than 5% of the texels, so the
-//! percentile passes over it, and the rule needs nothing but the texels.
+//! This is the curve `lightwire bake` has always used, and the client's
+//! renderer already used it; it was chosen over the dashboard's because
+//! `bake`'s PNGs (and the client frames compared with them) then stay
+//! bit-identical and the rule needs nothing but the texels. The dashboard
+//! used to approximate it (a white point from a log2 histogram in 1/8-stop
+//! bins that left out emitting surfaces, and a 4096-entry sRGB table
+//! indexed by truncation); it now computes this one exactly.
+//!
+//! What that costs: emitters count. When lights cover more than 5% of the
+//! covered texels the white point is a light's luminance and the rest of
+//! the picture is dark (of the chart texels, lights are 0.9% in
+//! cornell-blocks, 2.0% in indirect-light, 3.6% in cornell-small and
+//! cornell-large, but 5.6% in cornell-low, 50% in plates, 100% in
+//! furnace); the dashboard's slider and `view --exposure` compensate.
+//! Leaving emitters out would need every tone mapper to know the scene's
+//! materials and would change `bake`'s PNGs and the client's frames.
 //!
 //! Twins in other languages compute in double precision where this code
 //! uses `f32`; the results differ only when a value lies within about
