@@ -31,6 +31,10 @@
 //! streams `lightwire-client drive`/`load` send and the server's benchmarks
 //! replay.
 //!
+//! [`tone`] is the one tone curve (white point, exposure, curve, sRGB) that
+//! every picture of a lightmap uses: `bake`'s PNGs, the client's renderer
+//! and, in JavaScript, the dashboard.
+//!
 //! This crate must never depend on tokio or wgpu, so that every client — a
 //! game, a load tester, the dashboard's JavaScript twin — can share it.
 
@@ -40,6 +44,7 @@ pub mod error_code;
 pub mod lightmap;
 pub mod messages;
 pub mod script;
+pub mod tone;
 
 pub use codec::{DecodeError, decode_client, decode_server, encode_client, encode_server};
 pub use error_code::ErrorCode;

@@ -12,6 +12,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
+use lightwire_protocol::tone;
 use serde::Serialize;
 
 use crate::atlas::{Atlas, Chart};
@@ -122,41 +123,15 @@ pub fn write_exr(path: &Path, width: u32, height: u32, pixels: &[[f32; 3]]) -> R
 }
 
 /// The exposure white point of an image: the 95th percentile of covered
-/// texels' luminance.
-pub fn white_point(pixels: &[[f32; 3]]) -> f32 {
-    let mut lum: Vec<f32> = pixels
-        .iter()
-        .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2])
-        .filter(|l| *l > 0.0)
-        .collect();
-    lum.sort_by(f32::total_cmp);
-    lum.get(lum.len() * 95 / 100)
-        .copied()
-        .unwrap_or(1.0)
-        .max(1e-12)
-}
+/// texels' luminance (the one tone curve, [`lightwire_protocol::tone`]).
+pub use lightwire_protocol::tone::white_point;
 
-/// Maps HDR radiosity to 8-bit sRGB: exposure so that the 95th percentile
-/// of covered texels' luminance maps to 1 ([`white_point`]), then
-/// `1 - exp(-x)` and the sRGB transfer curve.
+/// Maps HDR radiosity to packed 8-bit sRGB with the one tone curve
+/// ([`lightwire_protocol::tone`]): exposure so that the 95th percentile of
+/// covered texels' luminance maps to 1 ([`white_point`]), then
+/// `1 - exp(-x)` and the sRGB transfer function.
 pub fn tone_map(pixels: &[[f32; 3]]) -> Vec<u8> {
-    tone_map_with(pixels, white_point(pixels))
-}
-
-/// [`tone_map`] with a given white point (to show several images, or a
-/// difference image, at one exposure).
-pub fn tone_map_with(pixels: &[[f32; 3]], white: f32) -> Vec<u8> {
-    let exposure = 1.0 / white.max(1e-12);
-    let encode = |x: f32| {
-        let y = 1.0 - (-x * exposure).exp();
-        let s = if y <= 0.003_130_8 {
-            12.92 * y
-        } else {
-            1.055 * y.powf(1.0 / 2.4) - 0.055
-        };
-        (s.clamp(0.0, 1.0) * 255.0).round() as u8
-    };
-    pixels.iter().flat_map(|p| p.map(encode)).collect()
+    tone::tone_map_image(pixels, white_point(pixels))
 }
 
 /// Writes the tone-mapped PNG.
@@ -164,7 +139,8 @@ pub fn write_png(path: &Path, width: u32, height: u32, pixels: &[[f32; 3]]) -> R
     write_png_with(path, width, height, pixels, white_point(pixels))
 }
 
-/// Writes a PNG tone-mapped with a given white point.
+/// Writes a PNG tone-mapped with a given white point (to show several
+/// images, or a difference image, at one exposure).
 pub fn write_png_with(
     path: &Path,
     width: u32,
@@ -174,7 +150,7 @@ pub fn write_png_with(
 ) -> Result<()> {
     image::save_buffer(
         path,
-        &tone_map_with(pixels, white),
+        &tone::tone_map_image(pixels, white),
         width,
         height,
         image::ColorType::Rgb8,

@@ -1,6 +1,8 @@
 // The `view` renderer: quads in object space, placed by one model matrix per
-// object, lit by the lightmap with bilinear filtering and tone-mapped like
-// `lightwire bake` (client/src/render/tonemap.rs is the CPU twin).
+// object, lit by the lightmap with bilinear filtering and tone-mapped with
+// the one tone curve of `lightwire bake` (`protocol/src/tone.rs`, re-exported
+// as client/src/render/tonemap.rs, is the CPU twin; `fs_main` computes the
+// same formula).
 
 struct Frame {
     // World to clip (reversed-Z, infinite far plane).

@@ -1,26 +1,25 @@
-// The dashboard: one WebSocket per watched scene, speaking the binary
-// protocol (protocol.js), holding the lightmap (lightmap.js), and showing it
-// as a tone-mapped atlas and a 3D view (view3d.js) next to live statistics
-// (chart.js).
+// The dashboard: one WebSocket per watched scene (connection.js, which
+// speaks the binary protocol of protocol.js and holds the lightmap of
+// lightmap.js), shown as an atlas tone-mapped with the one tone curve
+// (tone.js) and a 3D view (view3d.js) next to live statistics (chart.js).
 //
 // Data flow: frames arrive -> decoded -> keyframes/deltas applied to the
 // Lightmap (deltas only onto their exact base, else Resync) and Stats pushed
-// to the charts; each animation frame then redraws whatever changed. A
+// to the charts, all in connection.js, which reports each step to the
+// callbacks here; each animation frame then redraws whatever changed. A
 // driver's drags become Transform frames, at most one per object every
 // TRANSFORM_PERIOD_MS (the server allows 120/s), each with a fresh seq.
 //
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
 import { Chart } from './chart.js';
-import { ApplyError, Lightmap } from './lightmap.js';
-import { DecodeError, PROTOCOL_VERSION, decodeServer, encodeClient, errorName, poseProblem } from './protocol.js';
+import { Backoff, DASHBOARD_BACKOFF, Reconnector, sceneUrl } from './connection.js';
+import { poseProblem } from './protocol.js';
+import { ToneTable, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
 
-const CLIENT_NAME = 'lightwire-dashboard/0.1';
 /** Smallest gap between two Transforms for one object. */
 const TRANSFORM_PERIOD_MS = 33;
-/** Window of the versions/s and bytes/s rates. */
-const RATE_WINDOW_MS = 5000;
 /** Floor of the log-scale convergence chart (0 = converged is drawn here). */
 const UNSHOT_FLOOR = 1e-6;
 
@@ -89,76 +88,30 @@ try {
 
 const atlasCtx = ui.atlas.getContext('2d');
 let atlasImage = null;
-/** 1 / white point: from the 95th percentile of luminance (like `lightwire bake`). */
+/** The white point of the lightmap held (tone.js: the 95th percentile of
+ * covered texels' luminance, the rule of `lightwire bake`). */
 let autoWhite = 1;
 
-/** Texels of emitting surfaces (1), left out of the auto white point so that
- * a bright light does not darken the rest. */
-let emitterMask = null;
-
-function buildEmitterMask(scene) {
-  emitterMask = new Uint8Array(scene.atlas_width * scene.atlas_height);
-  for (const s of scene.surfaces) {
-    const emission = scene.materials[s.material]?.emission ?? [0, 0, 0];
-    if (!emission.some((e) => e > 0)) continue;
-    const [x, y, w, h] = s.rect;
-    for (let row = y; row < Math.min(y + h, scene.atlas_height); row++) {
-      emitterMask.fill(1, row * scene.atlas_width + x, row * scene.atlas_width + Math.min(x + w, scene.atlas_width));
-    }
-  }
-}
-
-/** 95th percentile of the luminance of lit, non-emitting texels, from a
- * log2 histogram (the rule of `lightwire bake`, without the lights). */
-function percentileWhite(rgb) {
-  const bins = new Uint32Array(512); // log2 from -32 to +32 in 1/8 steps
-  let count = 0;
-  for (let i = 0, t = 0; i < rgb.length; i += 3, t++) {
-    if (emitterMask?.[t]) continue;
-    const l = 0.2126 * rgb[i] + 0.7152 * rgb[i + 1] + 0.0722 * rgb[i + 2];
-    if (l > 0) {
-      const b = Math.max(0, Math.min(511, Math.floor((Math.log2(l) + 32) * 8)));
-      bins[b]++;
-      count++;
-    }
-  }
-  if (!count) return 1;
-  let seen = 0;
-  const target = count * 0.95;
-  for (let b = 0; b < 512; b++) {
-    seen += bins[b];
-    if (seen >= target) return 2 ** ((b + 1) / 8 - 32);
-  }
-  return 1;
-}
-
+/** The exposure: 1 / white point, times the slider's 2^EV. */
 function exposure() {
   return 2 ** Number(ui.exposure.value) / autoWhite;
 }
 
-/** Linear [0, 1) to an sRGB byte, tabulated. */
-const SRGB = new Uint8Array(4096);
-for (let i = 0; i < 4096; i++) {
-  const y = i / 4095;
-  const s = y <= 0.0031308 ? 12.92 * y : 1.055 * y ** (1 / 2.4) - 0.055;
-  SRGB[i] = Math.round(Math.min(1, Math.max(0, s)) * 255);
-}
-
 function drawAtlas() {
-  const map = conn?.map;
+  const map = conn()?.map;
   if (!map) return;
   if (ui.atlas.width !== map.width || ui.atlas.height !== map.height || !atlasImage) {
     ui.atlas.width = map.width;
     ui.atlas.height = map.height;
     atlasImage = atlasCtx.createImageData(map.width, map.height);
   }
-  const k = exposure();
+  const tone = new ToneTable(exposure());
   const px = atlasImage.data;
   const rgb = map.rgb;
   for (let i = 0, j = 0; i < rgb.length; i += 3, j += 4) {
-    px[j] = SRGB[Math.floor((1 - Math.exp(-rgb[i] * k)) * 4095)];
-    px[j + 1] = SRGB[Math.floor((1 - Math.exp(-rgb[i + 1] * k)) * 4095)];
-    px[j + 2] = SRGB[Math.floor((1 - Math.exp(-rgb[i + 2] * k)) * 4095)];
+    px[j] = tone.byte(rgb[i]);
+    px[j + 1] = tone.byte(rgb[i + 1]);
+    px[j + 2] = tone.byte(rgb[i + 2]);
     px[j + 3] = 255;
   }
   atlasCtx.putImageData(atlasImage, 0, 0);
@@ -171,202 +124,51 @@ function exposureChanged() {
 }
 ui.exposure.addEventListener('input', exposureChanged);
 ui.autoExposure.addEventListener('change', () => {
-  if (ui.autoExposure.checked && conn?.map) autoWhite = percentileWhite(conn.map.rgb);
+  const map = conn()?.map;
+  if (ui.autoExposure.checked && map) autoWhite = whitePoint(map.rgb);
   exposureChanged();
 });
 
 // --- Connection -------------------------------------------------------------
 
 const dirty = { atlas: false, texture: false };
-/** The current connection, or null. */
-let conn = null;
-let reconnectTimer = null;
+/** The Reconnector of the watched scene, or null. */
+let link = null;
+/** The current connection (connection.js), or null. */
+const conn = () => link?.current ?? null;
 
-class Connection {
-  constructor(sceneId, token) {
-    this.sceneId = sceneId;
-    this.token = token || null;
-    this.state = 'connecting';
-    this.role = null;
-    this.scene = null;
-    this.map = null;
-    this.awaitingKeyframe = true;
-    this.closedByUs = false;
-    this.fatal = false;
-    this.counters = { frames: 0, keyframes: 0, deltas: 0, resyncs: 0, stats: 0, decodeErrors: 0, errors: 0 };
-    this.errors = [];
-    this.received = []; // [time ms, bytes]
-    this.versions = []; // [time ms, server version] from Stats
-    this.reflected = {};
-    this.lastStats = null;
-    const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
-    this.ws = new WebSocket(`${scheme}://${location.host}/ws/scenes/${encodeURIComponent(sceneId)}`);
-    this.ws.binaryType = 'arraybuffer';
-    this.ws.onopen = () => this.send({ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: this.token, capabilities: 0 });
-    this.ws.onmessage = (e) => this.receive(e.data);
-    this.ws.onclose = (e) => this.closed(e);
-  }
-
-  send(message) {
-    if (this.ws.readyState === WebSocket.OPEN) this.ws.send(encodeClient(message));
-  }
-
-  close() {
-    this.closedByUs = true;
-    this.ws.close(1000);
-  }
-
-  receive(data) {
-    if (!(data instanceof ArrayBuffer)) {
-      logEvent('the server sent a text frame; ignored', 'warn');
-      return;
-    }
-    const now = performance.now();
-    this.received.push([now, data.byteLength]);
-    this.counters.frames++;
-    let message;
-    try {
-      message = decodeServer(data);
-    } catch (e) {
-      if (!(e instanceof DecodeError)) throw e;
-      this.counters.decodeErrors++;
-      logEvent(`undecodable frame: ${e.message}`, 'warn');
-      return;
-    }
-    switch (message.type) {
-      case 'Welcome':
-        this.welcome(message);
-        break;
-      case 'Keyframe':
-        this.apply(message, true);
-        break;
-      case 'Delta':
-        this.apply(message, false);
-        break;
-      case 'Stats':
-        this.stats(message);
-        break;
-      case 'Error': {
-        const name = errorName(message.code);
-        this.counters.errors++;
-        this.errors.push(`${name}: ${message.message}`);
-        logEvent(`server error ${name} (${message.code}): ${message.message}`, 'warn');
-        if (message.code === 3 || message.code === 4) this.fatal = true;
-        break;
-      }
-      case 'Pong':
-        break;
-      default:
-        break;
-    }
-  }
-
-  welcome(w) {
-    if (this.scene) {
-      logEvent('a second Welcome; ignored', 'warn');
-      return;
-    }
-    this.role = w.role;
-    this.scene = w.scene;
-    try {
-      this.map = Lightmap.forScene(w.scene);
-    } catch (e) {
-      logEvent(`cannot hold this scene's lightmap: ${e.message}`, 'error');
-      this.fatal = true;
-      this.close();
-      return;
-    }
-    this.state = 'connected';
+/** What the page does at each step of the connection. */
+const events = {
+  log: logEvent,
+  state: () => updateStatus(),
+  welcome(_conn, w) {
     atlasImage = null;
-    buildEmitterMask(w.scene);
     convergence.clear();
     timings.clear();
     view?.setScene(w.scene);
     driver.setScene(w.scene, w.role);
-    logEvent(`connected to ${w.scene.id} as ${w.role} (${w.server}); atlas ${w.scene.atlas_width}x${w.scene.atlas_height}, ${w.scene.surfaces.length} surfaces`);
-    updateStatus();
-  }
-
-  apply(frame, keyframe) {
-    if (!this.map) {
-      logEvent('a lightmap frame before Welcome; ignored', 'warn');
-      return;
-    }
-    if (!keyframe && this.awaitingKeyframe) return;
-    try {
-      if (keyframe) {
-        this.map.applyKeyframe(frame);
-        this.counters.keyframes++;
-        this.awaitingKeyframe = false;
-      } else {
-        this.map.applyDelta(frame);
-        this.counters.deltas++;
-      }
-    } catch (e) {
-      if (!(e instanceof ApplyError)) throw e;
-      // Either way we no longer hold a version the server can build on.
-      logEvent(`${keyframe ? 'keyframe' : 'delta'} not applied (${e.message}); asking for a keyframe`, e.kind === 'wrong-base' ? 'info' : 'warn');
-      this.counters.resyncs++;
-      this.awaitingKeyframe = true;
-      this.send({ type: 'Resync', have_version: this.map.version || null });
-      return;
-    }
+  },
+  applied(c, frame, keyframe) {
     const now = performance.now();
-    for (const { object, seq } of frame.reflected) {
-      this.reflected[object] = seq;
-      driver.reflected(object, seq, now);
-    }
+    for (const { object, seq } of frame.reflected) driver.reflected(object, seq, now);
     if (keyframe || ui.autoExposure.checked) {
-      if (ui.autoExposure.checked || autoWhite === 1) autoWhite = percentileWhite(this.map.rgb);
+      if (ui.autoExposure.checked || autoWhite === 1) autoWhite = whitePoint(c.map.rgb);
       view?.setExposure(exposure());
     }
     dirty.atlas = true;
     dirty.texture = true;
-  }
-
-  stats(s) {
-    this.counters.stats++;
-    this.lastStats = s;
+  },
+  stats(_conn, s) {
     const t = s.server_time_us / 1e6;
     convergence.push(t, [Math.max(s.unshot_fraction, 0)]);
     timings.push(t, [s.tick_ms, s.solve_ms, s.redistribution_ms]);
-    this.versions.push([performance.now(), s.version]);
     updateNumbers();
-  }
-
-  closed(e) {
-    this.state = 'closed';
-    if (conn !== this) return;
-    updateStatus();
-    if (this.closedByUs) return;
+  },
+  gaveUp(_conn, e) {
     const why = e.reason ? `: ${e.reason}` : '';
-    if (this.fatal || e.code === 1008) {
-      ui.driveHint.textContent = `Not connected (${e.code}${why}).`;
-      logEvent(`disconnected (${e.code}${why}); press Connect to retry`, 'warn');
-      return;
-    }
-    logEvent(`disconnected (${e.code}${why}); reconnecting in 2 s`, 'warn');
-    clearTimeout(reconnectTimer);
-    reconnectTimer = setTimeout(() => connect(), 2000);
-  }
-
-  /** [versions per second, bytes per second] over the last RATE_WINDOW_MS. */
-  rates() {
-    const now = performance.now();
-    const since = now - RATE_WINDOW_MS;
-    while (this.received.length && this.received[0][0] < since) this.received.shift();
-    while (this.versions.length > 2 && this.versions[0][0] < since) this.versions.shift();
-    const span = this.received.length ? Math.max(1000, now - this.received[0][0]) : RATE_WINDOW_MS;
-    const bytes = this.received.reduce((sum, [, n]) => sum + n, 0) / (span / 1000);
-    let versions = 0;
-    if (this.versions.length >= 2) {
-      const [t0, v0] = this.versions[0];
-      const [t1, v1] = this.versions[this.versions.length - 1];
-      if (t1 > t0) versions = ((v1 - v0) * 1000) / (t1 - t0);
-    }
-    return [versions, bytes];
-  }
-}
+    ui.driveHint.textContent = `Not connected (${e.code}${why}).`;
+  },
+};
 
 // --- Driving dynamic objects ----------------------------------------------
 
@@ -470,7 +272,7 @@ const driver = {
       this.sentAt.set(this.seq, now);
       if (this.sentAt.size > 256) this.sentAt.delete(this.sentAt.keys().next().value);
       this.lastSentSeq = this.seq;
-      conn?.send({ type: 'Transform', object, seq: this.seq, pose, client_time_us: Date.now() * 1000 });
+      conn()?.send({ type: 'Transform', object, seq: this.seq, pose, client_time_us: Date.now() * 1000 });
     }
   },
 
@@ -497,10 +299,11 @@ ui.reset.addEventListener('click', () => {
 // --- Status and numbers -----------------------------------------------------
 
 function updateStatus() {
-  const state = conn?.state ?? 'idle';
+  const c = conn();
+  const state = c?.state ?? 'idle';
   ui.status.textContent = state;
   ui.status.dataset.state = state;
-  ui.role.textContent = conn?.role ? conn.role : '';
+  ui.role.textContent = c?.role ? c.role : '';
 }
 
 const fmt = (v, digits = 1) => (Number.isFinite(v) ? v.toFixed(digits) : '–');
@@ -512,9 +315,10 @@ function bytesText(b) {
 }
 
 function updateNumbers() {
-  const s = conn?.lastStats;
-  const [versions, bytes] = conn ? conn.rates() : [0, 0];
-  stat('version').textContent = conn?.map ? `${conn.map.version}` : '–';
+  const c = conn();
+  const s = c?.lastStats;
+  const [versions, bytes] = c ? c.rates() : [0, 0];
+  stat('version').textContent = c?.map ? `${c.map.version}` : '–';
   stat('unshot').textContent = s ? (s.unshot_fraction > 0 ? s.unshot_fraction.toExponential(2) : '0 (converged)') : '–';
   stat('tick').textContent = s ? `${fmt(s.tick_ms)} ms` : '–';
   stat('solve').textContent = s ? `${fmt(s.solve_ms)} ms` : '–';
@@ -528,11 +332,9 @@ function updateNumbers() {
 // --- Scenes and connecting ----------------------------------------------------
 
 function connect() {
-  clearTimeout(reconnectTimer);
-  if (conn) {
-    const old = conn;
-    conn = null;
-    old.close();
+  if (link) {
+    link.stop();
+    link = null;
   }
   const id = ui.scene.value;
   if (!id) return;
@@ -541,8 +343,13 @@ function connect() {
   // The token stays in the field, not in the address bar (history, screenshots).
   params.delete('token');
   history.replaceState(null, '', `?${params}`);
-  conn = new Connection(id, ui.token.value.trim());
-  updateStatus();
+  link = new Reconnector({
+    url: sceneUrl(location, id),
+    token: ui.token.value.trim(),
+    backoff: new Backoff(DASHBOARD_BACKOFF),
+    on: events,
+  });
+  link.start();
 }
 
 /** Headers that present the token field's token to the REST API, which
@@ -583,8 +390,9 @@ ui.token.value = new URLSearchParams(location.search).get('token') ?? '';
 // --- Frame loop ---------------------------------------------------------------
 
 function frame() {
-  if (dirty.texture && conn?.map && view) {
-    view.uploadLightmap(conn.map);
+  const c = conn();
+  if (dirty.texture && c?.map && view) {
+    view.uploadLightmap(c.map);
     dirty.texture = false;
   }
   if (dirty.atlas) {
@@ -598,26 +406,27 @@ function frame() {
 }
 
 setInterval(updateNumbers, 1000);
-setInterval(() => conn?.send({ type: 'Ping', nonce: Date.now() }), 15000);
+setInterval(() => conn()?.send({ type: 'Ping', nonce: Date.now() }), 15000);
 
 window.lightwire = {
   /** Plain data about the connection and what is on screen. */
   snapshot() {
+    const c = conn();
     return {
-      state: conn?.state ?? 'idle',
-      role: conn?.role ?? null,
-      scene: conn?.scene?.id ?? null,
-      version: conn?.map?.version ?? 0,
-      counters: conn ? { ...conn.counters } : null,
-      errors: conn ? [...conn.errors] : [],
+      state: c?.state ?? 'idle',
+      role: c?.role ?? null,
+      scene: c?.scene?.id ?? null,
+      version: c?.map?.version ?? 0,
+      counters: c ? { ...c.counters } : null,
+      errors: c ? [...c.errors] : [],
       chartPoints: convergence.points.length,
-      reflected: conn ? { ...conn.reflected } : {},
+      reflected: c ? { ...c.reflected } : {},
       lastSentSeq: driver.lastSentSeq,
       latencyMs: driver.latencyMs,
       renderer: view?.renderer ?? null,
       framesDrawn: view?.framesDrawn ?? 0,
       hasLightmap: !!view?.hasLightmap,
-      dynamicObjects: conn?.scene ? conn.scene.objects.flatMap((o, i) => (o.dynamic ? [i] : [])) : [],
+      dynamicObjects: c?.scene ? c.scene.objects.flatMap((o, i) => (o.dynamic ? [i] : [])) : [],
     };
   },
   /** Client coordinates of an object's centre in the 3D view. */

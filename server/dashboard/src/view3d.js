@@ -9,8 +9,9 @@
 // of the chart's corner texel and bilinear filtering never reads outside the
 // chart. The lightmap is uploaded as received: RGB9E5 words are a native
 // WebGL2 format (RGB9_E5, filterable), RGBA16F likewise. The fragment shader
-// tone-maps radiosity the way `lightwire bake` does (1 - exp(-B * exposure),
-// then sRGB).
+// is the GPU twin of the one tone curve (tone.js, `protocol/src/tone.rs`):
+// sRGB(clamp(1 - exp(-max(B, 0) * exposure), 0, 1)) at the page's exposure,
+// 1 / white point times 2^EV; the canvas stores it in 8 bits.
 //
 // Mouse: drag the background to orbit, wheel to zoom; drag a dynamic object
 // (outlined) to slide it on its horizontal plane, shift-drag or right-drag it
