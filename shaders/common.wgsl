@@ -4,7 +4,8 @@
 // projection, so it lives here once.
 
 // One shooter: a rectangle of elements of the shooting patch (thesis §4.3.3,
-// dynamic shooter subdivision). Mirrors `GpuShooter` in server/src/gpu/progressive.rs.
+// dynamic shooter subdivision). Mirrors `GpuShooter` in server/src/gpu/progressive/shooters.rs
+// (sizes checked by the tests of server/src/gpu/shaders.rs).
 struct Shooter {
     // xyz: corner of the shooter's region (world), w: its area (m²).
     corner: vec4<f32>,
@@ -24,7 +25,7 @@ struct Shooter {
     tile: vec4<u32>,
 };
 
-// Per-batch constants. Mirrors `BatchUniform` in progressive.rs.
+// Per-batch constants. Mirrors `BatchUniform` in server/src/gpu/progressive/shoot.rs.
 struct Batch {
     patch_id: u32,
     shooters: u32,

@@ -10,7 +10,7 @@
 //                   and the total, into `selection` (read back by the CPU).
 
 // One element (lightmap texel), written only by `place_elements`; its size
-// is `ELEMENT_BYTES` in server/src/gpu/progressive.rs.
+// is `ELEMENT_BYTES` in server/src/gpu/placement.rs.
 struct Element {
     // xyz: world sample position, nudged a hair towards the patch centre
     // and off the surface (so that a sample on an edge is in front of the
