@@ -129,3 +129,53 @@ pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
             .collect(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(scale: f32) -> WirePose {
+        WirePose {
+            translation: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+            scale,
+        }
+    }
+
+    /// A room (static) and a box (dynamic).
+    fn info() -> SceneInfo {
+        let object = |name: &str, dynamic| ObjectInfo {
+            name: name.into(),
+            dynamic,
+            pose: pose(1.0),
+        };
+        SceneInfo {
+            id: "room".into(),
+            atlas_width: 1,
+            atlas_height: 1,
+            tile_size: DEFAULT_TILE_SIZE,
+            format: PixelFormat::Rgb9e5,
+            objects: vec![object("room", false), object("box", true)],
+            materials: Vec::new(),
+            surfaces: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_transform_names_a_dynamic_object_before_its_pose_is_judged() {
+        let info = info();
+        assert_eq!(check_transform(&info, 1, &pose(1.0)), Ok(1));
+        for object in [0, 2, u32::MAX] {
+            let refused = check_transform(&info, object, &pose(-1.0));
+            assert_eq!(refused.map_err(|r| r.0), Err(ErrorCode::UnknownObject));
+        }
+        let refused = check_transform(&info, 1, &pose(-1.0));
+        assert_eq!(refused.map_err(|r| r.0), Err(ErrorCode::InvalidPose));
+    }
+
+    #[test]
+    fn a_version_echoes_only_the_seqs_that_moved_on() {
+        let echoed = newly_reflected(&[0, 4, 7], &[0, 4, 5]);
+        assert_eq!(echoed, vec![ObjectSeq { object: 2, seq: 7 }]);
+    }
+}
