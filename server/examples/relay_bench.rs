@@ -440,7 +440,7 @@ async fn synthetic_solver() -> String {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
     let scene = Scene::load_with(&path, Default::default()).expect("scene");
     let atlas = Atlas::build(&scene).expect("atlas");
-    let info = lightwire_server::service::runtime::scene_info(&scene, &atlas);
+    let info = lightwire_server::service::wire::scene_info(&scene, &atlas);
     let (w, h) = (info.atlas_width, info.atlas_height);
     let mut encoder =
         lightwire_protocol::lightmap::Encoder::new(w, h, info.tile_size, info.format, 1.0 / 256.0);

@@ -19,6 +19,10 @@ use lightwire_server::metrics::{accuracy, accuracy_where};
 use lightwire_server::scene::{Pose, Scene};
 use lightwire_server::validity::Validity;
 
+/// A session whose tag is the seq of the box's pose (the box is the only
+/// object that moves).
+type Session = DynamicSolver<[u64; 1]>;
+
 /// One device shared by all tests of this binary.
 fn gpu() -> &'static Device {
     static DEVICE: OnceLock<Device> = OnceLock::new();
@@ -99,7 +103,7 @@ fn publish_bound(method: Redistribution) -> f64 {
     }
 }
 
-fn session(scene: &Scene, atlas: &Atlas, method: Redistribution) -> DynamicSolver {
+fn session(scene: &Scene, atlas: &Atlas, method: Redistribution) -> Session {
     session_with(scene, atlas, method, ProgressiveOptions::default())
 }
 
@@ -108,19 +112,19 @@ fn session_with(
     atlas: &Atlas,
     method: Redistribution,
     progressive: ProgressiveOptions,
-) -> DynamicSolver {
+) -> Session {
     let options = DynamicOptions {
         method,
         progressive,
         ..DynamicOptions::default()
     };
-    DynamicSolver::new(gpu(), scene, atlas, &scene.initial_poses(), options)
+    DynamicSolver::new(gpu(), scene, atlas, &scene.initial_poses(), [0], options)
         .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// Steps until nothing is running or waiting; returns how many complete
 /// states were published on the way.
-fn settle(d: &mut DynamicSolver) -> u64 {
+fn settle(d: &mut Session) -> u64 {
     let before = d.versions();
     for _ in 0..100_000 {
         if d.is_idle() {
@@ -132,7 +136,7 @@ fn settle(d: &mut DynamicSolver) -> u64 {
     panic!("the session never became idle");
 }
 
-fn radiosity(d: &DynamicSolver) -> Vec<Vec3> {
+fn radiosity(d: &Session) -> Vec<Vec3> {
     d.radiosity().unwrap_or_else(|e| panic!("{e}"))
 }
 
@@ -147,7 +151,7 @@ fn after_a_move_matches_a_from_scratch_solve(method: Redistribution) {
     let expected = from_scratch(&scene, &atlas, &target);
     let mut d = session(&scene, &atlas, method);
     assert!(settle(&mut d) >= 1, "the first solve publishes");
-    d.set_poses(&target, &[1]);
+    d.set_poses(&target, [1]);
     assert!(settle(&mut d) >= 1, "the move publishes");
     assert_eq!(d.reflected(), &[1], "the state reflects the move's seq");
     let published = radiosity(&d);
@@ -165,11 +169,7 @@ fn after_a_move_matches_a_from_scratch_solve(method: Redistribution) {
 /// after visibility became fractional at shadow edges — it was under 1%
 /// with binary visibility). And it must never reach a reader: the
 /// published state has no negative channel.
-fn negative_light_is_small_and_never_published(
-    d: &DynamicSolver,
-    atlas: &Atlas,
-    published: &[Vec3],
-) {
+fn negative_light_is_small_and_never_published(d: &Session, atlas: &Atlas, published: &[Vec3]) {
     let raw = d.raw_radiosity().unwrap_or_else(|e| panic!("{e}"));
     let (mut negative, mut total) = (0.0f64, 0.0f64);
     for (b, e) in raw.iter().zip(&atlas.elements) {
@@ -230,7 +230,7 @@ fn thousand_moves_do_not_drift(method: Redistribution) {
         let shift = Vec3::new(phase.sin(), 0.0, 1.0 - phase.cos()) * 0.15;
         box_pose(&scene, 360.0 * k as f32 / STEPS as f32, shift)
     };
-    let error_at = |d: &DynamicSolver, k: usize| {
+    let error_at = |d: &Session, k: usize| {
         common::visible_accuracy(
             &scene,
             &atlas,
@@ -244,7 +244,7 @@ fn thousand_moves_do_not_drift(method: Redistribution) {
     let mut worst = 0.0f64;
     let mut worst_negative = 0.0f32;
     for k in 1..=STEPS {
-        d.set_poses(&pose_at(k), &[k as u64]);
+        d.set_poses(&pose_at(k), [k as u64]);
         settle(&mut d);
         if k == 1 {
             first = error_at(&d, k);
@@ -312,7 +312,7 @@ fn only_complete_states_are_published(method: Redistribution) {
     for step in 0..400 {
         if step % 3 == 0 && step < 300 {
             seq += 1;
-            d.set_poses(&script[pose_of_seq(seq)], &[seq]);
+            d.set_poses(&script[pose_of_seq(seq)], [seq]);
         }
         let report = d
             .step(Duration::from_millis(10))
@@ -488,7 +488,7 @@ fn cross_light_on_a_moved_box_has_no_steps_at_tile_boundaries() {
     let target = box_pose(&scene, 30.0, Vec3::new(0.4, 0.0, -0.3));
     let mut d = session(&scene, &atlas, Redistribution::Cross);
     settle(&mut d);
-    d.set_poses(&target, &[1]);
+    d.set_poses(&target, [1]);
     settle(&mut d);
     let b = radiosity(&d);
     let side = ProgressiveOptions::default().cross_tile;
@@ -574,7 +574,7 @@ fn uncovered_texels_get_their_light(method: Redistribution) {
     );
     let mut d = session(&scene, &atlas, method);
     settle(&mut d);
-    d.set_poses(&target, &[1]);
+    d.set_poses(&target, [1]);
     settle(&mut d);
     let b = radiosity(&d);
     let expected = from_scratch(&scene, &atlas, &target);

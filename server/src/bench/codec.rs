@@ -45,7 +45,7 @@ use crate::gpu::{Device, Redistribution};
 use crate::load::load_scene;
 use crate::scene::{LoadOptions, Scene};
 use crate::service::live::{GpuLive, LiveSolver};
-use crate::service::runtime::from_wire;
+use crate::service::wire::from_wire;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -184,7 +184,7 @@ fn load(path: &Path, scene: &str, script: &str) -> Result<Recording> {
 }
 
 /// Runs `live` until it is idle; its latest complete lightmap as an image.
-fn settle(live: &mut GpuLive, atlas: &Atlas) -> Result<Vec<[f32; 3]>> {
+fn settle(live: &mut GpuLive<u32>, atlas: &Atlas) -> Result<Vec<[f32; 3]>> {
     let started = Instant::now();
     while !live.is_idle() {
         live.step(Duration::from_millis(100))
@@ -245,7 +245,14 @@ pub fn record(
     let pose_at = |k: u32| from_wire(&script.pose_at(f64::from(k) / settings.rate));
     poses[object] = pose_at(0);
     let started = Instant::now();
-    let mut live = GpuLive::new(gpu.clone(), &scene, atlas.clone(), &poses, settings.method)?;
+    let mut live = GpuLive::new(
+        gpu.clone(),
+        &scene,
+        atlas.clone(),
+        &poses,
+        0,
+        settings.method,
+    )?;
     let mut frames = vec![settle(&mut live, &atlas)?];
     eprintln!(
         "{} / {script_name}: {} elements, start converged in {:.1} s; recording {} versions at {} Hz",
@@ -258,7 +265,7 @@ pub fn record(
     let started = Instant::now();
     for k in 1..=settings.versions {
         poses[object] = pose_at(k);
-        live.set_poses(&poses, &vec![u64::from(k); poses.len()]);
+        live.set_poses(&poses, k);
         frames.push(settle(&mut live, &atlas)?);
         if k % 10 == 0 {
             eprintln!(

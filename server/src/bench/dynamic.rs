@@ -288,13 +288,12 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             progressive: settings.progressive,
             ..DynamicOptions::default()
         };
-        let mut session = DynamicSolver::new(gpu, &scene, &atlas, &start, options)?;
+        let mut session = DynamicSolver::new(gpu, &scene, &atlas, &start, 0, options)?;
         settle(&mut session)?;
         let mut times = Vec::new();
         for frame in 1..=frames {
-            let seqs = vec![u64::from(frame); start.len()];
             let started = Instant::now();
-            session.set_poses(&pose_at(frame), &seqs);
+            session.set_poses(&pose_at(frame), frame);
             settle(&mut session)?;
             times.push(started.elapsed());
         }
@@ -324,7 +323,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
 }
 
 /// Runs the session until it is idle.
-fn settle(session: &mut DynamicSolver) -> Result<()> {
+fn settle(session: &mut DynamicSolver<u32>) -> Result<()> {
     while !session.is_idle() {
         session.step(Duration::from_millis(100))?;
     }

@@ -7,6 +7,11 @@
 //!   latest per call wins and waits until the running unit of work is done,
 //!   so every emitter redistributes its light in chronological order, which
 //!   the shot-radiosity formulation requires (thesis §3.1, §3.3.4).
+//! - Each set of poses comes with a tag of the caller's type `T`, which the
+//!   session keeps and hands back with the complete state that reflects
+//!   those poses ([`DynamicSolver::reflected`]). It never looks inside: what
+//!   a tag stands for (a benchmark's frame number, which of its clients'
+//!   messages the poses came from) is the caller's business.
 //! - Work is cut into GPU batches; [`DynamicSolver::step`] runs batches
 //!   until its time budget is spent, so a redistribution spans several
 //!   ticks when it must (thesis §4.5.3: the loop over shooters is
@@ -103,8 +108,9 @@ enum Phase {
     Inserting(Move, bool),
 }
 
-/// A GPU radiosity session that follows moving objects; see the module doc.
-pub struct DynamicSolver {
+/// A GPU radiosity session that follows moving objects, with a tag of type
+/// `T` per set of poses; see the module doc.
+pub struct DynamicSolver<T> {
     gpu: Device,
     scene: Scene,
     atlas: Atlas,
@@ -113,12 +119,12 @@ pub struct DynamicSolver {
     phase: Phase,
     /// The objects that may move.
     dynamic: Vec<bool>,
-    /// Poses (and their seqs) waiting for the running unit to finish.
-    pending: Option<(Vec<Pose>, Vec<u64>)>,
-    /// Seqs of the poses the solver is working on, and of the last
+    /// Poses (and their tag) waiting for the running unit to finish.
+    pending: Option<(Vec<Pose>, T)>,
+    /// Tags of the poses the solver is working on, and of the last
     /// completed state.
-    working: Vec<u64>,
-    reflected: Vec<u64>,
+    working: T,
+    reflected: T,
     /// Index of the next level of `publish_at` to publish at.
     next_level: usize,
     /// Cross: the static scene's unshot fraction after its last refinement.
@@ -129,14 +135,16 @@ pub struct DynamicSolver {
     since_anchor: u32,
 }
 
-impl DynamicSolver {
-    /// Uploads the scene at `poses`. No work is done yet: the first solve
-    /// runs in [`DynamicSolver::step`]s like everything else.
+impl<T: Clone> DynamicSolver<T> {
+    /// Uploads the scene at `poses`, tagged `tag` (the first complete
+    /// state reflects them). No work is done yet: the first solve runs in
+    /// [`DynamicSolver::step`]s like everything else.
     pub fn new(
         gpu: &Device,
         scene: &Scene,
         atlas: &Atlas,
         poses: &[Pose],
+        tag: T,
         mut options: DynamicOptions,
     ) -> Result<Self, GpuError> {
         if options.method == Redistribution::Incremental {
@@ -164,7 +172,6 @@ impl DynamicSolver {
                 Phase::Converging { after_move: false },
             ),
         };
-        let objects = poses.len();
         Ok(Self {
             gpu: gpu.clone(),
             scene: scene.clone(),
@@ -174,8 +181,8 @@ impl DynamicSolver {
             phase,
             dynamic,
             pending: None,
-            working: vec![0; objects],
-            reflected: vec![0; objects],
+            working: tag.clone(),
+            reflected: tag,
             next_level: 0,
             static_unshot: 1.0,
             versions: 0,
@@ -188,10 +195,10 @@ impl DynamicSolver {
         self.options.method
     }
 
-    /// New poses for every object with the transform seq each carries; they
-    /// replace any poses still waiting (the latest wins).
-    pub fn set_poses(&mut self, poses: &[Pose], seqs: &[u64]) {
-        self.pending = Some((poses.to_vec(), seqs.to_vec()));
+    /// New poses for every object, tagged `tag`; they replace any poses
+    /// still waiting, and their tag (the latest wins).
+    pub fn set_poses(&mut self, poses: &[Pose], tag: T) {
+        self.pending = Some((poses.to_vec(), tag));
     }
 
     /// Whether nothing is running or waiting (the solution is as refined as
@@ -210,8 +217,11 @@ impl DynamicSolver {
         self.solver.poses()
     }
 
-    /// The seqs the last completed state reflects.
-    pub fn reflected(&self) -> &[u64] {
+    /// The tag of the poses the last completed state reflects. A call to
+    /// [`DynamicSolver::set_poses`] with the poses that state already has
+    /// is reflected by it as soon as the session takes them up, without a
+    /// new state.
+    pub fn reflected(&self) -> &T {
         &self.reflected
     }
 
@@ -296,8 +306,8 @@ impl DynamicSolver {
         let levels = self.options.publish_at;
         match std::mem::replace(&mut self.phase, Phase::Idle) {
             Phase::Idle => {
-                if let Some((poses, seqs)) = self.pending.take() {
-                    self.start_move(poses, seqs)?;
+                if let Some((poses, tag)) = self.pending.take() {
+                    self.start_move(poses, tag)?;
                     return Ok((true, true));
                 }
                 if self.wants_refinement() {
@@ -376,8 +386,8 @@ impl DynamicSolver {
                     // Insert at the newest poses: a move that arrived
                     // meanwhile costs nothing extra.
                     let poses = match self.pending.take() {
-                        Some((poses, seqs)) => {
-                            self.working = seqs;
+                        Some((poses, tag)) => {
+                            self.working = tag;
                             poses
                         }
                         None => self.solver.poses().to_vec(),
@@ -401,8 +411,8 @@ impl DynamicSolver {
         }
     }
 
-    fn start_move(&mut self, poses: Vec<Pose>, seqs: Vec<u64>) -> Result<(), GpuError> {
-        self.working = seqs;
+    fn start_move(&mut self, poses: Vec<Pose>, tag: T) -> Result<(), GpuError> {
+        self.working = tag;
         if poses.as_slice() == self.solver.poses() {
             // Same poses: the state already reflects them.
             self.reflected = self.working.clone();

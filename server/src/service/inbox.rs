@@ -7,8 +7,9 @@ use std::sync::Mutex;
 use lightwire_protocol::Pose;
 use tokio::sync::Notify;
 
-/// A pose waiting to be consumed: already validated, in wire form so that a
-/// relay forwards exactly the bits its driver sent.
+/// A pose waiting to be consumed: already checked
+/// ([`super::wire::check_transform`]), in wire form so that a relay
+/// forwards exactly the bits its driver sent.
 #[derive(Debug, Clone, Copy)]
 pub struct PendingPose {
     pub seq: u64,

@@ -5,6 +5,12 @@
 //! sees a half-done state: [`StepReport::completed`] says when
 //! [`LiveSolver::radiosity`] holds a new complete one.
 //!
+//! A solver knows nothing of the wire. Each set of poses comes with a tag
+//! of the caller's type `T` that the solver keeps, without looking inside,
+//! and hands back with the complete state that reflects those poses
+//! ([`LiveSolver::reflected`]); the tick loop tags poses with the transform
+//! seqs they carry ([`super::runtime`]).
+//!
 //! A solver does not decide what a failure means for the service: `step`
 //! returns a [`SolverFailure`] (a lost GPU device, an error caught by the
 //! error scopes around the GPU work, a failed readback) and the tick loop
@@ -37,21 +43,24 @@ pub struct StepReport {
 #[error("{0}")]
 pub struct SolverFailure(pub String);
 
-/// A solver that follows moving objects.
-pub trait LiveSolver: Send {
+/// A solver that follows moving objects, with a tag of type `T` per set of
+/// poses.
+pub trait LiveSolver<T>: Send {
     /// A short name for logs and metrics.
     fn name(&self) -> &'static str;
-    /// New poses for every object (indexed like `Scene::objects`), with the
-    /// transform seq per object they carry. A solver may defer them until
-    /// its current work completes (the latest call wins).
-    fn set_poses(&mut self, poses: &[Pose], seqs: &[u64]);
+    /// New poses for every object (indexed like `Scene::objects`), tagged
+    /// `tag`. A solver may defer them until its current work completes (the
+    /// latest call wins).
+    fn set_poses(&mut self, poses: &[Pose], tag: T);
     /// Does up to about `budget` of work. An error means the solver is
     /// unusable (its state may be corrupt); it is not called again.
     fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure>;
     /// The latest complete state: radiosity per element.
     fn radiosity(&self) -> &[Vec3];
-    /// The transform seq per object that [`LiveSolver::radiosity`] reflects.
-    fn reflected(&self) -> &[u64];
+    /// The tag of the poses that [`LiveSolver::radiosity`] reflects. Poses
+    /// equal to those of the state it has are reflected by it as soon as
+    /// the solver takes them up, without a new state.
+    fn reflected(&self) -> &T;
     /// Whether the solver has nothing left to do for the poses it has
     /// (its state is complete and refined as far as it refines), so that
     /// [`LiveSolver::radiosity`] will not change until poses do.
@@ -75,28 +84,29 @@ pub trait LiveSolver: Send {
 /// then skips the ticks it missed rather than catching up). It exists so
 /// that the service works and is testable before and without a GPU; at
 /// service densities it is only practical for small scenes.
-pub struct ReferenceLive {
+pub struct ReferenceLive<T> {
     scene: Scene,
     atlas: Atlas,
     poses: Vec<Pose>,
-    seqs: Vec<u64>,
-    reflected: Vec<u64>,
+    /// The tag of `poses`, and of the poses `radiosity` reflects.
+    tag: T,
+    reflected: T,
     dirty: bool,
     radiosity: Vec<Vec3>,
     residual: f64,
     injected: bool,
 }
 
-impl ReferenceLive {
-    pub fn new(scene: Scene, atlas: Atlas) -> Self {
-        let poses = scene.initial_poses();
+impl<T: Clone> ReferenceLive<T> {
+    /// A solver at `poses`, tagged `tag`; it solves on its first step.
+    pub fn new(scene: Scene, atlas: Atlas, poses: &[Pose], tag: T) -> Self {
         Self {
             radiosity: vec![Vec3::ZERO; atlas.elements.len()],
-            seqs: vec![0; poses.len()],
-            reflected: vec![0; poses.len()],
+            reflected: tag.clone(),
+            tag,
             scene,
             atlas,
-            poses,
+            poses: poses.to_vec(),
             dirty: true,
             residual: 1.0,
             injected: false,
@@ -104,19 +114,19 @@ impl ReferenceLive {
     }
 }
 
-impl LiveSolver for ReferenceLive {
+impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
     fn name(&self) -> &'static str {
         "reference"
     }
 
-    fn set_poses(&mut self, poses: &[Pose], seqs: &[u64]) {
-        self.seqs = seqs.to_vec();
+    fn set_poses(&mut self, poses: &[Pose], tag: T) {
+        self.tag = tag;
         if poses != self.poses.as_slice() {
             self.poses = poses.to_vec();
             self.dirty = true;
         } else if !self.dirty {
-            // Nothing moved: the current state already reflects these seqs.
-            self.reflected = self.seqs.clone();
+            // Nothing moved: the current state already reflects this tag.
+            self.reflected = self.tag.clone();
         }
     }
 
@@ -151,7 +161,7 @@ impl LiveSolver for ReferenceLive {
         crate::validity::Validity::compute(&self.scene, &self.atlas, &self.poses)
             .dilate(&self.atlas, &mut self.radiosity);
         self.residual = solution.residual_fraction;
-        self.reflected = self.seqs.clone();
+        self.reflected = self.tag.clone();
         let spent = started.elapsed();
         Ok(StepReport {
             completed: true,
@@ -165,7 +175,7 @@ impl LiveSolver for ReferenceLive {
         &self.radiosity
     }
 
-    fn reflected(&self) -> &[u64] {
+    fn reflected(&self) -> &T {
         &self.reflected
     }
     fn is_idle(&self) -> bool {
@@ -190,25 +200,27 @@ impl LiveSolver for ReferenceLive {
 /// Each step runs inside the device's error scopes
 /// ([`crate::gpu::Device::capture`]) and is followed by a check of the
 /// device's health (lost, uncaptured errors): any of these, or a failed
-/// step or readback, is a [`SolverFailure`].
-pub struct GpuLive {
+/// step, readback or device poll, is a [`SolverFailure`].
+pub struct GpuLive<T> {
     device: crate::gpu::Device,
-    session: crate::gpu::DynamicSolver,
+    /// The session; its `reflected` is the tag of `radiosity`.
+    session: crate::gpu::DynamicSolver<T>,
     atlas: Atlas,
-    /// The last complete state and the seqs it reflects.
+    /// The last complete state, read back.
     radiosity: Vec<Vec3>,
-    reflected: Vec<u64>,
     name: &'static str,
 }
 
-impl GpuLive {
-    /// A session on `device` starting from `poses`. Errors of the device
-    /// outside error scopes are recorded from here on, not panicked on.
+impl<T: Clone> GpuLive<T> {
+    /// A session on `device` starting from `poses`, tagged `tag`. Errors of
+    /// the device outside error scopes are recorded from here on, not
+    /// panicked on.
     pub fn new(
         device: crate::gpu::Device,
         scene: &Scene,
         atlas: Atlas,
         poses: &[Pose],
+        tag: T,
         method: crate::gpu::Redistribution,
     ) -> Result<Self, crate::gpu::GpuError> {
         device.record_uncaptured_errors();
@@ -216,8 +228,9 @@ impl GpuLive {
             method,
             ..Default::default()
         };
-        let (session, error) = device
-            .capture(|| crate::gpu::DynamicSolver::new(&device, scene, &atlas, poses, options));
+        let (session, error) = device.capture(|| {
+            crate::gpu::DynamicSolver::new(&device, scene, &atlas, poses, tag, options)
+        });
         let session = session?;
         if let Some(e) = error.or_else(|| device.failure()) {
             return Err(crate::gpu::GpuError::Device(format!(
@@ -226,7 +239,6 @@ impl GpuLive {
         }
         Ok(Self {
             radiosity: vec![Vec3::ZERO; atlas.elements.len()],
-            reflected: vec![0; poses.len()],
             name: method.name(),
             device,
             session,
@@ -252,12 +264,6 @@ impl GpuLive {
                 .validity()
                 .dilate(&self.atlas, &mut r);
             self.radiosity = r;
-            self.reflected = self.session.reflected().to_vec();
-        } else if self.session.reflected() != self.reflected.as_slice() {
-            // The session took a transform that changed no pose as
-            // reflected by the state it already has (it completes nothing
-            // for it), so the last state reflects it too.
-            self.reflected = self.session.reflected().to_vec();
         }
         Ok(StepReport {
             completed: step.completed,
@@ -268,13 +274,13 @@ impl GpuLive {
     }
 }
 
-impl LiveSolver for GpuLive {
+impl<T: Clone + Send> LiveSolver<T> for GpuLive<T> {
     fn name(&self) -> &'static str {
         self.name
     }
 
-    fn set_poses(&mut self, poses: &[Pose], seqs: &[u64]) {
-        self.session.set_poses(poses, seqs);
+    fn set_poses(&mut self, poses: &[Pose], tag: T) {
+        self.session.set_poses(poses, tag);
     }
 
     fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure> {
@@ -285,7 +291,7 @@ impl LiveSolver for GpuLive {
         let (report, scoped) = device.capture(|| self.work(budget));
         // Let wgpu run its maintenance (it calls the device-lost callback
         // there) even on ticks that waited for nothing.
-        let _ = device.device.poll(wgpu::PollType::Poll);
+        let polled = device.device.poll(wgpu::PollType::Poll);
         // A lost device explains everything after it: say that first.
         if let Some(e) = device.failure() {
             return Err(SolverFailure(e));
@@ -293,7 +299,11 @@ impl LiveSolver for GpuLive {
         if let Some(e) = scoped {
             return Err(SolverFailure(e));
         }
-        report
+        let report = report?;
+        // A poll that fails is a failure of this step like any other, not
+        // something to pass over.
+        polled.map_err(|e| SolverFailure(format!("polling the GPU device failed: {e}")))?;
+        Ok(report)
     }
 
     fn failure(&self) -> Option<String> {
@@ -307,8 +317,8 @@ impl LiveSolver for GpuLive {
     fn radiosity(&self) -> &[Vec3] {
         &self.radiosity
     }
-    fn reflected(&self) -> &[u64] {
-        &self.reflected
+    fn reflected(&self) -> &T {
+        self.session.reflected()
     }
     fn is_idle(&self) -> bool {
         self.session.is_idle()

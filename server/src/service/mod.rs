@@ -3,14 +3,17 @@
 //! Data flow, one way:
 //!
 //! 1. [`session`] tasks (one per WebSocket) decode client frames. A driver's
-//!    `Transform` is validated and stored in its scene's [`inbox::Inbox`]:
-//!    one slot per dynamic object, the latest `seq` wins, so the inbox can
-//!    never grow.
+//!    `Transform` is checked ([`wire`]) and stored in its scene's
+//!    [`inbox::Inbox`]: one slot per dynamic object, the latest `seq` wins,
+//!    so the inbox can never grow.
 //! 2. Each scene has a tick thread ([`runtime`]) that owns the solver. Every
-//!    tick it drains the inbox, hands new poses to the solver, runs solver
-//!    work within the tick budget, and when the solver has a complete state
-//!    it quantizes and encodes it once ([`lightwire_protocol::lightmap::Encoder`])
-//!    into a [`publication::Publication`].
+//!    tick it drains the inbox, converts new poses ([`wire`]) and hands them
+//!    to the solver ([`live::LiveSolver`]) with a tag, the seqs they carry,
+//!    which the solver returns with the state that reflects them (solvers
+//!    know nothing of seqs or the wire), runs solver work within the tick
+//!    budget, and when the solver has a complete state it quantizes and
+//!    encodes it once ([`lightwire_protocol::lightmap::Encoder`]) into a
+//!    [`publication::Publication`] that echoes those seqs.
 //! 3. Publications go out through a `tokio::sync::watch` channel, which
 //!    holds only the newest one. Each session's writer sends the delta if
 //!    the client holds exactly its base version, a merged delta if it is a
@@ -19,10 +22,11 @@
 //!    is one publication reference plus the socket buffer, whatever the
 //!    client does.
 //!
-//! 4. When a solver fails (lost GPU device, GPU error, panic), the tick
-//!    thread marks its feed failed (`/readyz` 503 with the scene and the
-//!    reason), keeps the last publication for sessions, and rebuilds the
-//!    solver with backoff at the current poses ([`runtime`]).
+//! 4. When a solver fails (lost GPU device, GPU error, panic), its step
+//!    says so ([`live::SolverFailure`]) and the tick thread marks its feed
+//!    failed (`/readyz` 503 with the scene and the reason), keeps the last
+//!    publication for sessions, and rebuilds the solver with backoff at the
+//!    current poses ([`runtime`]).
 //!
 //! Sessions see a scene only as a [`feed::Feed`] (description, inbox,
 //! publications, stats), which is how `lightwire relay` (`crate::relay`)
@@ -31,7 +35,8 @@
 //! [`http`] serves the REST endpoints, metrics and the WebSocket upgrade;
 //! [`dashboard`] the web dashboard's files, embedded in the binary;
 //! [`config`] merges the config file, flags and environment; [`auth`] maps
-//! tokens to roles.
+//! tokens to roles; [`wire`] is where protocol types become scene types and
+//! back.
 
 pub mod auth;
 pub mod config;
@@ -44,6 +49,7 @@ pub mod metrics;
 pub mod publication;
 pub mod runtime;
 pub mod session;
+pub mod wire;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;

@@ -6,8 +6,10 @@
 //!
 //! 1. drain the scene's [`super::inbox::Inbox`]: the newest pose per
 //!    object;
-//! 2. if any pose changed, hand all poses to the solver and remember which
-//!    seqs they carry;
+//! 2. if any pose changed, hand all poses to the solver, tagged with the
+//!    seq per object they carry ([`Seqs`]: the solver keeps the tag without
+//!    looking inside and hands it back with the state that reflects those
+//!    poses);
 //! 3. run solver work for the tick budget;
 //! 4. if the solver completed a state, scatter it into the atlas, encode it
 //!    once and publish it through a [`Publisher`] (the newest publication
@@ -37,13 +39,9 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use glam::{Quat, Vec3};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::unix_micros;
-use lightwire_protocol::{
-    DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat,
-    Pose as WirePose, SceneInfo, Stats, SurfaceInfo,
-};
+use lightwire_protocol::{DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, PixelFormat, SceneInfo, Stats};
 use tokio::sync::watch;
 
 use super::config::{Config, SolverChoice};
@@ -51,6 +49,7 @@ use super::feed::{Failure, Feed};
 use super::live::{GpuLive, LiveSolver, ReferenceLive, SolverFailure, StepReport};
 use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
+use super::wire::{from_wire, newly_reflected, scene_info};
 use crate::atlas::Atlas;
 use crate::load::load_scene;
 use crate::reference::MAX_ELEMENTS;
@@ -68,68 +67,23 @@ pub struct SceneRuntime {
     thread: Mutex<Option<JoinHandle<()>>>,
 }
 
-/// Converts a wire pose (already validated) to a scene pose.
-pub fn from_wire(p: &WirePose) -> Pose {
-    Pose {
-        translation: Vec3::from_array(p.translation),
-        rotation: Quat::from_array(p.rotation).normalize(),
-        scale: p.scale,
-    }
+/// The tag the tick loop gives each set of poses it hands its solver: the
+/// seq per object of the transforms they carry (0: none yet). The solver
+/// hands it back with the state that reflects those poses, whose version
+/// then echoes the seqs (PROTOCOL.md §3, `reflected`).
+pub type Seqs = Arc<[u64]>;
+
+/// Seqs of poses that carry no transform.
+fn no_seqs(objects: usize) -> Seqs {
+    vec![0; objects].into()
 }
 
-/// Converts a scene pose to a wire pose.
-pub fn to_wire(p: &Pose) -> WirePose {
-    WirePose {
-        translation: p.translation.to_array(),
-        rotation: p.rotation.to_array(),
-        scale: p.scale,
-    }
-}
+/// A scene's solver as the tick loop owns it.
+type Solver = Box<dyn LiveSolver<Seqs>>;
 
-/// Describes a scene for clients.
-pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
-    SceneInfo {
-        id: scene.name.clone(),
-        atlas_width: atlas.width,
-        atlas_height: atlas.height,
-        tile_size: DEFAULT_TILE_SIZE,
-        format: PixelFormat::Rgb9e5,
-        objects: scene
-            .objects
-            .iter()
-            .map(|o| ObjectInfo {
-                name: o.name.clone(),
-                dynamic: o.dynamic,
-                pose: to_wire(&o.initial_pose),
-            })
-            .collect(),
-        materials: scene
-            .materials
-            .iter()
-            .map(|m| MaterialInfo {
-                name: m.name.clone(),
-                albedo: m.albedo.to_array(),
-                emission: m.emission.to_array(),
-            })
-            .collect(),
-        surfaces: scene
-            .patches
-            .iter()
-            .zip(&atlas.charts)
-            .map(|(p, c)| SurfaceInfo {
-                name: p.name.clone(),
-                object: p.object,
-                material: p.material,
-                corners: p.shape.corners().map(|c| c.to_array()),
-                rect: [c.x, c.y, c.w, c.h],
-            })
-            .collect(),
-    }
-}
-
-/// Builds a scene's solver starting from given poses: once at start, and
-/// again after each failure.
-type Build = Box<dyn FnMut(&[Pose]) -> Result<Box<dyn LiveSolver>> + Send>;
+/// Builds a scene's solver starting from given poses with their tag: once
+/// at start, and again after each failure.
+type Build = Box<dyn FnMut(&[Pose], Seqs) -> Result<Solver> + Send>;
 
 /// The wait before the first rebuild of a failed solver.
 pub const REBUILD_FIRST: Duration = Duration::from_millis(500);
@@ -182,10 +136,9 @@ impl SceneRuntime {
                     );
                 }
                 let (scene, atlas) = (scene.clone(), atlas.clone());
-                Box::new(move |poses: &[Pose]| {
-                    let mut solver = ReferenceLive::new(scene.clone(), atlas.clone());
-                    solver.set_poses(poses, &vec![0; poses.len()]);
-                    Ok(Box::new(solver) as Box<dyn LiveSolver>)
+                Box::new(move |poses: &[Pose], tag: Seqs| {
+                    let solver = ReferenceLive::new(scene.clone(), atlas.clone(), poses, tag);
+                    Ok(Box::new(solver) as Solver)
                 })
             }
             SolverChoice::Progressive => {
@@ -197,15 +150,15 @@ impl SceneRuntime {
                 tracing::info!(scene = %scene.name, %method, "redistribution");
                 let adapter = config.adapter.clone();
                 let (scene, atlas) = (scene.clone(), atlas.clone());
-                Box::new(move |poses: &[Pose]| {
+                Box::new(move |poses: &[Pose], tag: Seqs| {
                     let device = crate::gpu::Device::new(adapter.as_deref())?;
                     tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
-                    let solver = GpuLive::new(device, &scene, atlas.clone(), poses, method)?;
-                    Ok(Box::new(solver) as Box<dyn LiveSolver>)
+                    let solver = GpuLive::new(device, &scene, atlas.clone(), poses, tag, method)?;
+                    Ok(Box::new(solver) as Solver)
                 })
             }
         };
-        let solver = build(&scene.initial_poses())?;
+        let solver = build(&scene.initial_poses(), no_seqs(scene.objects.len()))?;
         let (publisher, pub_rx) = Publisher::new();
         let (stats_tx, stats_rx) = watch::channel(Stats {
             version: 0,
@@ -299,7 +252,7 @@ struct Episode {
 struct TickLoop {
     runtime: Arc<SceneRuntime>,
     /// `None` between a failure and a successful rebuild.
-    solver: Option<Box<dyn LiveSolver>>,
+    solver: Option<Solver>,
     /// The solver has completed a state (its `radiosity` is one).
     has_state: bool,
     name: &'static str,
@@ -316,7 +269,7 @@ struct TickLoop {
     ready: prometheus_client::metrics::gauge::Gauge,
     encoder: Encoder,
     poses: Vec<Pose>,
-    /// Latest seq per object handed to the solver.
+    /// Latest seq per object, handed to the solver as the poses' tag.
     seqs: Vec<u64>,
     publisher: Publisher,
     stats: watch::Sender<Stats>,
@@ -352,7 +305,7 @@ fn down(last: &StepReport) -> StepReport {
 }
 
 /// One step, with a panic turned into a failure like any other.
-fn guarded_step(solver: &mut dyn LiveSolver, budget: Duration) -> Result<StepReport, String> {
+fn guarded_step<T>(solver: &mut dyn LiveSolver<T>, budget: Duration) -> Result<StepReport, String> {
     match catch_unwind(AssertUnwindSafe(|| solver.step(budget))) {
         Ok(Ok(report)) => Ok(report),
         Ok(Err(SolverFailure(reason))) => Err(reason),
@@ -436,7 +389,9 @@ impl TickLoop {
         let id = self.runtime.info.id.clone();
         let poses = self.poses.clone();
         let build = &mut self.build;
-        let built = match catch_unwind(AssertUnwindSafe(|| build(&poses))) {
+        // The new solver's state reflects no transform until it takes up
+        // the tagged poses handed to it below.
+        let built = match catch_unwind(AssertUnwindSafe(|| build(&poses, no_seqs(poses.len())))) {
             Ok(Ok(_)) if self.rebuild_fails > 0 => {
                 self.rebuild_fails -= 1;
                 Err("test-injected rebuild failure (LIGHTWIRE_TEST_FAIL_SOLVER)".into())
@@ -447,7 +402,7 @@ impl TickLoop {
         };
         match built {
             Ok(mut solver) => {
-                solver.set_poses(&self.poses, &self.seqs);
+                solver.set_poses(&self.poses, self.seqs.as_slice().into());
                 tracing::info!(scene = %id, attempt, "solver rebuilt; ready again at its first version");
                 self.solver = Some(solver);
                 self.has_state = false;
@@ -466,7 +421,7 @@ impl TickLoop {
         let id = self.runtime.info.id.clone();
         tracing::info!(scene = %id, solver = self.name, elements = self.runtime.atlas.elements.len(), "tick loop started");
         let mut next = Instant::now();
-        let mut published_seqs: Vec<u64> = vec![0; self.seqs.len()];
+        let mut published_seqs = no_seqs(self.seqs.len());
         // Since when the solver has had nothing to do (and no transform came).
         let mut idle_since: Option<Instant> = None;
         let mut last = StepReport {
@@ -494,7 +449,7 @@ impl TickLoop {
                 continue;
             };
             if moved {
-                solver.set_poses(&self.poses, &self.seqs);
+                solver.set_poses(&self.poses, self.seqs.as_slice().into());
             }
             if inject {
                 self.fail_at_seq = None;
@@ -516,17 +471,8 @@ impl TickLoop {
             // had) is reflected at once without new light; it still gets a
             // version, with no tiles, so that every accepted seq is echoed
             // (PROTOCOL.md §3, `reflected`).
-            let solved = solver.reflected();
-            let reflected: Vec<ObjectSeq> = solved
-                .iter()
-                .zip(&published_seqs)
-                .enumerate()
-                .filter(|(_, (now, before))| now > before)
-                .map(|(object, (seq, _))| ObjectSeq {
-                    object: object as u32,
-                    seq: *seq,
-                })
-                .collect();
+            let solved = solver.reflected().clone();
+            let reflected = newly_reflected(&solved, &published_seqs);
             // A new (or rebuilt) solver's `radiosity` means nothing before
             // its first complete state: no echo-only version until then.
             // Once the solver has been idle for `settle` (no transform in
@@ -546,7 +492,7 @@ impl TickLoop {
                 && self.encoder.pending_texels() > 0;
             if report.completed || settle || (self.has_state && !reflected.is_empty()) {
                 self.has_state = true;
-                published_seqs = solved.to_vec();
+                published_seqs = solved;
                 let image = self.runtime.atlas.to_image(solver.radiosity());
                 let delta = self.encoder.publish(&image, reflected);
                 let keyframe = self.encoder.keyframe();
@@ -612,11 +558,11 @@ mod tests {
         lost: Option<String>,
     }
 
-    impl LiveSolver for Broken {
+    impl LiveSolver<()> for Broken {
         fn name(&self) -> &'static str {
             "broken"
         }
-        fn set_poses(&mut self, _: &[Pose], _: &[u64]) {}
+        fn set_poses(&mut self, _: &[Pose], _: ()) {}
         fn step(&mut self, _: Duration) -> Result<StepReport, SolverFailure> {
             if self.panic {
                 panic!("boom");
@@ -626,8 +572,8 @@ mod tests {
         fn radiosity(&self) -> &[glam::Vec3] {
             &[]
         }
-        fn reflected(&self) -> &[u64] {
-            &[]
+        fn reflected(&self) -> &() {
+            &()
         }
         fn is_idle(&self) -> bool {
             false

@@ -6,8 +6,9 @@
 //!
 //! Two halves run concurrently:
 //!
-//! - the **reader** decodes client frames, checks them (role, object,
-//!   pose, seq, rate) and hands accepted poses to the scene's inbox;
+//! - the **reader** decodes client frames, checks them (role, object and
+//!   pose through [`super::wire::check_transform`], rate, seq) and hands
+//!   accepted poses to the scene's inbox;
 //!   anything invalid earns an `Error` frame with a code, and after
 //!   `max_bad_frames` of those the connection is closed (1008); a frame
 //!   over `max_message_bytes` earns `Error TooLarge` and close 1009;
@@ -44,6 +45,7 @@ use super::auth::may_drive;
 use super::feed::Feed;
 use super::inbox::Offer;
 use super::publication::Publication;
+use super::wire::{Refusal, check_transform, unknown_object};
 
 /// Close code for policy violations (RFC 6455 §7.4.1).
 const CLOSE_POLICY: u16 = 1008;
@@ -363,8 +365,6 @@ async fn read_loop(
     }
 }
 
-type Rejection = (ErrorCode, &'static str, String);
-
 async fn handle(
     bytes: &[u8],
     state: &Shared,
@@ -373,7 +373,7 @@ async fn handle(
     role: Role,
     rate: &mut RateLimit,
     control: &mpsc::Sender<Control>,
-) -> Result<(), Rejection> {
+) -> Result<(), Refusal> {
     let message =
         decode_client(bytes).map_err(|e| (ErrorCode::BadFrame, "malformed", e.to_string()))?;
     match message {
@@ -390,27 +390,7 @@ async fn handle(
             if let Some(why) = feed.transforms_refused() {
                 return Err((ErrorCode::Forbidden, "forbidden", why));
             }
-            let index = object as usize;
-            let unknown = || {
-                (
-                    ErrorCode::UnknownObject,
-                    "unknown_object",
-                    format!(
-                        "object {object} is not a dynamic object of scene \"{}\"",
-                        info.id
-                    ),
-                )
-            };
-            if !info.objects.get(index).is_some_and(|o| o.dynamic) {
-                return Err(unknown());
-            }
-            pose.validate().map_err(|why| {
-                (
-                    ErrorCode::InvalidPose,
-                    "invalid_pose",
-                    format!("object {object}: {why}"),
-                )
-            })?;
+            let index = check_transform(info, object, &pose)?;
             if !rate.allow() {
                 return Err((
                     ErrorCode::RateLimited,
@@ -423,7 +403,7 @@ async fn handle(
             }
             match feed.inbox.offer(index, seq, pose) {
                 Offer::Accepted => Ok(()),
-                Offer::UnknownObject => Err(unknown()),
+                Offer::UnknownObject => Err(unknown_object(info, object)),
                 Offer::Stale { latest } => Err((
                     ErrorCode::StaleSeq,
                     "stale_seq",

@@ -1,0 +1,181 @@
+//! Between the protocol's types and the scene's, in one place.
+//!
+//! A driver's `Transform` is checked here when a session reads it
+//! ([`check_transform`]: one of the dynamic objects of the scene its client
+//! was welcomed with, a valid pose). It then waits in the inbox in wire
+//! form, so that a relay forwards exactly the bits its driver sent, and the
+//! tick loop converts it here ([`from_wire`]) when it hands poses to the
+//! solver; the versions that reflect it echo its seq ([`newly_reflected`]).
+//! Scenes go out to clients as a [`SceneInfo`] ([`scene_info`]).
+//! Nothing past this module (the solvers, `gpu/`) sees a wire type.
+
+use glam::{Quat, Vec3};
+use lightwire_protocol::{
+    DEFAULT_TILE_SIZE, ErrorCode, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat,
+    Pose as WirePose, SceneInfo, SurfaceInfo,
+};
+
+use crate::atlas::Atlas;
+use crate::scene::{Pose, Scene};
+
+/// Why a client frame is refused: the `Error` frame's code, the kind
+/// counted in `lightwire_bad_frames_total`, and the frame's message.
+pub type Refusal = (ErrorCode, &'static str, String);
+
+/// Checks a driver's transform of `object` to `pose` against `info`, the
+/// description its client was welcomed with: the object must be one of its
+/// dynamic objects (else `UnknownObject`), the pose valid
+/// ([`WirePose::validate`]; else `InvalidPose`), in that order. Returns the
+/// object's index.
+pub fn check_transform(info: &SceneInfo, object: u32, pose: &WirePose) -> Result<usize, Refusal> {
+    let index = object as usize;
+    if !info.objects.get(index).is_some_and(|o| o.dynamic) {
+        return Err(unknown_object(info, object));
+    }
+    pose.validate().map_err(|why| {
+        (
+            ErrorCode::InvalidPose,
+            "invalid_pose",
+            format!("object {object}: {why}"),
+        )
+    })?;
+    Ok(index)
+}
+
+/// The refusal of a transform of `object`, which is not a dynamic object
+/// of the scene `info` describes.
+pub fn unknown_object(info: &SceneInfo, object: u32) -> Refusal {
+    (
+        ErrorCode::UnknownObject,
+        "unknown_object",
+        format!(
+            "object {object} is not a dynamic object of scene \"{}\"",
+            info.id
+        ),
+    )
+}
+
+/// Converts a wire pose (already checked by [`check_transform`]) to a
+/// scene pose.
+pub fn from_wire(p: &WirePose) -> Pose {
+    Pose {
+        translation: Vec3::from_array(p.translation),
+        rotation: Quat::from_array(p.rotation).normalize(),
+        scale: p.scale,
+    }
+}
+
+/// What a version echoes (`reflected`, PROTOCOL.md §3): the seq per object
+/// of its state, `now`, where it is newer than that of the previous
+/// version's, `before`.
+pub fn newly_reflected(now: &[u64], before: &[u64]) -> Vec<ObjectSeq> {
+    now.iter()
+        .zip(before)
+        .enumerate()
+        .filter(|(_, (now, before))| now > before)
+        .map(|(object, (seq, _))| ObjectSeq {
+            object: object as u32,
+            seq: *seq,
+        })
+        .collect()
+}
+
+/// Converts a scene pose to a wire pose.
+pub fn to_wire(p: &Pose) -> WirePose {
+    WirePose {
+        translation: p.translation.to_array(),
+        rotation: p.rotation.to_array(),
+        scale: p.scale,
+    }
+}
+
+/// Describes a scene for clients.
+pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
+    SceneInfo {
+        id: scene.name.clone(),
+        atlas_width: atlas.width,
+        atlas_height: atlas.height,
+        tile_size: DEFAULT_TILE_SIZE,
+        format: PixelFormat::Rgb9e5,
+        objects: scene
+            .objects
+            .iter()
+            .map(|o| ObjectInfo {
+                name: o.name.clone(),
+                dynamic: o.dynamic,
+                pose: to_wire(&o.initial_pose),
+            })
+            .collect(),
+        materials: scene
+            .materials
+            .iter()
+            .map(|m| MaterialInfo {
+                name: m.name.clone(),
+                albedo: m.albedo.to_array(),
+                emission: m.emission.to_array(),
+            })
+            .collect(),
+        surfaces: scene
+            .patches
+            .iter()
+            .zip(&atlas.charts)
+            .map(|(p, c)| SurfaceInfo {
+                name: p.name.clone(),
+                object: p.object,
+                material: p.material,
+                corners: p.shape.corners().map(|c| c.to_array()),
+                rect: [c.x, c.y, c.w, c.h],
+            })
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(scale: f32) -> WirePose {
+        WirePose {
+            translation: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+            scale,
+        }
+    }
+
+    /// A room (static) and a box (dynamic).
+    fn info() -> SceneInfo {
+        let object = |name: &str, dynamic| ObjectInfo {
+            name: name.into(),
+            dynamic,
+            pose: pose(1.0),
+        };
+        SceneInfo {
+            id: "room".into(),
+            atlas_width: 1,
+            atlas_height: 1,
+            tile_size: DEFAULT_TILE_SIZE,
+            format: PixelFormat::Rgb9e5,
+            objects: vec![object("room", false), object("box", true)],
+            materials: Vec::new(),
+            surfaces: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_transform_names_a_dynamic_object_before_its_pose_is_judged() {
+        let info = info();
+        assert_eq!(check_transform(&info, 1, &pose(1.0)), Ok(1));
+        for object in [0, 2, u32::MAX] {
+            let refused = check_transform(&info, object, &pose(-1.0));
+            assert_eq!(refused.map_err(|r| r.0), Err(ErrorCode::UnknownObject));
+        }
+        let refused = check_transform(&info, 1, &pose(-1.0));
+        assert_eq!(refused.map_err(|r| r.0), Err(ErrorCode::InvalidPose));
+    }
+
+    #[test]
+    fn a_version_echoes_only_the_seqs_that_moved_on() {
+        let echoed = newly_reflected(&[0, 4, 7], &[0, 4, 5]);
+        assert_eq!(echoed, vec![ObjectSeq { object: 2, seq: 7 }]);
+    }
+}
