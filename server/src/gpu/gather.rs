@@ -49,12 +49,12 @@ use super::binding::{Kind, Pass, Resources, Slot};
 use super::buffers::{map_read, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
 use super::hemicube::{FACES, render_pipeline};
-use super::placement::{self, SURFACE_OFFSET, place_patches, world_areas};
+use super::placement::{self, PatchTable, SURFACE_OFFSET, world_areas};
 use super::progressive::GpuShooter;
 use super::shaders;
 use crate::atlas::Atlas;
 use crate::direct::direct_light;
-use crate::scene::{PatchShape, Pose, Scene};
+use crate::scene::{Pose, Scene};
 
 /// Upper bound on the memory of the hemicube target (colour and depth) of
 /// one pass; fewer elements are batched at high resolutions.
@@ -340,15 +340,8 @@ impl GatherSolver {
             )));
         }
 
-        let shapes: Vec<PatchShape> = scene.patches.iter().map(|p| p.shape).collect();
-        let patch_objects: Vec<u32> = scene.patches.iter().map(|p| p.object).collect();
-        let layout: Vec<[u32; 3]> = atlas
-            .charts
-            .iter()
-            .enumerate()
-            .map(|(p, c)| [atlas.patch_elements[p], c.w, c.h])
-            .collect();
-        let patches = place_patches(&shapes, &patch_objects, &layout, poses);
+        let table = PatchTable::new(scene, atlas);
+        let patches = table.place(poses);
         let extent = placement::extent(&patches);
         let offset = extent * SURFACE_OFFSET;
 
@@ -427,11 +420,7 @@ impl GatherSolver {
                 });
             }
         }
-        let patch_ranges: Vec<[u32; 4]> = patches
-            .iter()
-            .enumerate()
-            .map(|(p, wp)| [wp.first, atlas.patch_elements[p + 1] - wp.first, wp.w, wp.h])
-            .collect();
+        let patch_ranges = table.ranges();
         let multipliers = delta_form_factors(res);
 
         // Buffers may not be empty.

@@ -11,7 +11,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
 use crate::atlas::Atlas;
-use crate::scene::{PatchShape, Pose};
+use crate::scene::{PatchShape, Pose, Scene};
 use crate::validity::Validity;
 
 use super::buffers::v4;
@@ -81,9 +81,55 @@ impl WorldPatch {
     }
 }
 
+/// The scene's patches in their objects' space and where each one's
+/// elements sit in the atlas: what placing them at poses needs.
+#[derive(Debug, Clone)]
+pub(super) struct PatchTable {
+    pub(super) shapes: Vec<PatchShape>,
+    /// The object of every patch.
+    pub(super) objects: Vec<u32>,
+    /// First element and chart size of every patch.
+    layout: Vec<[u32; 3]>,
+    /// One past the last element of every patch.
+    ends: Vec<u32>,
+}
+
+impl PatchTable {
+    pub(super) fn new(scene: &Scene, atlas: &Atlas) -> Self {
+        Self {
+            shapes: scene.patches.iter().map(|p| p.shape).collect(),
+            objects: scene.patches.iter().map(|p| p.object).collect(),
+            layout: atlas
+                .charts
+                .iter()
+                .enumerate()
+                .map(|(p, c)| [atlas.patch_elements[p], c.w, c.h])
+                .collect(),
+            ends: (0..atlas.charts.len())
+                .map(|p| atlas.patch_elements[p + 1])
+                .collect(),
+        }
+    }
+
+    /// Every patch placed at its object's pose.
+    pub(super) fn place(&self, poses: &[Pose]) -> Vec<WorldPatch> {
+        place_patches(&self.shapes, &self.objects, &self.layout, poses)
+    }
+
+    /// First element, element count and chart size of every patch
+    /// (`PatchRange` in common.wgsl).
+    pub(super) fn ranges(&self) -> Vec<[u32; 4]> {
+        self.layout
+            .iter()
+            .zip(&self.ends)
+            .map(|(&[first, w, h], end)| [first, end - first, w, h])
+            .collect()
+    }
+}
+
 /// Every patch placed at its object's pose; `layout` gives each patch's
 /// first element and chart size.
-pub(super) fn place_patches(
+fn place_patches(
     shapes: &[PatchShape],
     objects: &[u32],
     layout: &[[u32; 3]],

@@ -27,11 +27,11 @@ use super::buffers::{WORKGROUP, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
 use super::hemicube::{FACES, patch_vertices};
 use super::placement::{
-    self, ELEMENT_BYTES, INVALID_FLAG_OFFSET, LocalElement, WorldPatch, invalid_flag,
-    place_patches, pose_matrix, world_areas,
+    self, ELEMENT_BYTES, INVALID_FLAG_OFFSET, LocalElement, PatchTable, WorldPatch, invalid_flag,
+    pose_matrix, world_areas,
 };
 use crate::atlas::Atlas;
-use crate::scene::{PatchShape, Pose, Scene};
+use crate::scene::{Pose, Scene};
 use crate::validity::Validity;
 
 mod pipelines;
@@ -166,11 +166,8 @@ pub struct ProgressiveSolver {
     options: ProgressiveOptions,
     /// Shooters per batch the item-buffer target can hold.
     batch_capacity: u32,
-    /// Patches in object space (the scene's shapes) and their objects.
-    shapes: Vec<PatchShape>,
-    patch_objects: Vec<u32>,
-    /// First element and chart size of every patch.
-    layout: Vec<[u32; 3]>,
+    /// Patches in object space, their objects and their elements.
+    table: PatchTable,
     /// Patches placed at the current poses.
     patches: Vec<WorldPatch>,
     /// The current pose of every object.
@@ -270,21 +267,19 @@ impl ProgressiveSolver {
             .map(|o| absent.get(o).copied().unwrap_or(false))
             .collect();
 
-        let shapes: Vec<PatchShape> = scene.patches.iter().map(|p| p.shape).collect();
-        let patch_objects: Vec<u32> = scene.patches.iter().map(|p| p.object).collect();
-        let layout: Vec<[u32; 3]> = atlas
-            .charts
-            .iter()
-            .enumerate()
-            .map(|(p, c)| [atlas.patch_elements[p], c.w, c.h])
-            .collect();
-        let patches = place_patches(&shapes, &patch_objects, &layout, poses);
+        let table = PatchTable::new(scene, atlas);
+        let patches = table.place(poses);
         // Scene extent at the given poses, for depth ranges and offsets.
         let extent = placement::extent(&patches);
-        let (vertices, triangle_vertices) = patch_vertices(&shapes, &patch_objects);
+        let (vertices, triangle_vertices) = patch_vertices(&table.shapes, &table.objects);
 
         let validity = Validity::compute(scene, atlas, poses);
-        let locals = non_empty(placement::local_elements(&shapes, atlas, &validity, extent));
+        let locals = non_empty(placement::local_elements(
+            &table.shapes,
+            atlas,
+            &validity,
+            extent,
+        ));
         let local_areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
         let element_objects: Vec<u32> = atlas.elements.iter().map(|e| e.object).collect();
         let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
@@ -296,11 +291,7 @@ impl ProgressiveSolver {
             .zip(&areas)
             .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
             .sum();
-        let patch_ranges: Vec<[u32; 4]> = patches
-            .iter()
-            .enumerate()
-            .map(|(p, wp)| [wp.first, atlas.patch_elements[p + 1] - wp.first, wp.w, wp.h])
-            .collect();
+        let patch_ranges = table.ranges();
         // Absent objects start dark: they neither hold nor shoot light.
         let start: Vec<[f32; 4]> = emission
             .iter()
@@ -340,9 +331,7 @@ impl ProgressiveSolver {
             queue,
             options,
             batch_capacity,
-            shapes,
-            patch_objects,
-            layout,
+            table,
             patches,
             poses: poses.to_vec(),
             validity,

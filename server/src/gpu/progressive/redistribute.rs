@@ -56,7 +56,7 @@ use super::shooters::contact_limit;
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
 use crate::gpu::hemicube::{self, FACES};
-use crate::gpu::placement::{WorldPatch, place_patches, world_areas};
+use crate::gpu::placement::{WorldPatch, world_areas};
 use crate::gpu::shaders;
 use crate::scene::Pose;
 
@@ -395,7 +395,7 @@ impl ProgressiveSolver {
             }
         }
 
-        self.patches = place_patches(&self.shapes, &self.patch_objects, &self.layout, &self.poses);
+        self.patches = self.table.place(&self.poses);
         self.areas = world_areas(&self.local_areas, &self.element_objects, &self.poses);
         self.write_poses(poses, &mv.old_poses, &mv.old_absent);
         self.write_flags(&mv.moving);
@@ -424,11 +424,11 @@ impl ProgressiveSolver {
         // four (front and back, at the new and the old position).
         let half = self.batch_capacity / 2;
         let quarter = (self.batch_capacity / 4).max(1);
-        let in_m = |p: usize| mv.moving[self.patch_objects[p] as usize];
+        let in_m = |p: usize| mv.moving[self.table.objects[p] as usize];
         match method {
             Redistribution::Incremental => {
                 for (p, power) in patch_power.iter().enumerate() {
-                    if in_m(p) && !mv.old_absent[self.patch_objects[p] as usize] {
+                    if in_m(p) && !mv.old_absent[self.table.objects[p] as usize] {
                         mv.jobs.push_back(Job::Negative {
                             patch: p as u32,
                             shooters: self.grid_count(p, *power, half),
@@ -473,7 +473,7 @@ impl ProgressiveSolver {
                 }
                 // A job's tiles belong to one object: presence (whether the
                 // old and the new position exist) is a per-batch flag.
-                let object = |t: &CrossTile| self.patch_objects[t.patch as usize];
+                let object = |t: &CrossTile| self.table.objects[t.patch as usize];
                 mv.tiles.sort_by_key(|t| object(t));
                 let mut first = 0;
                 while (first as usize) < mv.tiles.len() {
@@ -550,12 +550,7 @@ impl ProgressiveSolver {
     }
 
     fn run_job(&mut self, mv: &Move, job: Job) -> Result<(), GpuError> {
-        let old_patches = place_patches(
-            &self.shapes,
-            &self.patch_objects,
-            &self.layout,
-            &mv.old_poses,
-        );
+        let old_patches = self.table.place(&mv.old_poses);
         let old_areas = world_areas(&self.local_areas, &self.element_objects, &mv.old_poses);
         let res = self.options.hemicube_resolution.max(1);
         let mut encoder = self.device.create_command_encoder(&Default::default());
@@ -606,7 +601,7 @@ impl ProgressiveSolver {
             Job::Cross { first, count } => {
                 let tiles = &mv.tiles[first as usize..(first + count) as usize];
                 // All tiles of a job are on one object (see begin_move).
-                let object = self.patch_objects[tiles[0].patch as usize] as usize;
+                let object = self.table.objects[tiles[0].patch as usize] as usize;
                 let patch = tiles[0].patch;
                 let has_new = !self.absent[object];
                 let has_old = !mv.old_absent[object];
