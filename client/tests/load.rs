@@ -5,7 +5,7 @@
 //! binaries only (`CARGO_BIN_EXE_lightwire-client` here), so the test asks
 //! Cargo to make sure the workspace's binaries are built, with the same
 //! profile and target directory, and runs `target/<profile>/lightwire`
-//! (see `support::lightwire_binary`): a no-op under `cargo test --workspace`, a
+//! (see `lightwire_testkit::Lightwire::built`): a no-op under `cargo test --workspace`, a
 //! build when this test runs alone, and never a stale binary.
 //! ARCHITECTURE.md explains the choice.
 //!
@@ -14,20 +14,19 @@
 //! re-solve per tick while the box moves, no GPU start-up, a few CPU
 //! seconds in all (the machine running CI has two cores).
 
-mod support;
-
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
+use lightwire_testkit::process::Proc;
+use lightwire_testkit::{Lightwire, repo};
 use serde_json::Value;
-use support::{Server, repo};
 
 /// cornell-low at a fifth of its density on the reference solver, 3 ticks
 /// per second.
-fn start_server() -> Server {
+fn start_server() -> Proc {
     let scene = repo().join("scenes/cornell-low.json");
-    Server::start(&[
+    let server = Lightwire::built().serve_dev(&[
         "--solver",
         "reference",
         "--density-scale",
@@ -36,11 +35,13 @@ fn start_server() -> Server {
         "3",
         "--scene",
         scene.to_str().expect("utf-8 path"),
-    ])
+    ]);
+    server.wait_ready();
+    server
 }
 
 /// The published version, from `GET /api/scenes`.
-fn version(server: &Server) -> u64 {
+fn version(server: &Proc) -> u64 {
     let response = server.get("/api/scenes");
     assert_eq!(response.status, 200);
     let scenes: Value = serde_json::from_slice(&response.body).expect("json");
@@ -73,7 +74,7 @@ fn two_hundred_viewers_and_two_drivers_for_twenty_seconds_end_on_the_servers_ver
     let started = Instant::now();
     let out = client(&[
         "load",
-        &server.url(),
+        &server.url(""),
         "--scene",
         "cornell-low",
         "--script",
@@ -140,7 +141,7 @@ fn two_hundred_viewers_and_two_drivers_for_twenty_seconds_end_on_the_servers_ver
         .build()
         .expect("runtime")
         .block_on(async {
-            let c = lightwire_client::Client::connect(&server.url(), None, Some("cornell-low"))
+            let c = lightwire_client::Client::connect(&server.url(""), None, Some("cornell-low"))
                 .await
                 .expect("connects");
             let frame = c
@@ -192,7 +193,7 @@ fn watch_drive_and_load_limits_as_a_user_sees_them() {
     );
 
     let server = start_server();
-    let url = server.url();
+    let url = server.url("");
     // watch: a line per interval with the version and the server's stats.
     let out = client(&[
         "watch",

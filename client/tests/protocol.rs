@@ -6,15 +6,14 @@
 
 use std::time::{Duration, Instant};
 
-use futures_util::{SinkExt, StreamExt};
+use futures_util::SinkExt;
 use lightwire_client::{Client, ClientError, ErrorCode, Event, Options, Pose, Role};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::{
     ClientMessage, MaterialInfo, ObjectInfo, ObjectSeq, PROTOCOL_VERSION, PixelFormat, SceneInfo,
-    ServerMessage, SurfaceInfo, decode_client, encode_server,
+    ServerMessage, SurfaceInfo,
 };
-use tokio::net::{TcpListener, TcpStream};
-use tokio_tungstenite::WebSocketStream;
+use lightwire_testkit::fake::{FakeServer, recv, send};
 use tokio_tungstenite::tungstenite::Message;
 
 const WAIT: Duration = Duration::from_secs(10);
@@ -68,85 +67,6 @@ fn encoder() -> Encoder {
     Encoder::new(10, 9, 4, PixelFormat::Rgb9e5, 0.0)
 }
 
-type ServerWs = WebSocketStream<TcpStream>;
-
-/// The fake server's listening socket.
-struct Fake {
-    listener: TcpListener,
-}
-
-impl Fake {
-    async fn new() -> Fake {
-        Fake {
-            listener: TcpListener::bind("127.0.0.1:0").await.expect("bind"),
-        }
-    }
-
-    fn url(&self) -> String {
-        format!(
-            "ws://{}/ws/scenes/fake",
-            self.listener.local_addr().expect("addr")
-        )
-    }
-
-    /// Accepts one WebSocket and reads its Hello; returns the token.
-    async fn accept(&self) -> (ServerWs, Option<String>) {
-        let (tcp, _) = tokio::time::timeout(WAIT, self.listener.accept())
-            .await
-            .expect("the client connects")
-            .expect("accept");
-        let mut ws = tokio_tungstenite::accept_async(tcp).await.expect("upgrade");
-        match recv(&mut ws).await {
-            ClientMessage::Hello {
-                protocol_version,
-                token,
-                ..
-            } => {
-                assert_eq!(protocol_version, PROTOCOL_VERSION);
-                (ws, token)
-            }
-            other => panic!("expected Hello first, got {other:?}"),
-        }
-    }
-
-    /// Accepts and welcomes with `role`.
-    async fn welcome(&self, role: Role) -> ServerWs {
-        let (mut ws, _) = self.accept().await;
-        send(
-            &mut ws,
-            &ServerMessage::Welcome {
-                protocol_version: PROTOCOL_VERSION,
-                server: "fake".into(),
-                role,
-                capabilities: 0,
-                scene: scene(),
-            },
-        )
-        .await;
-        ws
-    }
-}
-
-async fn send(ws: &mut ServerWs, message: &ServerMessage) {
-    ws.send(Message::Binary(encode_server(message).into()))
-        .await
-        .expect("send");
-}
-
-/// The next client message (skipping control frames).
-async fn recv(ws: &mut ServerWs) -> ClientMessage {
-    loop {
-        let frame = tokio::time::timeout(WAIT, ws.next())
-            .await
-            .expect("a client frame in time")
-            .expect("the socket is open")
-            .expect("a frame");
-        if let Message::Binary(bytes) = frame {
-            return decode_client(&bytes).expect("client frames decode");
-        }
-    }
-}
-
 /// Waits for the first event matching `pick`.
 async fn until<T>(client: &mut Client, mut pick: impl FnMut(&Event) -> Option<T>) -> T {
     let deadline = Instant::now() + WAIT;
@@ -164,11 +84,11 @@ async fn until<T>(client: &mut Client, mut pick: impl FnMut(&Event) -> Option<T>
 
 #[tokio::test]
 async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
-    let fake = Fake::new().await;
-    let url = fake.url();
+    let fake = FakeServer::bind().await;
+    let url = fake.ws_url("fake");
     let (client, ws) = tokio::join!(
         Client::connect(&url, None, None),
-        fake.welcome(Role::Viewer)
+        fake.welcome(Role::Viewer, scene())
     );
     let (mut client, mut ws) = (client.expect("connects"), ws);
     assert_eq!(client.scene().id, "fake");
@@ -258,11 +178,11 @@ async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
 
 #[tokio::test]
 async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
-    let fake = Fake::new().await;
-    let url = fake.url();
+    let fake = FakeServer::bind().await;
+    let url = fake.ws_url("fake");
     let (client, ws) = tokio::join!(
         Client::connect(&url, Some("d"), None),
-        fake.welcome(Role::Driver)
+        fake.welcome(Role::Driver, scene())
     );
     let (mut client, mut ws) = (client.expect("connects"), ws);
     let mut enc = encoder();
@@ -333,11 +253,11 @@ async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
 
 #[tokio::test]
 async fn latency_runs_from_sending_a_pose_to_the_version_that_echoes_it() {
-    let fake = Fake::new().await;
-    let url = fake.url();
+    let fake = FakeServer::bind().await;
+    let url = fake.ws_url("fake");
     let (client, ws) = tokio::join!(
         Client::connect(&url, None, None),
-        fake.welcome(Role::Driver)
+        fake.welcome(Role::Driver, scene())
     );
     let (mut client, mut ws) = (client.expect("connects"), ws);
     let mut enc = encoder();
@@ -416,8 +336,8 @@ async fn latency_runs_from_sending_a_pose_to_the_version_that_echoes_it() {
 
 #[tokio::test]
 async fn a_refused_token_is_permanent_and_a_viewer_may_not_drive() {
-    let fake = Fake::new().await;
-    let url = fake.url();
+    let fake = FakeServer::bind().await;
+    let url = fake.ws_url("fake");
     let refuse = async {
         let (mut ws, token) = fake.accept().await;
         assert_eq!(token.as_deref(), Some("wrong"));
@@ -462,7 +382,7 @@ async fn a_refused_token_is_permanent_and_a_viewer_may_not_drive() {
     // A viewer's pose is refused before it reaches the socket.
     let (client, _ws) = tokio::join!(
         Client::connect(&url, None, None),
-        fake.welcome(Role::Viewer)
+        fake.welcome(Role::Viewer, scene())
     );
     let client = client.expect("connects");
     assert!(matches!(

@@ -7,11 +7,8 @@ use std::path::{Path, PathBuf};
 use lightwire_client::script::Script;
 use lightwire_client::{Pose, SceneInfo};
 use lightwire_protocol::{ObjectInfo, PixelFormat, SurfaceInfo};
+use lightwire_testkit::repo;
 use serde_json::Value;
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 fn vec3(v: &Value) -> [f32; 3] {
     let a = v.as_array().expect("a 3-vector");

@@ -38,9 +38,7 @@
 //! workspace's binaries are built (`cargo test --workspace --no-run` with
 //! this profile and target directory: a no-op under `make test`, a build
 //! when run alone, never a stale binary) and runs `target/<profile>/lightwire`
-//! (`support::lightwire_binary` says why not `cargo build -p`).
-
-mod support;
+//! (`lightwire_testkit::Lightwire::built` says why not `cargo build -p`).
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
@@ -51,7 +49,8 @@ use lightwire_client::render::reference::{self, Hit};
 use lightwire_client::render::tonemap::{auto_exposure, tone_map};
 use lightwire_client::render::{BACKGROUND, Camera, CameraSpec};
 use lightwire_protocol::{Pose, SceneInfo};
-use support::{Server, repo};
+use lightwire_testkit::process::Proc;
+use lightwire_testkit::{Lightwire, http, repo};
 
 const SCENE: &str = "cornell-low";
 const TOLERANCE: u8 = 2;
@@ -60,16 +59,18 @@ const HEIGHT: u32 = 240;
 
 /// cornell-low at half density on the reference solver: one converged
 /// version in well under a second, then no more (nothing moves).
-fn start_server() -> Server {
+fn start_server() -> Proc {
     let scene = repo().join(format!("scenes/{SCENE}.json"));
-    Server::start(&[
+    let server = Lightwire::built().serve_dev(&[
         "--solver",
         "reference",
         "--density-scale",
         "0.5",
         "--scene",
         scene.to_str().expect("utf-8 path"),
-    ])
+    ]);
+    server.wait_ready();
+    server
 }
 
 fn view(args: &[&str]) -> Output {
@@ -113,7 +114,7 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     let png = dir.join("frame.png");
     let started = Instant::now();
     let output = view(&[
-        &server.url(),
+        &server.url(""),
         "--scene",
         SCENE,
         "--width",
@@ -138,7 +139,7 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     let version: u64 = field(wrote, "version").parse().unwrap();
 
     // The snapshot of the version view drew, and the scene, over HTTP.
-    let support::Response {
+    let http::Response {
         status,
         headers,
         body: exr,
@@ -156,7 +157,7 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     let snapshot = image::load_from_memory_with_format(&exr, image::ImageFormat::OpenExr)
         .expect("the snapshot decodes")
         .into_rgb32f();
-    let support::Response {
+    let http::Response {
         status, body: json, ..
     } = server.get(&format!("/api/scenes/{SCENE}"));
     assert_eq!(status, 200);
@@ -171,7 +172,7 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     // 1 / white point of this lightmap, and tone-mapping each texel with it
     // gives the server's own lightmap.png byte for byte.
     assert_eq!(exposure, auto_exposure(&texels), "automatic exposure");
-    let support::Response {
+    let http::Response {
         status,
         body: png_bytes,
         ..
@@ -342,7 +343,7 @@ fn view_writes_numbered_frames_on_a_cadence() {
     let dir = out_dir("frames");
     let started = Instant::now();
     let output = view(&[
-        &format!("ws://{}/ws/scenes/{SCENE}", server.addr()),
+        &format!("ws://{}/ws/scenes/{SCENE}", server.addr),
         "--camera",
         "eye=2.78,2.74,9;target=2.78,2.74,0;fov=40",
         "--width",

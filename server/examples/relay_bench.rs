@@ -42,9 +42,7 @@
 //! so the numbers are a lower bound of what a relay on its own host does.
 
 use std::collections::HashMap;
-use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -53,6 +51,9 @@ use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
     ClientMessage, PROTOCOL_VERSION, Pose, ServerMessage, decode_server, encode_client,
 };
+use lightwire_testkit::Lightwire;
+use lightwire_testkit::peer::{Ws, hello};
+use lightwire_testkit::pose::{box_turned, transform};
 use tokio::sync::watch;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -120,65 +121,6 @@ fn parse_args() -> Args {
         }
     }
     args
-}
-
-/// A child process, killed on drop.
-struct Proc {
-    child: Child,
-    addr: String,
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn spawn(args: &[&str], env: &[(&str, &str)]) -> Proc {
-    // target/release/examples/relay_bench -> target/release/lightwire
-    let exe = std::env::current_exe().expect("own path");
-    let bin = exe
-        .parent()
-        .and_then(|p| p.parent())
-        .map(|p| p.join("lightwire"))
-        .expect("target dir");
-    let mut child = Command::new(&bin)
-        .args(args)
-        .envs(env.iter().copied())
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("address line");
-    let addr = line
-        .split("http://")
-        .nth(1)
-        .and_then(|r| r.split_whitespace().next())
-        .unwrap_or_else(|| panic!("unexpected: {line:?}"))
-        .to_string();
-    Proc { child, addr }
-}
-
-type Ws =
-    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
-
-async fn connect(url: &str, token: &str) -> Option<Ws> {
-    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.ok()?;
-    let hello = ClientMessage::Hello {
-        protocol_version: PROTOCOL_VERSION,
-        client: "relay-bench".into(),
-        token: Some(token.into()),
-        capabilities: 0,
-    };
-    ws.send(Message::Binary(encode_client(&hello).into()))
-        .await
-        .ok()?;
-    Some(ws)
 }
 
 /// What one viewer saw.
@@ -275,12 +217,7 @@ fn summary(mut ms: Vec<f64>) -> String {
 }
 
 fn pose(t: f64) -> Pose {
-    let angle = (t * 0.8) as f32;
-    Pose {
-        translation: [2.78, 0.85, 2.796],
-        rotation: [0.0, (angle / 2.0).sin(), 0.0, (angle / 2.0).cos()],
-        scale: 1.0,
-    }
+    box_turned((t * 0.8) as f32)
 }
 
 /// CPU time (user + system) of process `pid` so far.
@@ -310,18 +247,18 @@ async fn round(
     seq0: u64,
 ) -> u64 {
     let (stop_tx, stop) = watch::channel(false);
-    let reference = connect(solver, VIEWER).await.expect("reference viewer");
+    let reference = hello(solver, VIEWER).await.expect("reference viewer");
     let reference = tokio::spawn(view(reference, stop.clone(), args.light));
     let mut tasks = Vec::new();
     let mut failed = 0;
     for _ in 0..viewers {
-        match connect(relay, VIEWER).await {
+        match hello(relay, VIEWER).await {
             Some(ws) => tasks.push(tokio::spawn(view(ws, stop.clone(), args.light))),
             None => failed += 1,
         }
     }
     tokio::time::sleep(Duration::from_secs(2)).await;
-    let mut driver = connect(relay, DRIVER).await.expect("driver");
+    let mut driver = hello(relay, DRIVER).await.expect("driver");
     let sent: Arc<Mutex<HashMap<u64, Instant>>> = Arc::default();
     let started = Instant::now();
     let relay_cpu = cpu_time(relay_pid);
@@ -331,12 +268,7 @@ async fn round(
     while started.elapsed() < args.duration {
         tick.tick().await;
         seq += 1;
-        let t = ClientMessage::Transform {
-            object: 1,
-            seq,
-            pose: pose(started.elapsed().as_secs_f64()),
-            client_time_us: 0,
-        };
+        let t = transform(1, seq, pose(started.elapsed().as_secs_f64()));
         sent.lock().expect("lock").insert(seq, Instant::now());
         if driver
             .send(Message::Binary(encode_client(&t).into()))
@@ -571,10 +503,12 @@ fn main() {
     let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
     let tokens = format!("driver:{DRIVER},viewer:{VIEWER}");
     let scene = scene.display().to_string();
+    // target/release/examples/relay_bench -> target/release/lightwire
+    let lightwire = Lightwire::beside_current_exe();
     let (_solver, solver_addr) = if args.synthetic {
         (None, runtime.block_on(synthetic_solver()))
     } else {
-        let solver = spawn(
+        let solver = lightwire.spawn(
             &[
                 "serve",
                 "--listen",
@@ -586,17 +520,17 @@ fn main() {
                 "--scene",
                 &scene,
             ],
-            &[("LIGHTWIRE_TOKENS", &tokens)],
+            &[("LIGHTWIRE_TOKENS", tokens.clone())],
         );
         let addr = solver.addr.clone();
         (Some(solver), addr)
     };
     let upstream = format!("ws://{solver_addr}/ws/scenes/cornell-low");
-    let relay = spawn(
+    let relay = lightwire.spawn(
         &["relay", "--listen", "127.0.0.1:0", "--upstream", &upstream],
         &[
-            ("LIGHTWIRE_TOKENS", &tokens),
-            ("LIGHTWIRE_UPSTREAM_TOKEN", DRIVER),
+            ("LIGHTWIRE_TOKENS", tokens),
+            ("LIGHTWIRE_UPSTREAM_TOKEN", DRIVER.to_string()),
         ],
     );
     let relay_url = format!("ws://{}/ws/scenes/cornell-low", relay.addr);
@@ -604,7 +538,7 @@ fn main() {
         // Wait until the relay has a version.
         let deadline = Instant::now() + Duration::from_secs(60);
         loop {
-            if let Some(ws) = connect(&relay_url, VIEWER).await {
+            if let Some(ws) = hello(&relay_url, VIEWER).await {
                 let (tx, rx) = watch::channel(false);
                 let probe = tokio::spawn(view(ws, rx, false));
                 tokio::time::sleep(Duration::from_millis(500)).await;

@@ -1,14 +1,13 @@
 //! The `lightwire` command as a user runs it: real processes, real files.
 
 use std::path::PathBuf;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+use lightwire_testkit::repo;
 
 fn lightwire(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lightwire"))
+    lightwire_testkit::lightwire!()
+        .command()
         .args(args)
         .output()
         .expect("the lightwire binary runs")

@@ -13,14 +13,12 @@
 //! provides all three. Without them this test fails and says what to
 //! install: a dashboard that cannot be tested is not a passing one.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::http;
-use common::process::{DRIVER_TOKEN, Proc};
+use lightwire_testkit::process::Proc;
+use lightwire_testkit::{DRIVER_TOKEN, http, lightwire, scene_path};
 
 /// The browser test's own time limit (it is usually done in 15-40 s).
 const E2E_TIMEOUT: Duration = Duration::from_secs(300);
@@ -28,14 +26,13 @@ const E2E_TIMEOUT: Duration = Duration::from_secs(300);
 /// `lightwire serve --dev` on cornell-low on a free port, with extra
 /// `serve` flags.
 fn dev_server(flags: &[&str]) -> Proc {
-    let scene = common::scene_path("cornell-low.json");
-    let args: Vec<String> = ["serve", "--dev", "--listen", "127.0.0.1:0"]
+    let scene = scene_path("cornell-low.json");
+    let flags: Vec<&str> = flags
         .iter()
-        .chain(flags)
-        .map(|a| a.to_string())
-        .chain(["--scene".to_string(), scene.display().to_string()])
+        .copied()
+        .chain(["--scene", scene.to_str().expect("utf-8 path")])
         .collect();
-    Proc::spawn(&args, &[])
+    lightwire!().serve_dev(&flags)
 }
 
 fn dashboard_dir() -> PathBuf {
@@ -44,11 +41,7 @@ fn dashboard_dir() -> PathBuf {
 
 /// `target/`, from the path of the binary under test (`target/<profile>/lightwire`).
 fn target_dir() -> PathBuf {
-    Path::new(env!("CARGO_BIN_EXE_lightwire"))
-        .parent()
-        .and_then(Path::parent)
-        .expect("the binary lives in target/<profile>/")
-        .to_path_buf()
+    lightwire!().target_dir()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -168,8 +161,8 @@ fn the_dashboard_works_in_headless_chromium() {
 /// goes through the relay to the solver and back.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_dashboard_works_on_a_relay_with_a_token() {
-    let solver = Proc::solver("127.0.0.1:0");
-    let relay = Proc::relay(&solver.addr);
+    let solver = lightwire!().solver("127.0.0.1:0");
+    let relay = lightwire!().relay(&solver.addr);
     let deadline = Instant::now() + Duration::from_secs(60);
     while http::get(&relay.addr, "/readyz", None).await.status != 200 {
         assert!(Instant::now() < deadline, "the relay never became ready");

@@ -10,15 +10,14 @@
 //! continue as deltas onto the exact base, and a transform sent during the
 //! failure is reflected.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
-use lightwire_protocol::{ClientMessage, Pose, Role};
+use lightwire_protocol::{Pose, Role};
 
-use common::http;
-use common::peer::{Client, Read};
-use common::process::{DRIVER_TOKEN, Proc, VIEWER_TOKEN};
+use lightwire_testkit::peer::Peer;
+use lightwire_testkit::pose::box_turned;
+use lightwire_testkit::process::Proc;
+use lightwire_testkit::{DRIVER_TOKEN, VIEWER_TOKEN, http, lightwire};
 
 /// The transform seq at which the hook destroys the device.
 const FAIL_AT: u64 = 1000;
@@ -47,7 +46,7 @@ impl Server {
             ("NO_COLOR", "1".to_string()),
         ];
         Server {
-            proc: Proc::solver_logged("127.0.0.1:0", "progressive", &env, true),
+            proc: lightwire!().solver_with("127.0.0.1:0", "progressive", &env),
         }
     }
 
@@ -57,7 +56,7 @@ impl Server {
 
     /// Lines of stderr so far that contain every one of `words`.
     fn log_lines(&self, words: &[&str]) -> Vec<String> {
-        self.proc.log_lines(words)
+        self.proc.stderr_lines(words)
     }
 
     async fn get(&self, path: &str) -> http::Response {
@@ -83,66 +82,13 @@ impl Server {
     }
 }
 
-impl Client {
-    async fn transform(&mut self, seq: u64, pose: Pose) {
-        self.send(&ClientMessage::Transform {
-            object: BOX,
-            seq,
-            pose,
-            client_time_us: 0,
-        })
-        .await;
-    }
-
-    /// Reads frames for `time`; the connection must stay open.
-    async fn pump(&mut self, time: Duration) {
-        let until = Instant::now() + time;
-        loop {
-            let left = until.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return;
-            }
-            match self.read_frame(left).await {
-                Read::Frame => {}
-                Read::Timeout => return,
-                Read::Closed => panic!(
-                    "the server closed a connection at version {}",
-                    self.version()
-                ),
-            }
-        }
-    }
-
-    /// Reads frames until the client holds at least `version`.
-    async fn pump_until_version(&mut self, version: u64, limit: Duration) {
-        let deadline = Instant::now() + limit;
-        while self.version() < version {
-            assert!(
-                Instant::now() < deadline,
-                "stuck at version {} waiting for {version}",
-                self.version()
-            );
-            self.pump(Duration::from_millis(50)).await;
-        }
-    }
-
-    fn texels(&self) -> &[u8] {
-        &self.map.as_ref().expect("welcomed").texels
-    }
-}
-
 fn pose_at(step: u32) -> Pose {
-    let angle = step as f32 * 0.3;
-    Pose {
-        translation: [2.78, 0.85, 2.796],
-        rotation: [0.0, (angle / 2.0).sin(), 0.0, (angle / 2.0).cos()],
-        scale: 1.0,
-    }
+    box_turned(step as f32 * 0.3)
 }
 
 /// Keeps `clients` read while waiting, up to `limit`, for `done` to say
 /// yes about the server.
-async fn wait_for<F, Fut>(what: &str, limit: Duration, clients: &mut [&mut Client], mut done: F)
+async fn wait_for<F, Fut>(what: &str, limit: Duration, clients: &mut [&mut Peer], mut done: F)
 where
     F: FnMut() -> Fut,
     Fut: std::future::Future<Output = bool>,
@@ -183,15 +129,15 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
         "{metrics}"
     );
 
-    let mut viewer = Client::connect(&server.ws_url(), VIEWER_TOKEN).await;
+    let mut viewer = Peer::connect(&server.ws_url(), VIEWER_TOKEN).await;
     assert_eq!(viewer.role, Some(Role::Viewer));
-    let mut driver = Client::connect(&server.ws_url(), DRIVER_TOKEN).await;
+    let mut driver = Peer::connect(&server.ws_url(), DRIVER_TOKEN).await;
     assert_eq!(driver.role, Some(Role::Driver));
     // A viewer of a ready scene gets a version.
     viewer.pump_until_version(1, generous).await;
 
     // The transform that makes the hook destroy the device.
-    driver.transform(FAIL_AT, pose_at(1)).await;
+    driver.transform(BOX, FAIL_AT, pose_at(1)).await;
     let deadline = Instant::now() + generous;
     let failed = loop {
         let (status, body) = server.readyz().await;
@@ -247,7 +193,7 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
     );
     // A viewer joining now gets the last version as a keyframe, the same
     // bits.
-    let mut late = Client::connect(&server.ws_url(), VIEWER_TOKEN).await;
+    let mut late = Peer::connect(&server.ws_url(), VIEWER_TOKEN).await;
     late.pump_until_version(1, generous).await;
     assert_eq!(
         late.applied,
@@ -258,7 +204,7 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
 
     // A transform accepted during the failure; it also releases the hook's
     // hold on the rebuild.
-    driver.transform(REBUILD_AT, pose_at(2)).await;
+    driver.transform(BOX, REBUILD_AT, pose_at(2)).await;
     wait_for(
         "/readyz to be 200 again",
         generous,

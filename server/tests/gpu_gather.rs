@@ -188,7 +188,8 @@ fn bake_with_the_gather_solver_writes_its_stats() {
     let out_dir =
         std::env::temp_dir().join(format!("lightwire-gather-bake-{}", std::process::id()));
     let scene = common::scene_path("plates.json");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lightwire"))
+    let out = lightwire_testkit::lightwire!()
+        .command()
         .args(["bake", "--solver", "gather", "--hemicube-resolution", "16"])
         .arg("--scene")
         .arg(&scene)

@@ -20,8 +20,6 @@
 //! The bounds are generous on purpose (CI shares 2 cores with builds); the
 //! measured times are printed.
 
-mod common;
-
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -29,14 +27,15 @@ use std::time::{Duration, Instant};
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::lightmap::{ApplyError, Lightmap};
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, PROTOCOL_VERSION, Pose, ServerMessage, decode_server, encode_client,
+    ClientMessage, ErrorCode, Pose, ServerMessage, decode_server, encode_client,
 };
-use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-use common::http;
-use common::process::{DRIVER_TOKEN, Proc, SCENE, VIEWER_TOKEN};
+use lightwire_testkit::fake::FakeServer;
+use lightwire_testkit::peer::hello;
+use lightwire_testkit::pose::{box_turned, transform};
+use lightwire_testkit::process::Proc;
+use lightwire_testkit::{DRIVER_TOKEN, SCENE, VIEWER_TOKEN, http, lightwire};
 
 const VIEWERS: usize = 500;
 /// Killing a relay: every one of its viewers is connected to the other
@@ -54,36 +53,12 @@ async fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
     Some((r.status, r.text()))
 }
 
-async fn wait_ready(addr: &str, what: &str) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while http_get(addr, "/readyz").await.map(|r| r.0) != Some(200) {
-        assert!(Instant::now() < deadline, "{what} never became ready");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-}
-
 /// The relay's view of its scene (from `/api/scenes`).
 async fn relay_status(addr: &str) -> serde_json::Value {
     let (status, body) = http_get(addr, "/api/scenes").await.expect("relay answers");
     assert_eq!(status, 200);
     let list: serde_json::Value = serde_json::from_str(&body).expect("json");
     list[0].clone()
-}
-
-type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
-
-async fn hello(url: &str, token: &str) -> Option<Ws> {
-    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.ok()?;
-    let hello = ClientMessage::Hello {
-        protocol_version: PROTOCOL_VERSION,
-        client: "relay-test".into(),
-        token: Some(token.into()),
-        capabilities: 0,
-    };
-    ws.send(Message::Binary(encode_client(&hello).into()))
-        .await
-        .ok()?;
-    Some(ws)
 }
 
 /// The state a protocol client holds right after joining `url`: its
@@ -265,24 +240,14 @@ fn holds(v: &ViewerState, version: u64, texels: &[u8]) -> bool {
 }
 
 fn pose_at(step: u32) -> Pose {
-    let angle = step as f32 * 0.3;
-    Pose {
-        translation: [2.78, 0.85, 2.796],
-        rotation: [0.0, (angle / 2.0).sin(), 0.0, (angle / 2.0).cos()],
-        scale: 1.0,
-    }
+    box_turned(step as f32 * 0.3)
 }
 
 /// A driver on `url` sends seq `step` and reads the answers for a moment;
 /// returns the error codes it got.
 async fn drive(url: &str, token: &str, step: u32) -> Vec<ErrorCode> {
     let mut ws = hello(url, token).await.expect("connects");
-    let transform = ClientMessage::Transform {
-        object: 1,
-        seq: u64::from(step),
-        pose: pose_at(step),
-        client_time_us: 0,
-    };
+    let transform = transform(1, u64::from(step), pose_at(step));
     ws.send(Message::Binary(encode_client(&transform).into()))
         .await
         .expect("send");
@@ -301,13 +266,13 @@ async fn drive(url: &str, token: &str, step: u32) -> Vec<ErrorCode> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exactly() {
     let test_started = Instant::now();
-    let mut solver = Proc::solver("127.0.0.1:0");
+    let mut solver = lightwire!().solver("127.0.0.1:0");
     let solver_addr = solver.addr.clone();
-    wait_ready(&solver.addr, "the solver").await;
-    let relay_a = Proc::relay(&solver_addr);
-    let relay_b = Proc::relay(&solver_addr);
-    wait_ready(&relay_a.addr, "relay A").await;
-    wait_ready(&relay_b.addr, "relay B").await;
+    solver.ready().await;
+    let relay_a = lightwire!().relay(&solver_addr);
+    let relay_b = lightwire!().relay(&solver_addr);
+    relay_a.ready().await;
+    relay_b.ready().await;
     let relays = Arc::new(vec![relay_a.ws_url(), relay_b.ws_url()]);
 
     // 500 viewers, alternating between the relays.
@@ -399,8 +364,8 @@ async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exac
     assert_eq!(late_version, v2, "a late joiner gets the last version");
     assert!(late_texels == texels2, "... bit-exact");
     tokio::time::sleep(Duration::from_millis(500)).await;
-    solver = Proc::solver(&solver_addr);
-    wait_ready(&solver.addr, "the restarted solver").await;
+    solver = lightwire!().solver(&solver_addr);
+    solver.ready().await;
     let restarted = Instant::now();
     // The new run starts from the scene's initial pose and version 1; its
     // first version is its state until something moves.
@@ -466,11 +431,9 @@ async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exac
 mod fake {
     use super::*;
     use lightwire_protocol::lightmap::Encoder;
-    use lightwire_protocol::{
-        Delta, Keyframe, ObjectInfo, PixelFormat, Role, SceneInfo, decode_client, encode_server,
-    };
-
-    pub type Peer = WebSocketStream<TcpStream>;
+    use lightwire_protocol::{ObjectInfo, PixelFormat, Role, SceneInfo};
+    use lightwire_testkit::fake::{Conn, welcome};
+    pub use lightwire_testkit::fake::{delta, keyframe, raw, recv};
 
     pub fn scene() -> SceneInfo {
         let pose = Pose {
@@ -514,60 +477,11 @@ mod fake {
 
     /// Accepts the relay's next connection, checks its Hello and answers
     /// with a Welcome granting `role`.
-    pub async fn accept(listener: &tokio::net::TcpListener, role: Role) -> Peer {
-        let (tcp, _) = tokio::time::timeout(Duration::from_secs(20), listener.accept())
-            .await
-            .expect("the relay connects")
-            .expect("accept");
-        let mut peer = tokio_tungstenite::accept_async(tcp).await.expect("upgrade");
-        match next(&mut peer).await {
-            ClientMessage::Hello { token, .. } => {
-                assert_eq!(token.as_deref(), Some(DRIVER_TOKEN), "upstream token")
-            }
-            other => panic!("expected Hello, got {other:?}"),
-        }
-        send(
-            &mut peer,
-            &ServerMessage::Welcome {
-                protocol_version: PROTOCOL_VERSION,
-                server: "fake".into(),
-                role,
-                capabilities: 0,
-                scene: scene(),
-            },
-        )
-        .await;
+    pub async fn accept(listener: &FakeServer, role: Role) -> Conn {
+        let (mut peer, token) = listener.accept().await;
+        assert_eq!(token.as_deref(), Some(DRIVER_TOKEN), "upstream token");
+        lightwire_testkit::fake::send(&mut peer, &welcome(role, scene())).await;
         peer
-    }
-
-    pub async fn send(peer: &mut Peer, m: &ServerMessage) {
-        raw(peer, Message::Binary(encode_server(m).into())).await;
-    }
-
-    pub async fn raw(peer: &mut Peer, m: Message) {
-        peer.send(m).await.expect("send to relay");
-    }
-
-    pub async fn keyframe(peer: &mut Peer, k: Keyframe) {
-        send(peer, &ServerMessage::Keyframe(k)).await;
-    }
-
-    pub async fn delta(peer: &mut Peer, d: Delta) {
-        send(peer, &ServerMessage::Delta(d)).await;
-    }
-
-    /// The relay's next message (a binary frame; pongs skipped).
-    pub async fn next(peer: &mut Peer) -> ClientMessage {
-        loop {
-            let frame = tokio::time::timeout(Duration::from_secs(10), peer.next())
-                .await
-                .expect("the relay says something")
-                .expect("open")
-                .expect("ok");
-            if let Message::Binary(bytes) = frame {
-                return decode_client(&bytes).expect("relay frames decode");
-            }
-        }
     }
 }
 
@@ -591,11 +505,9 @@ async fn until(what: &str, ok: impl Fn() -> bool) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     use lightwire_protocol::Role;
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let upstream = listener.local_addr().expect("addr").to_string();
-    let relay = Proc::relay(&upstream);
+    let listener = FakeServer::bind().await;
+    let upstream = listener.addr();
+    let relay = lightwire!().relay(&upstream);
     let mut solver = fake::encoder();
 
     // Connection 1: a driver role, keyframe v1.
@@ -614,7 +526,7 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     corrupt.residual = vec![0xde, 0xad, 0xbe, 0xef];
     fake::delta(&mut peer, corrupt).await;
     assert!(matches!(
-        fake::next(&mut peer).await,
+        fake::recv(&mut peer).await,
         ClientMessage::Resync { .. }
     ));
     // Nothing reached the viewer.
@@ -635,7 +547,7 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     wrong.version += 5;
     fake::delta(&mut peer, wrong).await;
     assert!(matches!(
-        fake::next(&mut peer).await,
+        fake::recv(&mut peer).await,
         ClientMessage::Resync { .. }
     ));
     // Upstream v3 is the state after `wrong`'s real tiles; the relay's
@@ -654,7 +566,7 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     // upstream role is Driver).
     assert_eq!(drive(&relay.ws_url(), DRIVER_TOKEN, 7).await, vec![]);
     loop {
-        match fake::next(&mut peer).await {
+        match fake::recv(&mut peer).await {
             ClientMessage::Transform { object, seq, .. } => {
                 assert_eq!((object, seq), (1, 7));
                 break;
@@ -756,10 +668,10 @@ async fn joined_rgb(url: &str) -> (u64, Vec<[f32; 3]>) {
 /// the solver's token and Origin rules (PROTOCOL.md §7, Relays and REST).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
-    let solver = Proc::solver("127.0.0.1:0");
-    wait_ready(&solver.addr, "the solver").await;
-    let relay = Proc::relay(&solver.addr);
-    wait_ready(&relay.addr, "the relay").await;
+    let solver = lightwire!().solver("127.0.0.1:0");
+    solver.ready().await;
+    let relay = lightwire!().relay(&solver.addr);
+    relay.ready().await;
     // Nothing moves, so once settled the state stays put.
     let _ = settled(&solver, None).await;
     let (version, rgb) = joined_rgb(&relay.ws_url()).await;

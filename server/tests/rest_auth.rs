@@ -11,12 +11,8 @@
 //!   needs an admin token with `metrics = "token"`;
 //! - in development mode (no tokens) the REST routes are open.
 
-mod common;
-
-use std::time::{Duration, Instant};
-
-use common::http::{self, Response};
-use common::process::{ADMIN_TOKEN, DRIVER_TOKEN, Proc, SCENE, VIEWER_TOKEN};
+use lightwire_testkit::http::{self, Response};
+use lightwire_testkit::{ADMIN_TOKEN, DRIVER_TOKEN, SCENE, VIEWER_TOKEN, lightwire, scene_path};
 
 /// The routes that need a viewer token.
 fn viewer_routes() -> [String; 4] {
@@ -26,14 +22,6 @@ fn viewer_routes() -> [String; 4] {
         format!("/api/scenes/{SCENE}/lightmap.exr"),
         format!("/api/scenes/{SCENE}/lightmap.png"),
     ]
-}
-
-async fn wait_ready(server: &Proc) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while http::get(&server.addr, "/readyz", None).await.status != 200 {
-        assert!(Instant::now() < deadline, "the server never became ready");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
 }
 
 fn assert_unauthorized(r: &Response, route: &str, what: &str) {
@@ -52,9 +40,9 @@ fn assert_unauthorized(r: &Response, route: &str, what: &str) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let addr = server.addr.as_str();
-    wait_ready(&server).await;
+    server.ready().await;
 
     for route in viewer_routes() {
         let none = http::get(addr, &route, None).await;
@@ -141,7 +129,7 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn metrics_token_mode_needs_an_admin_token() {
-    let server = Proc::solver_with(
+    let server = lightwire!().solver_with(
         "127.0.0.1:0",
         "reference",
         &[("LIGHTWIRE_METRICS", "token".into())],
@@ -161,29 +149,21 @@ async fn metrics_token_mode_needs_an_admin_token() {
     assert_eq!(query.status, 200);
     // Health and readiness stay open.
     assert_eq!(http::get(addr, "/healthz", None).await.status, 200);
-    wait_ready(&server).await;
+    server.ready().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn development_mode_leaves_the_rest_routes_open() {
-    let scene = common::scene_path("cornell-low.json");
-    let args = [
-        "serve",
-        "--dev",
-        "--listen",
-        "127.0.0.1:0",
+    let scene = scene_path("cornell-low.json");
+    let server = lightwire!().serve_dev(&[
         "--solver",
         "reference",
         "--density-scale",
         "0.5",
         "--scene",
-    ]
-    .map(String::from)
-    .into_iter()
-    .chain([scene.display().to_string()])
-    .collect::<Vec<_>>();
-    let server = Proc::spawn(&args, &[]);
-    wait_ready(&server).await;
+        scene.to_str().expect("utf-8 path"),
+    ]);
+    server.ready().await;
     for route in viewer_routes() {
         let r = http::get(&server.addr, &route, None).await;
         assert_eq!(r.status, 200, "{route} in development mode: {}", r.text());

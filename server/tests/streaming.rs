@@ -1,8 +1,6 @@
 //! `lightwire serve` over real sockets: a real server process, real
 //! WebSocket clients speaking the binary protocol.
 
-mod common;
-
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -15,9 +13,10 @@ use lightwire_protocol::{
 use tokio_tungstenite::MaybeTlsStream;
 use tokio_tungstenite::tungstenite::Message;
 
-use common::http;
-use common::peer::Client;
-use common::process::{DRIVER_TOKEN, Proc, VIEWER_TOKEN};
+use lightwire_testkit::peer::Peer;
+use lightwire_testkit::pose::box_turned;
+use lightwire_testkit::process::Proc;
+use lightwire_testkit::{DRIVER_TOKEN, VIEWER_TOKEN, http, lightwire};
 
 /// `GET path` on `server` with the viewer token (the REST routes need one).
 async fn http_get(server: &Proc, path: &str) -> http::Response {
@@ -26,9 +25,9 @@ async fn http_get(server: &Proc, path: &str) -> http::Response {
 
 /// Reads (and applies) frames on a task until `stop` flips.
 fn read_until_stopped(
-    mut client: Client,
+    mut client: Peer,
     stop: tokio::sync::watch::Receiver<bool>,
-) -> tokio::task::JoinHandle<Client> {
+) -> tokio::task::JoinHandle<Peer> {
     tokio::spawn(async move {
         // Stats arrive every 250 ms, so each read returns promptly.
         while !*stop.borrow() && client.read_one(Duration::from_secs(5)).await {}
@@ -37,21 +36,7 @@ fn read_until_stopped(
 }
 
 fn pose_at(step: u32) -> Pose {
-    let angle = step as f32 * 0.15;
-    Pose {
-        translation: [2.78, 0.85, 2.796],
-        rotation: [0.0, (angle / 2.0).sin(), 0.0, (angle / 2.0).cos()],
-        scale: 1.0,
-    }
-}
-
-/// Polls `/readyz` until the first lightmap is published.
-async fn wait_ready(server: &Proc) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while http_get(server, "/readyz").await.status != 200 {
-        assert!(Instant::now() < deadline, "the server never became ready");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    box_turned(step as f32 * 0.15)
 }
 
 /// The server's current version, and its lightmap decoded from the EXR
@@ -72,7 +57,7 @@ async fn server_state(server: &Proc) -> (u64, Vec<[f32; 3]>) {
 /// Waits until the published state reflects transform `seq` of the box
 /// (as echoed in the frames `watcher` receives) and no newer version
 /// follows; returns that version.
-async fn settled_version(server: &Proc, seq: u64, watcher: &mut Client) -> u64 {
+async fn settled_version(server: &Proc, seq: u64, watcher: &mut Peer) -> u64 {
     let deadline = Instant::now() + Duration::from_secs(120);
     loop {
         let list = http_get(server, "/api/scenes").await;
@@ -106,13 +91,13 @@ async fn settled_version(server: &Proc, seq: u64, watcher: &mut Client) -> u64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fifty_clients_follow_a_moving_box_bit_exactly_and_a_late_joiner_converges() {
     // The real engine: the GPU progressive solver (lavapipe in CI).
-    let server = Proc::solver_with("127.0.0.1:0", "progressive", &[]);
+    let server = lightwire!().solver_with("127.0.0.1:0", "progressive", &[]);
     let url = server.ws_url();
     let mut viewers = Vec::new();
     for _ in 0..50 {
-        viewers.push(Client::connect(&url, VIEWER_TOKEN).await);
+        viewers.push(Peer::connect(&url, VIEWER_TOKEN).await);
     }
-    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     assert_eq!(driver.role, Some(Role::Driver));
     assert_eq!(viewers[0].role, Some(Role::Viewer));
 
@@ -166,7 +151,7 @@ async fn fifty_clients_follow_a_moving_box_bit_exactly_and_a_late_joiner_converg
     }
 
     // A client joining now starts from a keyframe of the same version.
-    let mut late = Client::connect(&url, VIEWER_TOKEN).await;
+    let mut late = Peer::connect(&url, VIEWER_TOKEN).await;
     late.read_until_version(final_version, Duration::from_secs(10))
         .await;
     assert_eq!(late.keyframes, 1);
@@ -181,7 +166,7 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
     // A small kernel send buffer, so that the server's sends to the
     // stalled client block within the stall instead of being absorbed by
     // the kernel.
-    let server = Proc::solver_with(
+    let server = lightwire!().solver_with(
         "127.0.0.1:0",
         "reference",
         &[("LIGHTWIRE_SEND_BUFFER", "4096".into())],
@@ -198,11 +183,11 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
     let (ws, _) = tokio_tungstenite::client_async(url.as_str(), MaybeTlsStream::Plain(stream))
         .await
         .expect("handshake");
-    let mut slow = Client::hello(ws, VIEWER_TOKEN).await;
-    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
-    let mut fast = Client::connect(&url, VIEWER_TOKEN).await;
+    let mut slow = Peer::hello(ws, VIEWER_TOKEN).await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
+    let mut fast = Peer::connect(&url, VIEWER_TOKEN).await;
     // Everyone starts on the first version.
-    wait_ready(&server).await;
+    server.ready().await;
     let (first, _) = server_state(&server).await;
     slow.read_until_version(first, Duration::from_secs(30))
         .await;
@@ -282,12 +267,12 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let url = server.ws_url();
-    let mut bystander = Client::connect(&url, VIEWER_TOKEN).await;
+    let mut bystander = Peer::connect(&url, VIEWER_TOKEN).await;
 
     // A viewer may not move objects.
-    let mut viewer = Client::connect(&url, VIEWER_TOKEN).await;
+    let mut viewer = Peer::connect(&url, VIEWER_TOKEN).await;
     viewer
         .send(&ClientMessage::Transform {
             object: 1,
@@ -297,7 +282,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
         })
         .await;
     // Garbage, an unknown object and an invalid pose, from a driver.
-    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     driver
         .ws
         .send(Message::Binary(vec![0xff, 0x00, 0x13].into()))
@@ -334,7 +319,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
             c.read_one(Duration::from_secs(2)).await;
         }
     }
-    let codes = |c: &Client| c.errors.iter().map(|(code, _)| *code).collect::<Vec<_>>();
+    let codes = |c: &Peer| c.errors.iter().map(|(code, _)| *code).collect::<Vec<_>>();
     assert_eq!(codes(&viewer), vec![ErrorCode::Forbidden]);
     assert_eq!(
         codes(&driver),
@@ -350,7 +335,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
     let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
         .await
         .expect("connects");
-    let mut intruder = Client::unhandshaken(ws);
+    let mut intruder = Peer::unhandshaken(ws);
     intruder
         .send(&ClientMessage::Hello {
             protocol_version: PROTOCOL_VERSION,
@@ -364,7 +349,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
     assert!(intruder.role.is_none());
 
     // Repeated abuse closes that connection (after max_bad_frames = 20).
-    let mut abuser = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut abuser = Peer::connect(&url, DRIVER_TOKEN).await;
     for _ in 0..25 {
         if abuser
             .ws
@@ -435,8 +420,8 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigterm_closes_connections_and_exits_cleanly() {
-    let mut server = Proc::solver("127.0.0.1:0");
-    let mut client = Client::connect(&server.ws_url(), VIEWER_TOKEN).await;
+    let mut server = lightwire!().solver("127.0.0.1:0");
+    let mut client = Peer::connect(&server.ws_url(), VIEWER_TOKEN).await;
     let ready = http_get(&server, "/readyz").await.status;
     assert!(ready == 200 || ready == 503);
     let pid = server.child.id().to_string();
@@ -459,29 +444,6 @@ async fn sigterm_closes_connections_and_exits_cleanly() {
     assert!(exit.success(), "clean exit: {exit}");
 }
 
-impl Client {
-    /// Reads (recording errors) until the server closes; returns the close
-    /// code, or `None` if the connection ended without a close frame.
-    async fn read_to_close(&mut self, limit: Duration) -> Option<u16> {
-        let deadline = Instant::now() + limit;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(!left.is_zero(), "the server never closed");
-            match tokio::time::timeout(left, self.ws.next()).await {
-                Ok(Some(Ok(Message::Close(frame)))) => return frame.map(|f| u16::from(f.code)),
-                Ok(Some(Ok(Message::Binary(bytes)))) => {
-                    if let Ok(ServerMessage::Error { code, message }) = decode_server(&bytes) {
-                        self.errors.push((code, message));
-                    }
-                }
-                Ok(Some(Ok(_))) => {}
-                Ok(None) | Ok(Some(Err(_))) => return None,
-                Err(_) => panic!("the server never closed"),
-            }
-        }
-    }
-}
-
 /// PROTOCOL.md §1.7: every accepted transform is reflected by a
 /// publication, also one that changes nothing (a delta without tiles), so
 /// a driver waiting for its seq never waits forever and a second driver
@@ -495,10 +457,10 @@ async fn a_transform_that_changes_nothing_is_still_echoed() {
 }
 
 async fn echo_of_an_unchanged_pose(solver: &str) {
-    let server = Proc::solver_with("127.0.0.1:0", solver, &[]);
+    let server = lightwire!().solver_with("127.0.0.1:0", solver, &[]);
     let url = server.ws_url();
-    wait_ready(&server).await;
-    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    server.ready().await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     let transform = |seq| ClientMessage::Transform {
         object: 1,
         seq,
@@ -532,7 +494,7 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
     assert!(driver.errors.is_empty(), "{:?}", driver.errors);
 
     // A second driver learns where to continue from its keyframe.
-    let mut second = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut second = Peer::connect(&url, DRIVER_TOKEN).await;
     while second.keyframes == 0 {
         assert!(second.read_one(Duration::from_secs(10)).await);
     }
@@ -558,19 +520,19 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
 /// `Hello`; other clients are undisturbed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_oversized_frame_gets_too_large_and_close_1009() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let url = server.ws_url();
-    wait_ready(&server).await;
-    let mut bystander = Client::connect(&url, VIEWER_TOKEN).await;
+    server.ready().await;
+    let mut bystander = Peer::connect(&url, VIEWER_TOKEN).await;
 
     for (size, after_hello) in [(4097, true), (1 << 20, true), (5000, false)] {
         let mut client = if after_hello {
-            Client::connect(&url, DRIVER_TOKEN).await
+            Peer::connect(&url, DRIVER_TOKEN).await
         } else {
             let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
                 .await
                 .expect("connects");
-            Client::unhandshaken(ws)
+            Peer::unhandshaken(ws)
         };
         // Whether the send completes depends on how much the server read
         // before it closed; the reply is what matters.
@@ -584,7 +546,7 @@ async fn an_oversized_frame_gets_too_large_and_close_1009() {
         assert_eq!(code, Some(1009), "{size} bytes");
     }
     // A frame of exactly the limit is read (and refused as malformed).
-    let mut client = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut client = Peer::connect(&url, DRIVER_TOKEN).await;
     client
         .ws
         .send(Message::Binary(vec![0xee; 4096].into()))
@@ -609,13 +571,13 @@ async fn an_oversized_frame_gets_too_large_and_close_1009() {
 /// PROTOCOL.md §1: a text frame is a bad frame (1), first or later.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_text_frame_is_a_bad_frame() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let url = server.ws_url();
-    wait_ready(&server).await;
+    server.ready().await;
     let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
         .await
         .expect("connects");
-    let mut first = Client::unhandshaken(ws);
+    let mut first = Peer::unhandshaken(ws);
     first
         .ws
         .send(Message::Text("hello".into()))
@@ -628,7 +590,7 @@ async fn a_text_frame_is_a_bad_frame() {
     assert_eq!(first.errors.len(), 1);
     assert_eq!(first.errors[0].0, ErrorCode::BadFrame);
 
-    let mut later = Client::connect(&url, VIEWER_TOKEN).await;
+    let mut later = Peer::connect(&url, VIEWER_TOKEN).await;
     later
         .ws
         .send(Message::Text("{}".into()))
@@ -645,12 +607,12 @@ async fn a_text_frame_is_a_bad_frame() {
 /// `max_bad_frames`-th bad frame earns.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn no_error_reply_is_lost() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let url = server.ws_url();
-    wait_ready(&server).await;
+    server.ready().await;
 
     // 30 bad frames back to back: exactly 20 Errors, then close 1008.
-    let mut abuser = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut abuser = Peer::connect(&url, DRIVER_TOKEN).await;
     for _ in 0..30 {
         if abuser
             .ws
@@ -669,7 +631,7 @@ async fn no_error_reply_is_lost() {
     // A flood of transforms none of which can be accepted (the seq is not
     // newer): one Error each, StaleSeq or RateLimited (neither counts
     // toward closing), all before the Pong of a Ping sent after them.
-    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     let transform = |seq| ClientMessage::Transform {
         object: 1,
         seq,
@@ -727,10 +689,10 @@ async fn no_error_reply_is_lost() {
 /// a pose at the bounds is accepted and lit with finite light.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let url = server.ws_url();
-    wait_ready(&server).await;
-    let mut driver = Client::connect(&url, DRIVER_TOKEN).await;
+    server.ready().await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     let far = Pose {
         translation: [1e30, 0.0, 0.0],
         ..pose_at(0)
@@ -784,7 +746,7 @@ async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
 }
 
 /// Reads until `client` has held one version (not 0) for 1.5 s.
-async fn quiet(client: &mut Client) {
+async fn quiet(client: &mut Peer) {
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut last = (client.version(), Instant::now());
     while client.version() == 0 || last.1.elapsed() < Duration::from_millis(1500) {
@@ -803,7 +765,7 @@ async fn quiet(client: &mut Client) {
 /// viewers.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
-    let loose = Proc::solver_with(
+    let loose = lightwire!().solver_with(
         "127.0.0.1:0",
         "reference",
         &[
@@ -811,15 +773,15 @@ async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
             ("LIGHTWIRE_SETTLE_MS", "300".into()),
         ],
     );
-    let exact = Proc::solver_with(
+    let exact = lightwire!().solver_with(
         "127.0.0.1:0",
         "reference",
         &[("LIGHTWIRE_EPSILON", "0".into())],
     );
     let mut held = Vec::new();
     for server in [&loose, &exact] {
-        wait_ready(server).await;
-        let mut driver = Client::connect(&server.ws_url(), DRIVER_TOKEN).await;
+        server.ready().await;
+        let mut driver = Peer::connect(&server.ws_url(), DRIVER_TOKEN).await;
         // Start from a quiet state: the first solve's version, and with a
         // budget the settle version after it.
         quiet(&mut driver).await;
@@ -884,9 +846,9 @@ async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
 /// client from the future likewise.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_old_client_is_refused_with_a_message_that_says_why() {
-    let server = Proc::solver("127.0.0.1:0");
+    let server = lightwire!().solver("127.0.0.1:0");
     let url = server.ws_url();
-    wait_ready(&server).await;
+    server.ready().await;
     for (theirs, says) in [
         (1, "upgrade the client"),
         (PROTOCOL_VERSION + 1, "newer than this server"),
@@ -894,7 +856,7 @@ async fn an_old_client_is_refused_with_a_message_that_says_why() {
         let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
             .await
             .expect("connects");
-        let mut old = Client::unhandshaken(ws);
+        let mut old = Peer::unhandshaken(ws);
         old.send(&ClientMessage::Hello {
             protocol_version: theirs,
             client: "lw/old".into(),

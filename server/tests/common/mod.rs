@@ -1,24 +1,16 @@
-//! Helpers shared by the server's integration tests.
+//! Helpers shared by the server's solver-level tests: scenes with their
+//! atlas, the furnace check, accuracy where a viewer can see. What tests of
+//! `lightwire` processes share is in the test kit (`lightwire-testkit`,
+//! `tests/`).
 
 // Each test binary compiles this module and uses only some helpers.
 #![allow(dead_code)]
-
-pub mod http;
-pub mod peer;
-pub mod process;
-
-use std::path::PathBuf;
 
 use glam::Vec3;
 use lightwire_server::atlas::Atlas;
 use lightwire_server::scene::{LoadOptions, Scene};
 
-/// Path of a file in the repository's `scenes/` directory.
-pub fn scene_path(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../scenes")
-        .join(name)
-}
+pub use lightwire_testkit::scene_path;
 
 /// Loads a scene from `scenes/` at a density scale, with its atlas.
 pub fn load(name: &str, density_scale: f32) -> (Scene, Atlas) {

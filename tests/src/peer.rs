@@ -3,20 +3,46 @@
 //! only onto its exact base, panicking otherwise), and records what it
 //! saw.
 
+use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, PROTOCOL_VERSION, Role, ServerMessage, decode_server, encode_client,
+    ClientMessage, ErrorCode, PROTOCOL_VERSION, Pose, Role, ServerMessage, decode_server,
+    encode_client,
 };
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
+use crate::pose::transform;
+
 pub type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
 
-/// What [`Client::read_frame`] met.
+/// The name the kit's peers give in `Hello`.
+const CLIENT: &str = "test-peer";
+
+/// Opens a WebSocket to `url` and says `Hello` with `token`, without
+/// reading anything; `None` if either fails.
+pub async fn hello(url: &str, token: &str) -> Option<Ws> {
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.ok()?;
+    ws.send(Message::Binary(encode_client(&hello_message(token)).into()))
+        .await
+        .ok()?;
+    Some(ws)
+}
+
+fn hello_message(token: &str) -> ClientMessage {
+    ClientMessage::Hello {
+        protocol_version: PROTOCOL_VERSION,
+        client: CLIENT.into(),
+        token: Some(token.into()),
+        capabilities: 0,
+    }
+}
+
+/// What [`Peer::read_frame`] met.
 pub enum Read {
     Frame,
     Timeout,
@@ -24,7 +50,7 @@ pub enum Read {
 }
 
 /// A protocol client that keeps the lightmap it reconstructs.
-pub struct Client {
+pub struct Peer {
     pub ws: Ws,
     pub map: Option<Lightmap>,
     pub role: Option<Role>,
@@ -34,20 +60,20 @@ pub struct Client {
     pub applied: Vec<(u64, bool)>,
     pub errors: Vec<(ErrorCode, String)>,
     /// Latest transform seq per object reflected by the held version.
-    pub reflected: std::collections::HashMap<u32, u64>,
+    pub reflected: HashMap<u32, u64>,
 }
 
-impl Client {
-    pub async fn connect(url: &str, token: &str) -> Client {
+impl Peer {
+    pub async fn connect(url: &str, token: &str) -> Peer {
         let (ws, _) = tokio_tungstenite::connect_async(url)
             .await
             .expect("websocket connects");
         Self::hello(ws, token).await
     }
 
-    /// A client on an open socket that has not said `Hello` yet.
-    pub fn unhandshaken(ws: Ws) -> Client {
-        Client {
+    /// A peer on an open socket that has not said `Hello` yet.
+    pub fn unhandshaken(ws: Ws) -> Peer {
+        Peer {
             ws,
             map: None,
             role: None,
@@ -59,20 +85,15 @@ impl Client {
         }
     }
 
-    pub async fn hello(mut ws: Ws, token: &str) -> Client {
-        let hello = ClientMessage::Hello {
-            protocol_version: PROTOCOL_VERSION,
-            client: "test-peer".into(),
-            token: Some(token.into()),
-            capabilities: 0,
-        };
-        ws.send(Message::Binary(encode_client(&hello).into()))
+    /// Says `Hello` on an open socket and reads the `Welcome`.
+    pub async fn hello(mut ws: Ws, token: &str) -> Peer {
+        ws.send(Message::Binary(encode_client(&hello_message(token)).into()))
             .await
             .expect("send hello");
-        let mut client = Client::unhandshaken(ws);
-        client.read_one(Duration::from_secs(10)).await;
-        assert!(client.role.is_some(), "Welcome is the first frame");
-        client
+        let mut peer = Peer::unhandshaken(ws);
+        peer.read_one(Duration::from_secs(10)).await;
+        assert!(peer.role.is_some(), "Welcome is the first frame");
+        peer
     }
 
     pub async fn send(&mut self, message: &ClientMessage) {
@@ -80,6 +101,11 @@ impl Client {
             .send(Message::Binary(encode_client(message).into()))
             .await
             .expect("send");
+    }
+
+    /// Sends a transform of `object` at `seq` (see [`transform`]).
+    pub async fn transform(&mut self, object: u32, seq: u64, pose: Pose) {
+        self.send(&transform(object, seq, pose)).await;
     }
 
     /// Reads and applies one frame; false on close or timeout.
@@ -138,11 +164,17 @@ impl Client {
         Read::Frame
     }
 
+    /// The version held (0: none yet).
     pub fn version(&self) -> u64 {
         self.map.as_ref().map_or(0, |m| m.version)
     }
 
-    /// Reads until the client holds `version` (or fails after `limit`).
+    /// The texels held (panics before the `Welcome`).
+    pub fn texels(&self) -> &[u8] {
+        &self.map.as_ref().expect("welcomed").texels
+    }
+
+    /// Reads until the peer holds `version` (or fails after `limit`).
     pub async fn read_until_version(&mut self, version: u64, limit: Duration) {
         let deadline = Instant::now() + limit;
         while self.version() < version {
@@ -163,5 +195,58 @@ impl Client {
             version,
             "overshot: the server published more than expected"
         );
+    }
+
+    /// Reads frames for `time`; the connection must stay open.
+    pub async fn pump(&mut self, time: Duration) {
+        let until = Instant::now() + time;
+        loop {
+            let left = until.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return;
+            }
+            match self.read_frame(left).await {
+                Read::Frame => {}
+                Read::Timeout => return,
+                Read::Closed => panic!(
+                    "the server closed a connection at version {}",
+                    self.version()
+                ),
+            }
+        }
+    }
+
+    /// Reads frames until the peer holds at least `version`.
+    pub async fn pump_until_version(&mut self, version: u64, limit: Duration) {
+        let deadline = Instant::now() + limit;
+        while self.version() < version {
+            assert!(
+                Instant::now() < deadline,
+                "stuck at version {} waiting for {version}",
+                self.version()
+            );
+            self.pump(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// Reads (recording errors) until the server closes; returns the close
+    /// code, or `None` if the connection ended without a close frame.
+    pub async fn read_to_close(&mut self, limit: Duration) -> Option<u16> {
+        let deadline = Instant::now() + limit;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(!left.is_zero(), "the server never closed");
+            match tokio::time::timeout(left, self.ws.next()).await {
+                Ok(Some(Ok(Message::Close(frame)))) => return frame.map(|f| u16::from(f.code)),
+                Ok(Some(Ok(Message::Binary(bytes)))) => {
+                    if let Ok(ServerMessage::Error { code, message }) = decode_server(&bytes) {
+                        self.errors.push((code, message));
+                    }
+                }
+                Ok(Some(Ok(_))) => {}
+                Ok(None) | Ok(Some(Err(_))) => return None,
+                Err(_) => panic!("the server never closed"),
+            }
+        }
     }
 }
