@@ -663,3 +663,46 @@ impl BatchSolver for PathTraced<'_> {
         crate::bake::write_json(&dir.join("std_error.json"), errors)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::ValueEnum;
+
+    use super::*;
+    use crate::load::load_scene;
+    use crate::scene::LoadOptions;
+
+    /// `stats.json` names a solver as `--solver` does.
+    #[test]
+    fn every_kind_is_named_as_on_the_command_line() {
+        for kind in SolverKind::value_variants() {
+            let value = kind.to_possible_value().map(|v| v.get_name().to_string());
+            assert_eq!(value.as_deref(), Some(kind.name()));
+        }
+    }
+
+    /// The CPU solvers do all their work in their first step and report
+    /// it: nothing is left for a second step, and the power adds up.
+    #[test]
+    fn cpu_solvers_do_everything_in_the_first_step() -> Result<()> {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/plates.json");
+        let (scene, atlas) = load_scene(&path, LoadOptions { density_scale: 1.0 })?;
+        let poses = scene.initial_poses();
+        let settings = SolverSettings {
+            spp: Some(4),
+            ..SolverSettings::default()
+        };
+        for kind in [SolverKind::Reference, SolverKind::Pathtrace] {
+            let mut solver = build(kind, &scene, &atlas, &poses, &settings, &Silent)?;
+            assert_eq!(solver.name(), kind.name());
+            assert!(solver.radiosity().is_err(), "{}", kind.name());
+            assert!(solver.step(Duration::ZERO)?, "{}", kind.name());
+            assert!(!solver.step(Duration::ZERO)?, "{}", kind.name());
+            assert_eq!(solver.radiosity()?.len(), atlas.elements.len());
+            assert!(solver.residual_fraction() < 1.0, "{}", kind.name());
+            let power = solver.energy_balance()?;
+            assert!(power.emitted > 0.0 && power.escaped >= 0.0, "{power:?}");
+        }
+        Ok(())
+    }
+}
