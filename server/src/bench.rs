@@ -36,11 +36,12 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 
 use crate::atlas::Atlas;
-use crate::gpu::{Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver};
+use crate::gpu::{Device, GatherOptions, ProgressiveOptions};
 use crate::load::load_scene;
 use crate::metrics::accuracy_where;
 use crate::reference::{self, ReferenceSolver, SolveOptions};
 use crate::scene::LoadOptions;
+use crate::solver::{BatchSolver, Gather, Progressive};
 use crate::validity::Validity;
 
 /// The unshot-power fractions at which times are recorded.
@@ -153,6 +154,23 @@ fn record(times: &mut [Option<f64>; 3], fraction: f64, now: f64) {
     }
 }
 
+/// Steps `solver` with no budget (one batch or pass at a time) until its
+/// residual fraction is at most the smallest of [`FRACTIONS`] or it has
+/// nothing left to do; returns when each fraction was first reached and
+/// the seconds it all took.
+fn time_to_fractions(solver: &mut dyn BatchSolver) -> Result<([Option<f64>; 3], f64)> {
+    let started = Instant::now();
+    let mut times = [None; 3];
+    loop {
+        let fraction = solver.residual_fraction();
+        record(&mut times, fraction, started.elapsed().as_secs_f64());
+        if fraction <= FRACTIONS[2] || !solver.step(Duration::ZERO)? {
+            break;
+        }
+    }
+    Ok((times, started.elapsed().as_secs_f64()))
+}
+
 /// Benchmarks one scene file: progressive, reference, gather.
 pub fn solve_scene(
     gpu: &Device,
@@ -165,23 +183,9 @@ pub fn solve_scene(
     let poses = scene.initial_poses();
 
     // Progressive: setup (upload, pipeline compilation) is not counted.
-    let mut solver = ProgressiveSolver::new(gpu, &scene, &atlas, &poses, options)?;
-    let started = Instant::now();
-    let mut times = [None; 3];
-    let mut shots = 0;
-    loop {
-        let fraction = solver.unshot_fraction();
-        record(&mut times, fraction, started.elapsed().as_secs_f64());
-        if fraction <= FRACTIONS[2] {
-            break;
-        }
-        let report = solver.step(Duration::ZERO)?;
-        if report.batches == 0 {
-            break; // Nothing left to shoot.
-        }
-        shots += report.shots;
-    }
-    let seconds = started.elapsed().as_secs_f64();
+    let mut solver = Progressive::new(gpu, &scene, &atlas, &poses, options)?;
+    let (times, seconds) = time_to_fractions(&mut solver)?;
+    let shots = solver.work();
     let progressive = solver.radiosity()?;
 
     // Reference, when its dense matrix fits.
@@ -232,21 +236,10 @@ pub fn solve_scene(
         });
     }
 
-    // Gather: setup is not counted either; bounce by bounce.
-    let mut solver = GatherSolver::new(gpu, &scene, &atlas, &poses, gather_options)?;
-    let started = Instant::now();
-    let mut times = [None; 3];
-    while solver.change_fraction() > FRACTIONS[2]
-        && solver.total_bounces() < u64::from(gather_options.max_bounces)
-    {
-        let report = solver.bounce()?;
-        record(
-            &mut times,
-            report.change_fraction,
-            started.elapsed().as_secs_f64(),
-        );
-    }
-    let seconds = started.elapsed().as_secs_f64();
+    // Gather: setup is not counted either; pass by pass (a bounce's
+    // change is known when its last pass completes).
+    let mut solver = Gather::new(gpu, &scene, &atlas, &poses, gather_options)?;
+    let (times, seconds) = time_to_fractions(&mut solver)?;
     let gather = solver.radiosity()?;
     let compared = reference
         .as_ref()
@@ -254,7 +247,7 @@ pub fn solve_scene(
     solvers.push(SolverResult {
         name: "gather".into(),
         seconds_to: seconds_map(&times),
-        shots_per_second: (seconds > 0.0).then(|| solver.total_hemicubes() as f64 / seconds),
+        shots_per_second: (seconds > 0.0).then(|| solver.work() as f64 / seconds),
         nrmse_vs_reference: compared.nrmse,
         p95_rel_vs_reference: compared.p95_rel,
         reference_seconds_to_same_nrmse: compared.reference_seconds,

@@ -25,4 +25,5 @@ pub mod reference;
 pub mod relay;
 pub mod scene;
 pub mod service;
+pub mod solver;
 pub mod validity;
