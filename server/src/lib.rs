@@ -5,7 +5,8 @@
 //! [`scene::Scene`]; [`atlas::Atlas::build`] charts every patch into one
 //! lightmap texture whose texels are the radiosity elements (both at once:
 //! [`load::load_scene`]); a solver (the GPU solvers of [`gpu`], the CPU
-//! [`reference`] solver, or the [`pathtrace`] oracle) computes radiosity
+//! [`reference`] solver, or the [`pathtrace`] oracle, all four behind one
+//! [`solver::BatchSolver`] interface for batch work) computes radiosity
 //! per element; [`bake`] scatters it into the atlas and writes images and
 //! metadata. [`service`]
 //! runs the same pipeline continuously behind HTTP and WebSocket
