@@ -327,3 +327,19 @@ pub struct Stats {
     /// Server clock, microseconds since the Unix epoch.
     pub server_time_us: u64,
 }
+
+impl Stats {
+    /// What a scene reports before its first publication: version 0,
+    /// nothing converged, no clients, no tick timed yet, stamped now.
+    pub fn initial() -> Self {
+        Self {
+            version: 0,
+            unshot_fraction: 1.0,
+            tick_ms: 0.0,
+            solve_ms: 0.0,
+            redistribution_ms: 0.0,
+            clients: 0,
+            server_time_us: crate::unix_micros(),
+        }
+    }
+}

@@ -117,15 +117,7 @@ pub async fn relay(
     let mut tasks = Vec::new();
     for url in urls {
         let (publisher, publications) = Publisher::new();
-        let (stats_tx, stats_rx) = watch::channel(Stats {
-            version: 0,
-            unshot_fraction: 1.0,
-            tick_ms: 0.0,
-            solve_ms: 0.0,
-            redistribution_ms: 0.0,
-            clients: 0,
-            server_time_us: lightwire_protocol::unix_micros(),
-        });
+        let (stats_tx, stats_rx) = watch::channel(Stats::initial());
         let feed = Arc::new(Feed::new(url.scene.clone(), None, publications, stats_rx));
         let status = Arc::new(UpstreamStatus::default());
         tasks.push(tokio::spawn(

@@ -160,15 +160,7 @@ impl SceneRuntime {
         };
         let solver = build(&scene.initial_poses(), no_seqs(scene.objects.len()))?;
         let (publisher, pub_rx) = Publisher::new();
-        let (stats_tx, stats_rx) = watch::channel(Stats {
-            version: 0,
-            unshot_fraction: 1.0,
-            tick_ms: 0.0,
-            solve_ms: 0.0,
-            redistribution_ms: 0.0,
-            clients: 0,
-            server_time_us: unix_micros(),
-        });
+        let (stats_tx, stats_rx) = watch::channel(Stats::initial());
         let feed = Arc::new(Feed::new(
             info.id.clone(),
             Some(info.clone()),
