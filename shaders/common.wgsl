@@ -1,6 +1,7 @@
-// Shared by hemicube.wgsl and progressive.wgsl: the shooter record and the
-// hemicube face projection. Rasterization (hemicube.wgsl) and the lookup in
-// the reconstruction shader (progressive.wgsl) must use the very same
+// Required by every other file in shaders/: the shooter record, the batch
+// constants, patch ranges, object flags and the hemicube face projection.
+// Rasterization (hemicube.wgsl) and the lookup in the reconstruction
+// shaders (`visibility` in receive.wgsl) must use the very same
 // projection, so it lives here once.
 
 // One shooter: a rectangle of elements of the shooting patch (thesis §4.3.3,
@@ -42,8 +43,8 @@ struct Batch {
     // poses (the scene before a move); earlier slots with the current ones.
     // Progressive batches set it past the last slot.
     old_from_slot: u32,
-    // What a redistribution batch does (MODE_* in redistribute.wgsl); 0 in
-    // progressive batches.
+    // What a redistribution batch does (KIND_* and flags in
+    // redistribute.wgsl); 0 in progressive batches.
     mode: u32,
 };
 

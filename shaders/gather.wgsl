@@ -1,4 +1,5 @@
-// Gather radiosity (thesis §4.2, Alg. 4.1), prepended by common.wgsl (for
+// requires: common.wgsl
+// Gather radiosity (thesis §4.2, Alg. 4.1), with common.wgsl (for
 // `Shooter`, `PatchRange` and the hemicube face frames of `face_local`).
 // One pass of a bounce gathers for a batch of elements; its entry points run
 // in this order:

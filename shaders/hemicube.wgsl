@@ -1,3 +1,4 @@
+// requires: common.wgsl
 // Hemicubes rasterized at shooters (thesis §4.3.2). The instance index
 // selects the (shooter slot, face) pair: instance = slot * 5 + face.
 //

@@ -1,3 +1,4 @@
+// requires: common.wgsl, elements.wgsl, receive.wgsl
 // Progressive refinement radiosity as gathering (thesis Alg. 4.2, gems §39.2).
 // Entry points, in the order one batch runs them:
 //   shooter_energy  GENERATESHOOTINGPATCHES: unshot power of each shooter's
@@ -9,22 +10,12 @@
 //   select_shooter  FINDSHOOTINGQUAD: the patch with the most unshot power,
 //                   and the total, into `selection` (read back by the CPU).
 
-// One element (lightmap texel), written only by `place_elements`; its size
-// is `ELEMENT_BYTES` in server/src/gpu/placement.rs.
-struct Element {
-    // xyz: world sample position, nudged a hair towards the patch centre
-    // and off the surface (so that a sample on an edge is in front of the
-    // neighbouring wall it touches), w: area (m²).
-    position: vec4<f32>,
-    // xyz: unit normal, w: bitcast patch id.
-    normal: vec4<f32>,
-    // xyz: point used for the visibility lookup (edge samples nudged into
-    // their own patch), w: bitcast object id.
-    lookup: vec4<f32>,
-    // rgb: albedo, w: 1 if invalid (see `is_invalid`).
-    albedo: vec4<f32>,
-};
-
+// The bindings of progressive refinement alone (the shared ones are in
+// elements.wgsl and receive.wgsl).
+@group(0) @binding(3) var<storage, read_write> irradiance: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> patch_power: array<f32>;
+@group(0) @binding(6) var<storage, read_write> selection: Selection;
+@group(0) @binding(14) var<storage, read_write> placed: array<Element>;
 
 // patch id, its unshot power, total unshot power, unused.
 struct Selection {
@@ -33,46 +24,6 @@ struct Selection {
     total: f32,
     _pad: f32,
 };
-
-@group(0) @binding(0) var<storage, read> elements: array<Element>;
-@group(0) @binding(1) var<storage, read_write> radiosity: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read_write> unshot: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> irradiance: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read> patches: array<PatchRange>;
-@group(0) @binding(5) var<storage, read_write> patch_power: array<f32>;
-@group(0) @binding(6) var<storage, read_write> selection: Selection;
-@group(0) @binding(7) var<storage, read> shooters: array<Shooter>;
-@group(0) @binding(8) var<storage, read_write> energy: array<vec4<f32>>;
-@group(0) @binding(9) var<uniform> batch: Batch;
-@group(0) @binding(10) var item: texture_2d<u32>;
-@group(0) @binding(11) var<storage, read> object_flags: array<u32>;
-// Object matrices: the current set, then the old set (see hemicube.wgsl).
-@group(0) @binding(12) var<storage, read> poses: array<mat4x4<f32>>;
-@group(0) @binding(13) var<storage, read> local_elements: array<LocalElement>;
-@group(0) @binding(14) var<storage, read_write> placed: array<Element>;
-
-// An element in its object's space, as uploaded once; `place_elements`
-// puts it in the world at the current poses.
-struct LocalElement {
-    // xyz: sample point (object space), w: area at scale 1.
-    position: vec4<f32>,
-    // xyz: unit normal (object space), w: bitcast patch id.
-    normal: vec4<f32>,
-    // xyz: visibility lookup point (object space), w: bitcast object id.
-    lookup: vec4<f32>,
-    // rgb: albedo, w: the invalid flag, as in `Element`.
-    albedo: vec4<f32>,
-    // xyz: unit direction from the sample towards the patch centre (or
-    // zero), w: the world-space distance samples are moved off edges and
-    // off their surface.
-    nudge: vec4<f32>,
-};
-
-const WG: u32 = 64u;
-const PI: f32 = 3.14159265358979;
-const NO_PATCH: u32 = 0xffffffffu;
-// Inward offset of corner samples in cells (atlas::CORNER_OFFSET).
-const CORNER_OFFSET: f32 = 0.05;
 
 var<workgroup> partial: array<vec3<f32>, 64>;
 var<workgroup> partial_power: array<f32, 256>;
@@ -103,11 +54,6 @@ fn place_elements(@builtin(global_invocation_id) gid: vec3<u32>) {
     placed[e] = out;
 }
 
-// Whether element `el` belongs to an object removed from the simulation.
-fn absent(el: Element) -> bool {
-    return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_ABSENT) != 0u;
-}
-
 // One workgroup per shooter: B_s^u = Σ A_e B_e^u / A_s over the shooter's
 // tile of elements, stored in the intermediate buffer T (`energy`), and the
 // tile's unshot radiosity cleared (thesis Alg. 4.2 lines 6-7, 23-29).
@@ -135,180 +81,6 @@ fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
     if (lid == 0u) {
         energy[wid.x] = vec4<f32>(partial[0] / max(s.corner.w, 1e-30), 0.0);
     }
-}
-
-// Whether the shooter in item-buffer slot `slot` sees the receiving point
-// `x` (on patch `id`), looking along `d` (eye to the point's lookup
-// position): 1 or 0.
-//
-// The pixel the direction falls in shows the point's own patch, nothing, or
-// another patch. Surface-level ids alone (thesis §4.3.2) cannot tell a
-// block in front of a floor point from the wall that rises behind it, and
-// at grazing angles one pixel covers several texels, so another patch in
-// the pixel only occludes if, placed as the buffer drew it, it really
-// crosses the segment from the eye to `x` (`crosses`). The rule it replaces
-// ("any of the four nearest pixels shows my patch", thesis §5, "general
-// observations") moved every shadow edge a whole pixel into the shadow: on
-// cornell-blocks the direct light on the floor read 10% too bright at
-// resolution 64, the blocks' shadows half gone. A weighted share of the
-// four pixels (percentage-closer filtering) measured as accurate but cost
-// four texture loads per receiver and shooter, twice the reconstruction
-// time on lavapipe.
-fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, id: u32) -> f32 {
-    let face = face_of(s, d);
-    let l = face_local(s, face, d);
-    if (l.z <= 0.0) {
-        return 0.0;
-    }
-    let res = f32(batch.resolution);
-    let ndc = l.xy / l.z;
-    let p = vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res);
-    let last = i32(batch.resolution) - 1;
-    let q = clamp(vec2<i32>(floor(p)), vec2<i32>(0), vec2<i32>(last));
-    let origin = vec2<i32>(i32(face * batch.resolution), i32(slot * batch.resolution));
-    let shown = textureLoad(item, origin + q, 0).r;
-    // The shooter's own (planar) patch occludes nothing in front of it.
-    if (shown == id || shown == NO_PATCH || shown == bitcast<u32>(s.n.w)) {
-        return 1.0;
-    }
-    // Another patch: it occludes only if, placed as the buffer drew it
-    // (redistribution draws old-pose buffers too), it really lies across
-    // the segment from the eye to `x`.
-    let pose_base = select(0u, arrayLength(&poses) / 2u, slot >= batch.old_from_slot);
-    return select(1.0, 0.0, crosses(shown, pose_base, s.eye.xyz, x));
-}
-
-// Whether patch `p`, placed by the pose set starting at `pose_base` in
-// `poses`, crosses the open segment from `a` to `b` (short of `b` by a
-// hair, so that a receiver on the patch's plane or on its edge is not
-// occluded by it). The patch's parallelogram is rebuilt from its three
-// corner elements in object space: their samples sit CORNER_OFFSET of a
-// cell inside the corners (server/src/atlas.rs).
-fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
-    let r = patches[p];
-    let first = local_elements[r.first];
-    let m = poses[pose_base + bitcast<u32>(first.lookup.w)];
-    let e00 = (m * vec4<f32>(first.position.xyz, 1.0)).xyz;
-    let e10 = (m * vec4<f32>(local_elements[r.first + r.w - 1u].position.xyz, 1.0)).xyz;
-    let e01 = (m * vec4<f32>(local_elements[r.first + (r.h - 1u) * r.w].position.xyz, 1.0)).xyz;
-    let cu = (e10 - e00) / (f32(r.w - 1u) - 2.0 * CORNER_OFFSET);
-    let cv = (e01 - e00) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
-    let o = e00 - (cu + cv) * CORNER_OFFSET;
-    let u = cu * f32(r.w - 1u);
-    let v = cv * f32(r.h - 1u);
-    let n = cross(u, v);
-    let denom = dot(b - a, n);
-    if (abs(denom) < 1e-30) {
-        return false;
-    }
-    let t = dot(o - a, n) / denom;
-    if (t <= 0.0 || t >= 1.0 - 1e-4) {
-        return false;
-    }
-    let q = a + (b - a) * t - o;
-    let nn = dot(n, n);
-    let su = dot(q, cross(v, n)) / nn;
-    let sv = dot(q, cross(n, u)) / nn;
-    return su > 0.0 && su < 1.0 && sv > 0.0 && sv < 1.0;
-}
-
-// `albedo.w` of an element is 1 when it is invalid (inside or under
-// geometry, server/src/validity.rs): it receives nothing.
-fn is_invalid(el: Element) -> bool {
-    return (u32(el.albedo.w) & 1u) != 0u;
-}
-
-
-// Exact unoccluded form factor from the point `x` (normal `nx`) to the
-// shooter's parallelogram, clipped to the upper hemisphere of `x`
-// (Lambert's contour integral; the limit of infinitely fine subdivision of
-// eq. 2.2.7). Used only where the shooter is so close that the disk
-// approximation would need more than `max_subdivision`² sub-disks, e.g. for
-// samples on the edge a wall shares with the shooting floor.
-fn polygon_form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
-    var p = array<vec3<f32>, 4>(
-        s.corner.xyz - x,
-        s.corner.xyz + s.su.xyz - x,
-        s.corner.xyz + s.su.xyz + s.sv.xyz - x,
-        s.corner.xyz + s.sv.xyz - x,
-    );
-    var q: array<vec3<f32>, 8>;
-    var count = 0u;
-    for (var i = 0u; i < 4u; i++) {
-        let a = p[i];
-        let b = p[(i + 1u) % 4u];
-        let da = dot(a, nx);
-        let db = dot(b, nx);
-        if (da >= 0.0) {
-            q[count] = a;
-            count++;
-        }
-        if ((da >= 0.0) != (db >= 0.0)) {
-            q[count] = a + (b - a) * (da / (da - db));
-            count++;
-        }
-    }
-    if (count < 3u) {
-        return 0.0;
-    }
-    var sum = 0.0;
-    for (var e = 0u; e < count; e++) {
-        let a = q[e];
-        let b = q[(e + 1u) % count];
-        let c = cross(a, b);
-        let len = length(c);
-        if (len <= 1e-20) {
-            continue;
-        }
-        sum += atan2(len, dot(a, b)) * dot(nx, c) / len;
-    }
-    return abs(sum) / (2.0 * PI);
-}
-
-// Disk-approximation form factor from shooter `s` to a receiving point `x`
-// with normal `nx` (thesis eq. 2.2.7, in the receiver form of eq. 2.2.8
-// without ρ and B^u): A_s (1/m) Σ_k cos φ_s cos φ_x / (π r_k² + A_s/m).
-// The shooter is split into m = k×k sub-disks when it is large compared with
-// its distance (thesis §4.3.3, adaptive form factor subdivision); beyond
-// `max_subdivision` sub-disks per axis the exact limit is used instead.
-fn form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
-    let area = s.corner.w;
-    // Distance to the nearest point of the shooter, not to its centre: a
-    // receiver next to the shooter's edge needs the fine subdivision even
-    // when the shooter as a whole is far away.
-    let rel = x - s.corner.xyz;
-    let st = clamp(
-        vec2<f32>(dot(rel, s.su.xyz) / dot(s.su.xyz, s.su.xyz), dot(rel, s.sv.xyz) / dot(s.sv.xyz, s.sv.xyz)),
-        vec2<f32>(0.0),
-        vec2<f32>(1.0),
-    );
-    let r = max(length(rel - s.su.xyz * st.x - s.sv.xyz * st.y), 1e-12);
-    let wanted = ceil(batch.subdivision * sqrt(area) / r);
-    if (wanted > f32(batch.max_subdivision)) {
-        return polygon_form_factor(s, x, nx);
-    }
-    let k = u32(max(wanted, 1.0));
-    let m = f32(k * k);
-    let sub = area / m;
-    var sum = 0.0;
-    for (var j = 0u; j < k; j++) {
-        for (var i = 0u; i < k; i++) {
-            let c = s.corner.xyz + s.su.xyz * ((f32(i) + 0.5) / f32(k))
-                + s.sv.xyz * ((f32(j) + 0.5) / f32(k));
-            let d = x - c;
-            let r2 = dot(d, d);
-            let rl = sqrt(r2);
-            if (rl <= 0.0) {
-                continue;
-            }
-            let cs = dot(s.n.xyz, d) / rl;
-            let cx = -dot(nx, d) / rl;
-            if (cs > 0.0 && cx > 0.0) {
-                sum += cs * cx / (PI * r2 + sub);
-            }
-        }
-    }
-    return sub * sum;
 }
 
 // One thread per element: gather ΔB = ρ B_s^u A_s F from every shooter of

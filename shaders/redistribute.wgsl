@@ -1,6 +1,7 @@
-// Redistribution after dynamic objects move (thesis ch. 3, §4.4, §4.5).
-// Appended to common.wgsl + progressive.wgsl, whose bindings and helpers
-// (`visible`, `form_factor`, `absent`) it uses.
+// requires: common.wgsl, elements.wgsl, receive.wgsl
+// Redistribution after dynamic objects move (thesis ch. 3, §4.4, §4.5). It
+// receives from its shooters as progressive refinement does (receive.wgsl:
+// `visibility`, `form_factor`), over the same elements (elements.wgsl).
 //
 // The moved set M is marked OBJECT_MOVING in `object_flags`; the static
 // set C is everything else. `elements` hold the NEW positions. Shot
@@ -32,6 +33,10 @@
 // (rgb): taken out of the shot radiosity the next move takes back, which
 // then equals what the tile shot.
 @group(0) @binding(23) var<storage, read_write> smoothed: array<vec4<f32>>;
+
+// Scratch of the workgroup reductions: radiosity sums, area sums.
+var<workgroup> partial: array<vec3<f32>, 64>;
+var<workgroup> partial_power: array<f32, 256>;
 
 // Batch.mode: the kind in the low byte, flags above.
 const KIND_MASK: u32 = 0xffu;

@@ -1,35 +1,131 @@
 //! The WGSL modules the GPU solvers compile, assembled in one place.
 //!
 //! The sources live in `shaders/` at the repository root and are compiled
-//! into the binary with `include_str!`. A module is its files concatenated
-//! in a fixed order; `common.wgsl` (the shooter record, the batch
-//! constants, patch ranges and the hemicube face projection) comes first
-//! in every module, so a file may use what it defines. The tests below
-//! parse and validate every assembled module with naga (no device needed)
-//! and check that each struct shared with Rust has the same size on both
-//! sides.
+//! into the binary with `include_str!`. Every file is standalone: it
+//! declares each binding, struct and function it uses, or names the file
+//! that does in its first line, the one documented way WGSL is shared:
+//!
+//! ```text
+//! // requires: common.wgsl, elements.wgsl, receive.wgsl
+//! ```
+//!
+//! The module built from a file is the files of that line, in its order,
+//! then the file itself; each file once. The list is complete, not
+//! transitive: it names every file the module is made of, those that a
+//! listed file requires before it, so the first line of a file says all
+//! the WGSL its module holds. A file without the line requires nothing.
+//!
+//! Library files (no entry points):
+//!
+//! - `common.wgsl`: the shooter record, the batch constants, patch ranges,
+//!   object flags and the hemicube face projection (every other file
+//!   requires it);
+//! - `elements.wgsl`: the element records and the element, patch and
+//!   object buffers of the compute passes (their bindings 0, 1, 2, 4, 11
+//!   and 13), `absent`, `is_invalid`;
+//! - `receive.wgsl`: what an element receives from a batch of shooters:
+//!   the batch's bindings (7-10, 12), visibility through the item buffers
+//!   and the form factor.
+//!
+//! Entry-point files, one module each: `hemicube.wgsl` (the hemicube
+//! rasterizer), `progressive.wgsl` (progressive refinement),
+//! `redistribute.wgsl` (redistribution after moves), `gather.wgsl` (gather
+//! radiosity). The progressive and redistribution modules share the
+//! bindings of `elements.wgsl` and `receive.wgsl` at the same indices, so
+//! one slot table serves both (`progressive/pipelines.rs`).
+//!
+//! The tests below assemble every file with exactly what its first line
+//! names and validate it with naga (no device needed), so a file that uses
+//! something it does not declare or require fails; they check that each
+//! struct shared with Rust has the same size on both sides, and that every
+//! pipeline binds what its entry points use.
 
-const COMMON: &str = include_str!("../../../shaders/common.wgsl");
-const HEMICUBE: &str = include_str!("../../../shaders/hemicube.wgsl");
-const PROGRESSIVE: &str = include_str!("../../../shaders/progressive.wgsl");
-const REDISTRIBUTE: &str = include_str!("../../../shaders/redistribute.wgsl");
-const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
+/// Every file in `shaders/`, by name.
+const FILES: [(&str, &str); 7] = [
+    ("common.wgsl", include_str!("../../../shaders/common.wgsl")),
+    (
+        "elements.wgsl",
+        include_str!("../../../shaders/elements.wgsl"),
+    ),
+    (
+        "receive.wgsl",
+        include_str!("../../../shaders/receive.wgsl"),
+    ),
+    (
+        "hemicube.wgsl",
+        include_str!("../../../shaders/hemicube.wgsl"),
+    ),
+    (
+        "progressive.wgsl",
+        include_str!("../../../shaders/progressive.wgsl"),
+    ),
+    (
+        "redistribute.wgsl",
+        include_str!("../../../shaders/redistribute.wgsl"),
+    ),
+    ("gather.wgsl", include_str!("../../../shaders/gather.wgsl")),
+];
 
-/// The compute passes of progressive refinement and redistribution:
-/// common, progressive, redistribute.
-pub(super) fn compute() -> String {
-    format!("{COMMON}\n{PROGRESSIVE}\n{REDISTRIBUTE}")
+/// The first line of a file that lists what it requires.
+const REQUIRES: &str = "// requires:";
+
+/// The text of file `name`.
+///
+/// # Panics
+///
+/// If `name` is not in [`FILES`]: the names are fixed in the code and in
+/// the compiled-in files, so that is a bug, and the tests assemble every
+/// file.
+fn source(name: &str) -> &'static str {
+    FILES
+        .iter()
+        .find(|(file, _)| *file == name)
+        .map(|(_, text)| *text)
+        .unwrap_or_else(|| panic!("shaders/{name} is not in shaders.rs's FILES"))
+}
+
+/// The files `text` requires, in order: the names on its first line if
+/// that line is a `// requires:` line, else none.
+fn requires(text: &str) -> Vec<&str> {
+    text.lines()
+        .next()
+        .and_then(|line| line.strip_prefix(REQUIRES))
+        .map(|list| {
+            list.split(',')
+                .map(str::trim)
+                .filter(|name| !name.is_empty())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The module built from file `name`: the files it requires, then itself.
+fn assemble(name: &str) -> String {
+    let text = source(name);
+    let mut parts: Vec<&str> = requires(text).into_iter().map(source).collect();
+    parts.push(text);
+    parts.join("\n")
+}
+
+/// The compute passes of progressive refinement (progressive.wgsl).
+pub(super) fn progressive() -> String {
+    assemble("progressive.wgsl")
+}
+
+/// The compute passes of redistribution (redistribute.wgsl).
+pub(super) fn redistribute() -> String {
+    assemble("redistribute.wgsl")
 }
 
 /// The hemicube rasterizer (item buffers of patch ids, and radiosity
-/// hemicubes for cross redistribution): common, hemicube.
+/// hemicubes for cross redistribution; hemicube.wgsl).
 pub(super) fn hemicube() -> String {
-    format!("{COMMON}\n{HEMICUBE}")
+    assemble("hemicube.wgsl")
 }
 
-/// The gather solver's hemicubes and integration: common, gather.
+/// The gather solver's hemicubes and integration (gather.wgsl).
 pub(super) fn gather() -> String {
-    format!("{COMMON}\n{GATHER}")
+    assemble("gather.wgsl")
 }
 
 #[cfg(test)]
@@ -42,9 +138,10 @@ mod tests {
     use super::*;
 
     /// Every module the solvers build, by the label they give it.
-    fn modules() -> [(&'static str, String); 3] {
+    fn modules() -> [(&'static str, String); 4] {
         [
-            ("compute", compute()),
+            ("progressive", progressive()),
+            ("redistribute", redistribute()),
             ("hemicube", hemicube()),
             ("gather", gather()),
         ]
@@ -60,6 +157,51 @@ mod tests {
         .validate(&module)
         .unwrap_or_else(|e| panic!("{label}: {}", e.emit_to_string(source)));
         (module, info)
+    }
+
+    /// Every file in `shaders/` is standalone: assembled with exactly the
+    /// files its first line requires, it parses and validates, so it uses
+    /// nothing it neither declares nor requires. Its list is complete
+    /// (what a listed file requires comes before that file, each file
+    /// once), and every `.wgsl` file in the directory is in [`FILES`].
+    #[test]
+    fn every_shader_file_validates_with_only_what_it_requires() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shaders");
+        let entries = std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+        let mut on_disk: Vec<String> = entries
+            .map(|entry| {
+                let entry = entry.unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+                entry.file_name().to_string_lossy().into_owned()
+            })
+            .filter(|name| name.ends_with(".wgsl"))
+            .collect();
+        on_disk.sort();
+        let mut listed: Vec<String> = FILES.iter().map(|(name, _)| name.to_string()).collect();
+        listed.sort();
+        assert_eq!(on_disk, listed, "shaders/ and shaders.rs's FILES differ");
+
+        for (name, text) in FILES {
+            let required = requires(text);
+            for (k, dependency) in required.iter().enumerate() {
+                assert!(
+                    FILES.iter().any(|(file, _)| file == dependency),
+                    "{name} requires {dependency}, which is not in shaders/"
+                );
+                assert_ne!(*dependency, name, "{name} requires itself");
+                assert!(
+                    !required[..k].contains(dependency),
+                    "{name} requires {dependency} twice"
+                );
+                for inner in requires(source(dependency)) {
+                    assert!(
+                        required[..k].contains(&inner),
+                        "{name} requires {dependency}, which requires {inner}: \
+                         {name} must list {inner} before {dependency}"
+                    );
+                }
+            }
+            parse(name, &assemble(name));
+        }
     }
 
     /// Every assembled module parses and passes naga's validation, as the
@@ -123,8 +265,17 @@ mod tests {
     /// WGSL declares: a binding changed on one side only fails here.
     #[test]
     fn every_pass_binds_what_its_shader_declares() {
-        let passes: [(&str, String, Vec<Pass>); 3] = [
-            ("compute", compute(), progressive::ALL_PASSES.to_vec()),
+        let passes: [(&str, String, Vec<Pass>); 4] = [
+            (
+                "progressive",
+                progressive(),
+                progressive::PROGRESSIVE_PASSES.to_vec(),
+            ),
+            (
+                "redistribute",
+                redistribute(),
+                progressive::REDISTRIBUTION_PASSES.to_vec(),
+            ),
             (
                 "hemicube",
                 hemicube(),

@@ -42,7 +42,7 @@ mod shoot;
 mod shooters;
 
 #[cfg(test)]
-pub(in crate::gpu) use pipelines::ALL as ALL_PASSES;
+pub(in crate::gpu) use pipelines::{PROGRESSIVE_PASSES, REDISTRIBUTION_PASSES};
 pub use redistribute::{Move, Redistribution};
 pub(in crate::gpu) use shoot::{BatchUniform, Selection};
 pub(in crate::gpu) use shooters::GpuShooter;

@@ -267,7 +267,7 @@ impl ProgressiveSolver {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("redistribute.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(shaders::compute().into()),
+            source: wgpu::ShaderSource::Wgsl(shaders::redistribute().into()),
         });
         let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("hemicube.wgsl (radiosity)"),
