@@ -6,7 +6,7 @@ use glam::Vec3;
 use super::device::GpuError;
 
 /// Workgroup size of the per-element and per-shooter compute shaders
-/// (`WG` in progressive.wgsl).
+/// (`WG` in elements.wgsl).
 pub(super) const WORKGROUP: u32 = 64;
 
 /// A `vec4<f32>` of WGSL: `v` and `w`.

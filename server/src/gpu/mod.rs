@@ -30,10 +30,11 @@
 //!    both the next batch's shooter and the convergence measure.
 //!
 //! Shader sources live in `shaders/` at the repository root and are
-//! compiled into the binary with `include_str!`; `shaders.rs` assembles
-//! them into modules, and its tests validate every module with naga, tie
-//! each struct shared with WGSL to its Rust mirror's size, and check every
-//! pipeline's bindings against the WGSL.
+//! compiled into the binary with `include_str!`; each file names on its
+//! first line the files it requires, `shaders.rs` assembles them into
+//! modules, and its tests validate every file and every module with naga,
+//! tie each struct shared with WGSL to its Rust mirror's size, and check
+//! every pipeline's bindings against the WGSL.
 //!
 //! The building blocks, one concept per file:
 //!

@@ -20,7 +20,7 @@ use super::buffers::v4;
 /// edges and off their surface (like the reference solver's offset).
 pub(super) const SURFACE_OFFSET: f32 = 1e-5;
 
-/// One element in its object's space (`LocalElement` in progressive.wgsl);
+/// One element in its object's space (`LocalElement` in elements.wgsl);
 /// `place_elements` derives the world-space `Element` from it and the pose.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -33,7 +33,7 @@ pub(super) struct LocalElement {
 }
 const _: () = assert!(std::mem::size_of::<LocalElement>() == 80);
 
-/// Size of a world-space element (`Element` in progressive.wgsl: position
+/// Size of a world-space element (`Element` in elements.wgsl: position
 /// and area, normal and patch, lookup point and object, albedo).
 pub(super) const ELEMENT_BYTES: u64 = 64;
 
@@ -42,7 +42,7 @@ pub(super) const ELEMENT_BYTES: u64 = 64;
 pub(super) const INVALID_FLAG_OFFSET: u64 = 60;
 
 /// `albedo.w` of an element: 1 when it is invalid (`is_invalid` in
-/// progressive.wgsl: it receives nothing).
+/// elements.wgsl: it receives nothing).
 pub(super) fn invalid_flag(invalid: bool) -> f32 {
     if invalid { 1.0 } else { 0.0 }
 }

@@ -173,7 +173,7 @@ impl Buffers {
     }
 
     /// Every buffer and target by the slot it is bound at, in the compute
-    /// module and in hemicube.wgsl (which name the shared ones alike).
+    /// modules and in hemicube.wgsl (which name the shared ones alike).
     pub(super) fn resources(&self) -> Resources<'_> {
         Resources::new()
             .buffer(slot::ELEMENTS, &self.elements)
