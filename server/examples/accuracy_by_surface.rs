@@ -4,7 +4,13 @@
 //! cargo run --release -p lightwire-server --example accuracy_by_surface -- \
 //!     scenes/cornell-blocks.json [--density-scale 0.5] [--direct] [--gather] \
 //!     [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]...
+//!     [--correct N] [--polish N] [--gather-resolution PIXELS]
 //! ```
+//!
+//! `--correct N` runs N gathered corrections after the progressive solve
+//! (`gpu::Correction`, as `lightwire bake` does) and prints the accuracy
+//! after each; `--polish N` instead runs N plain gather sweeps started from
+//! the progressive solution (the final gather that was tried first).
 //!
 //! `--close` adds a white front wall (cornell-blocks' open side, z = 5.592)
 //! so that no light escapes: a shot should then deliver all of its power,
@@ -42,6 +48,9 @@ fn main() -> Result<()> {
     let (mut density, mut direct, mut gather, mut close) = (1.0f32, false, false, false);
     let mut gpu_options = gpu::ProgressiveOptions::default();
     let mut dump: Vec<String> = Vec::new();
+    let mut polish = 0u32;
+    let mut correct = 0u32;
+    let mut gather_options = gpu::GatherOptions::default();
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -63,12 +72,26 @@ fn main() -> Result<()> {
             }
             "--dump" => dump.push(args.next().context("--dump needs a surface name")?),
             "--gather" => gather = true,
+            "--gather-resolution" => {
+                let v = args.next().context("--gather-resolution needs a number")?;
+                gather_options.hemicube_resolution = v
+                    .parse()
+                    .with_context(|| format!("--gather-resolution {v}"))?;
+            }
+            "--correct" => {
+                let v = args.next().context("--correct needs a number")?;
+                correct = v.parse().with_context(|| format!("--correct {v}"))?;
+            }
+            "--polish" => {
+                let v = args.next().context("--polish needs a number")?;
+                polish = v.parse().with_context(|| format!("--polish {v}"))?;
+            }
             flag if flag.starts_with("--") => bail!("unknown option {flag}"),
             path => scene_path = Some(PathBuf::from(path)),
         }
     }
     let path = scene_path.context(
-        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather] [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]...",
+        "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather] [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]... [--correct N] [--polish N] [--gather-resolution PIXELS]",
     )?;
     let options = LoadOptions {
         density_scale: density,
@@ -112,8 +135,7 @@ fn main() -> Result<()> {
     let device = gpu::Device::new(None)?;
     let values = if gather {
         let setup = std::time::Instant::now();
-        let mut solver =
-            gpu::GatherSolver::new(&device, &scene, &atlas, &poses, Default::default())?;
+        let mut solver = gpu::GatherSolver::new(&device, &scene, &atlas, &poses, gather_options)?;
         let setup = setup.elapsed().as_secs_f64();
         let started = std::time::Instant::now();
         if direct {
@@ -146,7 +168,41 @@ fn main() -> Result<()> {
             balance.received,
             balance.received / balance.shot
         );
-        solver.radiosity()?
+        let mut b = solver.radiosity()?;
+        if correct > 0 {
+            let keep = validity.keep();
+            let started = std::time::Instant::now();
+            let mut correction =
+                gpu::Correction::new(&device, &scene, &atlas, &poses, gather_options)?;
+            for k in 1..=correct {
+                let report = correction.round(&mut solver, 1e-4)?;
+                b = solver.radiosity()?;
+                if let Some(a) = accuracy_where(&atlas, &b, &expected, &keep) {
+                    println!(
+                        "correction {k}: {:.3} s, {} shots, residual {:.2e}, {a}",
+                        started.elapsed().as_secs_f64(),
+                        report.shots,
+                        report.residual_fraction
+                    );
+                }
+            }
+        }
+        if polish > 0 {
+            let keep = validity.keep();
+            let started = std::time::Instant::now();
+            let mut g = gpu::GatherSolver::new(&device, &scene, &atlas, &poses, gather_options)?;
+            g.start_from(&b);
+            for k in 1..=polish {
+                g.bounce()?;
+                let v = g.radiosity()?;
+                if let Some(a) = accuracy_where(&atlas, &v, &expected, &keep) {
+                    println!("polish {k}: {:.3} s, {a}", started.elapsed().as_secs_f64());
+                }
+            }
+            g.radiosity()?
+        } else {
+            b
+        }
     };
 
     let overall = accuracy_where(&atlas, &values, &expected, validity.keep())

@@ -225,7 +225,10 @@ fn bench_solve_writes_times_nrmse_and_reference_time_at_equal_nrmse() {
     assert!(scenes[0]["adapter"].as_str().is_some_and(|a| !a.is_empty()));
     let solvers = scenes[0]["solvers"].as_array().expect("solvers");
     let names: Vec<&str> = solvers.iter().filter_map(|s| s["name"].as_str()).collect();
-    assert_eq!(names, ["progressive", "reference", "gather"]);
+    assert_eq!(
+        names,
+        ["progressive", "progressive+2corr", "reference", "gather"]
+    );
     for s in solvers {
         let name = &s["name"];
         let mut last = 0.0;

@@ -26,7 +26,7 @@ use std::time::Instant;
 use glam::{DVec3, Vec3};
 use lightwire_server::atlas::Atlas;
 use lightwire_server::gpu::{
-    Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver,
+    Correction, Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver,
 };
 use lightwire_server::pathtrace::{self, Estimate, PathTracer, SurfacePoint};
 use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
@@ -349,6 +349,46 @@ fn progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
         raw.darkest,
         verdict.darkest
     );
+}
+
+/// The progressive GPU solver with two gathered corrections
+/// ([`lightwire_server::gpu::Correction`], as `lightwire bake` runs it):
+/// none darker than half the path tracer (see `assert_contract`).
+#[test]
+fn corrected_progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
+    let setup = setup();
+    let gpu = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
+    let started = Instant::now();
+    let mut solver = ProgressiveSolver::new(
+        &gpu,
+        &setup.scene,
+        &setup.atlas,
+        &setup.poses,
+        ProgressiveOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let mut correction = Correction::new(
+        &gpu,
+        &setup.scene,
+        &setup.atlas,
+        &setup.poses,
+        GatherOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    for round in 1..=2 {
+        let report = correction
+            .round(&mut solver, 1e-4)
+            .unwrap_or_else(|e| panic!("{e}"));
+        eprintln!("correction {round}: {report:?}");
+    }
+    let values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    eprintln!(
+        "corrected progressive: {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    let verdict = check(setup, "corrected progressive", values, true);
+    assert_contract(&verdict, "corrected progressive", setup.contacts.len());
 }
 
 /// The gather GPU solver converged to a change of 1e-4 of the emitted power

@@ -448,8 +448,16 @@ impl GatherSolver {
         };
         let readable = storage | wgpu::BufferUsages::COPY_SRC;
         let radiosity = [
-            init("gather radiosity 0", bytemuck::cast_slice(&start), readable),
-            init("gather radiosity 1", bytemuck::cast_slice(&start), readable),
+            init(
+                "gather radiosity 0",
+                bytemuck::cast_slice(&start),
+                readable | wgpu::BufferUsages::COPY_DST,
+            ),
+            init(
+                "gather radiosity 1",
+                bytemuck::cast_slice(&start),
+                readable | wgpu::BufferUsages::COPY_DST,
+            ),
         ];
         let irradiance = init(
             "gather irradiance",
@@ -595,6 +603,29 @@ impl GatherSolver {
             gather_groups: [gather0, gather1],
             total_change,
         })
+    }
+
+    /// Replaces the radiosity the next bounce gathers from with `b` (one
+    /// value per element, atlas order), e.g. a progressive solution to be
+    /// refined by gathering. A running bounce starts over.
+    ///
+    /// # Panics
+    /// If `b` does not hold one value per element.
+    pub fn start_from(&mut self, b: &[Vec3]) {
+        assert_eq!(
+            b.len(),
+            self.element_count as usize,
+            "one value per element"
+        );
+        let values: Vec<[f32; 4]> = b.iter().map(|v| v4(*v, 0.0)).collect();
+        if !values.is_empty() {
+            self.queue.write_buffer(
+                &self.radiosity[self.current],
+                0,
+                bytemuck::cast_slice(&values),
+            );
+        }
+        self.next_element = 0;
     }
 
     /// Emitted power `Σ A_e E_e` (W, channels summed).

@@ -49,10 +49,12 @@
 //! - `shaders.rs`: the WGSL modules;
 //! - `progressive/`: progressive refinement and redistribution;
 //! - `gather.rs`: gather radiosity;
+//! - `correct.rs`: gather sweeps that correct a progressive solution;
 //! - `dynamic.rs`: the solver session that follows moves.
 
 mod binding;
 mod buffers;
+mod correct;
 mod device;
 mod dynamic;
 mod gather;
@@ -61,6 +63,7 @@ mod placement;
 mod progressive;
 mod shaders;
 
+pub use correct::{Correction, CorrectionReport};
 pub use device::{Device, GpuError};
 pub use dynamic::{DynamicOptions, DynamicSolver, DynamicStep};
 pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};

@@ -19,6 +19,7 @@ pub(crate) struct SolveSettings {
     pub(crate) hemicube_resolution: Option<u32>,
     pub(crate) indirect_only: bool,
     pub(crate) spp: Option<u32>,
+    pub(crate) corrections: Option<u32>,
 }
 
 /// Prints solver progress to stderr: every 10% of the form factors or of
@@ -105,6 +106,7 @@ pub(crate) fn bake_command(
         hemicube_resolution: settings.hemicube_resolution,
         indirect_only: settings.indirect_only,
         spp: settings.spp,
+        corrections: settings.corrections,
     };
     let mut solver = solver::build(kind, &scene, &atlas, &poses, &solver_settings, &progress)?;
     solver.solve(tolerance)?;

@@ -65,6 +65,11 @@ enum Command {
         /// Path tracer: paths per element [default: 256].
         #[arg(long)]
         spp: Option<u32>,
+        /// Progressive: gathered correction rounds after refinement (each
+        /// gathers once and refines what that changed; 0 = refinement only)
+        /// [default: 2].
+        #[arg(long)]
+        corrections: Option<u32>,
     },
     /// Benchmarks (run the release build).
     Bench {
@@ -174,6 +179,7 @@ fn main() -> ExitCode {
             hemicube_resolution,
             indirect_only,
             spp,
+            corrections,
         } => bake_command(
             scene,
             solver,
@@ -185,6 +191,7 @@ fn main() -> ExitCode {
                 hemicube_resolution,
                 indirect_only,
                 spp,
+                corrections,
             },
         ),
         Command::Validate {

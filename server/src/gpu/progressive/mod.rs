@@ -558,6 +558,43 @@ impl ProgressiveSolver {
         Ok(())
     }
 
+    /// Adds `delta` (one value per element, atlas order) to every valid
+    /// element's radiosity and unshot radiosity, and selects the next
+    /// shooter anew: refinement then carries the change to the rest of the
+    /// scene. Negative values are shot like positive ones (thesis §2.2.5).
+    ///
+    /// # Panics
+    /// If `delta` does not hold one value per element.
+    pub fn add_unshot(&mut self, delta: &[Vec3]) -> Result<(), GpuError> {
+        assert_eq!(
+            delta.len(),
+            self.element_count as usize,
+            "one value per element"
+        );
+        let mut b = self.read_vec4(&self.buffers.radiosity)?;
+        let mut u = self.read_vec4(&self.buffers.unshot)?;
+        for (i, d) in delta.iter().enumerate() {
+            if self.validity.is_invalid(i) {
+                continue;
+            }
+            for c in 0..3 {
+                b[i][c] += d[c];
+                u[i][c] += d[c];
+            }
+        }
+        if !b.is_empty() {
+            self.queue
+                .write_buffer(&self.buffers.radiosity, 0, bytemuck::cast_slice(&b));
+            self.queue
+                .write_buffer(&self.buffers.unshot, 0, bytemuck::cast_slice(&u));
+        }
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        self.encode_selection(&mut encoder);
+        self.queue.submit([encoder.finish()]);
+        self.selection = self.read_selection()?;
+        Ok(())
+    }
+
     /// Radiosity B per element (W/m² per channel), direct light included.
     pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
         Ok(self

@@ -1,0 +1,126 @@
+//! Gathered correction of a progressive solution (defect correction).
+//!
+//! Progressive refinement is fast, but each of its shots sees its receivers
+//! through one hemicube eye per shooter tile with a yes-or-no visibility
+//! lookup: the light it delivers is noisy from texel to texel near
+//! occluders and slightly short overall (BENCHMARKS.md, issue 15: 2-4%
+//! NRMSE against the reference on the Cornell scenes). Gathering (thesis
+//! §4.2) integrates a whole hemicube per receiver and is accurate, but
+//! needs a dozen full sweeps from `B = E`.
+//!
+//! A correction round uses each for what it does well. With `G` one gather
+//! sweep (`G(B) = E + ρ (D + ∫ (B - E))`, the affine map whose fixed point
+//! is the gather solution) and `B_p` the progressive solution, the residual
+//! `r = G(B_p) - B_p` is what `B_p` lacks after one more accurate bounce.
+//! The error `e = B* - B_p` solves `e = r + K e`, with `K` the linear part
+//! of `G`. Shooting `r` as unshot radiosity with the progressive solver
+//! solves the same equation with the progressive transport `K'` instead of
+//! `K`, so what remains after a round is about `(K' - K) e`: the
+//! progressive solver's relative error applied to an error that is already
+//! small. Iterative refinement of a linear system, with the cheap operator
+//! inside and the accurate one for the residual (as in Cohen and Wallace's
+//! use of a final gather after progressive refinement, here iterated).
+//!
+//! Measured (BENCHMARKS.md, "Issue 15: gathered corrections"): two rounds
+//! take cornell-blocks from 4.09% to 0.55% and cornell-large from 2.37% to
+//! 0.74% at the files' densities, converging to the gather solver's own
+//! accuracy in a fraction of its time.
+//!
+//! The gather solver is built at the progressive solver's poses and does
+//! not follow moves: corrections serve solves at fixed poses (`bake`,
+//! `bench solve`).
+
+use glam::Vec3;
+
+use super::device::{Device, GpuError};
+use super::gather::{GatherOptions, GatherSolver};
+use super::placement::world_areas;
+use super::progressive::ProgressiveSolver;
+use crate::atlas::Atlas;
+use crate::scene::{Pose, Scene};
+
+/// What one correction round did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CorrectionReport {
+    /// Power of the residual `Σ A |r|` (channels summed) as a fraction of
+    /// the emitted power: how far the solution was from a gather sweep's
+    /// fixed point before the round.
+    pub residual_fraction: f64,
+    /// Shooters the progressive solver shot to spread the residual, in
+    /// this many batches.
+    pub shots: u64,
+    pub batches: u64,
+}
+
+/// Gather sweeps that correct a [`ProgressiveSolver`]'s solution.
+pub struct Correction {
+    gather: GatherSolver,
+    /// World area per element.
+    areas: Vec<f32>,
+    emitted: f64,
+}
+
+impl Correction {
+    /// Builds the gather sweep for `scene` at `poses`, which must be the
+    /// poses the corrected solver was built at. `options.indirect_only` is
+    /// ignored: a correction needs the whole radiosity.
+    pub fn new(
+        gpu: &Device,
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        options: GatherOptions,
+    ) -> Result<Self, GpuError> {
+        let options = GatherOptions {
+            indirect_only: false,
+            ..options
+        };
+        let gather = GatherSolver::new(gpu, scene, atlas, poses, options)?;
+        let local: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
+        let objects: Vec<u32> = atlas
+            .elements
+            .iter()
+            .map(|e| scene.patches[e.patch as usize].object)
+            .collect();
+        let areas = world_areas(&local, &objects, poses);
+        let emitted = gather.emitted_power();
+        Ok(Self {
+            gather,
+            areas,
+            emitted,
+        })
+    }
+
+    /// One round: a gather sweep from `solver`'s radiosity, its difference
+    /// handed to `solver` as unshot radiosity, and progressive refinement
+    /// until the unshot power is at most `threshold` of the emitted power.
+    pub fn round(
+        &mut self,
+        solver: &mut ProgressiveSolver,
+        threshold: f64,
+    ) -> Result<CorrectionReport, GpuError> {
+        let b = solver.total_radiosity()?;
+        self.gather.start_from(&b);
+        self.gather.bounce()?;
+        let gathered = self.gather.total_radiosity()?;
+        let residual: Vec<Vec3> = gathered.iter().zip(&b).map(|(g, b)| *g - *b).collect();
+        let valid = solver.validity();
+        let power: f64 = residual
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| !valid.is_invalid(*i))
+            .map(|(i, r)| f64::from(self.areas[i]) * f64::from(r.abs().element_sum()))
+            .sum();
+        solver.add_unshot(&residual)?;
+        let report = solver.solve(threshold)?;
+        Ok(CorrectionReport {
+            residual_fraction: if self.emitted > 0.0 {
+                power / self.emitted
+            } else {
+                0.0
+            },
+            shots: report.shots,
+            batches: report.batches,
+        })
+    }
+}
