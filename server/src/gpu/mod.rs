@@ -48,7 +48,9 @@
 //! - `shaders.rs`: the WGSL modules;
 //! - `progressive/`: progressive refinement and redistribution;
 //! - `gather.rs`: gather radiosity;
-//! - `dynamic.rs`: the solver session that follows moves.
+//! - `dynamic.rs`: the solver session that follows moves;
+//! - `profile.rs`: where that session's time goes, per stage (profiling
+//!   only).
 
 mod binding;
 mod buffers;
@@ -57,6 +59,7 @@ mod dynamic;
 mod gather;
 mod hemicube;
 mod placement;
+pub mod profile;
 mod progressive;
 mod shaders;
 
