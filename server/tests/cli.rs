@@ -304,7 +304,7 @@ fn bench_dynamic_profile_writes_the_breakdown_per_method() {
             for key in ["unit", "stage", "clock"] {
                 assert!(s[key].is_string(), "{key}: {s}");
             }
-            for key in ["ms", "share"] {
+            for key in ["ms", "share", "count"] {
                 assert!(s[key].as_f64().is_some_and(|v| v >= 0.0), "{key}: {s}");
             }
         }

@@ -174,6 +174,8 @@ pub struct StageProfile {
     pub ms: f64,
     /// `ms` over the median frame.
     pub share: f64,
+    /// Median times per frame the stage was timed (batches, passes).
+    pub count: f64,
 }
 
 impl MethodProfile {
@@ -201,6 +203,12 @@ impl MethodProfile {
                     .map(|f| f.stages.get(&(unit, stage)).map_or(0.0, |d| ms(*d)))
                     .collect();
                 let value = median(each);
+                let count = median(
+                    frames
+                        .iter()
+                        .map(|f| f.counts.get(&(unit, stage)).map_or(0.0, |n| f64::from(*n)))
+                        .collect(),
+                );
                 stages.push(StageProfile {
                     unit: unit.name(),
                     stage: stage.name(),
@@ -211,6 +219,7 @@ impl MethodProfile {
                     } else {
                         0.0
                     },
+                    count,
                 });
             }
         }
@@ -240,15 +249,16 @@ pub fn profile_table(result: &SceneResult) -> String {
             p.gpu_stages_ms,
             p.cpu_stages_ms
         );
-        out += "| unit | stage | clock | ms/frame (median) | share |\n| --- | --- | --- | --- | --- |\n";
+        out += "| unit | stage | clock | ms/frame (median) | share | times/frame |\n| --- | --- | --- | --- | --- | --- |\n";
         for s in &p.stages {
             out += &format!(
-                "| {} | {} | {} | {:.2} | {:.1}% |\n",
+                "| {} | {} | {} | {:.2} | {:.1}% | {} |\n",
                 s.unit,
                 s.stage,
                 s.clock,
                 s.ms,
-                s.share * 100.0
+                s.share * 100.0,
+                s.count
             );
         }
     }

@@ -241,6 +241,8 @@ pub struct FrameProfile {
     pub wall: Duration,
     /// Time per unit and stage; stages that did not run are absent.
     pub stages: BTreeMap<(Unit, Stage), Duration>,
+    /// How many times each of them was timed (batches, readbacks, ...).
+    pub counts: BTreeMap<(Unit, Stage), u32>,
 }
 
 impl FrameProfile {
@@ -269,6 +271,7 @@ struct State {
     unit: Unit,
     frame_started: Instant,
     stages: BTreeMap<(Unit, Stage), Duration>,
+    counts: BTreeMap<(Unit, Stage), u32>,
     /// The device, to submit and wait (CPU clock) and to write timestamps.
     gpu: Option<(wgpu::Device, wgpu::Queue)>,
     /// CPU clock: when the open GPU span began.
@@ -310,6 +313,7 @@ impl Profiler {
             unit: Unit::Move,
             frame_started: Instant::now(),
             stages: BTreeMap::new(),
+            counts: BTreeMap::new(),
             gpu,
             span_started: None,
             timestamps: Timestamps::default(),
@@ -349,7 +353,7 @@ impl Profiler {
     pub fn stop(&self, started: Option<Instant>, stage: Stage) {
         if let (Some(started), Some(mut s)) = (started, self.state()) {
             let unit = s.unit;
-            *s.stages.entry((unit, stage)).or_default() += started.elapsed();
+            s.add(unit, stage, started.elapsed());
         }
     }
 
@@ -363,7 +367,7 @@ impl Profiler {
                 let waited = Instant::now();
                 s.wait_idle();
                 let unit = s.unit;
-                *s.stages.entry((unit, Stage::Wait)).or_default() += waited.elapsed();
+                s.add(unit, Stage::Wait, waited.elapsed());
                 s.span_started = Some(Instant::now());
             }
             Clock::Gpu => {
@@ -391,7 +395,7 @@ impl Profiler {
                 s.wait_idle();
                 let now = Instant::now();
                 if let Some(started) = s.span_started.replace(now) {
-                    *s.stages.entry((unit, stage)).or_default() += now - started;
+                    s.add(unit, stage, now - started);
                 }
             }
             Clock::Gpu => {
@@ -414,7 +418,7 @@ impl Profiler {
         s.wait_idle();
         if s.clock == Clock::Cpu {
             let unit = s.unit;
-            *s.stages.entry((unit, Stage::Wait)).or_default() += waited.elapsed();
+            s.add(unit, Stage::Wait, waited.elapsed());
         }
     }
 
@@ -422,6 +426,7 @@ impl Profiler {
     pub fn begin_frame(&self) {
         if let Some(mut s) = self.state() {
             s.stages.clear();
+            s.counts.clear();
             s.timestamps.used = 0;
             s.timestamps.open = None;
             s.timestamps.spans.clear();
@@ -448,17 +453,23 @@ impl Profiler {
             for (unit, stage, first, last) in spans {
                 let (a, b) = (ticks[first as usize], ticks[last as usize]);
                 let ns = b.saturating_sub(a) as f64 * f64::from(period);
-                *s.stages.entry((unit, stage)).or_default() += Duration::from_nanos(ns as u64);
+                s.add(unit, stage, Duration::from_nanos(ns as u64));
             }
         }
         Ok(Some(FrameProfile {
             wall,
             stages: std::mem::take(&mut s.stages),
+            counts: std::mem::take(&mut s.counts),
         }))
     }
 }
 
 impl State {
+    fn add(&mut self, unit: Unit, stage: Stage, time: Duration) {
+        *self.stages.entry((unit, stage)).or_default() += time;
+        *self.counts.entry((unit, stage)).or_default() += 1;
+    }
+
     fn wait_idle(&self) {
         if let Some((device, _)) = &self.gpu {
             // A failed wait shows up in the solver's own next readback.
@@ -563,6 +574,7 @@ mod tests {
                 (Unit::Publication, Stage::Encode)
             ]
         );
+        assert_eq!(frame.counts[&(Unit::Move, Stage::JobSetup)], 2);
         assert!(frame.sum(|_| true) <= frame.wall);
         p.begin_frame();
         let next = p.end_frame().expect("no GPU").expect("enabled");
