@@ -131,10 +131,20 @@ pub async fn request_device(
     adapter: &wgpu::Adapter,
     label: &str,
 ) -> Result<(wgpu::Device, wgpu::Queue), AdapterError> {
+    request_device_with(adapter, label, wgpu::Features::empty()).await
+}
+
+/// [`request_device`] with those of the optional `features` that the
+/// adapter has (the others are left out, never an error).
+pub async fn request_device_with(
+    adapter: &wgpu::Adapter,
+    label: &str,
+    features: wgpu::Features,
+) -> Result<(wgpu::Device, wgpu::Queue), AdapterError> {
     adapter
         .request_device(&wgpu::DeviceDescriptor {
             label: Some(label),
-            required_features: wgpu::Features::empty(),
+            required_features: features & adapter.features(),
             required_limits: adapter.limits(),
             memory_hints: wgpu::MemoryHints::Performance,
             ..Default::default()

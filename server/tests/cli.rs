@@ -260,6 +260,83 @@ fn bench_solve_writes_times_nrmse_and_reference_time_at_equal_nrmse() {
     }
 }
 
+/// `bench dynamic --profile` (issue 19) adds to each redistribution
+/// method's JSON where its frames' time went: the clock, and per unit and
+/// stage the median milliseconds and share of the frame, with cross
+/// redistribution's passes and the publication (readback, encode) named.
+#[test]
+fn bench_dynamic_profile_writes_the_breakdown_per_method() {
+    let dir = std::env::temp_dir().join(format!("lightwire-bench-profile-{}", std::process::id()));
+    let json = dir.join("dynamic.json");
+    let scene = repo().join("scenes/cornell-low.json");
+    let out = lightwire(&[
+        "bench",
+        "dynamic",
+        "--profile",
+        "--scene",
+        scene.to_str().expect("utf-8"),
+        "--density-scale",
+        "0.25",
+        "--frames",
+        "1",
+        "--methods",
+        "progressive,cross",
+        "--out",
+        dir.to_str().expect("utf-8"),
+        "--json",
+        json.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    std::fs::remove_dir_all(&dir).ok();
+    let methods = report[0]["methods"].as_array().expect("methods");
+    assert_eq!(methods.len(), 2, "{report}");
+    for m in methods {
+        let p = &m["profile"];
+        assert!(
+            ["gpu", "cpu"].contains(&p["clock"].as_str().expect("clock")),
+            "{p}"
+        );
+        assert_eq!(p["frames"], 1, "{p}");
+        for key in ["frame_ms", "gpu_stages_ms", "cpu_stages_ms"] {
+            assert!(p[key].as_f64().is_some_and(|v| v >= 0.0), "{key}: {p}");
+        }
+        let stages = p["stages"].as_array().expect("stages");
+        for s in stages {
+            for key in ["unit", "stage", "clock"] {
+                assert!(s[key].is_string(), "{key}: {s}");
+            }
+            for key in ["ms", "share", "count"] {
+                assert!(s[key].as_f64().is_some_and(|v| v >= 0.0), "{key}: {s}");
+            }
+        }
+        let named = |unit: &str, stage: &str| {
+            stages
+                .iter()
+                .any(|s| s["unit"] == unit && s["stage"] == stage)
+        };
+        assert!(named("publication", "readback"), "{p}");
+        assert!(named("publication", "encode"), "{p}");
+        if m["name"] == "cross" {
+            for stage in [
+                "item buffers",
+                "back hemicubes",
+                "cross projection + reprojection",
+            ] {
+                assert!(named("move", stage), "{stage}: {p}");
+            }
+        } else {
+            assert!(named("move", "solver setup"), "{p}");
+            assert!(named("refinement", "batches"), "{p}");
+        }
+    }
+    assert!(
+        text(&out.stdout).contains("| unit | stage | clock |"),
+        "the breakdown is printed as a table"
+    );
+}
+
 /// User errors on the command line are reported without a panic.
 #[test]
 fn command_line_errors_are_clear() {

@@ -20,6 +20,15 @@
 //! 1e-5 — by [`crate::metrics::accuracy`] (NRMSE and p95 relative error
 //! over the non-emitting elements), and written as an atlas PNG with a x5 difference image (thesis
 //! Fig. 5.2.1(f)), all at the reference's exposure.
+//!
+//! With `--profile` (issue 19) each redistribution method's frames are also
+//! broken down by unit and stage ([`crate::gpu::profile`]): after each
+//! frame the state is published as the service publishes a version (read
+//! back, invalid texels filled, `Encoder::publish`'s delta), which the
+//! breakdown counts as the publication unit; the milliseconds per frame
+//! above stay the solver's alone. Profiling adds no work to the solver and
+//! changes nothing it computes, so NRMSE and p95 are those of an
+//! unprofiled run.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -28,7 +37,9 @@ use anyhow::{Context, Result};
 use glam::{Quat, Vec3};
 use serde::Serialize;
 
+use crate::atlas::Atlas;
 use crate::bake::{white_point, write_png_with};
+use crate::gpu::profile::{Clock, FrameProfile, Profiler, Stage, Unit};
 use crate::gpu::{
     Device, DynamicOptions, DynamicSolver, GatherOptions, GatherSolver, ProgressiveOptions,
     ProgressiveSolver, Redistribution,
@@ -38,6 +49,8 @@ use crate::metrics::accuracy_where;
 use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
 use crate::scene::{LoadOptions, Pose};
 use crate::validity::Validity;
+use lightwire_protocol::lightmap::Encoder;
+use lightwire_protocol::{DEFAULT_TILE_SIZE, PixelFormat};
 
 /// A method the benchmark compares (thesis Table 5.2's rows).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -94,6 +107,10 @@ pub struct Settings {
     pub gather: GatherOptions,
     /// Where the images go (one directory per scene inside).
     pub out: PathBuf,
+    /// Break each redistribution method's frames down by stage with this
+    /// clock (GPU timestamps fall back to CPU timing where the adapter has
+    /// none); `None`: no breakdown.
+    pub profile: Option<Clock>,
 }
 
 /// One scene's results, in the `--json` shape the issue asks for.
@@ -125,6 +142,168 @@ pub struct MethodResult {
     /// 95th percentile of the last frame's per-element relative error
     /// against the reference (same elements).
     pub p95_rel: f64,
+    /// With `--profile`: where the frames' time went.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub profile: Option<MethodProfile>,
+}
+
+/// A method's frames broken down by unit and stage (`--profile`).
+#[derive(Debug, Serialize)]
+pub struct MethodProfile {
+    /// "gpu" (timestamp queries) or "cpu" (submit and wait per stage).
+    pub clock: Clock,
+    pub frames: usize,
+    /// Median wall milliseconds per frame, the publication included.
+    pub frame_ms: f64,
+    /// Every unit and stage that ran in some frame, in report order.
+    pub stages: Vec<StageProfile>,
+    /// Medians over the frames of the per-frame sums of the GPU stages and
+    /// of the CPU stages. With the GPU clock the two overlap in time.
+    pub gpu_stages_ms: f64,
+    pub cpu_stages_ms: f64,
+}
+
+/// One unit's stage of a [`MethodProfile`].
+#[derive(Debug, Serialize)]
+pub struct StageProfile {
+    pub unit: &'static str,
+    pub stage: &'static str,
+    /// "gpu" when timed by GPU timestamps, else "cpu".
+    pub clock: &'static str,
+    /// Median over the frames (a frame without it counts 0).
+    pub ms: f64,
+    /// `ms` over the median frame.
+    pub share: f64,
+    /// Median times per frame the stage was timed (batches, passes).
+    pub count: f64,
+}
+
+impl MethodProfile {
+    fn new(clock: Clock, frames: &[FrameProfile]) -> Self {
+        let median = |mut v: Vec<f64>| -> f64 {
+            v.sort_by(f64::total_cmp);
+            let n = v.len();
+            match n {
+                0 => 0.0,
+                _ if n % 2 == 1 => v[n / 2],
+                _ => (v[n / 2 - 1] + v[n / 2]) / 2.0,
+            }
+        };
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        let frame_ms = median(frames.iter().map(|f| ms(f.wall)).collect());
+        let on_gpu = |s: Stage| s.is_gpu() && clock == Clock::Gpu;
+        let mut stages = Vec::new();
+        for unit in Unit::ALL {
+            for stage in Stage::ALL {
+                if !frames.iter().any(|f| f.stages.contains_key(&(unit, stage))) {
+                    continue;
+                }
+                let each = frames
+                    .iter()
+                    .map(|f| f.stages.get(&(unit, stage)).map_or(0.0, |d| ms(*d)))
+                    .collect();
+                let value = median(each);
+                let count = median(
+                    frames
+                        .iter()
+                        .map(|f| f.counts.get(&(unit, stage)).map_or(0.0, |n| f64::from(*n)))
+                        .collect(),
+                );
+                stages.push(StageProfile {
+                    unit: unit.name(),
+                    stage: stage.name(),
+                    clock: if on_gpu(stage) { "gpu" } else { "cpu" },
+                    ms: value,
+                    share: if frame_ms > 0.0 {
+                        value / frame_ms
+                    } else {
+                        0.0
+                    },
+                    count,
+                });
+            }
+        }
+        Self {
+            clock,
+            frames: frames.len(),
+            frame_ms,
+            stages,
+            gpu_stages_ms: median(frames.iter().map(|f| ms(f.sum(on_gpu))).collect()),
+            cpu_stages_ms: median(frames.iter().map(|f| ms(f.sum(|s| !on_gpu(s)))).collect()),
+        }
+    }
+}
+
+/// The `--profile` tables of one scene, as Markdown.
+pub fn profile_table(result: &SceneResult) -> String {
+    let mut out = String::new();
+    for m in &result.methods {
+        let Some(p) = &m.profile else { continue };
+        out += &format!(
+            "\n{} {} ({}, {} frames): {:.1} ms per frame with publication; GPU stages {:.1} ms, CPU stages {:.1} ms\n\n",
+            result.scene,
+            m.name,
+            p.clock.name(),
+            p.frames,
+            p.frame_ms,
+            p.gpu_stages_ms,
+            p.cpu_stages_ms
+        );
+        out += "| unit | stage | clock | ms/frame (median) | share | times/frame |\n| --- | --- | --- | --- | --- | --- |\n";
+        for s in &p.stages {
+            out += &format!(
+                "| {} | {} | {} | {:.2} | {:.1}% | {} |\n",
+                s.unit,
+                s.stage,
+                s.clock,
+                s.ms,
+                s.share * 100.0,
+                s.count
+            );
+        }
+    }
+    out
+}
+
+/// What the service does with each completed state, for the profile's
+/// publication unit: read back, fill invalid texels, encode the delta.
+struct Publication {
+    encoder: Encoder,
+}
+
+impl Publication {
+    fn new(atlas: &Atlas) -> Self {
+        Self {
+            // The service's lightmap format and tile size, and
+            // `lightwire serve`'s default error budget.
+            encoder: Encoder::new(
+                atlas.width,
+                atlas.height,
+                DEFAULT_TILE_SIZE,
+                PixelFormat::Rgb9e5,
+                1.0 / 64.0,
+            ),
+        }
+    }
+
+    fn publish(
+        &mut self,
+        session: &DynamicSolver<u32>,
+        atlas: &Atlas,
+        profile: &Profiler,
+    ) -> Result<()> {
+        profile.set_unit(Unit::Publication);
+        profile.sync();
+        let readback = profile.start();
+        let mut values = session.radiosity()?;
+        profile.stop(readback, Stage::Readback);
+        let encode = profile.start();
+        session.progressive().validity().dilate(atlas, &mut values);
+        let image = atlas.to_image(&values);
+        std::hint::black_box(self.encoder.publish(&image, Vec::new()));
+        profile.stop(encode, Stage::Encode);
+        Ok(())
+    }
 }
 
 fn median_ms(times: &mut [Duration]) -> (f64, f64, f64) {
@@ -271,6 +450,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             frames: times.len(),
             nrmse,
             p95_rel,
+            profile: None,
         });
         write_images("gather", &values, &against)?;
     }
@@ -290,13 +470,31 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         };
         let mut session = DynamicSolver::new(gpu, &scene, &atlas, &start, 0, options)?;
         settle(&mut session)?;
+        let profiler = settings
+            .profile
+            .map_or_else(Profiler::disabled, |clock| Profiler::new(gpu, clock));
+        session.set_profiler(profiler.clone());
+        let mut publication = profiler.is_enabled().then(|| Publication::new(&atlas));
+        if let Some(p) = &mut publication {
+            // The converged start, so that frames encode deltas.
+            p.publish(&session, &atlas, &Profiler::disabled())?;
+        }
         let mut times = Vec::new();
+        let mut profiles = Vec::new();
         for frame in 1..=frames {
+            profiler.begin_frame();
             let started = Instant::now();
             session.set_poses(&pose_at(frame), frame);
             settle(&mut session)?;
             times.push(started.elapsed());
+            if let Some(p) = &mut publication {
+                p.publish(&session, &atlas, &profiler)?;
+            }
+            profiles.extend(profiler.end_frame()?);
         }
+        let profile = profiler
+            .clock()
+            .map(|clock| MethodProfile::new(clock, &profiles));
         let values = session.radiosity()?;
         let (median, min, max) = median_ms(&mut times);
         eprintln!("  {name}: median {median:.1} ms per frame");
@@ -309,6 +507,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             frames: times.len(),
             nrmse,
             p95_rel,
+            profile,
         });
         write_images(name, &values, &expected)?;
     }

@@ -120,7 +120,12 @@ impl Device {
         let adapter = lightwire_adapter::choose(name).await?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        let (device, queue) = lightwire_adapter::request_device(&adapter, "lightwire").await?;
+        // Timestamp queries where the adapter has them, for profiling
+        // (`gpu::profile`); nothing else changes with or without them.
+        let timestamps =
+            wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS;
+        let (device, queue) =
+            lightwire_adapter::request_device_with(&adapter, "lightwire", timestamps).await?;
         let health = Arc::new(DeviceHealth::default());
         let lost = health.clone();
         device.set_device_lost_callback(move |reason, message| {

@@ -39,6 +39,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
+use super::profile::{Profiler, Stage, Unit};
 use super::progressive::{Move, ProgressiveOptions, ProgressiveSolver, Redistribution};
 use super::{Device, GpuError};
 use crate::atlas::Atlas;
@@ -133,6 +134,8 @@ pub struct DynamicSolver<T> {
     versions: u64,
     /// Incremental moves since the last full solve.
     since_anchor: u32,
+    /// Where the time goes (disabled unless profiling, `gpu::profile`).
+    profile: Profiler,
 }
 
 impl<T: Clone> DynamicSolver<T> {
@@ -187,7 +190,15 @@ impl<T: Clone> DynamicSolver<T> {
             static_unshot: 1.0,
             versions: 0,
             since_anchor: 0,
+            profile: Profiler::disabled(),
         })
+    }
+
+    /// Times the session's units and stages into `profile` from now on
+    /// (`gpu::profile`; benchmarks only).
+    pub fn set_profiler(&mut self, profile: Profiler) {
+        self.solver.set_profiler(profile.clone());
+        self.profile = profile;
     }
 
     /// The redistribution method.
@@ -304,6 +315,12 @@ impl<T: Clone> DynamicSolver<T> {
     /// caused by a move).
     fn advance(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
         let levels = self.options.publish_at;
+        self.profile.set_unit(match self.phase {
+            Phase::Idle | Phase::Moving(_) => Unit::Move,
+            Phase::Removing(_) => Unit::Removal,
+            Phase::Converging { .. } | Phase::Refining { .. } => Unit::Refinement,
+            Phase::Inserting(..) => Unit::Insertion,
+        });
         match std::mem::replace(&mut self.phase, Phase::Idle) {
             Phase::Idle => {
                 if let Some((poses, tag)) = self.pending.take() {
@@ -313,6 +330,7 @@ impl<T: Clone> DynamicSolver<T> {
                 if self.wants_refinement() {
                     match self.options.method {
                         Redistribution::Cross => {
+                            self.profile.set_unit(Unit::Removal);
                             let poses = self.solver.poses().to_vec();
                             let mv = self.solver.begin_move(
                                 &poses,
@@ -333,7 +351,9 @@ impl<T: Clone> DynamicSolver<T> {
                 if self.pending.is_some() && self.next_level > 0 {
                     return Ok((true, false));
                 }
+                let batches = self.profile.start();
                 let shot = self.solver.step(Duration::ZERO)?;
+                self.profile.stop(batches, Stage::Batches);
                 let unshot = shot.unshot_fraction;
                 let mut crossed = false;
                 while self.next_level < levels.len() && unshot <= levels[self.next_level] {
@@ -378,7 +398,9 @@ impl<T: Clone> DynamicSolver<T> {
                 Ok((true, false))
             }
             Phase::Refining { level, after_move } => {
+                let batches = self.profile.start();
                 let shot = self.solver.step(Duration::ZERO)?;
+                self.profile.stop(batches, Stage::Batches);
                 if shot.batches > 0 && shot.unshot_fraction > level {
                     self.phase = Phase::Refining { level, after_move };
                 } else {
@@ -393,6 +415,7 @@ impl<T: Clone> DynamicSolver<T> {
                         None => self.solver.poses().to_vec(),
                     };
                     let present = vec![false; poses.len()];
+                    self.profile.set_unit(Unit::Insertion);
                     let mv = self
                         .solver
                         .begin_move(&poses, &present, Redistribution::Cross)?;
@@ -428,6 +451,7 @@ impl<T: Clone> DynamicSolver<T> {
         match method {
             Redistribution::Full => {
                 self.since_anchor = 0;
+                let setup = self.profile.start();
                 self.solver = ProgressiveSolver::new(
                     &self.gpu,
                     &self.scene,
@@ -435,6 +459,8 @@ impl<T: Clone> DynamicSolver<T> {
                     &poses,
                     self.options.progressive,
                 )?;
+                self.profile.stop(setup, Stage::SolverSetup);
+                self.solver.set_profiler(self.profile.clone());
                 self.next_level = 0;
                 self.phase = Phase::Converging { after_move: true };
             }

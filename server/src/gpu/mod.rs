@@ -50,7 +50,9 @@
 //! - `progressive/`: progressive refinement and redistribution;
 //! - `gather.rs`: gather radiosity;
 //! - `correct.rs`: gather sweeps that correct a progressive solution;
-//! - `dynamic.rs`: the solver session that follows moves.
+//! - `dynamic.rs`: the solver session that follows moves;
+//! - `profile.rs`: where that session's time goes, per stage (profiling
+//!   only).
 
 mod binding;
 mod buffers;
@@ -60,6 +62,7 @@ mod dynamic;
 mod gather;
 mod hemicube;
 mod placement;
+pub mod profile;
 mod progressive;
 mod shaders;
 

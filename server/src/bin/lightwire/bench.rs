@@ -141,6 +141,9 @@ pub(crate) fn bench_dynamic_command(
         results.push(result);
     }
     eprintln!("images: {}", settings.out.display());
+    for result in &results {
+        print!("{}", bench::dynamic::profile_table(result));
+    }
     if let Some(json) = json {
         bench::write_json(&json, &results)?;
     }

@@ -158,6 +158,15 @@ enum BenchCommand {
         /// Use the adapter whose name contains this.
         #[arg(long)]
         adapter: Option<String>,
+        /// Break each redistribution method's frames down by stage (a
+        /// table per scene and method, and `profile` in the JSON).
+        #[arg(long)]
+        profile: bool,
+        /// Clock of the breakdown's GPU stages: gpu (timestamp queries,
+        /// CPU timing where the adapter has none) or cpu (submit and wait
+        /// per stage).
+        #[arg(long, value_enum, default_value = "gpu")]
+        profile_clock: gpu::profile::Clock,
     },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
@@ -227,6 +236,8 @@ fn main() -> ExitCode {
                     out,
                     json,
                     adapter,
+                    profile,
+                    profile_clock,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -239,6 +250,7 @@ fn main() -> ExitCode {
                 progressive: gpu::ProgressiveOptions::default(),
                 gather: gpu::GatherOptions::default(),
                 out,
+                profile: profile.then_some(profile_clock),
             },
             json,
             adapter.as_deref(),

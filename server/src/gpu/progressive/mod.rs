@@ -30,6 +30,7 @@ use super::placement::{
     self, ELEMENT_BYTES, INVALID_FLAG_OFFSET, LocalElement, PatchTable, WorldPatch, invalid_flag,
     pose_matrix, world_areas,
 };
+use super::profile::Profiler;
 use crate::atlas::Atlas;
 use crate::scene::{Pose, Scene};
 use crate::validity::Validity;
@@ -208,6 +209,8 @@ pub struct ProgressiveSolver {
     triangle_vertices: u32,
     /// Redistribution passes and targets, built on first use.
     dynamic: Option<redistribute::DynamicPasses>,
+    /// Where redistribution's time goes (disabled unless profiling).
+    profile: Profiler,
 }
 
 impl ProgressiveSolver {
@@ -356,6 +359,7 @@ impl ProgressiveSolver {
             pipelines,
             triangle_vertices,
             dynamic: None,
+            profile: Profiler::disabled(),
         };
         let current = solver.poses.clone();
         solver.write_poses(&current, &current, &[]);
@@ -427,6 +431,11 @@ impl ProgressiveSolver {
         } else {
             0.0
         }
+    }
+
+    /// Times redistribution's stages into `profile` (`gpu::profile`).
+    pub fn set_profiler(&mut self, profile: Profiler) {
+        self.profile = profile;
     }
 
     /// Shooters shot since the solver was created.

@@ -57,6 +57,7 @@ use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
 use crate::gpu::hemicube::{self, FACES};
 use crate::gpu::placement::{WorldPatch, world_areas};
+use crate::gpu::profile::Stage;
 use crate::gpu::shaders;
 use crate::scene::Pose;
 
@@ -356,6 +357,7 @@ impl ProgressiveSolver {
         absent: &[bool],
         method: Redistribution,
     ) -> Result<Move, GpuError> {
+        let setup = self.profile.start();
         let objects = self.poses.len();
         if poses.len() != objects || absent.len() != objects {
             return Err(GpuError::TooLarge(format!(
@@ -488,6 +490,7 @@ impl ProgressiveSolver {
                 }
             }
         }
+        self.profile.stop(setup, Stage::MoveSetup);
         Ok(mv)
     }
 
@@ -505,11 +508,13 @@ impl ProgressiveSolver {
                 // While M is still marked: the tiles' gathered light, read
                 // between tile centres, becomes the texels' radiosity.
                 let d = self.dynamic.as_ref().expect("built in begin_move");
+                self.profile.open(&mut encoder);
                 encode_compute(
                     &mut encoder,
                     &d.smooth,
                     self.element_count.div_ceil(WORKGROUP),
                 );
+                self.profile.mark(&mut encoder, Stage::Smoothing);
                 self.queue.submit([encoder.finish()]);
                 encoder = self.device.create_command_encoder(&Default::default());
             }
@@ -522,9 +527,14 @@ impl ProgressiveSolver {
                 // Incremental reshooting reaches them (tests/dynamic.rs).
                 self.regather.clear();
             }
+            self.profile.open(&mut encoder);
             self.encode_selection(&mut encoder);
+            self.profile.mark(&mut encoder, Stage::Selection);
             self.queue.submit([encoder.finish()]);
+            self.profile.sync();
+            let readback = self.profile.start();
             self.selection = self.read_selection()?;
+            self.profile.stop(readback, Stage::SelectionReadback);
             return Ok(false);
         }
         Ok(true)
@@ -550,6 +560,7 @@ impl ProgressiveSolver {
     }
 
     fn run_job(&mut self, mv: &Move, job: Job) -> Result<(), GpuError> {
+        let setup = self.profile.start();
         let old_patches = self.table.place(&mv.old_poses);
         let old_areas = world_areas(&self.local_areas, &self.element_objects, &mv.old_poses);
         let res = self.options.hemicube_resolution.max(1);
@@ -568,13 +579,18 @@ impl ProgressiveSolver {
                 let n = list.len() as u32;
                 self.upload(&list, self.batch_uniform(patch, n, 0, KIND_NEGATIVE));
                 let d = self.dynamic.as_ref().expect("built in begin_move");
+                self.profile.stop(setup, Stage::JobSetup);
+                self.profile.open(&mut encoder);
                 encode_compute(&mut encoder, &d.energy, n);
+                self.profile.mark(&mut encoder, Stage::ShooterEnergy);
                 self.encode_item_buffers(&mut encoder, n);
+                self.profile.mark(&mut encoder, Stage::ItemBuffers);
                 encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
                 );
+                self.profile.mark(&mut encoder, Stage::Reconstruct);
             }
             Job::Static { patch, shooters } => {
                 let wp = self.patches[patch as usize];
@@ -590,13 +606,18 @@ impl ProgressiveSolver {
                 list.extend_from_within(..);
                 self.upload(&list, self.batch_uniform(patch, n, n, KIND_STATIC));
                 let d = self.dynamic.as_ref().expect("built in begin_move");
+                self.profile.stop(setup, Stage::JobSetup);
+                self.profile.open(&mut encoder);
                 encode_compute(&mut encoder, &d.energy, n);
+                self.profile.mark(&mut encoder, Stage::ShooterEnergy);
                 self.encode_item_buffers(&mut encoder, 2 * n);
+                self.profile.mark(&mut encoder, Stage::ItemBuffers);
                 encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
                 );
+                self.profile.mark(&mut encoder, Stage::Reconstruct);
             }
             Job::Cross { first, count } => {
                 let tiles = &mv.tiles[first as usize..(first + count) as usize];
@@ -647,7 +668,10 @@ impl ProgressiveSolver {
                     .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&through));
                 self.queue
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
+                self.profile.stop(setup, Stage::JobSetup);
+                self.profile.open(&mut encoder);
                 self.encode_item_buffers(&mut encoder, 4 * count);
+                self.profile.mark(&mut encoder, Stage::ItemBuffers);
                 let clear = wgpu::Color::TRANSPARENT;
                 if has_new {
                     hemicube::encode(
@@ -663,6 +687,7 @@ impl ProgressiveSolver {
                         count,
                         self.triangle_vertices,
                     );
+                    self.profile.mark(&mut encoder, Stage::FrontHemicubes);
                 }
                 hemicube::encode(
                     &mut encoder,
@@ -677,12 +702,15 @@ impl ProgressiveSolver {
                     4 * count,
                     self.triangle_vertices,
                 );
+                self.profile.mark(&mut encoder, Stage::BackHemicubes);
                 encode_compute(&mut encoder, &d.gather, count);
+                self.profile.mark(&mut encoder, Stage::TileGather);
                 encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
                 );
+                self.profile.mark(&mut encoder, Stage::CrossProjection);
             }
         }
         self.queue.submit([encoder.finish()]);

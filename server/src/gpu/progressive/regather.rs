@@ -28,6 +28,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::super::device::GpuError;
+use super::super::profile::Stage;
 use super::ProgressiveSolver;
 use crate::atlas::Atlas;
 use crate::direct::{Emitters, element_at};
@@ -57,8 +58,12 @@ impl ProgressiveSolver {
         if elements.is_empty() {
             return Ok(());
         }
+        self.profile.sync();
+        let readback = self.profile.start();
         let radiosity = self.read_vec4(&self.buffers.radiosity)?;
         let unshot = self.read_vec4(&self.buffers.unshot)?;
+        self.profile.stop(readback, Stage::RegatherReadback);
+        let gathering = self.profile.start();
         let lit = gather(&self.scene, &self.atlas, &self.poses, &radiosity, &elements);
         for (&i, b) in elements.iter().zip(lit) {
             let (old, u) = (radiosity[i], unshot[i]);
@@ -75,6 +80,7 @@ impl ProgressiveSolver {
                 bytemuck::bytes_of(&[u[0] + delta.x, u[1] + delta.y, u[2] + delta.z, u[3]]),
             );
         }
+        self.profile.stop(gathering, Stage::Regather);
         Ok(())
     }
 }
