@@ -170,7 +170,7 @@ pub(crate) async fn open(url: &str, options: &Options) -> Result<Opened, ClientE
             }),
             Ok(other) => Err(handshake(format!(
                 "expected Welcome first, got {}",
-                message_name(&other)
+                other.name()
             ))),
             Err(e) => Err(handshake(format!(
                 "the first frame ({} bytes) does not decode: {e}",
@@ -188,17 +188,6 @@ fn describe_close(frame: Option<&tokio_tungstenite::tungstenite::protocol::Close
             f.reason.as_str()
         ),
         None => String::new(),
-    }
-}
-
-fn message_name(m: &ServerMessage) -> &'static str {
-    match m {
-        ServerMessage::Welcome { .. } => "Welcome",
-        ServerMessage::Keyframe(_) => "Keyframe",
-        ServerMessage::Delta(_) => "Delta",
-        ServerMessage::Stats(_) => "Stats",
-        ServerMessage::Error { .. } => "Error",
-        ServerMessage::Pong { .. } => "Pong",
     }
 }
 

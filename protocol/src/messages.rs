@@ -194,6 +194,20 @@ pub enum ServerMessage {
     },
 }
 
+impl ServerMessage {
+    /// The message's name as PROTOCOL.md spells it, for logs and errors.
+    pub fn name(&self) -> &'static str {
+        match self {
+            ServerMessage::Welcome { .. } => "Welcome",
+            ServerMessage::Keyframe(_) => "Keyframe",
+            ServerMessage::Delta(_) => "Delta",
+            ServerMessage::Stats(_) => "Stats",
+            ServerMessage::Error { .. } => "Error",
+            ServerMessage::Pong { .. } => "Pong",
+        }
+    }
+}
+
 /// The scene as a thin client sees it: atlas layout, objects, materials, and
 /// the quads to draw with their place in the atlas.
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]

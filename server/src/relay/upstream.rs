@@ -455,7 +455,7 @@ async fn welcome(ws: &mut Ws) -> Result<(lightwire_protocol::Role, SceneInfo)> {
                     ServerMessage::Error { code, message } => {
                         bail!("the upstream refused the relay: {code:?}: {message}")
                     }
-                    other => bail!("expected Welcome from upstream, got {}", kind(&other)),
+                    other => bail!("expected Welcome from upstream, got {}", other.name()),
                 };
             }
             Some(Ok(Message::Close(frame))) => bail!(
@@ -466,17 +466,6 @@ async fn welcome(ws: &mut Ws) -> Result<(lightwire_protocol::Role, SceneInfo)> {
             Some(Err(e)) => return Err(e).context("reading the upstream's Welcome"),
             None => bail!("the upstream closed the connection before Welcome"),
         }
-    }
-}
-
-fn kind(m: &ServerMessage) -> &'static str {
-    match m {
-        ServerMessage::Welcome { .. } => "Welcome",
-        ServerMessage::Keyframe(_) => "Keyframe",
-        ServerMessage::Delta(_) => "Delta",
-        ServerMessage::Stats(_) => "Stats",
-        ServerMessage::Error { .. } => "Error",
-        ServerMessage::Pong { .. } => "Pong",
     }
 }
 

@@ -167,6 +167,10 @@ enum BenchCommand {
         /// per stage).
         #[arg(long, value_enum, default_value = "gpu")]
         profile_clock: gpu::profile::Clock,
+        /// Cross redistribution: moving patches are cut into tiles of at
+        /// most this many texels per side [default: 4].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+        cross_tile: Option<u32>,
     },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
@@ -238,6 +242,7 @@ fn main() -> ExitCode {
                     adapter,
                     profile,
                     profile_clock,
+                    cross_tile,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -247,7 +252,10 @@ fn main() -> ExitCode {
                 degrees_per_frame: degrees,
                 methods,
                 density_scale,
-                progressive: gpu::ProgressiveOptions::default(),
+                progressive: gpu::ProgressiveOptions {
+                    cross_tile: cross_tile.unwrap_or(gpu::ProgressiveOptions::default().cross_tile),
+                    ..gpu::ProgressiveOptions::default()
+                },
                 gather: gpu::GatherOptions::default(),
                 out,
                 profile: profile.then_some(profile_clock),
