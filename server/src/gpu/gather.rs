@@ -16,12 +16,12 @@
 //! hemicubes therefore gather only the reflected light `R = B - E`.
 //!
 //! The radiosity buffers hold `R`, not `B`: the hemicubes render the buffer
-//! value as it is, with no read of the emission per fragment (which cost
-//! the sweep about a fifth of its time, BENCHMARKS.md). `E` is added back
-//! on the CPU wherever `B` is read ([`GatherSolver::total_radiosity`],
-//! [`GatherSolver::radiosity`]) and taken off in
-//! [`GatherSolver::start_from`]; the change `Σ A_i |ΔB_i|` is the same
-//! sum, `E` being constant.
+//! value as it is, with no read of the emission per fragment (that read
+//! cost about a tenth of a sweep on cornell-large, BENCHMARKS.md). `E` is
+//! added back on the CPU wherever `B` is read
+//! ([`GatherSolver::total_radiosity`], [`GatherSolver::radiosity`]) and
+//! taken off in [`GatherSolver::start_from`]; the change `Σ A_i |ΔB_i|` is
+//! the same sum, `E` being constant.
 //!
 //! A *bounce* is one Jacobi sweep of
 //! `B_i = E_i + ρ_i (D_i + Σ_j F_ij (B_j - E_j))`, which is
