@@ -17,6 +17,9 @@
 //                        test.
 // Bounces are Jacobi sweeps: every pass of a bounce reads `radiosity` (the
 // previous bounce) and writes `updated`; the CPU swaps the two afterwards.
+// Both hold the reflected radiosity R = B - E, not B: that is what the
+// hemicubes show, so a fragment reads one value and no emission; the CPU
+// adds E back where it reads B (gather.rs).
 
 // One patch corner in world space. Mirrors `GatherVertex` in
 // server/src/gpu/gather.rs.
@@ -61,7 +64,7 @@ struct GatherElement {
 // receiving point, t1/t2/n = the hemicube frame (other fields unused).
 @group(0) @binding(1) var<storage, read> receivers: array<Shooter>;
 @group(0) @binding(2) var<uniform> params: GatherParams;
-// B of the previous bounce (read) and of this one (written).
+// R = B - E of the previous bounce (read) and of this one (written).
 @group(0) @binding(3) var<storage, read> radiosity: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> patches: array<PatchRange>;
 @group(0) @binding(5) var<storage, read_write> updated: array<vec4<f32>>;
@@ -69,9 +72,10 @@ struct GatherElement {
 // Delta form factors of one tile, row-major over its 3 res x res pixels.
 @group(0) @binding(7) var<storage, read> multipliers: array<f32>;
 @group(0) @binding(8) var<storage, read> elements: array<GatherElement>;
-// Per element: A_i Σ_channels |B_i(new) - B_i(old)|.
+// Per element: A_i Σ_channels |B_i(new) - B_i(old)|, which is
+// A_i Σ_channels |R_i(new) - R_i(old)| (E_i does not change).
 @group(0) @binding(9) var<storage, read_write> change: array<f32>;
-// Per element: the gathered irradiance H_i = D_i + Σ ΔF_p (B_p - E_p) (for
+// Per element: the gathered irradiance H_i = D_i + Σ ΔF_p R_p (for
 // bookkeeping).
 @group(0) @binding(10) var<storage, read_write> irradiance: array<vec4<f32>>;
 // x: Σ change over all elements.
@@ -106,11 +110,12 @@ fn vs_gather(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
     return out;
 }
 
-// The radiosity a pixel shows: the reflected part B - E of the element of
-// the seen patch nearest to the fragment on the patch's chart (texel
-// centres lie on the patch edges, thesis §4.1; the same lookup as `fs_rad`
-// in hemicube.wgsl). The emission reaches receivers through
-// `GatherElement::direct` instead: a few pixels of a small light alias.
+// The radiosity a pixel shows: the reflected part R = B - E (what the
+// radiosity buffers hold) of the element of the seen patch nearest to the
+// fragment on the patch's chart (texel centres lie on the patch edges,
+// thesis §4.1; the same lookup as `fs_rad` in hemicube.wgsl). The emission
+// reaches receivers through `GatherElement::direct` instead: a few pixels
+// of a small light alias.
 // The back of a surface occludes but leaves no light (radiosity leaves a
 // patch on its normal's side only).
 @fragment
@@ -123,16 +128,17 @@ fn fs_gather(in: HemicubeOut) -> @location(0) vec4<f32> {
     let a = u32(round(st.x * f32(p.w - 1u)));
     let b = u32(round(st.y * f32(p.h - 1u)));
     let k = p.first + b * p.w + a;
-    return vec4<f32>(radiosity[k].rgb - elements[k].emission.rgb, 1.0);
+    return vec4<f32>(radiosity[k].rgb, 1.0);
 }
 
 const GATHER_WG: u32 = 64u;
 var<workgroup> tile_sums: array<vec3<f32>, 64>;
 var<workgroup> change_sums: array<f32, 256>;
 
-// One workgroup per element of the pass: H = D + Σ_p ΔF_p (B_p - E_p) over
-// the tile's pixels (thesis Alg. 4.1 lines 4-5, the emitters' share D
-// integrated apart), then B_i = E_i + ρ_i H (eq. 2.2.4).
+// One workgroup per element of the pass: H = D + Σ_p ΔF_p R_p over the
+// tile's pixels (thesis Alg. 4.1 lines 4-5, the emitters' share D
+// integrated apart), then R_i = ρ_i H, which is B_i = E_i + ρ_i H
+// (eq. 2.2.4) without the E_i the CPU adds back.
 @compute @workgroup_size(64)
 fn gather_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let slot = wid.x;
@@ -157,9 +163,9 @@ fn gather_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_
     if (lid == 0u && slot < params.count) {
         let el = elements[e];
         let h = el.direct.rgb + tile_sums[0];
-        let b = el.emission.rgb + el.albedo.rgb * h;
-        let d = abs(b - radiosity[e].rgb);
-        updated[e] = vec4<f32>(b, 0.0);
+        let r = el.albedo.rgb * h;
+        let d = abs(r - radiosity[e].rgb);
+        updated[e] = vec4<f32>(r, 0.0);
         irradiance[e] = vec4<f32>(h, 0.0);
         change[e] = el.emission.w * (d.r + d.g + d.b);
     }

@@ -6,13 +6,22 @@
 //! sample nudged off its surface and towards its patch centre) and uploads,
 //! once: a hemicube frame per element, the patches as world-space
 //! triangles, the patch element ranges, `E`, `ρ` and areas, two radiosity
-//! buffers (both start at `B = E`), the delta form factors of one hemicube
+//! buffers (both start at `B = E`, stored as `R = 0`, see below), the delta
+//! form factors of one hemicube
 //! tile, and the *direct* irradiance `D` of every element from the
 //! emitters' emission, integrated on the CPU by next-event estimation
 //! (`crate::direct`: a 16 x 16 grid of samples per emitting patch, a
 //! shadow ray each). A hemicube of 32² pixels sees a small light as a few
 //! pixels and aliases (29% NRMSE on cornell-small's direct light); the
-//! hemicubes therefore gather only the reflected light `B - E`.
+//! hemicubes therefore gather only the reflected light `R = B - E`.
+//!
+//! The radiosity buffers hold `R`, not `B`: the hemicubes render the buffer
+//! value as it is, with no read of the emission per fragment (that read
+//! cost about a tenth of a sweep on cornell-large, BENCHMARKS.md). `E` is
+//! added back on the CPU wherever `B` is read
+//! ([`GatherSolver::total_radiosity`], [`GatherSolver::radiosity`]) and
+//! taken off in [`GatherSolver::start_from`]; the change `Σ A_i |ΔB_i|` is
+//! the same sum, `E` being constant.
 //!
 //! A *bounce* is one Jacobi sweep of
 //! `B_i = E_i + ρ_i (D_i + Σ_j F_ij (B_j - E_j))`, which is
@@ -22,7 +31,7 @@
 //! submission:
 //!
 //! 1. For every element of the pass, render the reflected radiosity
-//!    `B - E` of the scene into its tile of one large `Rgba32Float` target:
+//!    `R = B - E` of the scene into its tile of one large `Rgba32Float` target:
 //!    the top face and the upper halves of the four side faces of a
 //!    hemicube at the element (90° frusta, a viewport per face per element,
 //!    like the item buffers of the progressive solver). A pixel shows the
@@ -32,7 +41,8 @@
 //!    delta form factor (Cohen & Greenberg; thesis §2.2.2: top face
 //!    `ΔA / (π (x² + y² + 1)²)`, side faces `y ΔA / (π (x² + y² + 1)²)`,
 //!    `ΔA = (2 / res)²`), sums the tile by a parallel reduction, and writes
-//!    `E + ρ (D + Σ)` into the other radiosity buffer.
+//!    `R = ρ (D + Σ)` (`B = E + ρ (D + Σ)`) into the other radiosity
+//!    buffer.
 //!
 //! The last pass of a bounce also sums the change `Σ A_i |ΔB_i|` and reads
 //! those 16 bytes back: the power the bounce added, as a fraction of the
@@ -225,7 +235,7 @@ use slot::*;
 /// "Render all B_j to a hemicube placed on patch i" (thesis Alg. 4.1).
 const RADIOSITY_HEMICUBES: Pass = Pass {
     entries: &["vs_gather", "fs_gather"],
-    slots: &[VERTICES, RECEIVERS, PARAMS, RADIOSITY, PATCHES, ELEMENTS],
+    slots: &[VERTICES, RECEIVERS, PARAMS, RADIOSITY, PATCHES],
 };
 
 /// Integrate each tile against the delta form factors.
@@ -270,6 +280,8 @@ pub struct GatherSolver {
     emitted: f64,
     areas: Vec<f32>,
     albedo: Vec<Vec3>,
+    /// `E` per element: the radiosity buffers hold `B - E`.
+    emission: Vec<Vec3>,
 
     /// Which of `radiosity` holds the last completed bounce.
     current: usize,
@@ -281,6 +293,7 @@ pub struct GatherSolver {
     /// `E + D` per element when publishing indirect light only.
     direct: Option<Vec<Vec3>>,
 
+    /// `R = B - E` per element, ping-pong.
     radiosity: [wgpu::Buffer; 2],
     irradiance: wgpu::Buffer,
     params: wgpu::Buffer,
@@ -372,6 +385,7 @@ impl GatherSolver {
         let objects: Vec<u32> = atlas.elements.iter().map(|e| e.object).collect();
         let areas = world_areas(&local_areas, &objects, poses);
         let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
+        let emission: Vec<Vec3> = atlas.elements.iter().map(|e| e.emission).collect();
         let emitted: f64 = atlas
             .elements
             .iter()
@@ -400,7 +414,8 @@ impl GatherSolver {
                 direct: v4(*d, 0.0),
             })
             .collect();
-        let mut start: Vec<[f32; 4]> = atlas.elements.iter().map(|e| v4(e.emission, 0.0)).collect();
+        // `B = E` is `R = 0`.
+        let start = vec![[0.0f32; 4]; n.max(1)];
 
         // Two world-space triangles per patch.
         let mut vertices = Vec::with_capacity(patches.len() * 6);
@@ -431,7 +446,6 @@ impl GatherSolver {
         if receivers.is_empty() {
             receivers.push(GpuShooter::zeroed());
             elements.push(GatherElement::zeroed());
-            start.push([0.0; 4]);
         }
         let mut patch_ranges = patch_ranges;
         if patch_ranges.is_empty() {
@@ -584,6 +598,7 @@ impl GatherSolver {
             emitted,
             areas,
             albedo,
+            emission,
             current: 0,
             next_element: 0,
             bounces: 0,
@@ -617,7 +632,11 @@ impl GatherSolver {
             self.element_count as usize,
             "one value per element"
         );
-        let values: Vec<[f32; 4]> = b.iter().map(|v| v4(*v, 0.0)).collect();
+        let values: Vec<[f32; 4]> = b
+            .iter()
+            .zip(&self.emission)
+            .map(|(b, e)| v4(*b - *e, 0.0))
+            .collect();
         if !values.is_empty() {
             self.queue.write_buffer(
                 &self.radiosity[self.current],
@@ -718,12 +737,13 @@ impl GatherSolver {
     }
 
     /// Radiosity B per element after the last completed bounce, direct
-    /// light included.
+    /// light included: the buffer's `B - E` plus `E`.
     pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
         Ok(self
             .read_vec4(&self.radiosity[self.current])?
             .into_iter()
-            .map(|v| Vec3::new(v[0], v[1], v[2]))
+            .zip(&self.emission)
+            .map(|(r, e)| *e + Vec3::new(r[0], r[1], r[2]))
             .collect())
     }
 
