@@ -10,7 +10,9 @@
 //!   pose through [`super::wire::check_transform`], rate, seq) and hands
 //!   accepted poses to the scene's inbox;
 //!   anything invalid earns an `Error` frame with a code, and after
-//!   `max_bad_frames` of those the connection is closed (1008); a frame
+//!   `max_bad_frames` of those the connection is closed (1008), the
+//!   reader then draining what the client still sends until it answers
+//!   the Close (at most `LINGER` after the writer is done); a frame
 //!   over `max_message_bytes` earns `Error TooLarge` and close 1009;
 //! - the **writer** owns the socket's sink. It waits for the newest
 //!   publication and sends the delta if the client holds exactly its base,
@@ -65,6 +67,16 @@ const CLOSE_RESTART: u16 = 1012;
 const CLOSE_TRY_AGAIN: u16 = 1013;
 /// Control frames (errors, pongs) waiting for the writer.
 const CONTROL_QUEUE: usize = 32;
+/// How long sending a Close may wait for room in the socket. The Close
+/// queues behind whatever the client has not read yet (a keyframe, the
+/// Errors of a flood); a client that reads slowly on a loaded machine
+/// still gets it, one that never reads holds only its own connection.
+const CLOSE_TIMEOUT: Duration = Duration::from_secs(10);
+/// After closing a client for abuse, how long the server keeps reading
+/// (and discarding) what it still sends, until it answers the Close: a
+/// socket closed over unread data is reset by the kernel, and a reset may
+/// discard the Errors and the Close the client has not read yet.
+const LINGER: Duration = Duration::from_secs(2);
 /// How often the writer sends `Stats`.
 const STATS_PERIOD: Duration = Duration::from_millis(250);
 /// A send that takes longer than this means the client stopped reading
@@ -121,11 +133,7 @@ async fn close(sink: &mut Sink, code: u16, reason: &str) {
         code,
         reason: reason.into(),
     };
-    let _ = tokio::time::timeout(
-        Duration::from_secs(2),
-        sink.send(Message::Close(Some(frame))),
-    )
-    .await;
+    let _ = tokio::time::timeout(CLOSE_TIMEOUT, sink.send(Message::Close(Some(frame)))).await;
 }
 
 /// Runs one connection to completion. `header_token` is a token presented
@@ -245,7 +253,8 @@ pub async fn run(
 
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
     let (close_tx, close_rx) = watch::channel(None::<(u16, String)>);
-    let reader = tokio::spawn(read_loop(
+    let closing = close_tx.subscribe();
+    let mut reader = tokio::spawn(read_loop(
         stream,
         state.clone(),
         feed.clone(),
@@ -263,6 +272,13 @@ pub async fn run(
         close_rx,
     )
     .await;
+    // A reader that closed the connection for abuse is draining until the
+    // client answers the Close (`LINGER`); let it, so that the socket is
+    // not dropped over unread frames.
+    let policy = matches!(*closing.borrow(), Some((code, _)) if code == CLOSE_POLICY);
+    if policy {
+        let _ = tokio::time::timeout(LINGER, &mut reader).await;
+    }
     reader.abort();
 
     feed.clients.fetch_sub(1, Ordering::Relaxed);
@@ -354,7 +370,15 @@ async fn read_loop(
                 if bad >= state.config.max_bad_frames {
                     metrics.connections_closed_for_abuse.inc();
                     let _ = close.send(Some((CLOSE_POLICY, format!("{bad} invalid frames"))));
-                    break;
+                    let drain = async {
+                        while let Some(Ok(message)) = stream.next().await {
+                            if matches!(message, Message::Close(_)) {
+                                break;
+                            }
+                        }
+                    };
+                    let _ = tokio::time::timeout(LINGER + CLOSE_TIMEOUT, drain).await;
+                    return;
                 }
             }
         }
