@@ -504,9 +504,12 @@ impl ProgressiveSolver {
         }
         if mv.jobs.is_empty() {
             let mut encoder = self.device.create_command_encoder(&Default::default());
-            if mv.method == Redistribution::Cross {
+            if mv.method == Redistribution::Cross && !mv.is_empty_move() {
                 // While M is still marked: the tiles' gathered light, read
-                // between tile centres, becomes the texels' radiosity.
+                // between tile centres, becomes the texels' radiosity. (An
+                // empty move, e.g. the removal of no moving objects in a
+                // static scene, gathered nothing and may come before any
+                // pass was built.)
                 let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.profile.open(&mut encoder);
                 encode_compute(
