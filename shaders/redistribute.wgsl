@@ -278,6 +278,14 @@ fn projected_radiosity(slot: u32, s: Shooter, x: vec3<f32>) -> vec3<f32> {
             let cell = s.corner.xyz + s.su.xyz * ((f32(i) + 0.5) / g) + s.sv.xyz * ((f32(j) + 0.5) / g);
             let r = normalize(cell - x);
             let depth = sample_back(slot, b, r).a;
+            // Nothing there (distance 0 is the cleared background): the
+            // ray leaves the scene (an open side) and carried no light to
+            // block. Reprojecting it by distance 0 would sample the
+            // direction of the cell itself, nearly in the patch's plane,
+            // and take away light that never passed.
+            if (depth <= 0.0) {
+                continue;
+            }
             let p = cell + r * depth;
             acc += sample_back(slot, b, p - b.eye.xyz).rgb;
         }

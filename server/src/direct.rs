@@ -22,7 +22,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::atlas::Atlas;
-use crate::raycast::Raycaster;
+use crate::raycast::{Raycaster, cosine_grid};
 use crate::scene::{Pose, Scene};
 
 /// Samples per emitting patch for the solvers' direct light, `GRID`².
@@ -208,6 +208,59 @@ pub fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Op
     let r = (t * f64::from(chart.h.saturating_sub(1))).round() as u32;
     let e = atlas.element_at(chart.x + c, chart.y + r)? as usize;
     (atlas.elements[e].patch == patch).then_some(e)
+}
+
+/// `B = E + ρ H` of each element of `elements`, `H` the radiosity it sees
+/// over its hemisphere in `radiosity` (one RGBA value per element), against
+/// the scene at `poses`: emitters by next-event estimation (`grid`² samples
+/// per emitting patch, a shadow ray each, [`Emitters::irradiance`]),
+/// everything else by `side`² stratified cosine-distributed rays (Malley's
+/// method, [`cosine_grid`]), each reading the element nearest to the point
+/// it hits; a back face gives nothing. Users: cross redistribution's
+/// regathering (`gpu/progressive/regather.rs`) and the tests that check
+/// what cross projection blocks against rays.
+pub fn gather(
+    scene: &Scene,
+    atlas: &Atlas,
+    poses: &[Pose],
+    radiosity: &[[f32; 4]],
+    elements: &[usize],
+    side: usize,
+    grid: usize,
+) -> Vec<Vec3> {
+    let caster = Raycaster::new(scene, poses);
+    let offset = 1e-5 * caster.extent();
+    let emitters = Emitters::of(scene);
+    let value = |j: usize| {
+        let b = radiosity[j];
+        Vec3::new(b[0], b[1], b[2])
+    };
+    elements
+        .par_iter()
+        .map(|&i| {
+            let e = &atlas.elements[i];
+            let pose = &poses[e.object as usize];
+            let n = pose.transform_normal(e.normal).as_dvec3();
+            let x = pose.transform_point(e.position).as_dvec3() + n * offset;
+            let mut h = Vec3::ZERO;
+            for d in cosine_grid(n, side) {
+                let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
+                    continue;
+                };
+                // Emitters are sampled on their own below.
+                if !hit.front || emitters.contains(hit.patch) {
+                    continue;
+                }
+                if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
+                    h += value(j);
+                }
+            }
+            h /= (side * side) as f32;
+            h += emitters.irradiance(&caster, atlas, x, n, grid, value);
+            let material = &scene.materials[scene.patches[e.patch as usize].material as usize];
+            material.emission + material.albedo * h
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -67,13 +67,15 @@ fn from_scratch_with(
 /// old all-texel metric it read 1.44%). Measured on 2026-12-02 with
 /// shooter tiles split at contacts and the texels near a cross move
 /// gathered again: cross 5.00% (incremental does not split tiles, see
-/// `ProgressiveOptions::split_contacts`; with the split it read 1.52%). The
-/// bounds hold the measured values with a margin until the methods are
-/// fixed; they are not the target.
+/// `ProgressiveOptions::split_contacts`; with the split it read 1.52%).
+/// Measured on 2026-12-02 once rays of the cross projection that leave the
+/// scene stopped blocking light (`cross_projection_blocks_what_rays_say`):
+/// cross 3.82%. The bounds hold the measured values with a margin until
+/// the methods are fixed; they are not the target.
 fn after_move_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.04,
-        Redistribution::Cross => 0.06,
+        Redistribution::Cross => 0.05,
         Redistribution::Full => 0.02,
     }
 }
@@ -81,12 +83,13 @@ fn after_move_bound(method: Redistribution) -> f64 {
 /// The same, at the checkpoints of 1,000 moves (measured on 2026-12-01:
 /// incremental 6.32% at move 99, cross 13.34% at move 99 and 15.58% at
 /// move 499; on 2026-12-02, with the changes above, the worst cross
-/// checkpoint 8.22%). That error must not grow
+/// checkpoint 8.22%, and 6.17% once escaping rays stopped blocking light;
+/// first move 3.58%, last 3.54%). That error must not grow
 /// with the number of moves is asserted separately (`last <= first + ...`).
 fn drift_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.08,
-        Redistribution::Cross => 0.10,
+        Redistribution::Cross => 0.08,
         Redistribution::Full => 0.02,
     }
 }
@@ -643,5 +646,94 @@ fn a_static_scene_converges_and_publishes_with_every_method() {
             "{method}: not converged ({})",
             d.unshot_fraction()
         );
+    }
+}
+
+/// What cross projection blocks (thesis §3.3.2, §4.5.2: `R_x(C, C)`, the
+/// light that passed where the moving object now stands) agrees with rays.
+/// Cornell-large x0.35 with the box made black, so that inserting it only
+/// casts shadows: the state after the session settles, minus the static
+/// scene solved without the box, is the shadow cross redistribution
+/// deposited on each static patch. The same first-order shadow by rays is
+/// `ρ (H_with − H_without)` at every static element
+/// ([`lightwire_server::direct::gather`], 256 cosine rays and 64 samples
+/// per emitting patch, the static solution on both sides, the box nowhere
+/// in the second). Summed per patch, the total must agree within 10% and
+/// every patch holding at least a tenth of the shadow within 25%.
+/// (Measured on 2026-12-02 after rays that leave the scene through the open
+/// front stopped blocking light: total +7.8%, floor +15.9%, ceiling
+/// -18.7%, back wall -6.3%; before: total +32%, back wall +135%, a dark
+/// wedge on the back wall behind the box.)
+#[test]
+fn cross_projection_blocks_what_rays_say() {
+    let (scene, mut atlas) = common::load("cornell-large.json", 0.35);
+    let b = scene.object_by_name("box").expect("the scene has a box");
+    for e in atlas.elements.iter_mut().filter(|e| e.object == b) {
+        e.albedo = Vec3::ZERO;
+    }
+    let poses = scene.initial_poses();
+    let mut d = session(&scene, &atlas, Redistribution::Cross);
+    settle(&mut d);
+    let with_box = d.raw_radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let absent: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
+    let mut statics = ProgressiveSolver::with_absent(
+        gpu(),
+        &scene,
+        &atlas,
+        &poses,
+        &absent,
+        ProgressiveOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    statics.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let without = statics.total_radiosity().unwrap_or_else(|e| panic!("{e}"));
+
+    let validity = Validity::compute(&scene, &atlas, &poses);
+    let receivers: Vec<usize> = (0..atlas.elements.len())
+        .filter(|&i| {
+            let e = &atlas.elements[i];
+            e.object != b && e.emission.max_element() <= 0.0 && validity.keep()(i)
+        })
+        .collect();
+    let values: Vec<[f32; 4]> = without.iter().map(|v| [v.x, v.y, v.z, 0.0]).collect();
+    let mut elsewhere = poses.clone();
+    elsewhere[b as usize].translation += Vec3::new(0.0, 1.0e3, 0.0);
+    let lit = |poses: &[Pose]| {
+        lightwire_server::direct::gather(&scene, &atlas, poses, &values, &receivers, 16, 8)
+    };
+    let (rays_with, rays_without) = (lit(&poses), lit(&elsewhere));
+
+    let mut patches: std::collections::BTreeMap<u32, (f64, f64)> = Default::default();
+    for (k, &i) in receivers.iter().enumerate() {
+        let e = &atlas.elements[i];
+        let a = f64::from(e.area);
+        let sum = patches.entry(e.patch).or_default();
+        sum.0 += a * f64::from((with_box[i] - without[i]).element_sum());
+        sum.1 += a * f64::from((rays_with[k] - rays_without[k]).element_sum());
+    }
+    let (cross, rays) = patches
+        .values()
+        .fold((0.0, 0.0), |(c, r), (pc, pr)| (c + pc, r + pr));
+    for (p, (c, r)) in &patches {
+        eprintln!(
+            "{:<8} shadow by cross projection {c:8.3} W, by rays {r:8.3} W ({:+.1}%)",
+            scene.patches[*p as usize].name,
+            100.0 * (c / r - 1.0)
+        );
+    }
+    eprintln!("total    {cross:8.3} W vs {rays:8.3} W");
+    assert!(rays < 0.0, "the box casts a shadow ({rays})");
+    assert!(
+        (cross / rays - 1.0).abs() <= 0.10,
+        "cross projection blocks {cross} W in all, rays {rays} W"
+    );
+    for (p, (c, r)) in &patches {
+        if r.abs() >= 0.1 * rays.abs() {
+            assert!(
+                (c / r - 1.0).abs() <= 0.25,
+                "{}: cross projection blocks {c} W, rays {r} W",
+                scene.patches[*p as usize].name
+            );
+        }
     }
 }

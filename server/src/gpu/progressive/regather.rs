@@ -25,15 +25,11 @@
 //! handed it before.
 
 use glam::Vec3;
-use rayon::prelude::*;
 
 use super::super::device::GpuError;
 use super::super::profile::Stage;
 use super::ProgressiveSolver;
-use crate::atlas::Atlas;
-use crate::direct::{Emitters, element_at};
-use crate::raycast::{Raycaster, cosine_grid};
-use crate::scene::{Pose, Scene};
+use crate::direct::gather;
 
 /// Cosine-distributed rays per gathering element, as a `SIDE` x `SIDE`
 /// stratified grid (`raycast::cosine_grid`).
@@ -64,7 +60,15 @@ impl ProgressiveSolver {
         let unshot = self.read_vec4(&self.buffers.unshot)?;
         self.profile.stop(readback, Stage::RegatherReadback);
         let gathering = self.profile.start();
-        let lit = gather(&self.scene, &self.atlas, &self.poses, &radiosity, &elements);
+        let lit = gather(
+            &self.scene,
+            &self.atlas,
+            &self.poses,
+            &radiosity,
+            &elements,
+            SIDE,
+            GRID,
+        );
         for (&i, b) in elements.iter().zip(lit) {
             let (old, u) = (radiosity[i], unshot[i]);
             let delta = b - Vec3::new(old[0], old[1], old[2]);
@@ -83,53 +87,4 @@ impl ProgressiveSolver {
         self.profile.stop(gathering, Stage::Regather);
         Ok(())
     }
-}
-
-/// `B = E + ρ H` of each element of `elements`, `H` the radiosity it sees
-/// over its hemisphere in `radiosity` (one RGBA value per element), against
-/// the scene at `poses`: emitters by next-event estimation (`GRID`² samples
-/// per emitting patch, a shadow ray each, `crate::direct`), everything else
-/// by `SIDE`² stratified cosine-distributed rays (Malley's method), each
-/// reading the element nearest to the point it hits; a back face gives
-/// nothing.
-fn gather(
-    scene: &Scene,
-    atlas: &Atlas,
-    poses: &[Pose],
-    radiosity: &[[f32; 4]],
-    elements: &[usize],
-) -> Vec<Vec3> {
-    let caster = Raycaster::new(scene, poses);
-    let offset = 1e-5 * caster.extent();
-    let emitters = Emitters::of(scene);
-    let value = |j: usize| {
-        let b = radiosity[j];
-        Vec3::new(b[0], b[1], b[2])
-    };
-    elements
-        .par_iter()
-        .map(|&i| {
-            let e = &atlas.elements[i];
-            let pose = &poses[e.object as usize];
-            let n = pose.transform_normal(e.normal).as_dvec3();
-            let x = pose.transform_point(e.position).as_dvec3() + n * offset;
-            let mut h = Vec3::ZERO;
-            for d in cosine_grid(n, SIDE) {
-                let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
-                    continue;
-                };
-                // Emitters are sampled on their own below.
-                if !hit.front || emitters.contains(hit.patch) {
-                    continue;
-                }
-                if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
-                    h += value(j);
-                }
-            }
-            h /= (SIDE * SIDE) as f32;
-            h += emitters.irradiance(&caster, atlas, x, n, GRID, value);
-            let material = &scene.materials[scene.patches[e.patch as usize].material as usize];
-            material.emission + material.albedo * h
-        })
-        .collect()
 }
