@@ -102,6 +102,10 @@ impl Emitters {
         let mut h = Vec3::ZERO;
         for &p in &self.patches {
             let wp = &caster.patches()[p as usize];
+            if wp.area.is_nan() || wp.area <= 0.0 {
+                // An absent object's patch (`Raycaster::with_absent`).
+                continue;
+            }
             let corners = [
                 wp.origin,
                 wp.origin + wp.u,
@@ -212,7 +216,8 @@ pub fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Op
 
 /// `B = E + ρ H` of each element of `elements`, `H` the radiosity it sees
 /// over its hemisphere in `radiosity` (one RGBA value per element), against
-/// the scene at `poses`: emitters by next-event estimation (`grid`² samples
+/// the scene at `poses` without the objects flagged in `absent`: emitters
+/// by next-event estimation (`grid`² samples
 /// per emitting patch, a shadow ray each, [`Emitters::irradiance`]),
 /// everything else by `side`² stratified cosine-distributed rays (Malley's
 /// method, [`cosine_grid`]), each reading the element nearest to the point
@@ -222,13 +227,13 @@ pub fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Op
 pub fn gather(
     scene: &Scene,
     atlas: &Atlas,
-    poses: &[Pose],
+    (poses, absent): (&[Pose], &[bool]),
     radiosity: &[[f32; 4]],
     elements: &[usize],
     side: usize,
     grid: usize,
 ) -> Vec<Vec3> {
-    let caster = Raycaster::new(scene, poses);
+    let caster = Raycaster::with_absent(scene, poses, absent);
     let offset = 1e-5 * caster.extent();
     let emitters = Emitters::of(scene);
     let value = |j: usize| {

@@ -206,6 +206,28 @@ impl Raycaster {
         )
     }
 
+    /// Like [`Raycaster::new`], with the patches of the objects flagged in
+    /// `absent` (a moving object taken out of the simulation, cross
+    /// redistribution) shrunk to a point that no ray hits; patch ids stay
+    /// indices into `scene.patches`.
+    pub fn with_absent(scene: &Scene, poses: &[Pose], absent: &[bool]) -> Self {
+        Self::from_patches(
+            scene
+                .patches
+                .iter()
+                .map(|p| {
+                    let pose = &poses[p.object as usize];
+                    let placed = WorldPatch::new(&p.shape, pose);
+                    if absent.get(p.object as usize).copied().unwrap_or(false) {
+                        WorldPatch::parallelogram(placed.origin, DVec3::ZERO, DVec3::ZERO)
+                    } else {
+                        placed
+                    }
+                })
+                .collect(),
+        )
+    }
+
     /// A hierarchy over the given patches; ids are their indices.
     pub fn from_patches(patches: Vec<WorldPatch>) -> Self {
         let bounds: Vec<Aabb> = patches.iter().map(WorldPatch::bounds).collect();
@@ -678,5 +700,16 @@ mod tests {
             .closest_hit(DVec3::new(0.5, 1.0, 0.5), DVec3::Y, f64::INFINITY)
             .expect("lid above");
         assert!((h.distance - 3.0).abs() < 1e-6);
+        // An absent lid is hit by nothing; the floor keeps its id.
+        let rc = Raycaster::with_absent(&scene, &scene.initial_poses(), &[false, true]);
+        assert_eq!(
+            rc.closest_hit(DVec3::new(0.5, 1.0, 0.5), DVec3::Y, f64::INFINITY),
+            None
+        );
+        let h = rc
+            .closest_hit(DVec3::new(0.5, 5.0, 0.5), -DVec3::Y, f64::INFINITY)
+            .expect("floor below");
+        assert_eq!((h.patch, h.front), (0, true));
+        assert_eq!(rc.patches().len(), 2);
     }
 }

@@ -699,7 +699,7 @@ fn cross_projection_blocks_what_rays_say() {
     let mut elsewhere = poses.clone();
     elsewhere[b as usize].translation += Vec3::new(0.0, 1.0e3, 0.0);
     let lit = |poses: &[Pose]| {
-        lightwire_server::direct::gather(&scene, &atlas, poses, &values, &receivers, 16, 8)
+        lightwire_server::direct::gather(&scene, &atlas, (poses, &[]), &values, &receivers, 16, 8)
     };
     let (rays_with, rays_without) = (lit(&poses), lit(&elsewhere));
 

@@ -63,7 +63,7 @@ impl ProgressiveSolver {
         let lit = gather(
             &self.scene,
             &self.atlas,
-            &self.poses,
+            (&self.poses, &self.absent),
             &radiosity,
             &elements,
             SIDE,
