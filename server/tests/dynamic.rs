@@ -189,6 +189,63 @@ fn negative_light_is_small_and_never_published(d: &Session, atlas: &Atlas, publi
     );
 }
 
+/// Refinement shoots negative unshot radiosity like positive (thesis
+/// §2.2.5): redistribution leaves negative light in the static scene that
+/// the progressive iterations after a move must carry on. A converged
+/// solver given `+d` on one patch's unshot radiosity and another given
+/// `-d` must change the rest of the scene by opposite amounts. (Refinement
+/// used to receive only where a batch's net irradiance was positive, so
+/// negative light vanished at its first receivers and every incremental
+/// move created energy: on indirect-light a move that changed nothing
+/// left the room 3% brighter, five 2° moves read 20% NRMSE.)
+#[test]
+fn refinement_carries_negative_light_like_positive() {
+    let (scene, atlas) = common::load("cornell-low.json", 0.35);
+    let poses = scene.initial_poses();
+    let patch = scene
+        .patches
+        .iter()
+        .position(|p| p.name == "floor")
+        .expect("cornell-low has a floor") as u32;
+    // Power (W, channels summed) of the elements off the floor.
+    let elsewhere = |b: &[Vec3]| -> f64 {
+        atlas
+            .elements
+            .iter()
+            .zip(b)
+            .filter(|(e, _)| e.patch != patch)
+            .map(|(e, v)| f64::from(e.area) * f64::from(v.element_sum()))
+            .sum()
+    };
+    let change = |sign: f32| -> f64 {
+        let mut s = ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, Default::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+        s.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+        let before = elsewhere(&s.total_radiosity().unwrap_or_else(|e| panic!("{e}")));
+        let delta: Vec<Vec3> = atlas
+            .elements
+            .iter()
+            .map(|e| {
+                if e.patch == patch {
+                    Vec3::splat(sign * 0.5)
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect();
+        s.add_unshot(&delta).unwrap_or_else(|e| panic!("{e}"));
+        s.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+        elsewhere(&s.total_radiosity().unwrap_or_else(|e| panic!("{e}"))) - before
+    };
+    let (up, down) = (change(1.0), change(-1.0));
+    eprintln!("floor +d: {up:.4} W elsewhere, -d: {down:.4} W");
+    assert!(up > 0.0, "positive light reached nothing: {up}");
+    assert!(
+        (up + down).abs() <= 0.02 * up,
+        "negative light is not carried like positive: +d gave {up} W, -d {down} W"
+    );
+}
+
 #[test]
 fn incremental_after_a_move_matches_a_from_scratch_solve_within_its_bound() {
     after_a_move_matches_a_from_scratch_solve(Redistribution::Incremental);
