@@ -66,13 +66,15 @@ fn from_scratch_with(
 /// (cross is first-order for the moving object, thesis §4.5.2; under the
 /// old all-texel metric it read 1.44%). Measured on 2026-12-02 with
 /// shooter tiles split at contacts and the texels near a cross move
-/// gathered again: cross 5.00% (incremental does not split tiles, see
-/// `ProgressiveOptions::split_contacts`; with the split it read 1.52%). The
-/// bounds hold the measured values with a margin until the methods are
-/// fixed; they are not the target.
+/// gathered again: cross 5.00% (incremental did not split tiles then, see
+/// `ProgressiveOptions::split_contacts`; with the split it read 1.52%).
+/// Measured on 2026-12-02 once refinement received negative light and
+/// incremental sessions split tiles too: incremental 1.52%, so its bound
+/// is issue 15's 2%. The cross bound holds the measured value with a
+/// margin until the method is fixed; it is not the target.
 fn after_move_bound(method: Redistribution) -> f64 {
     match method {
-        Redistribution::Incremental => 0.04,
+        Redistribution::Incremental => 0.02,
         Redistribution::Cross => 0.06,
         Redistribution::Full => 0.02,
     }
@@ -81,11 +83,13 @@ fn after_move_bound(method: Redistribution) -> f64 {
 /// The same, at the checkpoints of 1,000 moves (measured on 2026-12-01:
 /// incremental 6.32% at move 99, cross 13.34% at move 99 and 15.58% at
 /// move 499; on 2026-12-02, with the changes above, the worst cross
-/// checkpoint 8.22%). That error must not grow
+/// checkpoint 8.22%; once refinement received negative light and
+/// incremental sessions split tiles, incremental 0.42% after the first
+/// move, worst checkpoint 3.08%, 0.11% after the last). That error must not grow
 /// with the number of moves is asserted separately (`last <= first + ...`).
 fn drift_bound(method: Redistribution) -> f64 {
     match method {
-        Redistribution::Incremental => 0.08,
+        Redistribution::Incremental => 0.05,
         Redistribution::Cross => 0.10,
         Redistribution::Full => 0.02,
     }
