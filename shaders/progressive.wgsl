@@ -116,7 +116,14 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         h += energy[k].rgb * (v * form_factor(s, x, nx));
     }
-    if (any(h > vec3<f32>(0.0))) {
+    // Negative light is received like positive (thesis §2.2.5: a
+    // correction of shot radiosity propagates as negative light in the
+    // progressive iterations that follow). Receiving only where h > 0 kept
+    // the positive part of a batch and dropped the negative part, so every
+    // incremental move (§4.4), whose refinement shoots the negative light
+    // it leaves in C, created energy: a null move on indirect-light gained
+    // 3% of the room's power, five 2° moves 20% NRMSE.
+    if (any(h != vec3<f32>(0.0))) {
         let db = vec4<f32>(el.albedo.rgb * h, 0.0);
         radiosity[e] += db;
         unshot[e] += db;

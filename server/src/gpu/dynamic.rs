@@ -148,12 +148,8 @@ impl<T: Clone> DynamicSolver<T> {
         atlas: &Atlas,
         poses: &[Pose],
         tag: T,
-        mut options: DynamicOptions,
+        options: DynamicOptions,
     ) -> Result<Self, GpuError> {
-        if options.method == Redistribution::Incremental {
-            // See `ProgressiveOptions::split_contacts`.
-            options.progressive.split_contacts = false;
-        }
         let dynamic: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
         let (solver, phase) = match options.method {
             Redistribution::Cross => (

@@ -103,10 +103,15 @@ pub struct ProgressiveOptions {
     pub back_resolution: u32,
     /// Split shooter tiles that straddle a contact (valid and invalid
     /// elements), up to 1.5 times the tiles of the power-based grid
-    /// (`ProgressiveSolver::split_contacts`). Off for sessions that follow
-    /// moves by incremental reshooting: with it, incremental on
-    /// indirect-light read 20.3% NRMSE after five frames instead of 3.9%
-    /// (`bench dynamic`; not understood yet, see BENCHMARKS.md).
+    /// (`Tiling::split_contacts` in `shooters.rs`), for every method.
+    /// Incremental sessions once ran without it: with it, incremental on
+    /// indirect-light read 20.3% NRMSE after five frames instead of 3.9%.
+    /// The split was not the cause: ordinary refinement dropped negative
+    /// light at its receivers (`reconstruct` in progressive.wgsl), so the
+    /// refinement after each incremental move created energy, and the
+    /// split's batches, which shoot that negative light from more and
+    /// better placed tiles, created more (BENCHMARKS.md, "Incremental
+    /// redistribution with split shooter tiles").
     pub split_contacts: bool,
 }
 

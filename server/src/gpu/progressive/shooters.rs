@@ -203,8 +203,7 @@ impl Tiling<'_> {
             // shoots what its elements hold: redistribution leaves unshot
             // radiosity, positive or negative, on texels a moved object
             // then covers. From an eye under the block all of it would be
-            // lost (incremental on indirect-light read 20% NRMSE instead
-            // of 4%), so it looks from the valid element of its patch
+            // lost, so it looks from the valid element of its patch
             // nearest to the tile's centre, as a tile that reached it did
             // before it was split.
             let centre = [(a0 + a1) as f32 * 0.5, (b0 + b1) as f32 * 0.5];
