@@ -943,3 +943,17 @@ fn khronos_validator_accepts_the_committed_meshes_and_refuses_a_broken_file() {
         "{text}"
     );
 }
+
+#[test]
+fn gltf_schema_errors_name_the_json_path() {
+    let glb = single(vec![triangle_primitive(TRI, Some(0))]);
+    let bad = edit_json(&glb, |j| {
+        j["meshes"][0]["primitives"][0]["indices"] = 99.into()
+    });
+    let message = error_of(&bad, "dangling.glb");
+    assert!(message.starts_with("dangling.glb: 1 problem"), "{message}");
+    assert!(
+        message.contains("meshes[0].primitives[0].indices"),
+        "{message}"
+    );
+}
