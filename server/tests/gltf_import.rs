@@ -957,3 +957,35 @@ fn gltf_schema_errors_name_the_json_path() {
         "{message}"
     );
 }
+
+#[test]
+fn singular_transforms_are_named() {
+    let mut flat = GlbNode::new("n", Some(0));
+    flat.scale = Vec3::new(1.0, 0.0, 1.0);
+    let bytes = one_mesh_scene(vec![triangle_primitive(TRI, Some(0))], flat)
+        .to_glb()
+        .expect("write");
+    let message = error_of(&bytes, "flat-node.glb");
+    assert!(
+        message.contains("node #0 \"n\": its transform is singular"),
+        "{message}"
+    );
+    // A dynamic node with zero scale and no mesh of its own: its pose.
+    let mut holder = GlbNode::new("holder", None);
+    holder.scale = Vec3::ZERO;
+    holder.extras = Some(serde_json::json!({ "lightwire": { "dynamic": true } }));
+    let doc = GlbScene {
+        nodes: vec![holder],
+        roots: vec![0],
+        ..one_mesh_scene(
+            vec![triangle_primitive(TRI, Some(0))],
+            GlbNode::new("unused", None),
+        )
+    };
+    let message = error_of(&doc.to_glb().expect("write"), "zero.glb");
+    assert!(
+        message.contains("node #0 \"holder\"")
+            && message.contains("cannot be a dynamic object's pose"),
+        "{message}"
+    );
+}

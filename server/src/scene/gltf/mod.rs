@@ -460,6 +460,12 @@ impl Importer<'_> {
                     }
                     let (_, rotation, translation) = world.to_scale_rotation_translation();
                     let rotation = rotation.normalize();
+                    if !rotation.is_finite() || !translation.is_finite() {
+                        self.report(
+                            &location,
+                            "its world transform has no rotation (it is singular), so it cannot be a dynamic object's pose",
+                        );
+                    }
                     let pose = Pose {
                         translation,
                         rotation,
@@ -878,7 +884,19 @@ impl Importer<'_> {
                 ),
             );
         }
-        let overlaps = find_uv_overlaps(&tris, MAX_LISTED + 1);
+        let overlaps = match find_uv_overlaps(&tris, MAX_LISTED + 1) {
+            Ok(o) => o,
+            Err(work) => {
+                self.report(
+                    &named("mesh", mesh.index(), mesh.name()),
+                    format!(
+                        "TEXCOORD_1 of its {} triangles cannot be checked for overlaps: the layout needs {work} grid entries or candidate pairs, over the limit (very long thin or heavily piled-up UV triangles)",
+                        tris.len()
+                    ),
+                );
+                return;
+            }
+        };
         for o in overlaps.iter().take(MAX_LISTED) {
             let (pa, ta) = origin[o.a];
             let (pb, tb) = origin[o.b];

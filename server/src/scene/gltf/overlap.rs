@@ -6,7 +6,7 @@
 //! test clips one triangle by the other (Sutherland–Hodgman; both convex) and
 //! measures the intersection's area in f64, so shared edges and vertices
 //! (area 0) never count. Candidate pairs come from a uniform grid of about
-//! one cell per triangle over [0, 1]²; a pair is tested only in the cell that
+//! one cell per triangle over the triangles' bounding box; a pair is tested only in the cell that
 //! holds the lower-left corner of the intersection of the two bounding boxes,
 //! so each pair is tested once without a set of visited pairs.
 
@@ -69,44 +69,92 @@ fn intersection_area(a: &[DVec2; 3], b: &[DVec2; 3]) -> f64 {
     signed_area(&poly).abs()
 }
 
+/// Grid entries (triangle × cell) allowed before the check gives up.
+pub const MAX_CELL_ENTRIES: usize = 1 << 24;
+/// Candidate pairs allowed before the check gives up.
+pub const MAX_PAIRS: u64 = 1 << 27;
+
 /// Pairs of triangles that overlap by more than the tolerance of
 /// [`OVERLAP_AREA`] / [`OVERLAP_RELATIVE`]; stops after `limit` pairs.
 /// Triangles with zero UV area are skipped (reported separately).
-pub fn find_uv_overlaps(tris: &[[Vec2; 3]], limit: usize) -> Vec<UvOverlap> {
+///
+/// The grid spans the bounding box of the triangles with about one cell per
+/// triangle, so a mesh that uses a corner of [0, 1]² is as fast as one that
+/// fills it. The work is bounded, since the input is a file: when the
+/// triangles' bounding boxes cover more than [`MAX_CELL_ENTRIES`] grid cells
+/// in total, or more than [`MAX_PAIRS`] candidate pairs share cells (very
+/// long thin UV triangles, or many piled into one place), it returns
+/// `Err(work)` with the amount of work it would have needed so far.
+pub fn find_uv_overlaps(tris: &[[Vec2; 3]], limit: usize) -> Result<Vec<UvOverlap>, u64> {
     let n = tris.len();
     // Counter-clockwise f64 copies, their areas and bounding boxes.
     let mut ccw: Vec<[DVec2; 3]> = Vec::with_capacity(n);
     let mut area = Vec::with_capacity(n);
     let mut bbox = Vec::with_capacity(n);
+    let mut valid = Vec::with_capacity(n);
+    let (mut all_lo, mut all_hi) = (DVec2::INFINITY, DVec2::NEG_INFINITY);
     for t in tris {
         let mut p = t.map(|v| v.as_dvec2());
         let a = signed_area(&p);
         if a < 0.0 {
             p.swap(1, 2);
         }
-        area.push(a.abs());
         let lo = p[0].min(p[1]).min(p[2]);
         let hi = p[0].max(p[1]).max(p[2]);
+        let ok = a.abs() > 0.0 && lo.is_finite() && hi.is_finite();
+        if ok {
+            all_lo = all_lo.min(lo);
+            all_hi = all_hi.max(hi);
+        }
+        valid.push(ok);
+        area.push(a.abs());
         bbox.push((lo, hi));
         ccw.push(p);
     }
-    let g = ((n as f64).sqrt().ceil() as usize).clamp(1, 1024);
-    let cell = |x: f64| ((x * g as f64).floor().max(0.0) as usize).min(g - 1);
-    let mut cells: Vec<Vec<u32>> = vec![Vec::new(); g * g];
+    let count = valid.iter().filter(|&&v| v).count();
+    if count < 2 {
+        return Ok(Vec::new());
+    }
+    // About one cell per triangle, shaped like the bounding box.
+    let size = (all_hi - all_lo).max(DVec2::splat(1e-12));
+    let gx = ((count as f64 * size.x / size.y).sqrt().ceil() as usize).clamp(1, 4096);
+    let gy = (count.div_ceil(gx)).clamp(1, 4096);
+    let cell_x =
+        |x: f64| (((x - all_lo.x) / size.x * gx as f64).floor().max(0.0) as usize).min(gx - 1);
+    let cell_y =
+        |y: f64| (((y - all_lo.y) / size.y * gy as f64).floor().max(0.0) as usize).min(gy - 1);
+    let mut entries: u64 = 0;
     for (i, (lo, hi)) in bbox.iter().enumerate() {
-        if area[i] <= 0.0 || !lo.is_finite() || !hi.is_finite() {
+        if valid[i] {
+            entries +=
+                ((cell_x(hi.x) - cell_x(lo.x) + 1) * (cell_y(hi.y) - cell_y(lo.y) + 1)) as u64;
+        }
+    }
+    if entries > MAX_CELL_ENTRIES as u64 {
+        return Err(entries);
+    }
+    let mut cells: Vec<Vec<u32>> = vec![Vec::new(); gx * gy];
+    for (i, (lo, hi)) in bbox.iter().enumerate() {
+        if !valid[i] {
             continue;
         }
-        for cy in cell(lo.y)..=cell(hi.y) {
-            for cx in cell(lo.x)..=cell(hi.x) {
-                cells[cy * g + cx].push(i as u32);
+        for cy in cell_y(lo.y)..=cell_y(hi.y) {
+            for cx in cell_x(lo.x)..=cell_x(hi.x) {
+                cells[cy * gx + cx].push(i as u32);
             }
         }
     }
+    let pairs: u64 = cells
+        .iter()
+        .map(|c| (c.len() as u64) * (c.len() as u64).saturating_sub(1) / 2)
+        .sum();
+    if pairs > MAX_PAIRS {
+        return Err(pairs);
+    }
     let mut found = Vec::new();
-    for cy in 0..g {
-        for cx in 0..g {
-            let list = &cells[cy * g + cx];
+    for cy in 0..gy {
+        for cx in 0..gx {
+            let list = &cells[cy * gx + cx];
             for (k, &i) in list.iter().enumerate() {
                 for &j in &list[k + 1..] {
                     let (i, j) = (i.min(j) as usize, i.max(j) as usize);
@@ -117,7 +165,9 @@ pub fn find_uv_overlaps(tris: &[[Vec2; 3]], limit: usize) -> Vec<UvOverlap> {
                     if lo.x > hi.x || lo.y > hi.y {
                         continue;
                     }
-                    if cell(lo.x) != cx || cell(lo.y) != cy {
+                    // Test each pair once: in the cell of the lower-left
+                    // corner of the intersection of the bounding boxes.
+                    if cell_x(lo.x) != cx || cell_y(lo.y) != cy {
                         continue;
                     }
                     let smaller = area[i].min(area[j]);
@@ -131,14 +181,14 @@ pub fn find_uv_overlaps(tris: &[[Vec2; 3]], limit: usize) -> Vec<UvOverlap> {
                             fraction: overlap / smaller,
                         });
                         if found.len() >= limit {
-                            return found;
+                            return Ok(found);
                         }
                     }
                 }
             }
         }
     }
-    found
+    Ok(found)
 }
 
 #[cfg(test)]
@@ -153,10 +203,10 @@ mod tests {
     fn shared_edge_is_not_an_overlap_but_a_shift_is() {
         let a = [v(0.1, 0.1), v(0.5, 0.1), v(0.5, 0.5)];
         let b = [v(0.1, 0.1), v(0.5, 0.5), v(0.1, 0.5)];
-        assert!(find_uv_overlaps(&[a, b], 10).is_empty());
+        assert!(find_uv_overlaps(&[a, b], 10).expect("bounded").is_empty());
         // Move b across the shared diagonal by 0.01: a sliver overlaps.
         let c = b.map(|p| p + v(0.01, -0.01));
-        let o = find_uv_overlaps(&[a, c], 10);
+        let o = find_uv_overlaps(&[a, c], 10).expect("bounded");
         assert_eq!(o.len(), 1);
         assert_eq!((o[0].a, o[0].b), (0, 1));
         assert!(o[0].area > 1e-4, "{o:?}");
@@ -207,12 +257,53 @@ mod tests {
                 tris.push([v(x0, y0), v(x0 + s, y0 + s), v(x0, y0 + s)]);
             }
         }
-        assert!(find_uv_overlaps(&tris, 10).is_empty());
+        assert!(find_uv_overlaps(&tris, 10).expect("bounded").is_empty());
         let dup = tris[12345];
         tris.push(dup);
-        let o = find_uv_overlaps(&tris, 10);
+        let o = find_uv_overlaps(&tris, 10).expect("bounded");
         assert_eq!(o.len(), 1, "{o:?}");
         assert_eq!((o[0].a, o[0].b), (12345, tris.len() - 1));
         assert!((o[0].fraction - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_mesh_in_a_corner_of_the_square_is_gridded_over_its_own_bounds() {
+        // 20 000 triangles inside [0, 0.001]²: on a grid over [0, 1]² they
+        // would all share one cell (2·10⁸ candidate pairs, over the limit).
+        let n = 100;
+        let s = 0.001 / n as f32;
+        let mut tris = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                let (x0, y0) = (x as f32 * s, y as f32 * s);
+                tris.push([v(x0, y0), v(x0 + s, y0), v(x0 + s, y0 + s)]);
+                tris.push([v(x0, y0), v(x0 + s, y0 + s), v(x0, y0 + s)]);
+            }
+        }
+        assert_eq!(find_uv_overlaps(&tris, 10), Ok(Vec::new()));
+    }
+
+    #[test]
+    fn work_is_bounded_for_piles_of_triangles() {
+        // 20 000 copies of one triangle: every pair overlaps; stops at the
+        // limit instead of listing 2·10⁸ pairs.
+        let t = [v(0.1, 0.1), v(0.9, 0.1), v(0.1, 0.9)];
+        let pile = vec![t; 20_000];
+        match find_uv_overlaps(&pile, 5) {
+            Ok(found) => assert_eq!(found.len(), 5),
+            Err(work) => assert!(work > MAX_PAIRS.min(MAX_CELL_ENTRIES as u64), "{work}"),
+        }
+        // 20 000 thin slivers spanning the square side by side (valid, but
+        // each one's bounding box covers the whole grid): refused as too
+        // much work, not tried.
+        let n = 20_000;
+        let slivers: Vec<[Vec2; 3]> = (0..n)
+            .map(|i| {
+                let x0 = i as f32 / n as f32;
+                let x1 = (i + 1) as f32 / n as f32;
+                [v(x0, 0.0), v(1.0 - x0, 1.0), v(x1, 0.0)]
+            })
+            .collect();
+        assert!(find_uv_overlaps(&slivers, 5).is_err());
     }
 }
