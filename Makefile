@@ -32,7 +32,7 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config chromium
 NODE_APT_PACKAGES := nodejs npm
 DASHBOARD := server/dashboard
 
-.PHONY: run bake test soak deps check-toolchain build dashboard-deps deploy-tools deploy-check
+.PHONY: run bake test soak deps check-toolchain build dashboard-deps gltf-validator-deps deploy-tools deploy-check
 
 deps: check-toolchain
 	@missing=""; \
@@ -58,6 +58,15 @@ deps: check-toolchain
 dashboard-deps: deps
 	@cd $(DASHBOARD) && if [ ! node_modules/.package-lock.json -nt package-lock.json ]; then \
 	  PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 npm ci --no-audit --no-fund; \
+	fi
+
+# The Khronos glTF validator (npm `gltf-validator`, pinned by its
+# package-lock.json) that server/tests/gltf_import.rs runs on the generated
+# meshes; installed like the dashboard's packages.
+GLTF_VALIDATOR := server/tests/gltf-validator
+gltf-validator-deps: deps
+	@cd $(GLTF_VALIDATOR) && if [ ! node_modules/.package-lock.json -nt package-lock.json ]; then \
+	  npm ci --no-audit --no-fund; \
 	fi
 
 check-toolchain:
@@ -123,7 +132,7 @@ deploy-check: deploy-tools
 
 # The dashboard's browser test (server/tests/dashboard.rs) runs inside
 # `cargo test`; its screenshots land in target/dashboard-artifacts/.
-test: deps dashboard-deps deploy-check
+test: deps dashboard-deps gltf-validator-deps deploy-check
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	cd $(DASHBOARD) && node --test test/

@@ -18,6 +18,7 @@
 
 pub mod error;
 pub mod file;
+pub mod gltf;
 mod validate;
 
 use std::path::Path;

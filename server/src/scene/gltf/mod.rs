@@ -1,0 +1,981 @@
+//! glTF 2.0 input: triangle meshes, their materials and which nodes move.
+//!
+//! This is the layer below the scene: it reads a `.glb` or `.gltf` (with its
+//! `.bin` buffers) and returns an [`ImportedScene`] of triangle lists, one per
+//! mesh primitive instanced by a node, with materials converted to Lightwire's
+//! units. It does not build a [`super::Scene`]: the atlas and the solvers do
+//! not take triangles yet (Wallner §2 is the plan: per-triangle charts packed
+//! into an atlas).
+//!
+//! Conventions (also in `scenes/README.md`, "glTF input"):
+//!
+//! - **Units.** glTF lengths are metres and y is up, as in Lightwire scenes.
+//! - **Space.** Every instance belongs to an object of
+//!   [`ImportedScene::objects`]; its positions are in that object's space.
+//!   Object 0 is the static world, whose space is world space (node
+//!   transforms, parents included, applied). A dynamic object is rooted at a
+//!   node; its [`Pose`] is the rigid part (rotation and translation) of that
+//!   node's world transform, and its instances keep everything else
+//!   (the node's scale and the transforms of its descendants) in their
+//!   positions, so that `pose.transform_point(p)` is the world position and a
+//!   later stage can move the object by replacing the pose.
+//! - **Winding.** Front faces are counter-clockwise (glTF §3.7.2.1); a node
+//!   whose transform mirrors (negative determinant) has its triangles'
+//!   winding flipped so the front faces stay front faces after transforming.
+//! - **Materials.** `baseColorFactor` RGB is the albedo, clamped to
+//!   [`ALBEDO_MAX`] with a warning; emission in W/m² per channel is
+//!   `emissiveFactor × KHR_materials_emissive_strength ×`
+//!   [`ImportOptions::emission_scale`]. The base colour texture is only
+//!   referenced ([`TextureRef`]); averaging it per texel is a later stage.
+//! - **Lightmap UVs.** `TEXCOORD_1`, when present, is validated per mesh: the
+//!   primitives of one mesh share one lightmap space [0, 1]² (as Bevy, three.js
+//!   and Godot use the second UV set), so no two of its triangles may
+//!   overlap; two meshes, or two nodes instancing one mesh, get separate
+//!   lightmaps.
+//!
+//! Errors are collected, not returned at the first one: a file with several
+//! problems reports them all, each naming the node, mesh and primitive (index
+//! and name), like the JSON validator does.
+
+mod accessor;
+pub mod content;
+mod overlap;
+pub mod write;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{Mat3, Mat4, Vec2, Vec3};
+
+use super::{Pose, SceneError, SceneIssue};
+
+pub use overlap::{UvOverlap, find_uv_overlaps};
+
+/// Albedo channels above this are clamped (with a warning): a surface that
+/// reflects everything makes the radiosity system singular in a closed room.
+pub const ALBEDO_MAX: f32 = 0.99;
+
+/// A `TEXCOORD_1` coordinate may lie this far outside [0, 1] (f32 rounding in
+/// exporters) before it is an error.
+pub const UV_RANGE_SLACK: f32 = 1e-6;
+
+/// A triangle is degenerate when twice its area, `|e1 × e2|`, is at most this
+/// times its longest edge squared: its corners lie on a line to within f32
+/// precision (repeated indices included).
+pub const DEGENERATE_RATIO: f32 = 1e-6;
+
+/// Two `TEXCOORD_1` triangles overlap when their intersection is larger than
+/// the smaller of this area (one texel of a 4096 × 4096 lightmap, in UV units)
+/// and [`OVERLAP_RELATIVE`] × the smaller triangle's UV area.
+pub const OVERLAP_AREA: f64 = 1.0 / (4096.0 * 4096.0);
+
+/// See [`OVERLAP_AREA`].
+pub const OVERLAP_RELATIVE: f64 = 0.25;
+
+/// Problems of one kind reported per primitive before the rest are counted
+/// in one line.
+const MAX_LISTED: usize = 8;
+
+/// What to import and how.
+#[derive(Debug, Clone)]
+pub struct ImportOptions {
+    /// Import only these nodes (by name) and their descendants; empty means
+    /// every node of the glTF's scene.
+    pub nodes: Vec<String>,
+    /// Nodes (by name) that are dynamic objects, in addition to those whose
+    /// `extras` hold `{"lightwire": {"dynamic": true}}`.
+    pub dynamic_nodes: Vec<String>,
+    /// Multiplies every emission (W/m² per unit of
+    /// `emissiveFactor × emissive_strength`).
+    pub emission_scale: f32,
+}
+
+impl Default for ImportOptions {
+    fn default() -> Self {
+        Self {
+            nodes: Vec::new(),
+            dynamic_nodes: Vec::new(),
+            emission_scale: 1.0,
+        }
+    }
+}
+
+/// The triangle meshes of a glTF file, in Lightwire's units.
+#[derive(Debug, Clone)]
+pub struct ImportedScene {
+    /// Materials, indexed like the glTF's; a primitive without a material gets
+    /// an extra `default` material (glTF's default: white, no emission) at the
+    /// end.
+    pub materials: Vec<ImportedMaterial>,
+    /// Index 0 is the static world (identity pose); the rest are dynamic.
+    pub objects: Vec<ImportedObject>,
+    /// One per (node, mesh primitive), in depth-first node order.
+    pub instances: Vec<MeshInstance>,
+}
+
+impl ImportedScene {
+    /// Triangles over all instances.
+    pub fn triangle_count(&self) -> usize {
+        self.instances.iter().map(|i| i.indices.len()).sum()
+    }
+
+    /// Instances created by the node called `name`.
+    pub fn instances_of<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a MeshInstance> {
+        self.instances
+            .iter()
+            .filter(move |i| i.node_name.as_deref() == Some(name))
+    }
+
+    /// Looks up a material by name.
+    pub fn material(&self, name: &str) -> Option<&ImportedMaterial> {
+        self.materials.iter().find(|m| m.name == name)
+    }
+}
+
+/// A Lambertian material converted from glTF's metallic-roughness one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportedMaterial {
+    /// The glTF name, or `material #i` when it has none.
+    pub name: String,
+    /// `baseColorFactor` RGB (linear), clamped to [0, [`ALBEDO_MAX`]].
+    pub albedo: Vec3,
+    /// Radiant exitance in W/m² per channel.
+    pub emission: Vec3,
+    /// The base colour texture, for per-texel albedo later.
+    pub base_color_texture: Option<TextureRef>,
+}
+
+/// A reference to an image, not decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TextureRef {
+    /// glTF image index.
+    pub image: usize,
+    /// Which `TEXCOORD_n` set samples it.
+    pub tex_coord: u32,
+    /// Where the encoded image is.
+    pub source: ImageSource,
+}
+
+/// Where an image's bytes are.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ImageSource {
+    /// Embedded in a buffer (always so in the files Lightwire writes).
+    Embedded { mime_type: String, bytes: Vec<u8> },
+    /// A URI relative to the glTF file, or a data URI.
+    Uri { uri: String },
+}
+
+/// The static world or a dynamic node and everything below it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportedObject {
+    /// `static` for object 0, else the node's name.
+    pub name: String,
+    /// The glTF node the object is rooted at (`None` for the static world).
+    pub node: Option<usize>,
+    /// Rigid part of the root node's world transform (scale 1).
+    pub pose: Pose,
+}
+
+/// One mesh primitive as instanced by one node.
+#[derive(Debug, Clone)]
+pub struct MeshInstance {
+    pub node: usize,
+    pub node_name: Option<String>,
+    pub mesh: usize,
+    pub mesh_name: Option<String>,
+    pub primitive: usize,
+    /// Index into [`ImportedScene::objects`].
+    pub object: u32,
+    /// Index into [`ImportedScene::materials`].
+    pub material: u32,
+    /// Positions in the object's space (see the module doc).
+    pub positions: Vec<Vec3>,
+    /// Unit normals in the object's space, when the primitive has `NORMAL`.
+    pub normals: Option<Vec<Vec3>>,
+    /// Counter-clockwise triangles (front face) into `positions`.
+    pub indices: Vec<[u32; 3]>,
+    /// `TEXCOORD_0`, for textures.
+    pub uv0: Option<Vec<Vec2>>,
+    /// `TEXCOORD_1`, the lightmap UVs, validated to lie in [0, 1] and not
+    /// overlap within the mesh.
+    pub lightmap_uvs: Option<Vec<Vec2>>,
+}
+
+/// The name of the static world object.
+pub const STATIC_NAME: &str = "static";
+
+/// Reads, checks and converts a `.glb` or `.gltf` file.
+pub fn import(path: &Path, options: &ImportOptions) -> Result<ImportedScene, SceneError> {
+    let bytes = std::fs::read(path).map_err(|e| SceneError::Io {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })?;
+    import_slice(&bytes, path.parent(), &path.display().to_string(), options)
+}
+
+/// [`import`] from bytes; `base` resolves relative buffer and image URIs
+/// (`None`: only embedded and data URIs), `origin` names the source in errors.
+pub fn import_slice(
+    bytes: &[u8],
+    base: Option<&Path>,
+    origin: &str,
+    options: &ImportOptions,
+) -> Result<ImportedScene, SceneError> {
+    let invalid = |issues: Vec<SceneIssue>| SceneError::Invalid {
+        origin: origin.to_string(),
+        issues,
+    };
+    let one = |location: &str, problem: String| {
+        invalid(vec![SceneIssue {
+            location: location.to_string(),
+            problem,
+        }])
+    };
+    let gltf = match ::gltf::Gltf::from_slice(bytes) {
+        Ok(g) => g,
+        Err(::gltf::Error::Deserialize(e)) => {
+            return Err(SceneError::Syntax {
+                origin: origin.to_string(),
+                line: e.line(),
+                column: e.column(),
+                message: super::strip_position(&e.to_string()),
+            });
+        }
+        Err(::gltf::Error::Validation(errors)) => {
+            return Err(invalid(
+                errors
+                    .into_iter()
+                    .map(|(path, error)| SceneIssue {
+                        location: path.to_string(),
+                        problem: error.to_string(),
+                    })
+                    .collect(),
+            ));
+        }
+        Err(::gltf::Error::Binary(e)) => {
+            return Err(one("glb container", e.to_string()));
+        }
+        Err(e) => return Err(one("file", e.to_string())),
+    };
+    let mut importer = Importer {
+        options,
+        issues: Vec::new(),
+        buffers: Vec::new(),
+        primitives: HashMap::new(),
+        uv_checked: HashMap::new(),
+    };
+    importer.load_buffers(&gltf, base);
+    let scene = importer.convert(&gltf.document);
+    if importer.issues.is_empty() {
+        Ok(scene)
+    } else {
+        Err(invalid(importer.issues))
+    }
+}
+
+/// A primitive's data in mesh space, read and checked once however many
+/// nodes instance it.
+#[derive(Debug, Clone)]
+struct PrimitiveData {
+    positions: Vec<Vec3>,
+    normals: Option<Vec<Vec3>>,
+    indices: Vec<[u32; 3]>,
+    uv0: Option<Vec<Vec2>>,
+    uv1: Option<Vec<Vec2>>,
+    material: Option<usize>,
+}
+
+struct Importer<'o> {
+    options: &'o ImportOptions,
+    issues: Vec<SceneIssue>,
+    /// Loaded buffers; `None` where loading failed (already reported).
+    buffers: Vec<Option<Vec<u8>>>,
+    /// (mesh, primitive) → data, `None` when it had problems.
+    primitives: HashMap<(usize, usize), Option<PrimitiveData>>,
+    /// Meshes whose lightmap UVs were checked for overlaps.
+    uv_checked: HashMap<usize, ()>,
+}
+
+fn named(kind: &str, index: usize, name: Option<&str>) -> String {
+    match name {
+        Some(n) => format!("{kind} #{index} \"{n}\""),
+        None => format!("{kind} #{index}"),
+    }
+}
+
+/// Where a primitive is, for messages: `node #2 "floor", mesh #0 "slab", primitive #1`.
+fn primitive_location(node: &::gltf::Node, mesh: &::gltf::Mesh, primitive: usize) -> String {
+    format!(
+        "{}, {}, primitive #{primitive}",
+        named("node", node.index(), node.name()),
+        named("mesh", mesh.index(), mesh.name())
+    )
+}
+
+impl Importer<'_> {
+    fn report(&mut self, location: &str, problem: impl Into<String>) {
+        self.issues.push(SceneIssue {
+            location: location.to_string(),
+            problem: problem.into(),
+        });
+    }
+
+    fn load_buffers(&mut self, gltf: &::gltf::Gltf, base: Option<&Path>) {
+        let mut blob = gltf.blob.clone();
+        for buffer in gltf.document.buffers() {
+            let location = named("buffer", buffer.index(), buffer.name());
+            let source = buffer.source();
+            let described = match source {
+                ::gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
+                ::gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+                    "a data URI".to_string()
+                }
+                ::gltf::buffer::Source::Uri(uri) => match base {
+                    Some(b) => format!("\"{uri}\" ({})", b.join(uri).display()),
+                    None => format!("\"{uri}\""),
+                },
+            };
+            match ::gltf::buffer::Data::from_source_and_blob(source, base, &mut blob) {
+                Ok(data) if data.len() < buffer.length() => {
+                    self.report(
+                        &location,
+                        format!(
+                            "{described} holds {} bytes but the buffer declares byteLength {}",
+                            data.len(),
+                            buffer.length()
+                        ),
+                    );
+                    self.buffers.push(None);
+                }
+                Ok(data) => self.buffers.push(Some(data.0)),
+                Err(e) => {
+                    self.report(&location, format!("cannot load {described}: {e}"));
+                    self.buffers.push(None);
+                }
+            }
+        }
+    }
+
+    fn convert(&mut self, doc: &::gltf::Document) -> ImportedScene {
+        let mut materials: Vec<ImportedMaterial> =
+            doc.materials().map(|m| self.material(&m)).collect();
+        let default_material = materials.len();
+        let mut used_default = false;
+
+        let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
+            self.report("file", "has no scene (no node is placed in the world)");
+            return ImportedScene {
+                materials,
+                objects: Vec::new(),
+                instances: Vec::new(),
+            };
+        };
+
+        // Names the options refer to must exist.
+        let names: HashMap<&str, usize> = doc
+            .nodes()
+            .filter_map(|n| n.name().map(|s| (s, n.index())))
+            .collect();
+        for (what, list) in [
+            ("nodes", &self.options.nodes),
+            ("dynamic_nodes", &self.options.dynamic_nodes),
+        ] {
+            for name in list {
+                if !names.contains_key(name.as_str()) {
+                    self.issues.push(SceneIssue {
+                        location: format!("import options, {what}"),
+                        problem: format!("no node is called \"{name}\""),
+                    });
+                }
+            }
+        }
+
+        let mut objects = vec![ImportedObject {
+            name: STATIC_NAME.to_string(),
+            node: None,
+            pose: Pose::IDENTITY,
+        }];
+        let mut instances = Vec::new();
+        // Depth-first with an explicit stack: (node, parent world transform,
+        // selected, the object and its world-from-object inverse).
+        struct Frame<'a> {
+            node: ::gltf::Node<'a>,
+            parent: Mat4,
+            selected: bool,
+            object: u32,
+            object_from_world: Mat4,
+        }
+        let roots: Vec<::gltf::Node> = scene.nodes().collect();
+        let mut stack: Vec<Frame> = roots
+            .into_iter()
+            .rev()
+            .map(|node| Frame {
+                node,
+                parent: Mat4::IDENTITY,
+                selected: self.options.nodes.is_empty(),
+                object: 0,
+                object_from_world: Mat4::IDENTITY,
+            })
+            .collect();
+        let mut visited = vec![false; doc.nodes().len()];
+        while let Some(frame) = stack.pop() {
+            let node = frame.node;
+            let location = named("node", node.index(), node.name());
+            if std::mem::replace(&mut visited[node.index()], true) {
+                self.report(&location, "is reached twice in the node hierarchy");
+                continue;
+            }
+            let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+            let world = frame.parent * local;
+            if !world.is_finite() {
+                self.report(&location, "its world transform has a NaN or infinite entry");
+                continue;
+            }
+            let selected = frame.selected
+                || node
+                    .name()
+                    .is_some_and(|n| self.options.nodes.iter().any(|s| s == n));
+            let mut object = frame.object;
+            let mut object_from_world = frame.object_from_world;
+            if selected && self.is_dynamic(&node) {
+                if object != 0 {
+                    let outer = objects[object as usize].name.clone();
+                    self.report(
+                        &location,
+                        format!(
+                            "is marked dynamic inside dynamic object \"{outer}\"; nested dynamic objects are not supported"
+                        ),
+                    );
+                } else if let Some(name) = node.name() {
+                    if objects.iter().any(|o| o.name == name) {
+                        self.report(
+                            &location,
+                            format!("another dynamic object is also called \"{name}\""),
+                        );
+                    } else if name == STATIC_NAME {
+                        self.report(
+                            &location,
+                            format!("\"{STATIC_NAME}\" is reserved for the static world"),
+                        );
+                    }
+                    let (_, rotation, translation) = world.to_scale_rotation_translation();
+                    let rotation = rotation.normalize();
+                    if !rotation.is_finite() || !translation.is_finite() {
+                        self.report(
+                            &location,
+                            "its world transform has no rotation (it is singular), so it cannot be a dynamic object's pose",
+                        );
+                    }
+                    let pose = Pose {
+                        translation,
+                        rotation,
+                        scale: 1.0,
+                    };
+                    object = objects.len() as u32;
+                    object_from_world =
+                        Mat4::from_rotation_translation(rotation, translation).inverse();
+                    objects.push(ImportedObject {
+                        name: name.to_string(),
+                        node: Some(node.index()),
+                        pose,
+                    });
+                } else {
+                    self.report(
+                        &location,
+                        "is marked dynamic but has no name; dynamic objects are driven by name",
+                    );
+                }
+            }
+
+            if selected {
+                if let Some(mesh) = node.mesh() {
+                    let to_object = object_from_world * world;
+                    let det = Mat3::from_mat4(to_object).determinant();
+                    if det.abs() <= f32::MIN_POSITIVE || !det.is_finite() {
+                        self.report(
+                            &location,
+                            format!(
+                                "its transform is singular (determinant {det:e}): it flattens mesh #{} to zero area",
+                                mesh.index()
+                            ),
+                        );
+                    } else {
+                        for primitive in mesh.primitives() {
+                            let Some(data) = self.primitive(&node, &mesh, &primitive) else {
+                                continue;
+                            };
+                            let material = match data.material {
+                                Some(m) => m as u32,
+                                None => {
+                                    used_default = true;
+                                    default_material as u32
+                                }
+                            };
+                            let instance = self.instance(
+                                &node, &mesh, &primitive, data, to_object, det, object, material,
+                            );
+                            if let Some(instance) = instance {
+                                instances.push(instance);
+                            }
+                        }
+                        self.check_mesh_uvs(&node, &mesh);
+                    }
+                }
+            }
+            for child in node.children().collect::<Vec<_>>().into_iter().rev() {
+                stack.push(Frame {
+                    node: child,
+                    parent: world,
+                    selected,
+                    object,
+                    object_from_world,
+                });
+            }
+        }
+        if used_default {
+            materials.push(ImportedMaterial {
+                name: "default".to_string(),
+                albedo: Vec3::splat(ALBEDO_MAX),
+                emission: Vec3::ZERO,
+                base_color_texture: None,
+            });
+        }
+        ImportedScene {
+            materials,
+            objects,
+            instances,
+        }
+    }
+
+    fn is_dynamic(&mut self, node: &::gltf::Node) -> bool {
+        let by_option = node
+            .name()
+            .is_some_and(|n| self.options.dynamic_nodes.iter().any(|d| d == n));
+        let Some(raw) = node.extras() else {
+            return by_option;
+        };
+        let location = named("node", node.index(), node.name());
+        let value: serde_json::Value = match serde_json::from_str(raw.get()) {
+            Ok(v) => v,
+            Err(e) => {
+                self.report(&location, format!("extras are not valid JSON: {e}"));
+                return by_option;
+            }
+        };
+        match value.get("lightwire").map(|l| l.get("dynamic")) {
+            None | Some(None) => by_option,
+            Some(Some(serde_json::Value::Bool(b))) => by_option || *b,
+            Some(Some(other)) => {
+                self.report(
+                    &location,
+                    format!("extras.lightwire.dynamic = {other} must be true or false"),
+                );
+                by_option
+            }
+        }
+    }
+
+    fn material(&mut self, m: &::gltf::Material) -> ImportedMaterial {
+        let index = m.index().unwrap_or(0);
+        let name = m
+            .name()
+            .map(str::to_string)
+            .unwrap_or_else(|| format!("material #{index}"));
+        let location = named("material", index, m.name());
+        let pbr = m.pbr_metallic_roughness();
+        let [r, g, b, _] = pbr.base_color_factor();
+        let raw = Vec3::new(r, g, b);
+        let albedo = raw.clamp(Vec3::ZERO, Vec3::splat(ALBEDO_MAX));
+        if albedo != raw {
+            tracing::warn!(
+                "{location}: baseColorFactor {raw:?} clamped to {albedo:?} (albedo must stay below 1)"
+            );
+        }
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let emission = Vec3::from(m.emissive_factor()) * strength * self.options.emission_scale;
+        if !emission.is_finite() || emission.min_element() < 0.0 {
+            self.report(
+                &location,
+                format!("emission {emission:?} W/m² (emissiveFactor × emissive_strength × emission_scale) must be finite and >= 0"),
+            );
+        }
+        let base_color_texture = pbr.base_color_texture().map(|info| {
+            let image = info.texture().source();
+            let source = match image.source() {
+                ::gltf::image::Source::View { view, mime_type } => {
+                    let bytes = self
+                        .buffers
+                        .get(view.buffer().index())
+                        .and_then(|b| b.as_ref())
+                        .and_then(|b| {
+                            b.get(view.offset()..view.offset().checked_add(view.length())?)
+                        })
+                        .map(<[u8]>::to_vec);
+                    match bytes {
+                        Some(bytes) => ImageSource::Embedded {
+                            mime_type: mime_type.to_string(),
+                            bytes,
+                        },
+                        None => {
+                            self.report(
+                                &named("image", image.index(), image.name()),
+                                format!(
+                                    "buffer view #{} is not inside a loaded buffer",
+                                    view.index()
+                                ),
+                            );
+                            ImageSource::Embedded {
+                                mime_type: mime_type.to_string(),
+                                bytes: Vec::new(),
+                            }
+                        }
+                    }
+                }
+                ::gltf::image::Source::Uri { uri, .. } => ImageSource::Uri {
+                    uri: uri.to_string(),
+                },
+            };
+            TextureRef {
+                image: image.index(),
+                tex_coord: info.tex_coord(),
+                source,
+            }
+        });
+        ImportedMaterial {
+            name,
+            albedo,
+            emission,
+            base_color_texture,
+        }
+    }
+
+    /// Reads and checks a primitive in mesh space (once per primitive).
+    fn primitive(
+        &mut self,
+        node: &::gltf::Node,
+        mesh: &::gltf::Mesh,
+        primitive: &::gltf::Primitive,
+    ) -> Option<PrimitiveData> {
+        let key = (mesh.index(), primitive.index());
+        if let Some(done) = self.primitives.get(&key) {
+            return done.clone();
+        }
+        let location = primitive_location(node, mesh, primitive.index());
+        let before = self.issues.len();
+        let data = self.read_primitive(&location, primitive);
+        let data = if self.issues.len() == before {
+            data
+        } else {
+            None
+        };
+        self.primitives.insert(key, data.clone());
+        data
+    }
+
+    fn read_primitive(
+        &mut self,
+        location: &str,
+        primitive: &::gltf::Primitive,
+    ) -> Option<PrimitiveData> {
+        use ::gltf::mesh::{Mode, Semantic};
+        if primitive.mode() != Mode::Triangles {
+            self.report(
+                location,
+                format!(
+                    "mode {:?} is not supported; only TRIANGLES (4) primitives can be lit (export triangles)",
+                    primitive.mode()
+                ),
+            );
+            return None;
+        }
+        let reader = accessor::Reader {
+            buffers: &self.buffers,
+        };
+        let mut problems = Vec::new();
+        let positions = match primitive.get(&Semantic::Positions) {
+            None => {
+                problems.push("has no POSITION attribute".to_string());
+                None
+            }
+            Some(a) => reader
+                .vec3(&a, "POSITION")
+                .map_err(|e| problems.push(e))
+                .ok(),
+        };
+        let normals = primitive
+            .get(&Semantic::Normals)
+            .and_then(|a| reader.vec3(&a, "NORMAL").map_err(|e| problems.push(e)).ok());
+        let uv0 = primitive.get(&Semantic::TexCoords(0)).and_then(|a| {
+            reader
+                .vec2(&a, "TEXCOORD_0")
+                .map_err(|e| problems.push(e))
+                .ok()
+        });
+        let uv1 = primitive.get(&Semantic::TexCoords(1)).and_then(|a| {
+            reader
+                .vec2(&a, "TEXCOORD_1")
+                .map_err(|e| problems.push(e))
+                .ok()
+        });
+        let flat = match primitive.indices() {
+            Some(a) => reader.indices(&a).map_err(|e| problems.push(e)).ok(),
+            None => positions
+                .as_ref()
+                .map(|p| (0..p.len() as u32).collect::<Vec<u32>>()),
+        };
+        for p in problems {
+            self.report(location, p);
+        }
+        let positions = positions?;
+        let flat = flat?;
+        let n = positions.len();
+        for (what, len) in [
+            ("NORMAL", normals.as_ref().map(Vec::len)),
+            ("TEXCOORD_0", uv0.as_ref().map(Vec::len)),
+            ("TEXCOORD_1", uv1.as_ref().map(Vec::len)),
+        ] {
+            if let Some(len) = len {
+                if len != n {
+                    self.report(
+                        location,
+                        format!("{what} has {len} elements but POSITION has {n}"),
+                    );
+                }
+            }
+        }
+        if flat.len() % 3 != 0 {
+            self.report(
+                location,
+                format!(
+                    "{} indices (or vertices, when not indexed) is not a multiple of 3",
+                    flat.len()
+                ),
+            );
+            return None;
+        }
+        let indices: Vec<[u32; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+
+        // Non-finite positions: the first few by vertex index, then a count.
+        let bad: Vec<usize> = (0..n).filter(|&i| !positions[i].is_finite()).collect();
+        self.listed(location, &bad, |i| {
+            format!(
+                "POSITION of vertex {i} is {:?}: not a finite number",
+                positions[i]
+            )
+        });
+        // Out-of-range indices.
+        let out: Vec<usize> = (0..indices.len())
+            .filter(|&t| indices[t].iter().any(|&v| v as usize >= n))
+            .collect();
+        self.listed(location, &out, |t| {
+            format!(
+                "triangle {t} has indices {:?}, but there are only {n} vertices",
+                indices[t]
+            )
+        });
+        if !bad.is_empty() || !out.is_empty() {
+            return None;
+        }
+        // Degenerate triangles (mesh space).
+        let degenerate: Vec<usize> = (0..indices.len())
+            .filter(|&t| {
+                let [a, b, c] = indices[t].map(|v| positions[v as usize]);
+                let twice_area = (b - a).cross(c - a).length();
+                let longest = (b - a)
+                    .length_squared()
+                    .max((c - b).length_squared())
+                    .max((a - c).length_squared());
+                twice_area.is_nan() || twice_area <= DEGENERATE_RATIO * longest
+            })
+            .collect();
+        self.listed(location, &degenerate, |t| {
+            let [a, b, c] = indices[t].map(|v| positions[v as usize]);
+            format!(
+                "triangle {t} (vertices {:?}) is degenerate: area {:e} m² for corners {a}, {b}, {c}",
+                indices[t],
+                0.5 * (b - a).cross(c - a).length()
+            )
+        });
+        // Lightmap UVs inside [0, 1].
+        if let Some(uv) = &uv1 {
+            let lo = -UV_RANGE_SLACK;
+            let hi = 1.0 + UV_RANGE_SLACK;
+            let outside: Vec<usize> = (0..uv.len())
+                .filter(|&i| {
+                    !(uv[i].cmpge(Vec2::splat(lo)).all() && uv[i].cmple(Vec2::splat(hi)).all())
+                })
+                .collect();
+            self.listed(location, &outside, |i| {
+                format!(
+                    "TEXCOORD_1 of vertex {i} is {:?}: lightmap UVs must lie in [0, 1]",
+                    uv[i]
+                )
+            });
+        }
+        Some(PrimitiveData {
+            positions,
+            normals,
+            indices,
+            uv0,
+            uv1,
+            material: primitive.material().index(),
+        })
+    }
+
+    /// Reports the first [`MAX_LISTED`] items and a count of the rest.
+    fn listed(&mut self, location: &str, items: &[usize], describe: impl Fn(usize) -> String) {
+        for &i in items.iter().take(MAX_LISTED) {
+            self.report(location, describe(i));
+        }
+        if items.len() > MAX_LISTED {
+            self.report(
+                location,
+                format!("... and {} more like these", items.len() - MAX_LISTED),
+            );
+        }
+    }
+
+    /// Overlap check of `TEXCOORD_1` across all primitives of a mesh (once
+    /// per mesh).
+    fn check_mesh_uvs(&mut self, node: &::gltf::Node, mesh: &::gltf::Mesh) {
+        if self.uv_checked.insert(mesh.index(), ()).is_some() {
+            return;
+        }
+        let mut tris: Vec<[Vec2; 3]> = Vec::new();
+        // (primitive, triangle index within it) for each entry of `tris`.
+        let mut origin: Vec<(usize, usize)> = Vec::new();
+        for primitive in mesh.primitives() {
+            let Some(Some(data)) = self.primitives.get(&(mesh.index(), primitive.index())) else {
+                continue;
+            };
+            let Some(uv) = &data.uv1 else { continue };
+            for (t, tri) in data.indices.iter().enumerate() {
+                tris.push(tri.map(|v| uv[v as usize]));
+                origin.push((primitive.index(), t));
+            }
+        }
+        if tris.is_empty() {
+            return;
+        }
+        let zero: Vec<usize> = (0..tris.len())
+            .filter(|&i| {
+                let [a, b, c] = tris[i];
+                let twice_area = (b - a).perp_dot(c - a).abs();
+                twice_area.is_nan() || twice_area <= 1e-12
+            })
+            .collect();
+        let at = |(p, _): (usize, usize)| primitive_location(node, mesh, p);
+        for &i in zero.iter().take(MAX_LISTED) {
+            let t = origin[i].1;
+            self.report(
+                &at(origin[i]),
+                format!(
+                    "triangle {t} has zero area in TEXCOORD_1 ({:?}): it would get no lightmap texels",
+                    tris[i]
+                ),
+            );
+        }
+        if zero.len() > MAX_LISTED {
+            self.report(
+                &named("mesh", mesh.index(), mesh.name()),
+                format!(
+                    "... and {} more triangles with zero TEXCOORD_1 area",
+                    zero.len() - MAX_LISTED
+                ),
+            );
+        }
+        let overlaps = match find_uv_overlaps(&tris, MAX_LISTED + 1) {
+            Ok(o) => o,
+            Err(work) => {
+                self.report(
+                    &named("mesh", mesh.index(), mesh.name()),
+                    format!(
+                        "TEXCOORD_1 of its {} triangles cannot be checked for overlaps: the layout needs {work} grid entries or candidate pairs, over the limit (very long thin or heavily piled-up UV triangles)",
+                        tris.len()
+                    ),
+                );
+                return;
+            }
+        };
+        for o in overlaps.iter().take(MAX_LISTED) {
+            let (pa, ta) = origin[o.a];
+            let (pb, tb) = origin[o.b];
+            let other = if pa == pb {
+                format!("triangle {tb}")
+            } else {
+                format!("triangle {tb} of primitive #{pb}")
+            };
+            self.report(
+                &at((pa, ta)),
+                format!(
+                    "triangle {ta} overlaps {other} in TEXCOORD_1 by {:.3e} (UV units², {:.1}% of the smaller): lightmap UVs must not overlap",
+                    o.area,
+                    100.0 * o.fraction
+                ),
+            );
+        }
+        if overlaps.len() > MAX_LISTED {
+            self.report(
+                &named("mesh", mesh.index(), mesh.name()),
+                "... and more overlapping TEXCOORD_1 triangles",
+            );
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn instance(
+        &mut self,
+        node: &::gltf::Node,
+        mesh: &::gltf::Mesh,
+        primitive: &::gltf::Primitive,
+        data: PrimitiveData,
+        to_object: Mat4,
+        det: f32,
+        object: u32,
+        material: u32,
+    ) -> Option<MeshInstance> {
+        let positions: Vec<Vec3> = data
+            .positions
+            .iter()
+            .map(|&p| to_object.transform_point3(p))
+            .collect();
+        if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+            self.report(
+                &primitive_location(node, mesh, primitive.index()),
+                format!(
+                    "vertex {i} at {:?} is not finite after the node transform",
+                    data.positions[i]
+                ),
+            );
+            return None;
+        }
+        let normal_matrix = Mat3::from_mat4(to_object).inverse().transpose();
+        let normals = data.normals.map(|ns| {
+            ns.iter()
+                .map(|&n| (normal_matrix * n).normalize_or_zero())
+                .collect()
+        });
+        let mut indices = data.indices;
+        if det < 0.0 {
+            // A mirroring transform turns counter-clockwise into clockwise
+            // (glTF §5.25, node: "the winding order ... is reversed").
+            for t in &mut indices {
+                t.swap(1, 2);
+            }
+        }
+        Some(MeshInstance {
+            node: node.index(),
+            node_name: node.name().map(str::to_string),
+            mesh: mesh.index(),
+            mesh_name: mesh.name().map(str::to_string),
+            primitive: primitive.index(),
+            object,
+            material,
+            positions,
+            normals,
+            indices,
+            uv0: data.uv0,
+            lightmap_uvs: data.uv1,
+        })
+    }
+}

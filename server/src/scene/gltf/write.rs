@@ -1,0 +1,490 @@
+//! A glTF 2.0 writer for triangle meshes: `.glb`, or `.gltf` with a `.bin`.
+//!
+//! The JSON is built with `gltf-json` (re-exported by the `gltf` crate) and
+//! the binary container with `gltf::binary::Glb` (glTF 2.0 §4.4, "GLB File
+//! Format Specification"). Everything is written in a fixed order with
+//! explicit values, so the same input gives the same bytes: the committed
+//! test content in `scenes/meshes/` is checked against a regeneration.
+//!
+//! What it writes: per primitive POSITION (with min/max), optional NORMAL,
+//! TEXCOORD_0, TEXCOORD_1, and u32 indices, each in its own buffer view;
+//! materials with `baseColorFactor`, an optional base colour texture (a PNG
+//! embedded in the binary chunk, sampled with TEXCOORD_0, repeating),
+//! `emissiveFactor` and `KHR_materials_emissive_strength`; nodes with names,
+//! translation/rotation/scale, children and `extras`.
+
+use std::borrow::Cow;
+use std::collections::BTreeMap;
+
+use ::gltf::json;
+use glam::{Quat, Vec2, Vec3};
+use json::validation::Checked::Valid;
+use json::validation::USize64;
+
+/// Why a document could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteError {
+    #[error("{0}")]
+    Invalid(String),
+    #[error("glTF serialisation failed: {0}")]
+    Json(String),
+}
+
+/// A document to write.
+#[derive(Debug, Clone, Default)]
+pub struct GlbScene {
+    pub materials: Vec<GlbMaterial>,
+    pub images: Vec<GlbImage>,
+    pub meshes: Vec<GlbMesh>,
+    pub nodes: Vec<GlbNode>,
+    /// Indices of the nodes placed directly in the (single) scene.
+    pub roots: Vec<usize>,
+}
+
+/// A material in Lightwire's units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbMaterial {
+    pub name: String,
+    /// Written as `baseColorFactor` (alpha 1).
+    pub base_color: Vec3,
+    /// W/m² per channel. Written as `emissiveFactor` = emission / m and
+    /// `KHR_materials_emissive_strength` = m, m the largest channel, when
+    /// m > 1 (glTF clamps `emissiveFactor` to [0, 1]); else as
+    /// `emissiveFactor` alone.
+    pub emission: Vec3,
+    /// Index into [`GlbScene::images`], sampled with TEXCOORD_0.
+    pub base_color_texture: Option<usize>,
+}
+
+/// A PNG image embedded in the binary chunk.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbImage {
+    pub name: String,
+    pub png: Vec<u8>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbMesh {
+    pub name: String,
+    pub primitives: Vec<GlbPrimitive>,
+}
+
+/// A triangle list; attribute arrays, when present, have one entry per
+/// position.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbPrimitive {
+    pub positions: Vec<Vec3>,
+    pub normals: Option<Vec<Vec3>>,
+    pub uv0: Option<Vec<Vec2>>,
+    pub uv1: Option<Vec<Vec2>>,
+    pub indices: Vec<[u32; 3]>,
+    /// Index into [`GlbScene::materials`]; `None` is glTF's default material.
+    pub material: Option<usize>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbNode {
+    pub name: String,
+    pub mesh: Option<usize>,
+    pub translation: Vec3,
+    pub rotation: Quat,
+    /// Per-axis scale.
+    pub scale: Vec3,
+    pub children: Vec<usize>,
+    /// Written as the node's `extras`, e.g. `{"lightwire": {"dynamic": true}}`.
+    pub extras: Option<serde_json::Value>,
+}
+
+impl GlbNode {
+    /// A node with the identity transform and no children.
+    pub fn new(name: impl Into<String>, mesh: Option<usize>) -> Self {
+        Self {
+            name: name.into(),
+            mesh,
+            translation: Vec3::ZERO,
+            rotation: Quat::IDENTITY,
+            scale: Vec3::ONE,
+            children: Vec::new(),
+            extras: None,
+        }
+    }
+}
+
+/// The extension name for emission strength.
+const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
+
+struct Builder {
+    root: json::Root,
+    bin: Vec<u8>,
+}
+
+impl Builder {
+    /// Appends bytes as a new buffer view, 4-byte aligned.
+    fn view(
+        &mut self,
+        bytes: &[u8],
+        target: Option<json::buffer::Target>,
+    ) -> json::Index<json::buffer::View> {
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
+        }
+        let offset = self.bin.len();
+        self.bin.extend_from_slice(bytes);
+        self.root.push(json::buffer::View {
+            buffer: json::Index::new(0),
+            byte_length: USize64::from(bytes.len()),
+            byte_offset: Some(USize64::from(offset)),
+            byte_stride: None,
+            extensions: None,
+            extras: None,
+            name: None,
+            target: target.map(Valid),
+        })
+    }
+
+    fn accessor(
+        &mut self,
+        bytes: &[u8],
+        count: usize,
+        component: json::accessor::ComponentType,
+        type_: json::accessor::Type,
+        target: json::buffer::Target,
+        bounds: Option<(Vec<f32>, Vec<f32>)>,
+    ) -> json::Index<json::Accessor> {
+        let view = self.view(bytes, Some(target));
+        let (min, max) = match bounds {
+            Some((lo, hi)) => (Some(json::Value::from(lo)), Some(json::Value::from(hi))),
+            None => (None, None),
+        };
+        self.root.push(json::Accessor {
+            buffer_view: Some(view),
+            byte_offset: None,
+            count: USize64::from(count),
+            component_type: Valid(json::accessor::GenericComponentType(component)),
+            extensions: None,
+            extras: None,
+            type_: Valid(type_),
+            min,
+            max,
+            name: None,
+            normalized: false,
+            sparse: None,
+        })
+    }
+
+    fn floats(
+        &mut self,
+        values: &[f32],
+        n: usize,
+        type_: json::accessor::Type,
+        bounds: bool,
+    ) -> json::Index<json::Accessor> {
+        let bytes: Vec<u8> = values.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let bounds = bounds.then(|| {
+            let mut lo = vec![f32::INFINITY; n];
+            let mut hi = vec![f32::NEG_INFINITY; n];
+            for chunk in values.chunks_exact(n) {
+                for k in 0..n {
+                    lo[k] = lo[k].min(chunk[k]);
+                    hi[k] = hi[k].max(chunk[k]);
+                }
+            }
+            (lo, hi)
+        });
+        self.accessor(
+            &bytes,
+            values.len() / n,
+            json::accessor::ComponentType::F32,
+            type_,
+            json::buffer::Target::ArrayBuffer,
+            bounds,
+        )
+    }
+}
+
+fn extras(value: &Option<serde_json::Value>) -> Result<json::Extras, WriteError> {
+    value
+        .as_ref()
+        .map(|v| serde_json::value::to_raw_value(v).map_err(|e| WriteError::Json(e.to_string())))
+        .transpose()
+}
+
+impl GlbScene {
+    fn check(&self) -> Result<(), WriteError> {
+        let bad = |m: String| Err(WriteError::Invalid(m));
+        for (mi, mesh) in self.meshes.iter().enumerate() {
+            for (pi, p) in mesh.primitives.iter().enumerate() {
+                let n = p.positions.len();
+                let at = format!("mesh #{mi} \"{}\" primitive #{pi}", mesh.name);
+                if n == 0 || p.indices.is_empty() {
+                    return bad(format!("{at} is empty"));
+                }
+                for (what, len) in [
+                    ("normals", p.normals.as_ref().map(Vec::len)),
+                    ("uv0", p.uv0.as_ref().map(Vec::len)),
+                    ("uv1", p.uv1.as_ref().map(Vec::len)),
+                ] {
+                    if len.is_some_and(|l| l != n) {
+                        return bad(format!("{at}: {what} has a length other than {n}"));
+                    }
+                }
+                if p.uv1.is_some() && p.uv0.is_none() {
+                    // glTF 2.0 §3.7.2.1: TEXCOORD_n sets must be contiguous
+                    // from 0 (the Khronos validator's
+                    // MESH_PRIMITIVE_INDEXED_SEMANTIC_CONTINUITY).
+                    return bad(format!("{at}: uv1 (TEXCOORD_1) needs uv0 (TEXCOORD_0) too"));
+                }
+                if p.indices.iter().flatten().any(|&i| i as usize >= n) {
+                    return bad(format!("{at}: an index is out of range"));
+                }
+                if p.material.is_some_and(|m| m >= self.materials.len()) {
+                    return bad(format!("{at}: no such material"));
+                }
+            }
+        }
+        for (i, node) in self.nodes.iter().enumerate() {
+            if node.mesh.is_some_and(|m| m >= self.meshes.len())
+                || node.children.iter().any(|&c| c >= self.nodes.len())
+            {
+                return bad(format!(
+                    "node #{i} \"{}\" refers to a missing mesh or node",
+                    node.name
+                ));
+            }
+        }
+        if self.roots.iter().any(|&r| r >= self.nodes.len()) {
+            return bad("a root refers to a missing node".to_string());
+        }
+        for m in &self.materials {
+            if m.base_color_texture.is_some_and(|t| t >= self.images.len()) {
+                return bad(format!("material \"{}\" refers to a missing image", m.name));
+            }
+        }
+        Ok(())
+    }
+
+    /// The glTF JSON and the binary buffer; `bin_uri` names the buffer's file
+    /// (for `.gltf`) or is `None` (for `.glb`, the binary chunk).
+    pub fn to_json_and_bin(&self, bin_uri: Option<&str>) -> Result<(String, Vec<u8>), WriteError> {
+        self.check()?;
+        let mut b = Builder {
+            root: json::Root::default(),
+            bin: Vec::new(),
+        };
+        b.root.asset = json::Asset {
+            generator: Some("Lightwire".to_string()),
+            ..Default::default()
+        };
+
+        // Images, their textures, one sampler.
+        let mut textures = Vec::new();
+        if !self.images.is_empty() {
+            let sampler = b.root.push(json::texture::Sampler {
+                mag_filter: Some(Valid(json::texture::MagFilter::Nearest)),
+                min_filter: Some(Valid(json::texture::MinFilter::Nearest)),
+                wrap_s: Valid(json::texture::WrappingMode::Repeat),
+                wrap_t: Valid(json::texture::WrappingMode::Repeat),
+                ..Default::default()
+            });
+            for image in &self.images {
+                let view = b.view(&image.png, None);
+                let source = b.root.push(json::Image {
+                    buffer_view: Some(view),
+                    mime_type: Some(json::image::MimeType("image/png".to_string())),
+                    name: Some(image.name.clone()),
+                    uri: None,
+                    extensions: None,
+                    extras: None,
+                });
+                textures.push(b.root.push(json::Texture {
+                    name: Some(image.name.clone()),
+                    sampler: Some(sampler),
+                    source,
+                    extensions: None,
+                    extras: None,
+                }));
+            }
+        }
+
+        let mut uses_strength = false;
+        for m in &self.materials {
+            let peak = m.emission.max_element();
+            let (factor, strength) = if peak > 1.0 {
+                uses_strength = true;
+                (m.emission / peak, Some(peak))
+            } else {
+                (m.emission, None)
+            };
+            let mut material = json::Material {
+                name: Some(m.name.clone()),
+                emissive_factor: json::material::EmissiveFactor(factor.to_array()),
+                ..Default::default()
+            };
+            material.pbr_metallic_roughness.base_color_factor =
+                json::material::PbrBaseColorFactor([
+                    m.base_color.x,
+                    m.base_color.y,
+                    m.base_color.z,
+                    1.0,
+                ]);
+            // Diffuse surfaces: no metal, fully rough.
+            material.pbr_metallic_roughness.metallic_factor = json::material::StrengthFactor(0.0);
+            material.pbr_metallic_roughness.roughness_factor = json::material::StrengthFactor(1.0);
+            material.pbr_metallic_roughness.base_color_texture =
+                m.base_color_texture.map(|t| json::texture::Info {
+                    index: textures[t],
+                    tex_coord: 0,
+                    extensions: None,
+                    extras: None,
+                });
+            if let Some(s) = strength {
+                let mut extensions = json::extensions::material::Material::default();
+                extensions.emissive_strength = Some(json::extensions::material::EmissiveStrength {
+                    emissive_strength: json::extensions::material::EmissiveStrengthFactor(s),
+                });
+                material.extensions = Some(extensions);
+            }
+            b.root.push(material);
+        }
+        if uses_strength {
+            b.root.extensions_used.push(EMISSIVE_STRENGTH.to_string());
+        }
+
+        use json::accessor::Type;
+        use json::mesh::Semantic;
+        for mesh in &self.meshes {
+            let mut primitives = Vec::new();
+            for p in &mesh.primitives {
+                let mut attributes = BTreeMap::new();
+                let flat: Vec<f32> = p.positions.iter().flat_map(|v| v.to_array()).collect();
+                attributes.insert(
+                    Valid(Semantic::Positions),
+                    b.floats(&flat, 3, Type::Vec3, true),
+                );
+                if let Some(ns) = &p.normals {
+                    let flat: Vec<f32> = ns.iter().flat_map(|v| v.to_array()).collect();
+                    attributes.insert(
+                        Valid(Semantic::Normals),
+                        b.floats(&flat, 3, Type::Vec3, false),
+                    );
+                }
+                for (set, uv) in [(0, &p.uv0), (1, &p.uv1)] {
+                    if let Some(uv) = uv {
+                        let flat: Vec<f32> = uv.iter().flat_map(|v| v.to_array()).collect();
+                        attributes.insert(
+                            Valid(Semantic::TexCoords(set)),
+                            b.floats(&flat, 2, Type::Vec2, false),
+                        );
+                    }
+                }
+                let bytes: Vec<u8> = p
+                    .indices
+                    .iter()
+                    .flatten()
+                    .flat_map(|i| i.to_le_bytes())
+                    .collect();
+                let indices = b.accessor(
+                    &bytes,
+                    p.indices.len() * 3,
+                    json::accessor::ComponentType::U32,
+                    Type::Scalar,
+                    json::buffer::Target::ElementArrayBuffer,
+                    None,
+                );
+                primitives.push(json::mesh::Primitive {
+                    attributes,
+                    extensions: None,
+                    extras: None,
+                    indices: Some(indices),
+                    material: p.material.map(|m| json::Index::new(m as u32)),
+                    mode: Valid(json::mesh::Mode::Triangles),
+                    targets: None,
+                });
+            }
+            b.root.push(json::Mesh {
+                extensions: None,
+                extras: None,
+                name: Some(mesh.name.clone()),
+                primitives,
+                weights: None,
+            });
+        }
+
+        for node in &self.nodes {
+            let n = json::Node {
+                name: Some(node.name.clone()),
+                mesh: node.mesh.map(|m| json::Index::new(m as u32)),
+                children: (!node.children.is_empty()).then(|| {
+                    node.children
+                        .iter()
+                        .map(|&c| json::Index::new(c as u32))
+                        .collect()
+                }),
+                translation: (node.translation != Vec3::ZERO).then(|| node.translation.to_array()),
+                rotation: (node.rotation != Quat::IDENTITY)
+                    .then(|| json::scene::UnitQuaternion(node.rotation.to_array())),
+                scale: (node.scale != Vec3::ONE).then(|| node.scale.to_array()),
+                extras: extras(&node.extras)?,
+                ..Default::default()
+            };
+            b.root.push(n);
+        }
+        let scene = b.root.push(json::Scene {
+            extensions: None,
+            extras: None,
+            name: None,
+            nodes: self
+                .roots
+                .iter()
+                .map(|&r| json::Index::new(r as u32))
+                .collect(),
+        });
+        b.root.scene = Some(scene);
+
+        while !b.bin.len().is_multiple_of(4) {
+            b.bin.push(0);
+        }
+        b.root.push(json::Buffer {
+            byte_length: USize64::from(b.bin.len()),
+            extensions: None,
+            extras: None,
+            name: None,
+            uri: bin_uri.map(str::to_string),
+        });
+        let text =
+            json::serialize::to_string(&b.root).map_err(|e| WriteError::Json(e.to_string()))?;
+        Ok((text, b.bin))
+    }
+
+    /// The document as a binary glTF (`.glb`).
+    pub fn to_glb(&self) -> Result<Vec<u8>, WriteError> {
+        let (text, bin) = self.to_json_and_bin(None)?;
+        pack_glb(text.as_bytes(), &bin)
+    }
+}
+
+/// Packs a JSON chunk and a binary chunk into a GLB container (each padded
+/// to 4 bytes: JSON with spaces, binary with zeros, glTF §4.4.3).
+pub fn pack_glb(json_text: &[u8], bin: &[u8]) -> Result<Vec<u8>, WriteError> {
+    let mut text = json_text.to_vec();
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let mut bin = bin.to_vec();
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let length = 12 + 8 + text.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
+    let glb = ::gltf::binary::Glb {
+        header: ::gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: u32::try_from(length).map_err(|_| {
+                WriteError::Invalid(format!("{length} bytes is too large for a GLB"))
+            })?,
+        },
+        json: Cow::Owned(text),
+        bin: (!bin.is_empty()).then_some(Cow::Owned(bin)),
+    };
+    glb.to_vec().map_err(|e| WriteError::Json(e.to_string()))
+}
