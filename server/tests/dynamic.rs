@@ -112,6 +112,23 @@ fn publish_bound(method: Redistribution) -> f64 {
     }
 }
 
+/// The static scene without its dynamic objects (cross redistribution's
+/// starting point, thesis §4.5.2), solved to `threshold` unshot.
+fn static_solve(scene: &Scene, atlas: &Atlas, poses: &[Pose], threshold: f64) -> ProgressiveSolver {
+    let absent: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
+    let mut s = ProgressiveSolver::with_absent(
+        gpu(),
+        scene,
+        atlas,
+        poses,
+        &absent,
+        ProgressiveOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    s.solve(threshold).unwrap_or_else(|e| panic!("{e}"));
+    s
+}
+
 fn session(scene: &Scene, atlas: &Atlas, method: Redistribution) -> Session {
     session_with(scene, atlas, method, ProgressiveOptions::default())
 }
@@ -494,16 +511,7 @@ fn cross_removal_undoes_insertion_in_a_furnace_with_a_box() {
     // static lightmap where it was.
     let poses = scene.initial_poses();
     let dynamic: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
-    let mut s = ProgressiveSolver::with_absent(
-        gpu(),
-        &scene,
-        &atlas,
-        &poses,
-        &dynamic,
-        ProgressiveOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    s.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
+    let mut s = static_solve(&scene, &atlas, &poses, 1e-3);
     let before = s.radiosity().unwrap_or_else(|e| panic!("{e}"));
     for absent in [vec![false; poses.len()], dynamic.clone()] {
         let mut mv = s
@@ -738,18 +746,9 @@ fn cross_projection_blocks_what_rays_say() {
     let mut d = session(&scene, &atlas, Redistribution::Cross);
     settle(&mut d);
     let with_box = d.raw_radiosity().unwrap_or_else(|e| panic!("{e}"));
-    let absent: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
-    let mut statics = ProgressiveSolver::with_absent(
-        gpu(),
-        &scene,
-        &atlas,
-        &poses,
-        &absent,
-        ProgressiveOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    statics.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-    let without = statics.total_radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let without = static_solve(&scene, &atlas, &poses, 1e-4)
+        .total_radiosity()
+        .unwrap_or_else(|e| panic!("{e}"));
 
     let validity = Validity::compute(&scene, &atlas, &poses);
     let receivers: Vec<usize> = (0..atlas.elements.len())
