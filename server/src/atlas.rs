@@ -68,15 +68,26 @@ pub struct Element {
     pub position: Vec3,
     /// Unit normal in object-local space.
     pub normal: Vec3,
-    /// Area this element stands for, in object-local units (m²).
+    /// Area this element stands for, in object-local units (m²); 0 for a
+    /// texel of a triangle's chart that lies wholly above the diagonal
+    /// ([`Element::covers_surface`]).
     pub area: f32,
     /// The bounds of the region it stands for, in patch parameters:
-    /// `[s0, t0, s1, t1]`.
+    /// `[s0, t0, s1, t1]`; on a triangle, only its part with `t <= s`.
     pub region: [f32; 4],
     /// Diffuse reflectance per channel (from the material).
     pub albedo: Vec3,
     /// Self-emitted radiant exitance per channel (from the material).
     pub emission: Vec3,
+}
+
+impl Element {
+    /// Whether the texel stands for any surface: false only for the texels
+    /// of a triangle's chart above its diagonal, which are invalid
+    /// everywhere (`validity.rs`) and filled by dilation.
+    pub fn covers_surface(&self) -> bool {
+        self.area > 0.0
+    }
 }
 
 /// The packed atlas and its elements.
@@ -111,13 +122,22 @@ fn texels_along(length: f32, density: f32) -> u32 {
     (cells.min(1.0e9) as u32).saturating_add(1)
 }
 
-/// Chart dimensions for one patch.
+/// Chart dimensions for one patch: a quad's edges each at the density; a
+/// triangle's chart is square (its third edge runs along the chart's
+/// diagonal, whose texel centres must lie on it), with as many texels per
+/// side as its longest edge needs, so that no edge is sampled more coarsely
+/// than the density.
 fn chart_size(patch: &Patch) -> (u32, u32) {
     match patch.shape {
         PatchShape::Quad { u, v, .. } => (
             texels_along(u.length(), patch.texel_density),
             texels_along(v.length(), patch.texel_density),
         ),
+        PatchShape::Triangle { u, v, .. } => {
+            let longest = u.length().max(v.length()).max((u + v).length());
+            let n = texels_along(longest, patch.texel_density);
+            (n, n)
+        }
     }
 }
 
@@ -217,6 +237,38 @@ fn sample_param(a: u32, n: u32, corner: bool) -> f32 {
     s
 }
 
+/// The part of the parameter box `[s0, s1] x [t0, t1]` on the triangle's
+/// side of the chart's diagonal (`t <= s`), as a fraction of the box.
+fn triangle_share([s0, t0, s1, t1]: [f32; 4]) -> f32 {
+    let (s0, t0, s1, t1) = (f64::from(s0), f64::from(t0), f64::from(s1), f64::from(t1));
+    let box_area = (s1 - s0) * (t1 - t0);
+    if box_area <= 0.0 {
+        return 0.0;
+    }
+    // Clip the box polygon by the half-plane t <= s (one Sutherland-Hodgman
+    // step) and take the shoelace area.
+    let corners = [(s0, t0), (s1, t0), (s1, t1), (s0, t1)];
+    let inside = |p: (f64, f64)| p.1 <= p.0;
+    let mut clipped: Vec<(f64, f64)> = Vec::with_capacity(5);
+    for i in 0..4 {
+        let (p, q) = (corners[i], corners[(i + 1) % 4]);
+        if inside(p) {
+            clipped.push(p);
+        }
+        if inside(p) != inside(q) {
+            // Where t - s changes sign along p -> q.
+            let f = (p.1 - p.0) / ((p.1 - p.0) - (q.1 - q.0));
+            clipped.push((p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f));
+        }
+    }
+    let mut twice = 0.0;
+    for i in 0..clipped.len() {
+        let (p, q) = (clipped[i], clipped[(i + 1) % clipped.len()]);
+        twice += p.0 * q.1 - q.0 * p.1;
+    }
+    ((twice.abs() * 0.5) / box_area).clamp(0.0, 1.0) as f32
+}
+
 /// The span of patch parameter an element covers along one axis.
 fn region_1d(a: u32, n: u32) -> (f32, f32) {
     let cells = (n - 1) as f32;
@@ -236,18 +288,40 @@ impl Atlas {
         for (p, (patch, chart)) in scene.patches.iter().zip(&layout.charts).enumerate() {
             patch_elements.push(elements.len() as u32);
             let material = &scene.materials[patch.material as usize];
-            let PatchShape::Quad { origin, u, v } = patch.shape;
+            let (origin, u, v) = patch.shape.frame();
+            let triangle = patch.shape.is_triangle();
             let normal = patch.shape.normal();
-            let area = patch.shape.area();
+            // The area of the (s, t) unit square: the quad's, twice the
+            // triangle's.
+            let square_area = u.cross(v).length();
             for b in 0..chart.h {
                 for a in 0..chart.w {
                     let on_u_edge = a == 0 || a == chart.w - 1;
                     let on_v_edge = b == 0 || b == chart.h - 1;
                     let corner = on_u_edge && on_v_edge;
-                    let s = sample_param(a, chart.w, corner);
-                    let t = sample_param(b, chart.h, corner);
+                    let (mut s, mut t) = (
+                        sample_param(a, chart.w, corner),
+                        sample_param(b, chart.h, corner),
+                    );
                     let (s0, s1) = region_1d(a, chart.w);
                     let (t0, t1) = region_1d(b, chart.h);
+                    let region = [s0, t0, s1, t1];
+                    let mut area = square_area * (s1 - s0) * (t1 - t0);
+                    if triangle {
+                        if b > a {
+                            // Above the diagonal: no surface. The texel
+                            // keeps an element of area 0 (charts stay full
+                            // grids, which the GPU's element indexing
+                            // needs), sampled at the nearest point of the
+                            // diagonal edge; validity marks it invalid and
+                            // dilation fills it.
+                            let m = (s + t) * 0.5;
+                            (s, t) = (m, m);
+                            area = 0.0;
+                        } else {
+                            area *= triangle_share(region);
+                        }
+                    }
                     let texel = [chart.x + a, chart.y + b];
                     texel_element[(texel[1] * width + texel[0]) as usize] = elements.len() as u32;
                     elements.push(Element {
@@ -257,8 +331,8 @@ impl Atlas {
                         st: [s, t],
                         position: origin + u * s + v * t,
                         normal,
-                        area: area * (s1 - s0) * (t1 - t0),
-                        region: [s0, t0, s1, t1],
+                        area,
+                        region,
                         albedo: material.albedo,
                         emission: material.emission,
                     });
@@ -307,6 +381,26 @@ impl Atlas {
             .count()
     }
 
+    /// The lightmap as a client samples it: `values` (one per element, with
+    /// invalid texels already filled, see `Validity::dilate`) read
+    /// bilinearly at patch parameters `(s, t)` of `patch`, clamped to its
+    /// chart (texel centres sit at `s = a / (w - 1)`).
+    pub fn sample(&self, values: &[Vec3], patch: u32, [s, t]: [f32; 2]) -> Vec3 {
+        let chart = self.charts[patch as usize];
+        let first = self.patch_elements[patch as usize] as usize;
+        let axis = |p: f32, n: u32| -> (u32, f32) {
+            let x = (p * (n - 1) as f32).clamp(0.0, (n - 1) as f32);
+            let x0 = (x.floor() as u32).min(n - 2);
+            (x0, x - x0 as f32)
+        };
+        let ((a, fa), (b, fb)) = (axis(s, chart.w), axis(t, chart.h));
+        // Elements are row-major within their chart.
+        let at = |a: u32, b: u32| values[first + (b * chart.w + a) as usize];
+        let top = at(a, b).lerp(at(a + 1, b), fa);
+        let bottom = at(a, b + 1).lerp(at(a + 1, b + 1), fa);
+        top.lerp(bottom, fb)
+    }
+
     /// Scatters one value per element into a row-major RGB image of the
     /// atlas; uncovered texels are zero.
     pub fn to_image(&self, values: &[Vec3]) -> Vec<[f32; 3]> {
@@ -337,10 +431,82 @@ mod tests {
         ]
     }"#;
 
+    /// A slanted quad cut into two triangles along its diagonal (indices
+    /// 0 1 2 and 0 2 3), and a lone obtuse triangle, at a density that is
+    /// not a divisor of any edge.
+    const TRIANGLES: &str = r#"{
+        "name": "t",
+        "lightmap": { "texel_density": 6.7 },
+        "materials": [ { "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] } ],
+        "surfaces": [
+            { "name": "floor", "material": "m", "mesh": {
+                "positions": [[0, 0, 0], [2.1, 0.2, 0], [2.1, 0.3, -1.3], [0, 0.1, -1.3]],
+                "indices": [0, 1, 2, 0, 2, 3] } },
+            { "name": "sliver", "material": "m", "mesh": {
+                "positions": [[0, 1, 0], [1.7, 1.1, 0.2], [0.4, 1.05, 0.1]] } }
+        ]
+    }"#;
+
     #[test]
     fn element_areas_of_a_patch_sum_to_its_area() {
-        let scene = scene(TWO_BOXES);
+        for text in [TWO_BOXES, TRIANGLES] {
+            check_areas(&scene(text));
+        }
+    }
+
+    #[test]
+    fn triangle_charts_hold_the_triangle_below_the_diagonal() {
+        let scene = scene(TRIANGLES);
         let atlas = Atlas::build(&scene).expect("fits");
+        assert_eq!(scene.patches.len(), 3);
+        for (p, patch) in scene.patches.iter().enumerate() {
+            assert!(patch.shape.is_triangle());
+            let chart = atlas.charts[p];
+            assert_eq!(chart.w, chart.h, "triangle charts are square");
+            // Every edge is sampled at least at the density.
+            let longest = patch
+                .shape
+                .corners()
+                .iter()
+                .zip(patch.shape.corners().iter().cycle().skip(1))
+                .map(|(a, b)| (*b - *a).length())
+                .fold(0.0f32, f32::max);
+            assert!((chart.w - 1) as f32 >= longest * patch.texel_density - 1e-3);
+            let (origin, u, v) = patch.shape.frame();
+            let mut covering = 0;
+            for e in atlas.elements_of(p as u32).map(|e| &atlas.elements[e]) {
+                let (a, b) = (e.texel[0] - chart.x, e.texel[1] - chart.y);
+                let [s, t] = e.st;
+                assert!(
+                    patch.shape.contains(s, t),
+                    "sample ({s}, {t}) off the triangle"
+                );
+                assert!((e.position - (origin + u * s + v * t)).length() < 1e-5);
+                if b > a {
+                    assert!(
+                        !e.covers_surface(),
+                        "texel ({a}, {b}) above the diagonal has area"
+                    );
+                } else {
+                    covering += 1;
+                    assert!(
+                        e.covers_surface(),
+                        "texel ({a}, {b}) on the triangle has no area"
+                    );
+                }
+                if a == b {
+                    assert!(
+                        (s - t).abs() < 1e-6,
+                        "diagonal texel ({a}, {b}) off the diagonal edge: {s}, {t}"
+                    );
+                }
+            }
+            assert_eq!(covering, chart.w * (chart.w + 1) / 2);
+        }
+    }
+
+    fn check_areas(scene: &Scene) {
+        let atlas = Atlas::build(scene).expect("fits");
         for (p, patch) in scene.patches.iter().enumerate() {
             let sum: f32 = atlas
                 .elements_of(p as u32)

@@ -26,7 +26,7 @@ pub struct AtlasSurface {
     pub material: String,
     pub rect: Chart,
     /// World-space corners at the baked poses: origin, origin+u,
-    /// origin+u+v, origin+v.
+    /// origin+u+v, origin+v (a triangle repeats its third corner).
     pub corners: [[f32; 3]; 4],
 }
 
@@ -106,7 +106,7 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
                 corners: p
                     .shape
                     .transformed(&poses[p.object as usize])
-                    .corners()
+                    .quad_corners()
                     .map(|c| c.to_array()),
             })
             .collect(),

@@ -59,7 +59,8 @@ pub fn accuracy(atlas: &Atlas, values: &[Vec3], reference: &[Vec3]) -> Option<Ac
     accuracy_where(atlas, values, reference, |_| true)
 }
 
-/// [`accuracy`] over the non-emitting elements `i` for which `keep(i)`.
+/// [`accuracy`] over the non-emitting elements `i` for which `keep(i)`
+/// (elements that stand for no surface are always left out).
 pub fn accuracy_where(
     atlas: &Atlas,
     values: &[Vec3],
@@ -71,7 +72,12 @@ pub fn accuracy_where(
         return None;
     }
     let picked: Vec<usize> = (0..n)
-        .filter(|&i| atlas.elements[i].emission.max_element() <= 0.0 && keep(i))
+        .filter(|&i| {
+            let e = &atlas.elements[i];
+            // Texels of a triangle's chart that stand for no surface weigh
+            // nothing in the NRMSE and must not count in the percentile.
+            e.emission.max_element() <= 0.0 && e.covers_surface() && keep(i)
+        })
         .collect();
     let area = |i: usize| f64::from(atlas.elements[i].area);
     let (mut diff, mut norm, mut magnitude, mut total_area) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);

@@ -47,11 +47,8 @@ pub struct WorldPatch {
 impl WorldPatch {
     /// The patch `shape` (object-local) moved by `pose`.
     pub fn new(shape: &PatchShape, pose: &Pose) -> Self {
-        match shape.transformed(pose) {
-            PatchShape::Quad { origin, u, v } => {
-                Self::parallelogram(origin.as_dvec3(), u.as_dvec3(), v.as_dvec3())
-            }
-        }
+        let (origin, u, v) = shape.transformed(pose).frame();
+        Self::parallelogram(origin.as_dvec3(), u.as_dvec3(), v.as_dvec3())
     }
 
     /// A world-space parallelogram. `u` and `v` must not be parallel (a

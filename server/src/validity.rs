@@ -32,7 +32,7 @@ use glam::Vec3;
 
 use crate::atlas::Atlas;
 use crate::raycast::Raycaster;
-use crate::scene::{PatchShape, Pose, Scene};
+use crate::scene::{Pose, Scene};
 
 /// Rays per element (a stratified 8 x 8 grid over the cosine-weighted
 /// hemisphere).
@@ -50,10 +50,11 @@ pub struct Validity {
 }
 
 impl Validity {
-    /// Every element valid (nothing tested).
+    /// Every element that stands for surface valid (nothing ray-tested);
+    /// the texels of triangle charts above the diagonal are invalid.
     pub fn all_valid(atlas: &Atlas) -> Self {
         Self {
-            invalid: vec![false; atlas.elements.len()],
+            invalid: atlas.elements.iter().map(|e| !e.covers_surface()).collect(),
         }
     }
 
@@ -219,13 +220,15 @@ fn encloses(
     extent: f64,
 ) -> bool {
     let e = &atlas.elements[i];
+    if !e.covers_surface() {
+        // A triangle chart's texel above its diagonal: no surface there.
+        return true;
+    }
     let pose = &poses[e.object as usize];
     let patch = &scene.patches[e.patch as usize];
     let n = pose.transform_normal(e.normal).as_dvec3();
     let x = pose.transform_point(e.position).as_dvec3();
-    let centre = match patch.shape.transformed(pose) {
-        PatchShape::Quad { origin, u, v } => (origin + (u + v) * 0.5).as_dvec3(),
-    };
+    let centre = patch.shape.transformed(pose).centre().as_dvec3();
     let inward = (centre - x).normalize_or_zero();
     let origin = x + (n + inward) * (OFFSET * extent);
     let side = (RAYS as f64).sqrt() as usize;

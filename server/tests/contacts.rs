@@ -65,8 +65,9 @@ impl Quad {
             .position(|p| p.name == name)
             .unwrap_or_else(|| panic!("cornell-blocks has a patch {name:?}"));
         let patch = &scene.patches[p];
-        let PatchShape::Quad { origin, u, v } =
-            patch.shape.transformed(&poses[patch.object as usize]);
+        let shape = patch.shape.transformed(&poses[patch.object as usize]);
+        assert!(!shape.is_triangle(), "{name} is a quad in cornell-blocks");
+        let (origin, u, v) = shape.frame();
         (
             p as u32,
             Quad {

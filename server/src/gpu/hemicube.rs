@@ -73,7 +73,7 @@ pub(super) const SHOT_RADIOSITY: Pass = Pass {
 pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<GpuVertex>, u32) {
     let mut vertices: Vec<GpuVertex> = Vec::with_capacity(shapes.len() * 6);
     for (p, shape) in shapes.iter().enumerate() {
-        let PatchShape::Quad { origin, u, v } = *shape;
+        let (origin, u, v) = shape.frame();
         let corners = [
             (origin, [0.0, 0.0]),
             (origin + u, [1.0, 0.0]),

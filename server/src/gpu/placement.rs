@@ -139,7 +139,7 @@ fn place_patches(
         .iter()
         .enumerate()
         .map(|(p, shape)| {
-            let PatchShape::Quad { origin, u, v } = shape.transformed(&poses[objects[p] as usize]);
+            let (origin, u, v) = shape.transformed(&poses[objects[p] as usize]).frame();
             let [first, w, h] = layout[p];
             WorldPatch {
                 origin,
@@ -205,7 +205,7 @@ pub(super) fn local_elements(
         .enumerate()
         .map(|(i, e)| {
             let p = e.patch as usize;
-            let PatchShape::Quad { origin, u, v } = shapes[p];
+            let (origin, u, v) = shapes[p].frame();
             let chart = atlas.charts[p];
             let normal = u.cross(v).normalize();
             let [s, t] = e.st;

@@ -183,7 +183,7 @@ impl ReferenceSolver {
             .enumerate()
             .map(|(p, patch)| {
                 let pose = &poses[patch.object as usize];
-                let crate::scene::PatchShape::Quad { origin, u, v } = patch.shape.transformed(pose);
+                let (origin, u, v) = patch.shape.transformed(pose).frame();
                 let range = atlas.elements_of(p as u32);
                 WorldPatch {
                     shape: Parallelogram::new(dvec(origin), dvec(u), dvec(v)),

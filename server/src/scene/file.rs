@@ -31,8 +31,37 @@ pub struct SceneFile {
     /// Named dynamic objects (rigid groups). The static world is implicit.
     #[serde(default)]
     pub objects: Vec<ObjectJson>,
-    /// Every surface in the scene.
+    /// Every surface in the scene (may be empty when `imports` bring them).
+    #[serde(default)]
     pub surfaces: Vec<SurfaceJson>,
+    /// glTF files whose triangle meshes, materials and dynamic nodes join
+    /// the scene.
+    #[serde(default)]
+    pub imports: Vec<ImportJson>,
+}
+
+/// A glTF 2.0 file (`.glb` or `.gltf`) imported into the scene: every
+/// triangle of its meshes becomes a patch; its materials and dynamic nodes
+/// join `materials` and `objects` under their glTF names.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImportJson {
+    /// Path, relative to the scene file.
+    pub file: String,
+    /// Import only these nodes (and what is below them); all when empty.
+    #[serde(default)]
+    pub nodes: Vec<String>,
+    /// Nodes that are dynamic objects, besides those marked in their
+    /// `extras` (`{"lightwire": {"dynamic": true}}`).
+    #[serde(default)]
+    pub dynamic_nodes: Vec<String>,
+    /// Multiplies every emission (W/m² per unit of `emissiveFactor` x
+    /// `KHR_materials_emissive_strength`).
+    #[serde(default = "unit_scale")]
+    pub emission_scale: f64,
+    /// Overrides the scene's texel density for these triangles.
+    #[serde(default)]
+    pub texel_density: Option<f64>,
 }
 
 /// Lightmap resolution settings for the whole scene.
@@ -103,7 +132,8 @@ fn unit_scale() -> f64 {
     1.0
 }
 
-/// One surface entry. Exactly one geometry key (`quad` or `box`) is present.
+/// One surface entry. Exactly one geometry key (`quad`, `box` or `mesh`) is
+/// present.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SurfaceJson {
@@ -123,6 +153,20 @@ pub struct SurfaceJson {
     /// An oriented box expanded into six quads.
     #[serde(default, rename = "box")]
     pub box_: Option<BoxJson>,
+    /// A triangle mesh; every triangle becomes a patch with its own chart.
+    #[serde(default)]
+    pub mesh: Option<MeshJson>,
+}
+
+/// A triangle mesh written inline: corner positions and, three per
+/// triangle, indices into them (counter-clockwise seen from the front).
+/// Without `indices`, every three positions are a triangle.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshJson {
+    pub positions: Vec<Vec3Json>,
+    #[serde(default)]
+    pub indices: Option<Vec<u32>>,
 }
 
 /// A parallelogram, written either as `origin` plus edges `u` and `v`

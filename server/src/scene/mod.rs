@@ -12,9 +12,8 @@
 //! the object's initial [`Pose`]; the static world (object 0) always has the
 //! identity pose.
 //!
-//! Patches are the unit the atlas charts and the solvers pick shooters from.
-//! Today every patch is a parallelogram; triangle meshes will add a
-//! [`PatchShape`] variant and a chart rule in the atlas, nothing else.
+//! Patches are the unit the atlas charts and the solvers pick shooters from:
+//! parallelograms (quads, boxes) and triangles (meshes).
 
 pub mod error;
 pub mod file;
@@ -135,43 +134,125 @@ pub struct Patch {
 }
 
 /// The geometry of a patch in object-local space.
+///
+/// Both shapes are spanned by an `origin` and two edge vectors `u`, `v`, and
+/// points on them are written `origin + s u + t v` with patch parameters
+/// `(s, t)`: a quad covers the square `s, t ∈ [0, 1]`, a triangle the half of
+/// it below the diagonal, `0 <= t <= s <= 1` (the quad's first triangle
+/// `origin`, `origin+u`, `origin+u+v`). The atlas charts both over the same
+/// square (`atlas.rs`), and a triangle goes over the wire as a quad whose
+/// last corner repeats its third (PROTOCOL.md), so a client that draws a quad
+/// as the triangles (0, 1, 2) and (0, 2, 3) with the chart's corners as
+/// texture coordinates draws a triangle right without knowing it is one.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PatchShape {
     /// Parallelogram with corners `origin`, `origin+u`, `origin+u+v`,
     /// `origin+v`; it faces `u × v`.
     Quad { origin: Vec3, u: Vec3, v: Vec3 },
+    /// Triangle with corners `origin`, `origin+u`, `origin+u+v`; it faces
+    /// `u × v`. [`PatchShape::triangle`] builds one from three corners.
+    Triangle { origin: Vec3, u: Vec3, v: Vec3 },
 }
 
 impl PatchShape {
+    /// The triangle with corners `a`, `b`, `c` (counter-clockwise seen from
+    /// the front): `origin = a`, `u = b - a`, `v = c - b`.
+    pub fn triangle(a: Vec3, b: Vec3, c: Vec3) -> PatchShape {
+        PatchShape::Triangle {
+            origin: a,
+            u: b - a,
+            v: c - b,
+        }
+    }
+
+    /// Origin and edge vectors: the point at `(s, t)` is `origin + s u + t v`.
+    pub fn frame(&self) -> (Vec3, Vec3, Vec3) {
+        match *self {
+            PatchShape::Quad { origin, u, v } | PatchShape::Triangle { origin, u, v } => {
+                (origin, u, v)
+            }
+        }
+    }
+
+    /// Whether this is a triangle.
+    pub fn is_triangle(&self) -> bool {
+        matches!(self, PatchShape::Triangle { .. })
+    }
+
+    /// Whether patch parameters `(s, t)` lie on the shape (edges included).
+    pub fn contains(&self, s: f32, t: f32) -> bool {
+        let square = (0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&t);
+        match self {
+            PatchShape::Quad { .. } => square,
+            PatchShape::Triangle { .. } => square && t <= s,
+        }
+    }
+
+    /// Patch parameters of the centroid.
+    pub fn centre_param(&self) -> [f32; 2] {
+        match self {
+            PatchShape::Quad { .. } => [0.5, 0.5],
+            PatchShape::Triangle { .. } => [2.0 / 3.0, 1.0 / 3.0],
+        }
+    }
+
+    /// The centroid.
+    pub fn centre(&self) -> Vec3 {
+        let (o, u, v) = self.frame();
+        let [s, t] = self.centre_param();
+        o + u * s + v * t
+    }
+
     /// Unit normal of the front face.
     pub fn normal(&self) -> Vec3 {
-        match *self {
-            PatchShape::Quad { u, v, .. } => u.cross(v).normalize(),
-        }
+        let (_, u, v) = self.frame();
+        u.cross(v).normalize()
     }
 
     /// Area in object-local units.
     pub fn area(&self) -> f32 {
-        match *self {
-            PatchShape::Quad { u, v, .. } => u.cross(v).length(),
+        let (_, u, v) = self.frame();
+        match self {
+            PatchShape::Quad { .. } => u.cross(v).length(),
+            PatchShape::Triangle { .. } => 0.5 * u.cross(v).length(),
         }
     }
 
-    /// Corners in counter-clockwise order seen from the front.
-    pub fn corners(&self) -> [Vec3; 4] {
+    /// Corners in counter-clockwise order seen from the front (four for a
+    /// quad, three for a triangle).
+    pub fn corners(&self) -> Vec<Vec3> {
         match *self {
-            PatchShape::Quad { origin, u, v } => [origin, origin + u, origin + u + v, origin + v],
+            PatchShape::Quad { origin, u, v } => {
+                vec![origin, origin + u, origin + u + v, origin + v]
+            }
+            PatchShape::Triangle { origin, u, v } => vec![origin, origin + u, origin + u + v],
+        }
+    }
+
+    /// Four corners as a client that draws quads takes them (the wire's
+    /// `SurfaceInfo`, `atlas.json`): a quad's, or a triangle's three with
+    /// the third repeated, so that the quad's second triangle is empty and
+    /// its first, drawn with the chart corners as texture coordinates, is
+    /// the triangle.
+    pub fn quad_corners(&self) -> [Vec3; 4] {
+        let (o, u, v) = self.frame();
+        match self {
+            PatchShape::Quad { .. } => [o, o + u, o + u + v, o + v],
+            PatchShape::Triangle { .. } => [o, o + u, o + u + v, o + u + v],
         }
     }
 
     /// The same shape moved by `pose`.
     pub fn transformed(&self, pose: &Pose) -> PatchShape {
-        match *self {
-            PatchShape::Quad { origin, u, v } => PatchShape::Quad {
-                origin: pose.transform_point(origin),
-                u: pose.transform_vector(u),
-                v: pose.transform_vector(v),
-            },
+        let (origin, u, v) = self.frame();
+        let (origin, u, v) = (
+            pose.transform_point(origin),
+            pose.transform_vector(u),
+            pose.transform_vector(v),
+        );
+        match self {
+            PatchShape::Quad { .. } => PatchShape::Quad { origin, u, v },
+            PatchShape::Triangle { .. } => PatchShape::Triangle { origin, u, v },
         }
     }
 }
@@ -191,13 +272,26 @@ impl Default for LoadOptions {
 }
 
 impl Scene {
-    /// Reads, parses and validates a scene file.
+    /// Reads, parses and validates a scene file: scene JSON, or a `.glb` /
+    /// `.gltf` file on its own (see `validate::scene_from_gltf` for its
+    /// defaults).
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         Self::load_with(path, LoadOptions::default())
     }
 
     /// [`Scene::load`] with [`LoadOptions`].
     pub fn load_with(path: &Path, options: LoadOptions) -> Result<Scene, SceneError> {
+        let extension = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        if matches!(extension.as_deref(), Some("glb" | "gltf")) {
+            return validate::scene_from_gltf(path, options).map_err(|issues| {
+                SceneError::Invalid {
+                    origin: path.display().to_string(),
+                    issues,
+                }
+            });
+        }
         let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
             path: path.display().to_string(),
             message: e.to_string(),
@@ -222,7 +316,9 @@ impl Scene {
             origin: origin.to_string(),
             issues,
         };
-        validate::validate(raw, options).map_err(invalid)
+        // A scene file's `imports` are relative to its directory.
+        let base = Path::new(origin).parent();
+        validate::validate(raw, options, base).map_err(invalid)
     }
 
     /// Indices of the dynamic objects.
@@ -245,6 +341,38 @@ impl Scene {
     /// The initial pose of every object, indexed like [`Scene::objects`].
     pub fn initial_poses(&self) -> Vec<Pose> {
         self.objects.iter().map(|o| o.initial_pose).collect()
+    }
+
+    /// The same scene with every quad cut into two triangles along its
+    /// diagonal from `origin` to `origin + u + v`: patch `name` becomes
+    /// `name/0` (`origin`, `origin+u`, `origin+u+v`: the quad's own frame,
+    /// so that `(s, t)` with `t <= s` names the same point on both) and
+    /// `name/1` (`origin`, `origin+u+v`, `origin+v`: the quad's point
+    /// `(s, t)`, `t > s`, is its `(t, t - s)`). Triangles stay as they are.
+    /// For tests and benchmarks that compare a mesh with the quads it came
+    /// from.
+    pub fn triangulated(&self) -> Scene {
+        let mut out = self.clone();
+        out.patches = self
+            .patches
+            .iter()
+            .flat_map(|p| match p.shape {
+                PatchShape::Quad { origin, u, v } => vec![
+                    Patch {
+                        name: format!("{}/0", p.name),
+                        shape: PatchShape::triangle(origin, origin + u, origin + u + v),
+                        ..p.clone()
+                    },
+                    Patch {
+                        name: format!("{}/1", p.name),
+                        shape: PatchShape::triangle(origin, origin + u + v, origin + v),
+                        ..p.clone()
+                    },
+                ],
+                PatchShape::Triangle { .. } => vec![p.clone()],
+            })
+            .collect();
+        out
     }
 
     /// Total emitted power (W) per channel at the given poses. Uniform scale

@@ -5,10 +5,12 @@
 //! all problems of a file instead of the first.
 
 use std::collections::HashMap;
+use std::path::Path;
 
 use glam::{Quat, Vec3};
 
-use super::file::{BoxJson, Facing, PoseJson, QuadJson, SceneFile, Vec3Json};
+use super::file::{BoxJson, Facing, ImportJson, MeshJson, PoseJson, QuadJson, SceneFile, Vec3Json};
+use super::gltf::{ImportOptions, ImportedScene};
 use super::{LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue};
 
 /// Largest atlas edge a scene may ask for.
@@ -126,8 +128,14 @@ impl Checker {
     }
 }
 
-/// Validates a parsed scene file. Returns every problem found.
-pub fn validate(raw: SceneFile, options: LoadOptions) -> Result<Scene, Vec<SceneIssue>> {
+/// Validates a parsed scene file; `base` is the directory its `imports`
+/// are relative to (the working directory when `None`). Returns every
+/// problem found.
+pub fn validate(
+    raw: SceneFile,
+    options: LoadOptions,
+    base: Option<&Path>,
+) -> Result<Scene, Vec<SceneIssue>> {
     let mut c = Checker { issues: Vec::new() };
 
     if raw.name.trim().is_empty() {
@@ -230,20 +238,35 @@ pub fn validate(raw: SceneFile, options: LoadOptions) -> Result<Scene, Vec<Scene
             Some(d) => c.density(&loc, "texel_density", d, options.density_scale),
             None => texel_density,
         };
-        let shapes: Vec<(String, PatchShape)> = match (&s.quad, &s.box_) {
-            (Some(q), None) => quad(&mut c, &loc, q)
-                .map(|q| vec![(s.name.clone(), q)])
-                .unwrap_or_default(),
-            (None, Some(b)) => boxed(&mut c, &loc, &s.name, b),
-            (Some(_), Some(_)) => {
+        let given = [
+            s.quad.is_some().then_some("quad"),
+            s.box_.is_some().then_some("box"),
+            s.mesh.is_some().then_some("mesh"),
+        ];
+        let given: Vec<&str> = given.into_iter().flatten().collect();
+        let shapes: Vec<(String, PatchShape)> = match (&s.quad, &s.box_, &s.mesh) {
+            _ if given.len() > 1 => {
                 c.report(
                     &loc,
-                    "has both \"quad\" and \"box\"; give exactly one shape",
+                    format!(
+                        "has {}{}; give exactly one shape",
+                        if given.len() == 2 { "both " } else { "" },
+                        given
+                            .iter()
+                            .map(|g| format!("\"{g}\""))
+                            .collect::<Vec<_>>()
+                            .join(" and ")
+                    ),
                 );
                 Vec::new()
             }
-            (None, None) => {
-                c.report(&loc, "has no shape; give \"quad\" or \"box\"");
+            (Some(q), _, _) => quad(&mut c, &loc, q)
+                .map(|q| vec![(s.name.clone(), q)])
+                .unwrap_or_default(),
+            (_, Some(b), _) => boxed(&mut c, &loc, &s.name, b),
+            (_, _, Some(m)) => mesh(&mut c, &loc, &s.name, m),
+            (None, None, None) => {
+                c.report(&loc, "has no shape; give \"quad\", \"box\" or \"mesh\"");
                 Vec::new()
             }
         };
@@ -261,7 +284,49 @@ pub fn validate(raw: SceneFile, options: LoadOptions) -> Result<Scene, Vec<Scene
         }
     }
 
-    if raw.surfaces.is_empty() {
+    // glTF imports: their materials and dynamic nodes join the scene's.
+    for (i, import) in raw.imports.iter().enumerate() {
+        let loc = format!("import #{i} \"{}\"", import.file);
+        let density = match import.texel_density {
+            Some(d) => c.density(&loc, "texel_density", d, options.density_scale),
+            None => texel_density,
+        };
+        let emission_scale = c.finite(&loc, "emission_scale", import.emission_scale);
+        if let Some(e) = emission_scale {
+            if e < 0.0 {
+                c.report(&loc, format!("emission_scale = {e} must be >= 0"));
+            }
+        }
+        let (Some(density), Some(emission_scale)) = (density, emission_scale) else {
+            continue;
+        };
+        let path = match base {
+            Some(base) => base.join(&import.file),
+            None => Path::new(&import.file).to_path_buf(),
+        };
+        let imported = match super::gltf::import(&path, &import_options(import, emission_scale)) {
+            Ok(imported) => imported,
+            Err(e) => {
+                c.report(&loc, e.to_string());
+                continue;
+            }
+        };
+        let into = Parts {
+            materials: &mut materials,
+            objects: &mut objects,
+            patches: &mut patches,
+        };
+        merge_import(
+            &mut c,
+            &loc,
+            &imported,
+            into,
+            density,
+            raw.surfaces.len() + i,
+        );
+    }
+
+    if raw.surfaces.is_empty() && raw.imports.is_empty() {
         c.report("scene", "has no surfaces");
     } else if c.issues.is_empty()
         && !patches
@@ -393,4 +458,305 @@ fn boxed(c: &mut Checker, loc: &str, name: &str, b: &BoxJson) -> Vec<(String, Pa
             )
         })
         .collect()
+}
+
+/// Triangles listed per mesh before the rest are only counted.
+const MAX_LISTED_TRIANGLES: usize = 8;
+
+/// A mesh's triangles, each a patch named `name/k` (k the triangle's index
+/// in the mesh). Reports out-of-range indices, an index count that is not a
+/// multiple of three, non-finite positions and degenerate triangles (twice
+/// the area at most [`super::gltf::DEGENERATE_RATIO`] times the longest edge
+/// squared: the corners lie on a line to within f32 precision, the glTF
+/// importer's rule).
+fn mesh(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(String, PatchShape)> {
+    let mut positions = Vec::with_capacity(m.positions.len());
+    let mut ok = true;
+    for (k, p) in m.positions.iter().enumerate() {
+        match c.vec3(loc, &format!("mesh.positions[{k}]"), p) {
+            Some(x) => positions.push(x),
+            None => ok = false,
+        }
+    }
+    let sequential: Vec<u32>;
+    let indices: &[u32] = match &m.indices {
+        Some(indices) => indices,
+        None => {
+            sequential = (0..m.positions.len() as u32).collect();
+            &sequential
+        }
+    };
+    let what = if m.indices.is_some() {
+        "mesh.indices"
+    } else {
+        "mesh.positions (no indices)"
+    };
+    if indices.is_empty() {
+        c.report(loc, format!("{what} holds no triangle"));
+        return Vec::new();
+    }
+    if indices.len() % 3 != 0 {
+        c.report(
+            loc,
+            format!(
+                "{what} has {} entries, not a multiple of 3 (three per triangle)",
+                indices.len()
+            ),
+        );
+        ok = false;
+    }
+    if let Some((k, i)) = indices
+        .iter()
+        .enumerate()
+        .find(|(_, i)| **i as usize >= m.positions.len())
+    {
+        c.report(
+            loc,
+            format!(
+                "mesh.indices[{k}] = {i} is out of range: there are {} positions",
+                m.positions.len()
+            ),
+        );
+        ok = false;
+    }
+    if !ok {
+        return Vec::new();
+    }
+    let mut degenerate = Vec::new();
+    let mut shapes = Vec::with_capacity(indices.len() / 3);
+    for (k, t) in indices.chunks_exact(3).enumerate() {
+        let [a, b, d] = [0, 1, 2].map(|j| positions[t[j] as usize]);
+        let twice_area = (b - a).cross(d - a).length();
+        let longest = (b - a)
+            .length_squared()
+            .max((d - b).length_squared())
+            .max((a - d).length_squared());
+        if !(twice_area > super::gltf::DEGENERATE_RATIO * longest) || longest == 0.0 {
+            degenerate.push(k);
+            continue;
+        }
+        shapes.push((format!("{name}/{k}"), PatchShape::triangle(a, b, d)));
+    }
+    if !degenerate.is_empty() {
+        let listed: Vec<String> = degenerate
+            .iter()
+            .take(MAX_LISTED_TRIANGLES)
+            .map(|k| format!("#{k} (indices {:?})", &indices[3 * k..3 * k + 3]))
+            .collect();
+        let more = degenerate.len().saturating_sub(MAX_LISTED_TRIANGLES);
+        c.report(
+            loc,
+            format!(
+                "mesh has {} degenerate triangle(s), whose corners lie on a line: {}{}",
+                degenerate.len(),
+                listed.join(", "),
+                if more > 0 {
+                    format!(" and {more} more")
+                } else {
+                    String::new()
+                }
+            ),
+        );
+        return Vec::new();
+    }
+    shapes
+}
+
+fn import_options(import: &ImportJson, emission_scale: f32) -> ImportOptions {
+    ImportOptions {
+        nodes: import.nodes.clone(),
+        dynamic_nodes: import.dynamic_nodes.clone(),
+        emission_scale,
+    }
+}
+
+/// What an import adds to.
+struct Parts<'a> {
+    materials: &'a mut Vec<Material>,
+    objects: &'a mut Vec<Object>,
+    patches: &'a mut Vec<Patch>,
+}
+
+/// Adds an imported glTF to the scene being built: its materials (a name
+/// already taken must have the same albedo and emission, and is then
+/// shared), its dynamic objects (names must be new), and every triangle as a
+/// patch named `<node>/<mesh>/<primitive>/<k>` (names, or `node#i`,
+/// `mesh#j`, when the glTF has none). `surface_index` is what atlas errors
+/// name the import by. The importer has already refused degenerate
+/// triangles, NaNs and bad accessors, naming file, node, mesh and primitive.
+fn merge_import(
+    c: &mut Checker,
+    loc: &str,
+    imported: &ImportedScene,
+    into: Parts<'_>,
+    density: f32,
+    surface_index: usize,
+) {
+    let mut material_ids = Vec::with_capacity(imported.materials.len());
+    for m in &imported.materials {
+        let id = match into.materials.iter().position(|x| x.name == m.name) {
+            Some(k) => {
+                let x = &into.materials[k];
+                if x.albedo != m.albedo || x.emission != m.emission {
+                    c.report(
+                        loc,
+                        format!(
+                            "material \"{}\" is also defined elsewhere with other values (albedo {:?} vs {:?}, emission {:?} vs {:?}); rename one",
+                            m.name, m.albedo, x.albedo, m.emission, x.emission
+                        ),
+                    );
+                }
+                k
+            }
+            None => {
+                into.materials.push(Material {
+                    name: m.name.clone(),
+                    albedo: m.albedo,
+                    emission: m.emission,
+                });
+                into.materials.len() - 1
+            }
+        };
+        material_ids.push(id as u32);
+    }
+    let mut object_ids = Vec::with_capacity(imported.objects.len());
+    for (k, o) in imported.objects.iter().enumerate() {
+        if k == 0 {
+            object_ids.push(super::STATIC_OBJECT);
+            continue;
+        }
+        if into.objects.iter().any(|x| x.name == o.name) {
+            c.report(
+                loc,
+                format!(
+                    "dynamic node \"{}\" has the name of an object that already exists; object names must be unique",
+                    o.name
+                ),
+            );
+        }
+        into.objects.push(Object {
+            name: o.name.clone(),
+            dynamic: true,
+            initial_pose: o.pose,
+        });
+        object_ids.push((into.objects.len() - 1) as u32);
+    }
+    for inst in &imported.instances {
+        let node = inst
+            .node_name
+            .clone()
+            .unwrap_or_else(|| format!("node#{}", inst.node));
+        let mesh = inst
+            .mesh_name
+            .clone()
+            .unwrap_or_else(|| format!("mesh#{}", inst.mesh));
+        let (Some(&material), Some(&object)) = (
+            material_ids.get(inst.material as usize),
+            object_ids.get(inst.object as usize),
+        ) else {
+            c.report(
+                loc,
+                format!("node \"{node}\" mesh \"{mesh}\": material or object index out of range"),
+            );
+            continue;
+        };
+        for (k, tri) in inst.indices.iter().enumerate() {
+            let [a, b, d] = tri.map(|i| inst.positions.get(i as usize).copied());
+            let (Some(a), Some(b), Some(d)) = (a, b, d) else {
+                c.report(
+                    loc,
+                    format!("node \"{node}\" mesh \"{mesh}\" primitive {}: triangle {k} indexes past its positions", inst.primitive),
+                );
+                break;
+            };
+            into.patches.push(Patch {
+                name: format!("{node}/{mesh}/{}/{k}", inst.primitive),
+                surface_index,
+                object,
+                material,
+                texel_density: density,
+                shape: PatchShape::triangle(a, b, d),
+            });
+        }
+    }
+}
+
+/// Texels on the surface a glTF opened on its own gets by default
+/// ([`scene_from_gltf`]): enough to show soft shadows on a room, few enough
+/// to solve in seconds on a software GPU.
+pub const GLTF_DEFAULT_TEXELS: f32 = 16384.0;
+
+/// A scene made of one glTF file (`lightwire bake --scene level.glb`):
+/// named after the file, texel density `sqrt(GLTF_DEFAULT_TEXELS / area)`
+/// (clamped to 1-256 texels/m, times `options.density_scale`), atlas up to
+/// 4096 texels, dynamic nodes as marked in their `extras`.
+pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<SceneIssue>> {
+    let loc = path.display().to_string();
+    let imported = super::gltf::import(path, &ImportOptions::default()).map_err(|e| {
+        vec![SceneIssue {
+            location: loc.clone(),
+            problem: e.to_string(),
+        }]
+    })?;
+    let area: f32 = imported
+        .instances
+        .iter()
+        .flat_map(|i| {
+            i.indices.iter().map(|t| {
+                let [a, b, d] = t.map(|k| i.positions.get(k as usize).copied().unwrap_or_default());
+                0.5 * (b - a).cross(d - a).length()
+            })
+        })
+        .sum();
+    let mut c = Checker { issues: Vec::new() };
+    if !(options.density_scale.is_finite() && options.density_scale > 0.0) {
+        c.report(
+            "load options",
+            format!("density scale {} must be > 0", options.density_scale),
+        );
+        return Err(c.issues);
+    }
+    let density = (GLTF_DEFAULT_TEXELS / area.max(1e-6))
+        .sqrt()
+        .clamp(1.0, 256.0)
+        * options.density_scale;
+    let mut scene = Scene {
+        name: path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".to_string()),
+        description: format!("imported from {loc}"),
+        texel_density: density,
+        max_atlas_size: 4096,
+        materials: Vec::new(),
+        objects: vec![Object {
+            name: STATIC_NAME.to_string(),
+            dynamic: false,
+            initial_pose: Pose::IDENTITY,
+        }],
+        patches: Vec::new(),
+    };
+    let into = Parts {
+        materials: &mut scene.materials,
+        objects: &mut scene.objects,
+        patches: &mut scene.patches,
+    };
+    merge_import(&mut c, &loc, &imported, into, density, 0);
+    if scene.patches.is_empty() {
+        c.report(&loc, "has no triangles");
+    } else if !scene
+        .patches
+        .iter()
+        .any(|p| scene.materials[p.material as usize].is_emitter())
+    {
+        c.report(
+            &loc,
+            "has no emitter: no material has an emissiveFactor > 0, so everything would be black",
+        );
+    }
+    if c.issues.is_empty() {
+        Ok(scene)
+    } else {
+        Err(c.issues)
+    }
 }

@@ -123,7 +123,7 @@ pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
                 name: p.name.clone(),
                 object: p.object,
                 material: p.material,
-                corners: p.shape.corners().map(|c| c.to_array()),
+                corners: p.shape.quad_corners().map(|c| c.to_array()),
                 rect: [c.x, c.y, c.w, c.h],
             })
             .collect(),

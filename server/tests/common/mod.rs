@@ -59,3 +59,34 @@ pub fn visible_accuracy(
     lightwire_server::metrics::accuracy_where(atlas, values, reference, validity.keep())
         .unwrap_or_else(|| panic!("lengths must match and the reference must be lit"))
 }
+
+/// The lightmap of `scene.triangulated()` (atlas `tri_atlas`, `tri_values`
+/// per element with invalid texels filled) read as a client reads it at the
+/// sample point of every element of the quad scene's atlas `atlas`: a quad
+/// `p` became triangles `2p` (its points with `t <= s`, same parameters) and
+/// `2p + 1` (its `(s, t)` there is `(t, t - s)`); see `Scene::triangulated`.
+/// `scene` must hold quads only.
+pub fn resample_triangulated(
+    scene: &Scene,
+    atlas: &Atlas,
+    tri_atlas: &Atlas,
+    tri_values: &[Vec3],
+) -> Vec<Vec3> {
+    assert!(
+        scene.patches.iter().all(|p| !p.shape.is_triangle()),
+        "resample_triangulated takes a scene of quads"
+    );
+    assert_eq!(tri_atlas.charts.len(), 2 * scene.patches.len());
+    atlas
+        .elements
+        .iter()
+        .map(|e| {
+            let [s, t] = e.st;
+            if t <= s {
+                tri_atlas.sample(tri_values, 2 * e.patch, [s, t])
+            } else {
+                tri_atlas.sample(tri_values, 2 * e.patch + 1, [t, t - s])
+            }
+        })
+        .collect()
+}
