@@ -124,9 +124,12 @@ fn texels_along(length: f32, density: f32) -> u32 {
 
 /// Chart dimensions for one patch: a quad's edges each at the density; a
 /// triangle's chart is square (its third edge runs along the chart's
-/// diagonal, whose texel centres must lie on it), with as many texels per
-/// side as its longest edge needs, so that no edge is sampled more coarsely
-/// than the density.
+/// diagonal, whose texel centres must lie on it), as many texels per side as
+/// the longer of `u` and `v` needs at the density. `u` and `v` meet at the
+/// triangle's largest angle (`PatchShape::triangle`), so the third edge is
+/// sampled at most twice as coarsely (at most sqrt(2) times unless that
+/// angle is obtuse), as a quad's cell diagonal is; a quad cut in two
+/// (`Scene::triangulated`) keeps the quad's grid.
 fn chart_size(patch: &Patch) -> (u32, u32) {
     match patch.shape {
         PatchShape::Quad { u, v, .. } => (
@@ -134,8 +137,7 @@ fn chart_size(patch: &Patch) -> (u32, u32) {
             texels_along(v.length(), patch.texel_density),
         ),
         PatchShape::Triangle { u, v, .. } => {
-            let longest = u.length().max(v.length()).max((u + v).length());
-            let n = texels_along(longest, patch.texel_density);
+            let n = texels_along(u.length().max(v.length()), patch.texel_density);
             (n, n)
         }
     }
@@ -463,16 +465,15 @@ mod tests {
             assert!(patch.shape.is_triangle());
             let chart = atlas.charts[p];
             assert_eq!(chart.w, chart.h, "triangle charts are square");
-            // Every edge is sampled at least at the density.
-            let longest = patch
-                .shape
-                .corners()
-                .iter()
-                .zip(patch.shape.corners().iter().cycle().skip(1))
-                .map(|(a, b)| (*b - *a).length())
-                .fold(0.0f32, f32::max);
-            assert!((chart.w - 1) as f32 >= longest * patch.texel_density - 1e-3);
+            // The two edges along the chart's axes at the density, the third
+            // (the diagonal) at most twice as coarse.
             let (origin, u, v) = patch.shape.frame();
+            let cells = (chart.w - 1) as f32;
+            assert!(cells >= u.length().max(v.length()) * patch.texel_density - 1e-3);
+            assert!((u + v).length() / cells <= 2.0 / patch.texel_density);
+            // The largest angle is between the axes: the diagonal is the
+            // longest edge.
+            assert!((u + v).length() >= u.length().max(v.length()) - 1e-6);
             let mut covering = 0;
             for e in atlas.elements_of(p as u32).map(|e| &atlas.elements[e]) {
                 let (a, b) = (e.texel[0] - chart.x, e.texel[1] - chart.y);

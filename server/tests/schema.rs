@@ -54,6 +54,7 @@ fn fixtures_with_shape_errors_fail_the_schema() {
         "bad-texel-density.json",
         "bad-max-atlas-size.json",
         "non-finite-number.json",
+        "mesh-non-finite.json",
     ] {
         let fixture = read_json(&scenes_dir().join("fixtures/bad").join(name));
         assert!(

@@ -150,18 +150,32 @@ pub enum PatchShape {
     /// `origin+v`; it faces `u × v`.
     Quad { origin: Vec3, u: Vec3, v: Vec3 },
     /// Triangle with corners `origin`, `origin+u`, `origin+u+v`; it faces
-    /// `u × v`. [`PatchShape::triangle`] builds one from three corners.
+    /// `u × v`. [`PatchShape::triangle`] builds one from three corners with
+    /// the largest angle at `origin+u`, so that `u` and `v` are the two
+    /// shorter edges and the chart's axes follow them.
     Triangle { origin: Vec3, u: Vec3, v: Vec3 },
 }
 
 impl PatchShape {
     /// The triangle with corners `a`, `b`, `c` (counter-clockwise seen from
-    /// the front): `origin = a`, `u = b - a`, `v = c - b`.
+    /// the front), rotated (winding kept) so that its largest angle, the
+    /// corner opposite its longest edge, is the middle corner `p1`:
+    /// `origin = p0`, `u = p1 - p0`, `v = p2 - p1`.
     pub fn triangle(a: Vec3, b: Vec3, c: Vec3) -> PatchShape {
+        let opposite_a = (b - c).length_squared();
+        let opposite_b = (c - a).length_squared();
+        let opposite_c = (a - b).length_squared();
+        let [p0, p1, p2] = if opposite_b >= opposite_a && opposite_b >= opposite_c {
+            [a, b, c]
+        } else if opposite_c >= opposite_a {
+            [b, c, a]
+        } else {
+            [c, a, b]
+        };
         PatchShape::Triangle {
-            origin: a,
-            u: b - a,
-            v: c - b,
+            origin: p0,
+            u: p1 - p0,
+            v: p2 - p1,
         }
     }
 
@@ -345,12 +359,12 @@ impl Scene {
 
     /// The same scene with every quad cut into two triangles along its
     /// diagonal from `origin` to `origin + u + v`: patch `name` becomes
-    /// `name/0` (`origin`, `origin+u`, `origin+u+v`: the quad's own frame,
-    /// so that `(s, t)` with `t <= s` names the same point on both) and
-    /// `name/1` (`origin`, `origin+u+v`, `origin+v`: the quad's point
-    /// `(s, t)`, `t > s`, is its `(t, t - s)`). Triangles stay as they are.
-    /// For tests and benchmarks that compare a mesh with the quads it came
-    /// from.
+    /// `name/0` (frame `origin`, `u`, `v`: the quad's own, so that `(s, t)`
+    /// with `t <= s` names the same point on both) and `name/1` (frame
+    /// `origin + u + v`, `-u`, `-v`: the quad's point `(s, t)`, `t > s`, is
+    /// its `(1 - s, 1 - t)`). On a square chart both triangles' texels are
+    /// the quad's. Triangles stay as they are. For tests and benchmarks
+    /// that compare a mesh with the quads it came from.
     pub fn triangulated(&self) -> Scene {
         let mut out = self.clone();
         out.patches = self
@@ -360,12 +374,16 @@ impl Scene {
                 PatchShape::Quad { origin, u, v } => vec![
                     Patch {
                         name: format!("{}/0", p.name),
-                        shape: PatchShape::triangle(origin, origin + u, origin + u + v),
+                        shape: PatchShape::Triangle { origin, u, v },
                         ..p.clone()
                     },
                     Patch {
                         name: format!("{}/1", p.name),
-                        shape: PatchShape::triangle(origin, origin + u + v, origin + v),
+                        shape: PatchShape::Triangle {
+                            origin: origin + u + v,
+                            u: -u,
+                            v: -v,
+                        },
                         ..p.clone()
                     },
                 ],

@@ -64,7 +64,8 @@ pub fn visible_accuracy(
 /// per element with invalid texels filled) read as a client reads it at the
 /// sample point of every element of the quad scene's atlas `atlas`: a quad
 /// `p` became triangles `2p` (its points with `t <= s`, same parameters) and
-/// `2p + 1` (its `(s, t)` there is `(t, t - s)`); see `Scene::triangulated`.
+/// `2p + 1` (its `(s, t)` there is `(1 - s, 1 - t)`); see
+/// `Scene::triangulated`.
 /// `scene` must hold quads only.
 pub fn resample_triangulated(
     scene: &Scene,
@@ -85,7 +86,7 @@ pub fn resample_triangulated(
             if t <= s {
                 tri_atlas.sample(tri_values, 2 * e.patch, [s, t])
             } else {
-                tri_atlas.sample(tri_values, 2 * e.patch + 1, [t, t - s])
+                tri_atlas.sample(tri_values, 2 * e.patch + 1, [1.0 - s, 1.0 - t])
             }
         })
         .collect()
