@@ -32,6 +32,7 @@
 
 pub mod codec;
 pub mod dynamic;
+pub mod meshes;
 
 use std::path::Path;
 use std::sync::Mutex;

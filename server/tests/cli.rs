@@ -337,6 +337,48 @@ fn bench_dynamic_profile_writes_the_breakdown_per_method() {
     );
 }
 
+/// `bench meshes` writes its .glb, opens it as a scene of triangles and
+/// reports load, atlas, elements and the solve in its JSON.
+#[test]
+fn bench_meshes_reports_each_mesh() {
+    let dir = std::env::temp_dir().join(format!("lightwire-bench-meshes-{}", std::process::id()));
+    let json = dir.join("meshes.json");
+    let out = lightwire(&[
+        "bench",
+        "meshes",
+        "--triangles",
+        "24,96",
+        "--density-scale",
+        "0.25",
+        "--max-seconds",
+        "3",
+        "--out",
+        dir.to_str().expect("utf-8"),
+        "--json",
+        json.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    let rows = report.as_array().expect("one row per mesh");
+    assert_eq!(rows.len(), 2, "{report}");
+    for (row, triangles) in rows.iter().zip([24, 96]) {
+        assert_eq!(row["triangles"], triangles, "{row}");
+        let file = std::path::PathBuf::from(row["file"].as_str().expect("file"));
+        assert!(file.exists(), "{row}");
+        let (elements, texels) = (row["elements"].as_u64(), row["texels"].as_u64());
+        assert!(
+            matches!((elements, texels), (Some(e), Some(t)) if e > 0 && e < t),
+            "triangle charts hold texels that stand for no surface: {row}"
+        );
+        assert!(row["shots"].as_u64().is_some_and(|s| s > 0), "{row}");
+        let unshot = row["unshot_at_end"].as_f64().expect("unshot");
+        assert!((0.0..1.0).contains(&unshot), "{row}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    assert!(text(&out.stdout).contains("| triangles | .glb bytes | load s |"));
+}
+
 /// User errors on the command line are reported without a panic.
 #[test]
 fn command_line_errors_are_clear() {

@@ -324,3 +324,47 @@ pub(crate) fn bench_solve_command(
     }
     Ok(())
 }
+
+/// `lightwire bench meshes`: one tessellated Cornell box per triangle count.
+pub(crate) fn bench_meshes_command(
+    triangles: &[usize],
+    settings: (f32, std::time::Duration),
+    out: &std::path::Path,
+    json: Option<PathBuf>,
+    adapter: Option<&str>,
+) -> Result<()> {
+    let gpu = gpu::Device::new(adapter)?;
+    eprintln!("adapter: {}", gpu.describe());
+    let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.2}"));
+    println!(
+        "| triangles | .glb bytes | load s | atlas | texels/m | elements (texels) | setup s | s to 10% | s to 1% | shots | unshot at end |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    let mut results = Vec::new();
+    for &n in triangles {
+        let r = lightwire_server::bench::meshes::run_mesh(&gpu, n, settings, out)
+            .with_context(|| format!("benchmarking a mesh of about {n} triangles"))?;
+        println!(
+            "| {} | {} | {:.3} | {} x {} | {:.2} | {} ({}) | {:.2} | {} | {} | {} | {:.2}% |",
+            r.triangles,
+            r.file_bytes,
+            r.load_seconds,
+            r.atlas[0],
+            r.atlas[1],
+            r.texel_density,
+            r.elements,
+            r.texels,
+            r.setup_seconds,
+            fmt(r.seconds_to_10pct),
+            fmt(r.seconds_to_1pct),
+            r.shots,
+            r.unshot_at_end * 100.0
+        );
+        results.push(r);
+    }
+    if let Some(path) = json {
+        std::fs::write(&path, serde_json::to_string_pretty(&results)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}

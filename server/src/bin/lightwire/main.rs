@@ -13,7 +13,10 @@ use clap::{Parser, Subcommand};
 use lightwire_server::gpu;
 
 use bake::{SolveSettings, SolverKind, bake_command};
-use bench::{CodecArgs, bench_codec_command, bench_dynamic_command, bench_solve_command};
+use bench::{
+    CodecArgs, bench_codec_command, bench_dynamic_command, bench_meshes_command,
+    bench_solve_command,
+};
 use serve::{RelayFlags, ServeFlags, relay_command, serve_command};
 use validate::validate_command;
 
@@ -172,6 +175,31 @@ enum BenchCommand {
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
         cross_tile: Option<u32>,
     },
+    /// Triangle meshes of growing size (wallner Table 1): tessellated
+    /// Cornell boxes of about the given triangle counts, written as .glb,
+    /// opened as scenes (load time, atlas, elements) and solved by the
+    /// progressive solver to 1% unshot power or the time limit.
+    Meshes {
+        /// Triangle counts (each rounded to 24 k², k cells per quad side).
+        #[arg(long, value_delimiter = ',', default_values_t = [1_000usize, 10_000, 100_000])]
+        triangles: Vec<usize>,
+        /// Multiply the default texel density (about 16,384 texels on the
+        /// surface) by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        density_scale: f32,
+        /// Stop a solve after this many seconds.
+        #[arg(long, default_value_t = 600)]
+        max_seconds: u64,
+        /// Directory for the generated .glb files.
+        #[arg(long, default_value = "bench-out/meshes")]
+        out: PathBuf,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use the adapter whose name contains this.
+        #[arg(long)]
+        adapter: Option<String>,
+    },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
     /// codecs over the recording side by side: bytes per version, encode
@@ -266,6 +294,23 @@ fn main() -> ExitCode {
         Command::Bench {
             what: BenchCommand::Codec(args),
         } => bench_codec_command(args),
+        Command::Bench {
+            what:
+                BenchCommand::Meshes {
+                    triangles,
+                    density_scale,
+                    max_seconds,
+                    out,
+                    json,
+                    adapter,
+                },
+        } => bench_meshes_command(
+            &triangles,
+            (density_scale, std::time::Duration::from_secs(max_seconds)),
+            &out,
+            json,
+            adapter.as_deref(),
+        ),
         Command::Serve(flags) => serve_command(flags),
         Command::Relay(flags) => relay_command(flags),
     };

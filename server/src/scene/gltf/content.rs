@@ -128,16 +128,22 @@ fn primitive(material: usize, uv0: bool, uv1: bool) -> GlbPrimitive {
     }
 }
 
-/// One quad as a mesh of two triangles, TEXCOORD_1 over all of [0, 1]².
-fn quad_mesh(name: &str, material: usize, origin: [f32; 3], u: [f32; 3], v: [f32; 3]) -> GlbMesh {
+/// One quad as a mesh of `k` x `k` cells of two triangles, TEXCOORD_1 over
+/// all of [0, 1]².
+fn quad_mesh(
+    name: &str,
+    material: usize,
+    (origin, u, v): ([f32; 3], [f32; 3], [f32; 3]),
+    k: usize,
+) -> GlbMesh {
     let mut p = primitive(material, true, true);
     grid(
         &mut p,
         origin.into(),
         u.into(),
         v.into(),
-        1,
-        1,
+        k,
+        k,
         Chart::FULL,
         1.0,
     );
@@ -147,9 +153,10 @@ fn quad_mesh(name: &str, material: usize, origin: [f32; 3], u: [f32; 3], v: [f32
     }
 }
 
-/// An axis-aligned box centred at the origin, faces outward, 12 triangles;
-/// the six faces' charts are a 3 × 2 grid with 1/64 padding.
-fn box_mesh(name: &str, material: usize, size: Vec3) -> GlbMesh {
+/// An axis-aligned box centred at the origin, faces outward, each face `k`
+/// x `k` cells of two triangles; the six faces' charts are a 3 × 2 grid
+/// with 1/64 padding.
+fn box_mesh(name: &str, material: usize, size: Vec3, k: usize) -> GlbMesh {
     let h = size * 0.5;
     // (origin, u, v) with u × v outward, as scene/validate.rs expands boxes.
     let faces = [
@@ -184,6 +191,7 @@ fn box_mesh(name: &str, material: usize, size: Vec3) -> GlbMesh {
             Vec3::new(0.0, size.y, 0.0),
         ),
     ];
+    let cells = k;
     let mut p = primitive(material, true, true);
     for (k, (o, u, v)) in faces.into_iter().enumerate() {
         grid(
@@ -191,8 +199,8 @@ fn box_mesh(name: &str, material: usize, size: Vec3) -> GlbMesh {
             o,
             u,
             v,
-            1,
-            1,
+            cells,
+            cells,
             Chart::cell(k % 3, k / 3, 3, 2, 1.0 / 64.0),
             1.0,
         );
@@ -216,7 +224,18 @@ pub fn cornell_dynamic() -> GlbScene {
     cornell(true)
 }
 
+/// [`cornell_large`] with every quad (walls, light, box faces) cut into a
+/// `k` x `k` grid of cells, two triangles each: `24 k²` triangles, for
+/// benchmarks at a chosen triangle count (`lightwire bench meshes`).
+pub fn cornell_tessellated(k: usize) -> GlbScene {
+    cornell_with(false, k.max(1))
+}
+
 fn cornell(dynamic: bool) -> GlbScene {
+    cornell_with(dynamic, 1)
+}
+
+fn cornell_with(dynamic: bool, k: usize) -> GlbScene {
     let materials = vec![
         material("white", [0.73, 0.73, 0.73], [0.0; 3]),
         material("red", [0.63, 0.065, 0.05], [0.0; 3]),
@@ -228,46 +247,40 @@ fn cornell(dynamic: bool) -> GlbScene {
         quad_mesh(
             "floor",
             0,
-            [0.0, 0.0, 0.0],
-            [0.0, 0.0, 5.592],
-            [5.56, 0.0, 0.0],
+            ([0.0, 0.0, 0.0], [0.0, 0.0, 5.592], [5.56, 0.0, 0.0]),
+            k,
         ),
         quad_mesh(
             "ceiling",
             0,
-            [0.0, 5.488, 0.0],
-            [5.56, 0.0, 0.0],
-            [0.0, 0.0, 5.592],
+            ([0.0, 5.488, 0.0], [5.56, 0.0, 0.0], [0.0, 0.0, 5.592]),
+            k,
         ),
         quad_mesh(
             "back",
             0,
-            [0.0, 0.0, 0.0],
-            [5.56, 0.0, 0.0],
-            [0.0, 5.488, 0.0],
+            ([0.0, 0.0, 0.0], [5.56, 0.0, 0.0], [0.0, 5.488, 0.0]),
+            k,
         ),
         quad_mesh(
             "left",
             1,
-            [0.0, 0.0, 0.0],
-            [0.0, 5.488, 0.0],
-            [0.0, 0.0, 5.592],
+            ([0.0, 0.0, 0.0], [0.0, 5.488, 0.0], [0.0, 0.0, 5.592]),
+            k,
         ),
         quad_mesh(
             "right",
             2,
-            [5.56, 0.0, 0.0],
-            [0.0, 0.0, 5.592],
-            [0.0, 5.488, 0.0],
+            ([5.56, 0.0, 0.0], [0.0, 0.0, 5.592], [0.0, 5.488, 0.0]),
+            k,
         ),
         quad_mesh(
             "light",
             3,
-            [1.53, 5.478, 1.546],
-            [2.5, 0.0, 0.0],
-            [0.0, 0.0, 2.5],
+            ([1.53, 5.478, 1.546], [2.5, 0.0, 0.0], [0.0, 0.0, 2.5]),
+            k,
         ),
-        box_mesh("box", 0, Vec3::new(1.6, 1.7, 1.6)),
+        box_mesh("box", 0, Vec3::new(1.6, 1.7, 1.6), k),
     ];
     let mut nodes: Vec<GlbNode> = meshes
         .iter()
