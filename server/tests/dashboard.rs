@@ -4,10 +4,11 @@
 //! Chromium through Playwright against it. The script checks the page's
 //! contracts (no console errors, WebSocket, chart, atlas, 3D view, dragging
 //! the box changes the light) and saves screenshots to
-//! `target/dashboard-artifacts/`. It runs twice: on a development server,
-//! and on a relay (of a solver with tokens) opened as `/?token=<driver>`,
-//! where the page must present the token to the REST API as well as to
-//! the WebSocket, and its drags go through the relay.
+//! `target/dashboard-artifacts/`. It runs three times: on a development
+//! server, on a development server of a triangle-mesh scene (a `.glb`), and
+//! on a relay (of a solver with tokens) opened as `/?token=<driver>`, where
+//! the page must present the token to the REST API as well as to the
+//! WebSocket, and its drags go through the relay.
 //!
 //! Needs `node`, `chromium` and `npm ci` in `server/dashboard`; `make test`
 //! provides all three. Without them this test fails and says what to
@@ -26,7 +27,12 @@ const E2E_TIMEOUT: Duration = Duration::from_secs(300);
 /// `lightwire serve --dev` on cornell-low on a free port, with extra
 /// `serve` flags.
 fn dev_server(flags: &[&str]) -> Proc {
-    let scene = scene_path("cornell-low.json");
+    dev_server_on("cornell-low.json", flags)
+}
+
+/// `lightwire serve --dev` on `scenes/<scene>` on a free port.
+fn dev_server_on(scene: &str, flags: &[&str]) -> Proc {
+    let scene = scene_path(scene);
     let flags: Vec<&str> = flags
         .iter()
         .copied()
@@ -153,6 +159,18 @@ fn the_dashboard_works_in_headless_chromium() {
     run_e2e(
         &format!("http://{}/", server.addr),
         &target_dir().join("dashboard-artifacts"),
+    );
+}
+
+/// A triangle-mesh scene opened from its `.glb` (its dynamic box a glTF
+/// node): the 3D view draws the triangles, and dragging the box relights
+/// the room, as on the quad scenes.
+#[test]
+fn the_dashboard_works_on_a_mesh_scene() {
+    let server = dev_server_on("meshes/cornell-dynamic.glb", &["--density-scale", "0.35"]);
+    run_e2e(
+        &format!("http://{}/", server.addr),
+        &target_dir().join("dashboard-artifacts/mesh"),
     );
 }
 
