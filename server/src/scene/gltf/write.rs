@@ -22,7 +22,8 @@
 //! emission in W/m²) in its `extras` as `{"lightwire": {"albedo": [r, g,
 //! b], "emission": [r, g, b]}}`, which the importer reads back. Emission is
 //! also written as usual, so a viewer without the extension still sees
-//! the lights.
+//! the lights (the Khronos validator warns `MULTIPLE_EXTENSIONS` where
+//! emission strength sits beside unlit: an unlit viewer ignores it).
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
