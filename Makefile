@@ -85,7 +85,8 @@ bake: build
 	./target/release/lightwire bake --scene $(SCENE) --solver progressive --out $(OUT)
 	@echo
 	@echo "baked $(SCENE): open $(OUT)/lightmap.png (tone-mapped) or $(OUT)/lightmap.exr (linear HDR);"
-	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers."
+	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers,"
+	@echo "$(OUT)/scene.glb is the scene lit by the lightmap for any glTF viewer."
 
 # BENCHMARKS.md, "Soak". The script builds nothing and stops by itself.
 SOAK_FLAGS ?=

@@ -6,16 +6,29 @@
 //! - `lightmap.png`: the same, tone-mapped for viewing (see [`tone_map`]);
 //! - `atlas.json`: the atlas size and, per surface, its name, object, texel
 //!   rectangle and world-space corners;
-//! - `stats.json`: element counts, iterations, residual, timings, solver.
+//! - `stats.json`: element counts, iterations, residual, timings, solver;
+//! - `scene.glb`: the scene as glTF 2.0 with the lightmap on it
+//!   ([`scene_glb`]), which any glTF viewer shows lit and an engine loads
+//!   with its lightmap UVs (`TEXCOORD_1`).
+//!
+//! `lightwire serve` and `lightwire relay` serve the same `scene.glb` of
+//! the version they hold (`service::http`), built by the same
+//! [`scene_glb`] from the scene description clients get.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
-use anyhow::{Context, Result};
-use glam::Vec3;
-use lightwire_protocol::tone;
+use anyhow::{Context, Result, bail};
+use glam::{Quat, Vec2, Vec3};
+use lightwire_protocol::{
+    DEFAULT_TILE_SIZE, MaterialInfo, ObjectInfo, PixelFormat, SceneInfo, SurfaceInfo, tone,
+};
 use serde::Serialize;
 
 use crate::atlas::{Atlas, Chart};
+use crate::scene::gltf::write::{
+    GlbLightmap, GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene,
+};
 use crate::scene::{Pose, Scene};
 
 /// Per-surface entry of `atlas.json`.
@@ -165,9 +178,9 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 }
 
 /// Writes all bake outputs for per-element radiosity `values`.
-/// Writes `lightmap.exr`, `lightmap.png`, `atlas.json` and `stats.json`;
-/// invalid texels ([`crate::validity`]) are filled from their neighbours
-/// first.
+/// Writes `lightmap.exr`, `lightmap.png`, `atlas.json`, `stats.json` and
+/// `scene.glb`; invalid texels ([`crate::validity`]) are filled from their
+/// neighbours first.
 pub fn write_outputs(
     dir: &Path,
     scene: &Scene,
@@ -187,5 +200,261 @@ pub fn write_outputs(
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;
     write_json(&dir.join("atlas.json"), &atlas_file(scene, atlas, poses))?;
     write_json(&dir.join("stats.json"), stats)?;
+    let glb = scene_glb(&describe(scene, atlas, poses), &image, None)?;
+    let path = dir.join(SCENE_GLB);
+    std::fs::write(&path, glb).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
+}
+
+/// The file name of the exported scene, in a bake's directory and on the
+/// server (`/api/scenes/{id}/scene.glb`).
+pub const SCENE_GLB: &str = "scene.glb";
+
+/// The linear lightmap's file name, which `scene.glb` names: beside it in
+/// a bake's directory, and relative to its URL on the server
+/// (`/api/scenes/{id}/lightmap.exr`).
+pub const LIGHTMAP_EXR: &str = "lightmap.exr";
+
+/// A scene at `poses` as clients see it (the wire's [`SceneInfo`]: objects
+/// with poses, materials, per surface its object-space corners as a client
+/// draws them and its chart), the input of [`scene_glb`]. The same as
+/// `service::wire::scene_info` at the initial poses, which this module may
+/// not depend on; a test checks that both give the same `scene.glb`.
+pub fn describe(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> SceneInfo {
+    SceneInfo {
+        id: scene.name.clone(),
+        atlas_width: atlas.width,
+        atlas_height: atlas.height,
+        tile_size: DEFAULT_TILE_SIZE,
+        format: PixelFormat::Rgb9e5,
+        objects: scene
+            .objects
+            .iter()
+            .zip(poses)
+            .map(|(o, p)| ObjectInfo {
+                name: o.name.clone(),
+                dynamic: o.dynamic,
+                pose: lightwire_protocol::Pose {
+                    translation: p.translation.to_array(),
+                    rotation: p.rotation.to_array(),
+                    scale: p.scale,
+                },
+            })
+            .collect(),
+        materials: scene
+            .materials
+            .iter()
+            .map(|m| MaterialInfo {
+                name: m.name.clone(),
+                albedo: m.albedo.to_array(),
+                emission: m.emission.to_array(),
+            })
+            .collect(),
+        surfaces: scene
+            .patches
+            .iter()
+            .zip(&atlas.charts)
+            .map(|(p, c)| SurfaceInfo {
+                name: p.name.clone(),
+                object: p.object,
+                material: p.material,
+                corners: p.shape.quad_corners().map(|c| c.to_array()),
+                rect: [c.x, c.y, c.w, c.h],
+            })
+            .collect(),
+    }
+}
+
+/// The lightmap coordinates of a chart's four corners as every client
+/// draws them (PROTOCOL.md §3; `client/src/render/geometry.rs`
+/// `chart_uvs`, `view3d.js`): corner 0 at the centre of texel (x, y),
+/// corner 1 of (x + w - 1, y), corner 2 of (x + w - 1, y + h - 1), corner 3
+/// of (x, y + h - 1). glTF's UV origin is the image's first row, as the
+/// atlas's, so v is not flipped.
+pub fn chart_uvs(rect: [u32; 4], atlas_width: u32, atlas_height: u32) -> [Vec2; 4] {
+    let [x, y, w, h] = rect.map(f64::from);
+    let (aw, ah) = (f64::from(atlas_width), f64::from(atlas_height));
+    let u0 = ((x + 0.5) / aw) as f32;
+    let u1 = ((x + w - 0.5) / aw) as f32;
+    let v0 = ((y + 0.5) / ah) as f32;
+    let v1 = ((y + h - 0.5) / ah) as f32;
+    [
+        Vec2::new(u0, v0),
+        Vec2::new(u1, v0),
+        Vec2::new(u1, v1),
+        Vec2::new(u0, v1),
+    ]
+}
+
+/// `scene.glb`: the scene described by `info` with the lightmap `rgb`
+/// (linear radiosity, row-major, one pixel per atlas texel, invalid texels
+/// already filled) on it. Deterministic: the same input gives the same
+/// bytes.
+///
+/// - One node and one mesh per object, named after it, with one primitive
+///   per material the object uses (in material order). The static world's
+///   node has the identity transform; a dynamic object's node has its pose
+///   in `info` (rotation, translation, uniform scale) and the `extras`
+///   `{"lightwire": {"dynamic": true}}`, so that importing the file again
+///   (`scene::gltf::import`, `lightwire bake --scene scene.glb`) gives the
+///   same dynamic objects.
+/// - A surface is a quad drawn as the triangles (0, 1, 2) and (0, 2, 3) of
+///   its corners, a triangle (a quad whose third corner repeats, PROTOCOL.md
+///   §3) as (0, 1, 2) alone; vertices are not shared between surfaces.
+///   Per vertex: POSITION (object space), NORMAL (the surface's),
+///   `TEXCOORD_0` (metres along the surface's first and second edge, for an
+///   engine's own textures) and `TEXCOORD_1`, the chart's corner texel
+///   centres ([`chart_uvs`]), so the lightmap lines up exactly as in the
+///   clients.
+/// - The light: every material is `KHR_materials_unlit` with the
+///   tone-mapped lightmap (the one tone curve, [`tone_map`]) as its base
+///   colour on `TEXCOORD_1`, so that any viewer shows the baked light
+///   (three.js, Babylon.js, Blender, model-viewer read the extension; one
+///   that does not shows the same texture lit by its own lights). The
+///   physical material — albedo, emission in W/m² — is in the material's
+///   `extras` and emission also in `emissiveFactor` (see
+///   `scene::gltf::write`). `MOZ_lightmap` would keep the PBR material
+///   but is read by few viewers, and it multiplies the map by the base
+///   colour, which expects irradiance rather than the radiosity clients
+///   stream.
+/// - The asset's `extras` `{"lightwire": {"scene", "atlas": [w, h],
+///   "lightmap": "lightmap.exr", "version"}}` name the linear lightmap (a
+///   relative URI: beside the file in a bake, the snapshot route on the
+///   server) and, on the server, the version shown.
+///
+/// Everything in `info` is checked (a relay's comes from its upstream):
+/// indices, chart rectangles inside the atlas, finite corners and poses.
+pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Result<Vec<u8>> {
+    let (aw, ah) = (info.atlas_width, info.atlas_height);
+    if aw == 0 || ah == 0 || rgb.len() as u64 != u64::from(aw) * u64::from(ah) {
+        bail!("a lightmap of {} texels for a {aw}x{ah} atlas", rgb.len());
+    }
+    let materials: Vec<GlbMaterial> = info
+        .materials
+        .iter()
+        .map(|m| GlbMaterial {
+            name: m.name.clone(),
+            base_color: Vec3::from_array(m.albedo),
+            emission: Vec3::from_array(m.emission),
+            base_color_texture: None,
+        })
+        .collect();
+    // Per object, per material: the primitive being filled.
+    let mut parts: Vec<BTreeMap<u32, GlbPrimitive>> = vec![BTreeMap::new(); info.objects.len()];
+    for (i, s) in info.surfaces.iter().enumerate() {
+        let what = || format!("surface {i} (\"{}\")", s.name);
+        let [x, y, w, h] = s.rect.map(u64::from);
+        if s.object as usize >= info.objects.len() || s.material as usize >= materials.len() {
+            bail!("{} names a missing object or material", what());
+        }
+        if w < 2 || h < 2 || x + w > u64::from(aw) || y + h > u64::from(ah) {
+            bail!(
+                "{} has chart {:?} (x, y, width, height), not inside the {aw}x{ah} atlas",
+                what(),
+                s.rect
+            );
+        }
+        let corners = s.corners.map(Vec3::from_array);
+        if !corners.iter().all(|c| c.is_finite()) {
+            bail!("{} has a corner that is not a finite number", what());
+        }
+        // PROTOCOL.md §3: a triangle is a quad with its third corner repeated.
+        let triangle = corners[2] == corners[3];
+        let normal = (corners[1] - corners[0])
+            .cross(corners[2] - corners[1])
+            .normalize_or_zero();
+        let (a, b) = (
+            (corners[1] - corners[0]).length(),
+            (corners[2] - corners[1]).length(),
+        );
+        let metres = [
+            Vec2::ZERO,
+            Vec2::new(a, 0.0),
+            Vec2::new(a, b),
+            Vec2::new(0.0, b),
+        ];
+        let uvs = chart_uvs(s.rect, aw, ah);
+        let p = parts[s.object as usize]
+            .entry(s.material)
+            .or_insert_with(|| GlbPrimitive {
+                positions: Vec::new(),
+                normals: Some(Vec::new()),
+                uv0: Some(Vec::new()),
+                uv1: Some(Vec::new()),
+                indices: Vec::new(),
+                material: Some(s.material as usize),
+            });
+        let base =
+            u32::try_from(p.positions.len()).context("too many vertices in one primitive")?;
+        let n = if triangle { 3 } else { 4 };
+        p.positions.extend_from_slice(&corners[..n]);
+        for (list, values) in [(&mut p.uv0, &metres), (&mut p.uv1, &uvs)] {
+            if let Some(list) = list {
+                list.extend_from_slice(&values[..n]);
+            }
+        }
+        if let Some(normals) = &mut p.normals {
+            normals.extend(std::iter::repeat_n(normal, n));
+        }
+        p.indices.push([base, base + 1, base + 2]);
+        if !triangle {
+            p.indices.push([base, base + 2, base + 3]);
+        }
+    }
+    let mut meshes = Vec::new();
+    let mut nodes = Vec::new();
+    for (o, prims) in info.objects.iter().zip(parts) {
+        let mesh = (!prims.is_empty()).then(|| {
+            meshes.push(GlbMesh {
+                name: o.name.clone(),
+                primitives: prims.into_values().collect(),
+            });
+            meshes.len() - 1
+        });
+        let mut node = GlbNode::new(o.name.clone(), mesh);
+        let p = &o.pose;
+        let (t, r) = (
+            Vec3::from_array(p.translation),
+            Quat::from_array(p.rotation),
+        );
+        if !(t.is_finite() && r.is_finite() && p.scale.is_finite() && p.scale > 0.0) {
+            bail!("object \"{}\" has a pose that is not finite", o.name);
+        }
+        node.translation = t;
+        node.rotation = r.normalize();
+        node.scale = Vec3::splat(p.scale);
+        if o.dynamic {
+            node.extras = Some(serde_json::json!({ "lightwire": { "dynamic": true } }));
+        }
+        nodes.push(node);
+    }
+    let doc = GlbScene {
+        materials,
+        images: Vec::new(),
+        meshes,
+        roots: (0..nodes.len()).collect(),
+        nodes,
+    };
+    let mut png = Vec::new();
+    {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(&mut png)
+            .write_image(&tone_map(rgb), aw, ah, image::ExtendedColorType::Rgb8)
+            .context("encoding the lightmap PNG")?;
+    }
+    let mut extras = serde_json::json!({
+        "scene": info.id,
+        "atlas": [aw, ah],
+        "lightmap": LIGHTMAP_EXR,
+    });
+    if let Some(v) = version {
+        extras["version"] = v.into();
+    }
+    let lightmap = GlbLightmap {
+        name: "lightmap".to_string(),
+        png,
+        asset_extras: Some(serde_json::json!({ "lightwire": extras })),
+    };
+    doc.to_glb_lit(&lightmap)
+        .map_err(|e| anyhow::anyhow!("writing {SCENE_GLB} of \"{}\": {e}", info.id))
 }

@@ -664,7 +664,7 @@ async fn joined_rgb(url: &str) -> (u64, Vec<[f32; 3]>) {
 }
 
 /// A viewer on a relay needs nothing from the solver: the relay serves the
-/// scene info, snapshots of the version it holds and the dashboard, with
+/// scene info, snapshots and `scene.glb` of the version it holds and the dashboard, with
 /// the solver's token and Origin rules (PROTOCOL.md §7, Relays and REST).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
@@ -725,6 +725,29 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
         (image.width(), image.height())
     );
 
+    // The lit scene: exactly the export of the description and the
+    // version the relay holds.
+    let glb = http::get(
+        addr,
+        &format!("/api/scenes/{SCENE}/scene.glb"),
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(glb.status, 200, "{}", glb.text());
+    assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
+    assert_eq!(
+        glb.header("x-lightwire-version"),
+        Some(version.to_string().as_str())
+    );
+    let info: lightwire_protocol::SceneInfo =
+        serde_json::from_value(from_relay.json()).expect("a SceneInfo");
+    let expected =
+        lightwire_server::bake::scene_glb(&info, &rgb, Some(version)).expect("scene.glb");
+    assert!(
+        glb.body == expected,
+        "the relay's scene.glb is the export of the version it holds"
+    );
+
     // The list says which scenes, for the dashboard's picker.
     let list = http::get(addr, "/api/scenes", Some(VIEWER_TOKEN))
         .await
@@ -739,6 +762,7 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
         info_path.clone(),
         format!("/api/scenes/{SCENE}/lightmap.exr"),
         format!("/api/scenes/{SCENE}/lightmap.png"),
+        format!("/api/scenes/{SCENE}/scene.glb"),
     ] {
         let none = http::get(addr, &route, None).await;
         assert_eq!(none.status, 401, "{route} on the relay without a token");

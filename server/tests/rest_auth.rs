@@ -1,8 +1,8 @@
 //! The REST routes follow the WebSocket's roles (PROTOCOL.md §7, REST), on
 //! a real `lightwire serve` over real sockets:
 //!
-//! - with tokens configured, the scene list, scene info and both
-//!   snapshots answer 401 (a JSON `error` naming what is missing, and
+//! - with tokens configured, the scene list, scene info, both
+//!   snapshots and the lit `scene.glb` answer 401 (a JSON `error` naming what is missing, and
 //!   `WWW-Authenticate: Bearer`) without a token or with an unknown one,
 //!   and 200 with a viewer token as `Authorization: Bearer` or `?token=`;
 //! - a foreign browser `Origin` gets 403 even with a good token; the
@@ -15,12 +15,13 @@ use lightwire_testkit::http::{self, Response};
 use lightwire_testkit::{ADMIN_TOKEN, DRIVER_TOKEN, SCENE, VIEWER_TOKEN, lightwire, scene_path};
 
 /// The routes that need a viewer token.
-fn viewer_routes() -> [String; 4] {
+fn viewer_routes() -> [String; 5] {
     [
         "/api/scenes".to_string(),
         format!("/api/scenes/{SCENE}"),
         format!("/api/scenes/{SCENE}/lightmap.exr"),
         format!("/api/scenes/{SCENE}/lightmap.png"),
+        format!("/api/scenes/{SCENE}/scene.glb"),
     ]
 }
 
@@ -111,6 +112,58 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
     .await;
     assert_eq!(exr.header("content-type"), Some("image/x-exr"));
     assert!(exr.header("x-lightwire-version").is_some());
+    // The lit scene: a glb that imports, one triangle per triangle surface
+    // and two per quad of the scene info, the version in its extras.
+    let glb = http::get(
+        addr,
+        &format!("/api/scenes/{SCENE}/scene.glb"),
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
+    let version: u64 = glb
+        .header("x-lightwire-version")
+        .and_then(|v| v.parse().ok())
+        .expect("x-lightwire-version");
+    let imported = lightwire_server::scene::gltf::import_slice(
+        &glb.body,
+        None,
+        "scene.glb",
+        &Default::default(),
+    )
+    .expect("the served scene.glb imports");
+    let surfaces = info["surfaces"].as_array().expect("surfaces");
+    let triangles: usize = surfaces
+        .iter()
+        .map(|s| {
+            if s["corners"][2] == s["corners"][3] {
+                1
+            } else {
+                2
+            }
+        })
+        .sum();
+    assert_eq!(imported.triangle_count(), triangles);
+    let dynamic = info["objects"]
+        .as_array()
+        .expect("objects")
+        .iter()
+        .filter(|o| o["dynamic"] == true)
+        .count();
+    assert_eq!(imported.objects.len(), 1 + dynamic);
+    let document = gltf::Gltf::from_slice(&glb.body).expect("parses");
+    let extras: serde_json::Value = serde_json::from_str(
+        document
+            .as_json()
+            .asset
+            .extras
+            .as_ref()
+            .expect("asset extras")
+            .get(),
+    )
+    .expect("JSON");
+    assert_eq!(extras["lightwire"]["version"], version);
+    assert_eq!(extras["lightwire"]["lightmap"], "lightmap.exr");
 
     // Open: health, readiness, the dashboard's files, and by default the
     // metrics.

@@ -38,8 +38,9 @@
 //! on the relay's feeds) — the dashboard (`/`, `/dashboard/{*path}`),
 //! `/healthz`, `/metrics`, `/api/scenes` (with the upstream's status per
 //! scene), `/api/scenes/{id}`, the snapshots
-//! `/api/scenes/{id}/lightmap.exr|png` of the version the relay holds
-//! (its number in `x-lightwire-version`, the relay's own version) and
+//! `/api/scenes/{id}/lightmap.exr|png` and the lit `scene.glb` of the
+//! version the relay holds (its number in `x-lightwire-version`, the
+//! relay's own version; dynamic objects at the description's poses) and
 //! `/ws/scenes/{id}` — with the same token and Origin rules, checked with
 //! the relay's own tokens; only `/readyz` is the relay's own (ready once
 //! every scene has a version, and still ready while an upstream is away).

@@ -1,6 +1,7 @@
 //! HTTP routes: health, readiness, metrics, the REST API, lightmap
-//! snapshots, the WebSocket upgrade and the dashboard (its embedded files
-//! are in [`super::dashboard`]).
+//! snapshots and the lit scene as glTF (`scene.glb`), the WebSocket
+//! upgrade and the dashboard (its embedded files are in
+//! [`super::dashboard`]).
 //!
 //! Every route but `/readyz` is served by [`routes`] on anything that
 //! implements [`Scenes`]: a solver's scenes ([`AppState`]) or a relay's
@@ -323,6 +324,8 @@ async fn scene_info<S: Scenes>(State(scenes): State<Arc<S>>, Path(id): Path<Stri
 
 /// One version of a scene's lightmap, decoded.
 struct Snapshot {
+    /// The description the lightmap was decoded for.
+    info: Arc<lightwire_protocol::SceneInfo>,
     width: u32,
     height: u32,
     version: u64,
@@ -346,6 +349,7 @@ fn current_rgb(feed: &Feed) -> Result<Snapshot, String> {
         format!("the newest lightmap does not fit the scene's description yet ({e}); retry")
     })?;
     Ok(Snapshot {
+        info,
         width: map.width,
         height: map.height,
         version: p.version,
@@ -361,22 +365,31 @@ async fn lightmap_file<S: Scenes>(
         Ok(feed) => feed,
         Err(r) => return *r,
     };
-    let format = match file.as_str() {
-        "lightmap.exr" => image::ImageFormat::OpenExr,
-        "lightmap.png" => image::ImageFormat::Png,
+    // The file and its media type.
+    let (format, mime) = match file.as_str() {
+        "lightmap.exr" => (Some(image::ImageFormat::OpenExr), "image/x-exr"),
+        "lightmap.png" => (Some(image::ImageFormat::Png), "image/png"),
+        // The scene with this version's lightmap on it (`bake::scene_glb`).
+        crate::bake::SCENE_GLB => (None, "model/gltf-binary"),
         _ => {
             return not_found(format!(
-                "no file \"{file}\"; try lightmap.exr or lightmap.png"
+                "no file \"{file}\"; try lightmap.exr, lightmap.png or scene.glb"
             ));
         }
     };
     let encoded = tokio::task::spawn_blocking(move || -> Result<(u64, Vec<u8>), String> {
         let Snapshot {
+            info,
             width: w,
             height: h,
             version,
             rgb,
         } = current_rgb(&feed)?;
+        let Some(format) = format else {
+            let glb =
+                crate::bake::scene_glb(&info, &rgb, Some(version)).map_err(|e| format!("{e:#}"))?;
+            return Ok((version, glb));
+        };
         let mut out = Cursor::new(Vec::new());
         let image = match format {
             image::ImageFormat::OpenExr => {
@@ -397,25 +410,18 @@ async fn lightmap_file<S: Scenes>(
     })
     .await;
     match encoded {
-        Ok(Ok((version, bytes))) => {
-            let mime = if file.ends_with(".exr") {
-                "image/x-exr"
-            } else {
-                "image/png"
-            };
-            (
-                [
-                    (header::CONTENT_TYPE, mime.to_string()),
-                    (
-                        header::HeaderName::from_static("x-lightwire-version"),
-                        version.to_string(),
-                    ),
-                    (header::CACHE_CONTROL, "no-store".to_string()),
-                ],
-                bytes,
-            )
-                .into_response()
-        }
+        Ok(Ok((version, bytes))) => (
+            [
+                (header::CONTENT_TYPE, mime.to_string()),
+                (
+                    header::HeaderName::from_static("x-lightwire-version"),
+                    version.to_string(),
+                ),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+            ],
+            bytes,
+        )
+            .into_response(),
         Ok(Err(why)) => json_error(StatusCode::SERVICE_UNAVAILABLE, why),
         Err(_) => (StatusCode::INTERNAL_SERVER_ERROR, "encoding failed").into_response(),
     }

@@ -1,5 +1,6 @@
 //! `lightwire bake`: solve a scene once with any solver and write the
-//! lightmap, its metadata and the solver's statistics.
+//! lightmap, its metadata, the solver's statistics and the lit scene as
+//! glTF (`bake::write_outputs`).
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -129,7 +130,7 @@ pub(crate) fn bake_command(
     bake::write_outputs(&out, &scene, &atlas, &poses, &values, &stats)
         .with_context(|| format!("writing bake of {}", path.display()))?;
     eprintln!(
-        "wrote {}/lightmap.exr, lightmap.png, atlas.json, stats.json in {:.1} s",
+        "wrote {}/lightmap.exr, lightmap.png, atlas.json, stats.json, scene.glb in {:.1} s",
         out.display(),
         stats.seconds
     );

@@ -27,6 +27,10 @@
 //!   `emissiveFactor × KHR_materials_emissive_strength ×`
 //!   [`ImportOptions::emission_scale`]. The base colour texture is only
 //!   referenced ([`TextureRef`]); averaging it per texel is a later stage.
+//!   A material whose `extras` hold `{"lightwire": {"albedo": [r, g, b],
+//!   "emission": [r, g, b]}}` (a baked `scene.glb`, see [`write`]) takes
+//!   its albedo and emission from there, and its base colour texture,
+//!   which is the baked light, is not referenced.
 //! - **Lightmap UVs.** `TEXCOORD_1`, when present, is validated per mesh: the
 //!   primitives of one mesh share one lightmap space [0, 1]² (as Bevy, three.js
 //!   and Godot use the second UV set), so no two of its triangles may
@@ -584,22 +588,33 @@ impl Importer<'_> {
         let location = named("material", index, m.name());
         let pbr = m.pbr_metallic_roughness();
         let [r, g, b, _] = pbr.base_color_factor();
-        let raw = Vec3::new(r, g, b);
+        let mut raw = Vec3::new(r, g, b);
+        let mut strength = m.emissive_strength().unwrap_or(1.0);
+        let mut emissive = Vec3::from(m.emissive_factor());
+        // A baked scene Lightwire wrote (`write::GlbScene::to_glb_lit`): its
+        // base colour is the baked light, the physical material is in the
+        // extras.
+        let baked = self.baked_material(m, &location);
+        if let Some((albedo, emission)) = baked {
+            raw = albedo;
+            emissive = emission;
+            strength = 1.0;
+        }
         let albedo = raw.clamp(Vec3::ZERO, Vec3::splat(ALBEDO_MAX));
         if albedo != raw {
             tracing::warn!(
                 "{location}: baseColorFactor {raw:?} clamped to {albedo:?} (albedo must stay below 1)"
             );
         }
-        let strength = m.emissive_strength().unwrap_or(1.0);
-        let emission = Vec3::from(m.emissive_factor()) * strength * self.options.emission_scale;
+        let emission = emissive * strength * self.options.emission_scale;
         if !emission.is_finite() || emission.min_element() < 0.0 {
             self.report(
                 &location,
                 format!("emission {emission:?} W/m² (emissiveFactor × emissive_strength × emission_scale) must be finite and >= 0"),
             );
         }
-        let base_color_texture = pbr.base_color_texture().map(|info| {
+        let base_color_texture = pbr.base_color_texture().filter(|_| baked.is_none());
+        let base_color_texture = base_color_texture.map(|info| {
             let image = info.texture().source();
             let source = match image.source() {
                 ::gltf::image::Source::View { view, mime_type } => {
@@ -646,6 +661,36 @@ impl Importer<'_> {
             albedo,
             emission,
             base_color_texture,
+        }
+    }
+
+    /// The albedo and emission (W/m²) of a material whose `extras` hold
+    /// `{"lightwire": {"albedo": [r, g, b], "emission": [r, g, b]}}`, as a
+    /// baked `scene.glb` writes them; `None` for any other material.
+    fn baked_material(&mut self, m: &::gltf::Material, location: &str) -> Option<(Vec3, Vec3)> {
+        let value: serde_json::Value = serde_json::from_str(m.extras().as_ref()?.get()).ok()?;
+        let lightwire = value.get("lightwire")?;
+        if lightwire.get("albedo").is_none() && lightwire.get("emission").is_none() {
+            return None;
+        }
+        let rgb = |key: &str| -> Option<Vec3> {
+            let a = lightwire.get(key)?.as_array()?;
+            let c: Vec<f32> = a
+                .iter()
+                .filter_map(|x| x.as_f64())
+                .map(|x| x as f32)
+                .collect();
+            (a.len() == 3 && c.len() == 3).then(|| Vec3::new(c[0], c[1], c[2]))
+        };
+        match (rgb("albedo"), rgb("emission")) {
+            (Some(albedo), Some(emission)) => Some((albedo, emission)),
+            _ => {
+                self.report(
+                    location,
+                    "extras.lightwire must hold \"albedo\" and \"emission\", three numbers each",
+                );
+                None
+            }
         }
     }
 

@@ -12,6 +12,18 @@
 //! embedded in the binary chunk, sampled with TEXCOORD_0, repeating),
 //! `emissiveFactor` and `KHR_materials_emissive_strength`; nodes with names,
 //! translation/rotation/scale, children and `extras`.
+//!
+//! A baked scene ([`GlbScene::to_glb_lit`], `bake::scene_glb`) adds a
+//! lightmap that any viewer shows: every material is written
+//! `KHR_materials_unlit` with the tone-mapped lightmap as its base colour
+//! texture on `TEXCOORD_1` (white `baseColorFactor`, since an unlit colour
+//! is factor × texture and the lightmap is already the surface's radiosity
+//! `B = E + ρH`, albedo included), and the physical material (albedo,
+//! emission in W/m²) in its `extras` as `{"lightwire": {"albedo": [r, g,
+//! b], "emission": [r, g, b]}}`, which the importer reads back. Emission is
+//! also written as usual, so a viewer without the extension still sees
+//! the lights (the Khronos validator warns `MULTIPLE_EXTENSIONS` where
+//! emission strength sits beside unlit: an unlit viewer ignores it).
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -110,8 +122,22 @@ impl GlbNode {
     }
 }
 
+/// A baked lightmap to show on every surface ([`GlbScene::to_glb_lit`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbLightmap {
+    /// The image's and texture's name in the file.
+    pub name: String,
+    /// The tone-mapped lightmap as an 8-bit sRGB PNG (glTF base colour
+    /// textures are sRGB), one pixel per atlas texel.
+    pub png: Vec<u8>,
+    /// Written as the asset's `extras` (e.g. where the linear lightmap is).
+    pub asset_extras: Option<serde_json::Value>,
+}
+
 /// The extension name for emission strength.
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
+/// The extension that shows a material's base colour as is, without lights.
+const UNLIT: &str = "KHR_materials_unlit";
 
 struct Builder {
     root: json::Root,
@@ -210,7 +236,7 @@ fn extras(value: &Option<serde_json::Value>) -> Result<json::Extras, WriteError>
 }
 
 impl GlbScene {
-    fn check(&self) -> Result<(), WriteError> {
+    fn check(&self, lit: bool) -> Result<(), WriteError> {
         let bad = |m: String| Err(WriteError::Invalid(m));
         for (mi, mesh) in self.meshes.iter().enumerate() {
             for (pi, p) in mesh.primitives.iter().enumerate() {
@@ -240,6 +266,11 @@ impl GlbScene {
                 if p.material.is_some_and(|m| m >= self.materials.len()) {
                     return bad(format!("{at}: no such material"));
                 }
+                if lit && (p.uv1.is_none() || p.material.is_none()) {
+                    return bad(format!(
+                        "{at}: a lit document needs TEXCOORD_1 (the lightmap's coordinates) and a material on every primitive"
+                    ));
+                }
             }
         }
         for (i, node) in self.nodes.iter().enumerate() {
@@ -259,6 +290,12 @@ impl GlbScene {
             if m.base_color_texture.is_some_and(|t| t >= self.images.len()) {
                 return bad(format!("material \"{}\" refers to a missing image", m.name));
             }
+            if lit && m.base_color_texture.is_some() {
+                return bad(format!(
+                    "material \"{}\" has a base colour texture; in a lit document the lightmap is the base colour",
+                    m.name
+                ));
+            }
         }
         Ok(())
     }
@@ -266,13 +303,31 @@ impl GlbScene {
     /// The glTF JSON and the binary buffer; `bin_uri` names the buffer's file
     /// (for `.gltf`) or is `None` (for `.glb`, the binary chunk).
     pub fn to_json_and_bin(&self, bin_uri: Option<&str>) -> Result<(String, Vec<u8>), WriteError> {
-        self.check()?;
+        self.build(bin_uri, None)
+    }
+
+    /// The document as a binary glTF with `lightmap` on every surface (see
+    /// the module doc): every primitive needs a material and `uv1`, the
+    /// lightmap coordinates, and no material may have a base colour texture
+    /// of its own.
+    pub fn to_glb_lit(&self, lightmap: &GlbLightmap) -> Result<Vec<u8>, WriteError> {
+        let (text, bin) = self.build(None, Some(lightmap))?;
+        pack_glb(text.as_bytes(), &bin)
+    }
+
+    fn build(
+        &self,
+        bin_uri: Option<&str>,
+        lightmap: Option<&GlbLightmap>,
+    ) -> Result<(String, Vec<u8>), WriteError> {
+        self.check(lightmap.is_some())?;
         let mut b = Builder {
             root: json::Root::default(),
             bin: Vec::new(),
         };
         b.root.asset = json::Asset {
             generator: Some("Lightwire".to_string()),
+            extras: extras(&lightmap.and_then(|l| l.asset_extras.clone()))?,
             ..Default::default()
         };
 
@@ -305,6 +360,37 @@ impl GlbScene {
                 }));
             }
         }
+        // The lightmap: filtered as a client filters it (bilinear, no
+        // mipmaps, which would blend neighbouring charts; clamped at the
+        // atlas border).
+        let lightmap_texture = match lightmap {
+            Some(l) => {
+                let sampler = b.root.push(json::texture::Sampler {
+                    mag_filter: Some(Valid(json::texture::MagFilter::Linear)),
+                    min_filter: Some(Valid(json::texture::MinFilter::Linear)),
+                    wrap_s: Valid(json::texture::WrappingMode::ClampToEdge),
+                    wrap_t: Valid(json::texture::WrappingMode::ClampToEdge),
+                    ..Default::default()
+                });
+                let view = b.view(&l.png, None);
+                let source = b.root.push(json::Image {
+                    buffer_view: Some(view),
+                    mime_type: Some(json::image::MimeType("image/png".to_string())),
+                    name: Some(l.name.clone()),
+                    uri: None,
+                    extensions: None,
+                    extras: None,
+                });
+                Some(b.root.push(json::Texture {
+                    name: Some(l.name.clone()),
+                    sampler: Some(sampler),
+                    source,
+                    extensions: None,
+                    extras: None,
+                }))
+            }
+            None => None,
+        };
 
         let mut uses_strength = false;
         for m in &self.materials {
@@ -337,17 +423,40 @@ impl GlbScene {
                     extensions: None,
                     extras: None,
                 });
+            let mut extensions = json::extensions::material::Material::default();
             if let Some(s) = strength {
-                let mut extensions = json::extensions::material::Material::default();
                 extensions.emissive_strength = Some(json::extensions::material::EmissiveStrength {
                     emissive_strength: json::extensions::material::EmissiveStrengthFactor(s),
                 });
+            }
+            if let Some(index) = lightmap_texture {
+                // Shown as the baked light: unlit, white × the lightmap.
+                extensions.unlit = Some(json::extensions::material::Unlit {});
+                material.pbr_metallic_roughness.base_color_factor =
+                    json::material::PbrBaseColorFactor([1.0; 4]);
+                material.pbr_metallic_roughness.base_color_texture = Some(json::texture::Info {
+                    index,
+                    tex_coord: 1,
+                    extensions: None,
+                    extras: None,
+                });
+                material.extras = extras(&Some(serde_json::json!({
+                    "lightwire": {
+                        "albedo": m.base_color.to_array(),
+                        "emission": m.emission.to_array(),
+                    }
+                })))?;
+            }
+            if strength.is_some() || lightmap_texture.is_some() {
                 material.extensions = Some(extensions);
             }
             b.root.push(material);
         }
         if uses_strength {
             b.root.extensions_used.push(EMISSIVE_STRENGTH.to_string());
+        }
+        if lightmap.is_some() && !self.materials.is_empty() {
+            b.root.extensions_used.push(UNLIT.to_string());
         }
 
         use json::accessor::Type;

@@ -1,0 +1,438 @@
+//! glTF out (`bake::scene_glb`): the lit scene as `scene.glb`.
+//!
+//! - `lightwire bake` writes a `scene.glb` the Khronos glTF validator
+//!   accepts with zero errors, whose embedded lightmap is `lightmap.png`
+//!   pixel for pixel, shown by unlit materials on `TEXCOORD_1`, and which
+//!   names `lightmap.exr`; the same file without its extension declared is
+//!   refused, so the validator is really checking it;
+//! - importing it again (`scene::gltf::import`) gives the same triangles in
+//!   world space, the same materials and the same dynamic objects, and it
+//!   opens as a scene of its own;
+//! - every corner's `TEXCOORD_1` is the centre of its chart's corner texel,
+//!   as the clients draw it (PROTOCOL.md §3);
+//! - the bytes are deterministic, and the same from a `Scene` and from the
+//!   wire's `SceneInfo` (what `lightwire serve` and a relay build it from);
+//! - a description that does not fit (as a relay's upstream could send) is
+//!   an error, not a panic.
+//!
+//! The REST route `GET /api/scenes/{id}/scene.glb` is tested with the other
+//! snapshots in `rest_auth.rs`.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Quat, Vec2, Vec3};
+use lightwire_server::atlas::Atlas;
+use lightwire_server::bake::{self, describe, scene_glb};
+use lightwire_server::load::parse_scene;
+use lightwire_server::scene::gltf::write::pack_glb;
+use lightwire_server::scene::gltf::{ImportOptions, ImportedScene, import_slice};
+use lightwire_server::scene::{LoadOptions, Scene};
+
+/// A small room: a floor, a light, a wall of two mesh triangles, and a
+/// dynamic crate turned 45° about y.
+const ROOM: &str = r#"{
+  "name": "export-room",
+  "description": "glTF export test: quads, mesh triangles and a turned dynamic box",
+  "lightmap": { "texel_density": 4, "max_atlas_size": 256 },
+  "materials": [
+    { "name": "light", "albedo": [0, 0, 0], "emission": [20, 18, 15] },
+    { "name": "white", "albedo": [0.7, 0.7, 0.7] },
+    { "name": "red", "albedo": [0.6, 0.1, 0.1] }
+  ],
+  "objects": [
+    { "name": "crate", "pose": { "translation": [1.2, 0.25, 0.9], "rotation": [0, 0.38268343, 0, 0.92387953] } }
+  ],
+  "surfaces": [
+    { "name": "floor", "material": "white", "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } },
+    { "name": "light", "material": "light", "quad": { "origin": [0.75, 1.5, 0.75], "u": [0.5, 0, 0], "v": [0, 0, 0.5] } },
+    { "name": "wall", "material": "red",
+      "mesh": { "positions": [[0, 0, 0], [0, 1, 0], [0, 1, 2], [0, 0, 2]], "indices": [0, 1, 2, 0, 2, 3] } },
+    { "name": "crate", "material": "white", "object": "crate", "box": { "center": [0, 0, 0], "size": [0.5, 0.5, 0.5] } }
+  ]
+}"#;
+
+fn room() -> (Scene, Atlas) {
+    parse_scene(ROOM, "export-room.json", LoadOptions::default()).expect("the room loads")
+}
+
+/// A lightmap with a different value in every texel, so that a texture
+/// placed wrong would show.
+fn gradient(atlas: &Atlas) -> Vec<[f32; 3]> {
+    (0..atlas.width * atlas.height)
+        .map(|i| {
+            let (x, y) = (i % atlas.width, i / atlas.width);
+            [x as f32 * 0.01, y as f32 * 0.02, 0.5]
+        })
+        .collect()
+}
+
+fn exported(scene: &Scene, atlas: &Atlas) -> Vec<u8> {
+    scene_glb(
+        &describe(scene, atlas, &scene.initial_poses()),
+        &gradient(atlas),
+        None,
+    )
+    .expect("scene.glb")
+}
+
+fn reimport(glb: &[u8]) -> ImportedScene {
+    import_slice(glb, None, "scene.glb", &ImportOptions::default())
+        .unwrap_or_else(|e| panic!("the exported scene.glb re-imports: {e}"))
+}
+
+/// One triangle as drawn: its object, material, world-space corners in
+/// winding order, and (for the expected ones) the lightmap coordinates.
+#[derive(Debug, Clone)]
+struct Tri {
+    object: String,
+    material: String,
+    world: [Vec3; 3],
+    uv1: [Vec2; 3],
+}
+
+/// The triangles a client draws for `scene` at its initial poses, with the
+/// chart corner texel centres computed here from the atlas (PROTOCOL.md §3:
+/// corner 0 at texel (x, y), 1 at (x + w - 1, y), 2 at (x + w - 1,
+/// y + h - 1), 3 at (x, y + h - 1)), independently of the exporter.
+fn expected_triangles(scene: &Scene, atlas: &Atlas) -> Vec<Tri> {
+    let poses = scene.initial_poses();
+    let mut out = Vec::new();
+    for (p, c) in scene.patches.iter().zip(&atlas.charts) {
+        let corners = p
+            .shape
+            .transformed(&poses[p.object as usize])
+            .quad_corners();
+        let centre = |tx: u32, ty: u32| {
+            Vec2::new(
+                ((f64::from(tx) + 0.5) / f64::from(atlas.width)) as f32,
+                ((f64::from(ty) + 0.5) / f64::from(atlas.height)) as f32,
+            )
+        };
+        let uv = [
+            centre(c.x, c.y),
+            centre(c.x + c.w - 1, c.y),
+            centre(c.x + c.w - 1, c.y + c.h - 1),
+            centre(c.x, c.y + c.h - 1),
+        ];
+        let mut tris = vec![[0, 1, 2]];
+        if !p.shape.is_triangle() {
+            tris.push([0, 2, 3]);
+        }
+        for t in tris {
+            out.push(Tri {
+                object: scene.objects[p.object as usize].name.clone(),
+                material: scene.materials[p.material as usize].name.clone(),
+                world: t.map(|k| corners[k]),
+                uv1: t.map(|k| uv[k]),
+            });
+        }
+    }
+    out
+}
+
+/// The triangles of an imported file in world space.
+fn imported_triangles(imported: &ImportedScene) -> Vec<Tri> {
+    let mut out = Vec::new();
+    for inst in &imported.instances {
+        let object = &imported.objects[inst.object as usize];
+        let uv1 = inst
+            .lightmap_uvs
+            .as_ref()
+            .expect("every primitive has TEXCOORD_1");
+        for t in &inst.indices {
+            out.push(Tri {
+                object: object.name.clone(),
+                material: imported.materials[inst.material as usize].name.clone(),
+                world: t.map(|i| object.pose.transform_point(inst.positions[i as usize])),
+                uv1: t.map(|i| uv1[i as usize]),
+            });
+        }
+    }
+    out
+}
+
+/// Pairs every expected triangle with the imported one at the same world
+/// corners in the same order (within `tolerance` m), each used once.
+fn pair_up(expected: &[Tri], got: &[Tri], tolerance: f32) -> Vec<(Tri, Tri)> {
+    assert_eq!(got.len(), expected.len(), "triangle count");
+    let mut used = vec![false; got.len()];
+    expected
+        .iter()
+        .map(|e| {
+            let k = (0..got.len())
+                .find(|&k| {
+                    !used[k]
+                        && e.world
+                            .iter()
+                            .zip(&got[k].world)
+                            .all(|(a, b)| (*a - *b).abs().max_element() <= tolerance)
+                })
+                .unwrap_or_else(|| panic!("no exported triangle at {:?}", e.world));
+            used[k] = true;
+            (e.clone(), got[k].clone())
+        })
+        .collect()
+}
+
+#[test]
+fn reimporting_gives_the_same_triangles_materials_and_dynamic_objects() {
+    let (scene, atlas) = room();
+    let glb = exported(&scene, &atlas);
+    let imported = reimport(&glb);
+
+    // Triangles: the same in world space (1e-6 m), with their object and
+    // material.
+    let pairs = pair_up(
+        &expected_triangles(&scene, &atlas),
+        &imported_triangles(&imported),
+        1e-6,
+    );
+    for (want, got) in &pairs {
+        assert_eq!(got.object, want.object, "{:?}", want.world);
+        assert_eq!(got.material, want.material, "{:?}", want.world);
+    }
+    // The wall's mesh triangles stay triangles and the quads two each.
+    let triangles = scene
+        .patches
+        .iter()
+        .filter(|p| p.shape.is_triangle())
+        .count();
+    assert_eq!(triangles, 2);
+    assert_eq!(
+        pairs.len(),
+        2 * (scene.patches.len() - triangles) + triangles
+    );
+
+    // Materials: the physical ones, exactly (not the white base colour the
+    // viewer shows the lightmap with).
+    assert_eq!(imported.materials.len(), scene.materials.len());
+    for (got, want) in imported.materials.iter().zip(&scene.materials) {
+        assert_eq!(got.name, want.name);
+        assert_eq!(got.albedo, want.albedo, "{}", want.name);
+        assert_eq!(got.emission, want.emission, "{}", want.name);
+        assert!(
+            got.base_color_texture.is_none(),
+            "{}: the lightmap is not an albedo texture",
+            want.name
+        );
+    }
+
+    // Objects: the static world and the crate, dynamic, at its pose.
+    let names: Vec<&str> = imported.objects.iter().map(|o| o.name.as_str()).collect();
+    assert_eq!(names, ["static", "crate"]);
+    let want = scene.objects[1].initial_pose;
+    let got = imported.objects[1].pose;
+    assert!((got.translation - want.translation).abs().max_element() < 1e-6);
+    assert!(got.rotation.angle_between(want.rotation) < 1e-5);
+    assert!(
+        want.rotation.angle_between(Quat::IDENTITY) > 0.5,
+        "a turned crate"
+    );
+
+    // And it opens as a scene on its own (`lightwire bake --scene
+    // scene.glb`): every patch, the same materials and dynamic objects.
+    let dir = temp_dir("reimport");
+    let path = dir.join("scene.glb");
+    std::fs::write(&path, &glb).expect("write");
+    let again = Scene::load(&path).expect("scene.glb opens as a scene");
+    assert_eq!(again.patches.len(), pairs.len());
+    assert_eq!(again.materials, scene.materials);
+    let dynamic: Vec<(&str, bool)> = again
+        .objects
+        .iter()
+        .map(|o| (o.name.as_str(), o.dynamic))
+        .collect();
+    assert_eq!(dynamic, [("static", false), ("crate", true)]);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn texcoord_1_is_each_corners_chart_texel_centre() {
+    let (scene, atlas) = room();
+    let imported = reimport(&exported(&scene, &atlas));
+    let pairs = pair_up(
+        &expected_triangles(&scene, &atlas),
+        &imported_triangles(&imported),
+        1e-6,
+    );
+    for (want, got) in pairs {
+        assert_eq!(
+            got.uv1, want.uv1,
+            "TEXCOORD_1 of the triangle at {:?}",
+            want.world
+        );
+    }
+}
+
+#[test]
+fn the_bytes_are_deterministic_and_the_same_from_the_scene_and_from_the_wire() {
+    let (scene, atlas) = room();
+    let a = exported(&scene, &atlas);
+    assert_eq!(
+        a,
+        exported(&scene, &atlas),
+        "the same input, the same bytes"
+    );
+    // What the server and a relay build it from: the Welcome's description.
+    let wire = lightwire_server::service::wire::scene_info(&scene, &atlas);
+    assert_eq!(describe(&scene, &atlas, &scene.initial_poses()), wire);
+    let served = scene_glb(&wire, &gradient(&atlas), None).expect("scene.glb");
+    assert_eq!(a, served);
+}
+
+#[test]
+fn a_description_that_does_not_fit_is_an_error() {
+    let (scene, atlas) = room();
+    let info = describe(&scene, &atlas, &scene.initial_poses());
+    let rgb = gradient(&atlas);
+    let error = |info: &lightwire_protocol::SceneInfo, rgb: &[[f32; 3]]| {
+        format!(
+            "{:#}",
+            scene_glb(info, rgb, None).expect_err("refused, not written")
+        )
+    };
+    assert!(error(&info, &rgb[1..]).contains("texels"));
+    let mut bad = info.clone();
+    bad.surfaces[0].rect[0] = atlas.width;
+    assert!(
+        error(&bad, &rgb).contains("not inside"),
+        "{}",
+        error(&bad, &rgb)
+    );
+    let mut bad = info.clone();
+    bad.surfaces[1].object = 7;
+    assert!(error(&bad, &rgb).contains("missing object"));
+    let mut bad = info.clone();
+    bad.surfaces[2].corners[1][0] = f32::NAN;
+    assert!(error(&bad, &rgb).contains("finite"));
+    let mut bad = info;
+    bad.objects[1].pose.scale = 0.0;
+    assert!(error(&bad, &rgb).contains("pose"));
+}
+
+// ---- a real bake and the Khronos validator ---------------------------------
+
+fn temp_dir(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lightwire-export-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create temp dir");
+    dir
+}
+
+/// Runs the Khronos glTF validator (npm `gltf-validator` in
+/// `tests/gltf-validator`, installed by `make test`) on a file; returns
+/// (success, output).
+fn khronos_validate(file: &Path) -> (bool, String) {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/gltf-validator");
+    assert!(
+        dir.join("node_modules/gltf-validator").is_dir(),
+        "{} has no node_modules/gltf-validator: run `make gltf-validator-deps` (make test does)",
+        dir.display()
+    );
+    let out = std::process::Command::new("node")
+        .arg(dir.join("validate.mjs"))
+        .arg(file)
+        .output()
+        .expect("run node");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+#[test]
+fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
+    let dir = temp_dir("bake");
+    let scene_file = dir.join("export-room.json");
+    std::fs::write(&scene_file, ROOM).expect("write scene");
+    let out_dir = dir.join("out");
+    let out = lightwire_testkit::lightwire!()
+        .command()
+        .args(["bake", "--scene"])
+        .arg(&scene_file)
+        .args(["--solver", "reference", "--out"])
+        .arg(&out_dir)
+        .output()
+        .expect("lightwire runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("scene.glb"),
+        "the bake says it wrote it: {stderr}"
+    );
+    let path = out_dir.join(bake::SCENE_GLB);
+    let glb = std::fs::read(&path).expect("bake wrote scene.glb");
+
+    let (ok, text) = khronos_validate(&path);
+    assert!(ok && text.contains(" errors 0 "), "{text}");
+    eprintln!("{text}");
+
+    // Every material shows the lightmap unlit on TEXCOORD_1, and the
+    // lightmap is lightmap.png pixel for pixel.
+    let gltf = gltf::Gltf::from_slice(&glb).expect("parses");
+    let blob = gltf.blob.as_deref().expect("a binary chunk");
+    let mut lightmaps = Vec::new();
+    for m in gltf.materials() {
+        assert!(m.unlit(), "{:?} is unlit", m.name());
+        let info = m
+            .pbr_metallic_roughness()
+            .base_color_texture()
+            .expect("the lightmap as base colour");
+        assert_eq!(info.tex_coord(), 1, "{:?}", m.name());
+        assert_eq!(m.pbr_metallic_roughness().base_color_factor(), [1.0; 4]);
+        lightmaps.push(info.texture().source().index());
+    }
+    lightmaps.dedup();
+    assert_eq!(lightmaps.len(), 1, "one lightmap for every material");
+    let image = gltf.images().nth(lightmaps[0]).expect("the image");
+    let gltf::image::Source::View { view, mime_type } = image.source() else {
+        panic!("the lightmap is embedded");
+    };
+    assert_eq!(mime_type, "image/png");
+    let embedded = image::load_from_memory(&blob[view.offset()..view.offset() + view.length()])
+        .expect("the embedded PNG decodes")
+        .to_rgb8();
+    let png = image::open(out_dir.join("lightmap.png"))
+        .expect("lightmap.png")
+        .to_rgb8();
+    assert_eq!(embedded.dimensions(), png.dimensions());
+    assert!(
+        embedded.as_raw() == png.as_raw(),
+        "the embedded lightmap is lightmap.png"
+    );
+
+    // The linear lightmap is named in the asset's extras.
+    let extras: serde_json::Value = serde_json::from_str(
+        gltf.as_json()
+            .asset
+            .extras
+            .as_ref()
+            .expect("asset extras")
+            .get(),
+    )
+    .expect("JSON");
+    assert_eq!(extras["lightwire"]["lightmap"], "lightmap.exr");
+    assert_eq!(extras["lightwire"]["scene"], "export-room");
+    assert!(out_dir.join("lightmap.exr").is_file());
+
+    // The validator checks what matters here: the same file with the unlit
+    // extension used but not declared is refused.
+    let parsed = gltf::binary::Glb::from_slice(&glb).expect("a GLB");
+    let mut json: serde_json::Value = serde_json::from_slice(&parsed.json).expect("JSON chunk");
+    json["extensionsUsed"] = serde_json::json!([]);
+    let broken = pack_glb(
+        serde_json::to_string(&json).expect("JSON").as_bytes(),
+        parsed.bin.as_deref().unwrap_or_default(),
+    )
+    .expect("pack");
+    let broken_path = dir.join("broken.glb");
+    std::fs::write(&broken_path, broken).expect("write");
+    let (ok, text) = khronos_validate(&broken_path);
+    assert!(
+        !ok,
+        "the validator accepted an undeclared extension: {text}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
