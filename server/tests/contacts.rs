@@ -30,7 +30,7 @@ use lightwire_server::gpu::{
 };
 use lightwire_server::pathtrace::{self, Estimate, PathTracer, SurfacePoint};
 use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
-use lightwire_server::scene::{PatchShape, Pose, Scene};
+use lightwire_server::scene::{Pose, Scene};
 use lightwire_server::validity::Validity;
 
 /// Density scale of the test: 3.85 texels/m, a floor texel about 25 cm

@@ -495,7 +495,7 @@ fn mesh(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(String, Pa
         c.report(loc, format!("{what} holds no triangle"));
         return Vec::new();
     }
-    if indices.len() % 3 != 0 {
+    if !indices.len().is_multiple_of(3) {
         c.report(
             loc,
             format!(
@@ -531,7 +531,8 @@ fn mesh(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(String, Pa
             .length_squared()
             .max((d - b).length_squared())
             .max((a - d).length_squared());
-        if !(twice_area > super::gltf::DEGENERATE_RATIO * longest) || longest == 0.0 {
+        // Positions are finite here, so the comparison is never with NaN.
+        if twice_area <= super::gltf::DEGENERATE_RATIO * longest || longest == 0.0 {
             degenerate.push(k);
             continue;
         }
