@@ -169,12 +169,49 @@ impl Tiling<'_> {
                 tiles.push([a0, b0, a1, b1]);
             }
         }
+        tiles.retain(|t| self.covers_surface(patch, t));
+        self.split_diagonal(patch, &mut tiles, limit);
         self.split_contacts(patch, &mut tiles, limit);
         tiles
             .into_iter()
             .filter(|t| self.covers_surface(patch, t))
             .map(|t| self.shooter(patch_id, patch, areas, t))
             .collect()
+    }
+
+    /// On a triangle, halves the tiles the diagonal crosses, the largest
+    /// first, along the longer side, dropping halves wholly above it, until
+    /// every such tile is a single diagonal texel or there are `limit`
+    /// tiles. This is the diagonal's edge strip: like the strips along the
+    /// chart's sides (see [`Self::shooters`]), the texels along an edge
+    /// shoot their own radiosity from a region beside it, which receivers
+    /// just across the edge (on a mesh, every edge may be a crease) take
+    /// most of their light from.
+    fn split_diagonal(&self, patch: &WorldPatch, tiles: &mut Vec<[u32; 4]>, limit: usize) {
+        if !patch.triangle {
+            return;
+        }
+        let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
+        // A texel of the tile lies above the diagonal (b > a).
+        let crossed = |t: &[u32; 4]| t[3] - 1 > t[0];
+        while tiles.len() < limit {
+            let Some(k) = (0..tiles.len())
+                .filter(|&k| size(&tiles[k]) > 1 && crossed(&tiles[k]))
+                .max_by_key(|&k| (size(&tiles[k]), std::cmp::Reverse(k)))
+            else {
+                break;
+            };
+            let [a0, b0, a1, b1] = tiles[k];
+            let halves = if a1 - a0 >= b1 - b0 {
+                let m = (a0 + a1) / 2;
+                [[a0, b0, m, b1], [m, b0, a1, b1]]
+            } else {
+                let m = (b0 + b1) / 2;
+                [[a0, b0, a1, m], [a0, m, a1, b1]]
+            };
+            tiles.swap_remove(k);
+            tiles.extend(halves.into_iter().filter(|t| self.covers_surface(patch, t)));
+        }
     }
 
     /// Whether any texel of the tile stands for surface: false only for a
