@@ -12,19 +12,76 @@ struct Shooter {
     corner: vec4<f32>,
     // Edge vectors of the region (world); su.w: cross redistribution's
     // gather_moving takes the bitcast chart width of the shooter's patch.
+    // sv.w: the first coefficient of the cut (see `shooter_cut`).
     su: vec4<f32>,
     sv: vec4<f32>,
     // xyz: hemicube eye (region centre lifted off the surface); w: for
     // gather_moving, the bitcast first element of the shooter's patch.
     eye: vec4<f32>,
     // Orthonormal frame of the hemicube: two tangents and the normal;
-    // n.w is the bitcast id of the shooting patch.
+    // n.w is the bitcast id of the shooting patch; t1.w, t2.w: the second
+    // and third coefficients of the cut.
     t1: vec4<f32>,
     t2: vec4<f32>,
     n: vec4<f32>,
     // Element tile in chart texels: a0, b0, a1, b1 (half-open).
     tile: vec4<u32>,
 };
+
+// The cut of a shooter's region: the region is the parallelogram
+// corner + x su + y sv, (x, y) in [0, 1]², and, when the cut's first two
+// coefficients are not both zero, only its part where
+// cut.x * x + cut.y * y + cut.z >= 0. A tile of a triangle's chart that
+// straddles the chart's diagonal is cut by the diagonal (its triangle is
+// the half t <= s, server/src/gpu/progressive/shooters.rs); every other
+// shooter is uncut (all three zero).
+fn shooter_cut(s: Shooter) -> vec3<f32> {
+    return vec3<f32>(s.sv.w, s.t1.w, s.t2.w);
+}
+
+fn is_cut(cut: vec3<f32>) -> bool {
+    return cut.x != 0.0 || cut.y != 0.0;
+}
+
+// The share of the cell [lo, hi] of the unit square that lies on the kept
+// side of `cut` (one Sutherland-Hodgman step and the shoelace formula), in
+// .x; the centroid of that part in .yz (the cell's centre when none is).
+fn cut_cell(lo: vec2<f32>, hi: vec2<f32>, cut: vec3<f32>) -> vec3<f32> {
+    var corners = array<vec2<f32>, 4>(lo, vec2<f32>(hi.x, lo.y), hi, vec2<f32>(lo.x, hi.y));
+    var q: array<vec2<f32>, 5>;
+    var count = 0u;
+    for (var i = 0u; i < 4u; i++) {
+        let a = corners[i];
+        let b = corners[(i + 1u) % 4u];
+        let ha = dot(cut.xy, a) + cut.z;
+        let hb = dot(cut.xy, b) + cut.z;
+        if (ha >= 0.0) {
+            q[count] = a;
+            count++;
+        }
+        if ((ha >= 0.0) != (hb >= 0.0)) {
+            q[count] = a + (b - a) * (ha / (ha - hb));
+            count++;
+        }
+    }
+    let full = (hi.x - lo.x) * (hi.y - lo.y);
+    if (count < 3u || full <= 0.0) {
+        return vec3<f32>(0.0, (lo + hi) * 0.5);
+    }
+    var twice = 0.0;
+    var centroid = vec2<f32>(0.0);
+    for (var i = 0u; i < count; i++) {
+        let a = q[i];
+        let b = q[(i + 1u) % count];
+        let w = a.x * b.y - b.x * a.y;
+        twice += w;
+        centroid += (a + b) * w;
+    }
+    if (abs(twice) <= 1e-12 * full) {
+        return vec3<f32>(0.0, (lo + hi) * 0.5);
+    }
+    return vec3<f32>(abs(twice) * 0.5 / full, centroid / (3.0 * twice));
+}
 
 // Per-batch constants. Mirrors `BatchUniform` in server/src/gpu/progressive/shoot.rs.
 struct Batch {
@@ -48,13 +105,34 @@ struct Batch {
     mode: u32,
 };
 
-// A patch's elements: first element, element count, chart width, chart height.
+// A patch's elements: first element, element count, chart width, chart
+// height, and 1 if the patch is a triangle (the half t <= s of its chart,
+// server/src/scene/mod.rs), else 0. Mirrors `PatchRange` in
+// server/src/gpu/placement.rs.
 struct PatchRange {
     first: u32,
     count: u32,
     w: u32,
     h: u32,
+    triangle: u32,
 };
+
+// The element of patch `p` nearest to patch parameters `st` on its chart
+// (texel centres lie on the patch edges, thesis §4.1): the texel `st`
+// rounds to. On a triangle the texels above the chart's diagonal (b > a)
+// stand for no surface and hold no light (server/src/atlas.rs), so a
+// fragment that interpolation put a hair above the diagonal edge reads the
+// diagonal texel of its column instead (wallner §2: a triangle's texels
+// are those its footprint covers).
+fn element_at(p: PatchRange, st: vec2<f32>) -> u32 {
+    let c = clamp(st, vec2<f32>(0.0), vec2<f32>(1.0));
+    let a = u32(round(c.x * f32(p.w - 1u)));
+    var b = u32(round(c.y * f32(p.h - 1u)));
+    if (p.triangle != 0u) {
+        b = min(b, a);
+    }
+    return p.first + b * p.w + a;
+}
 
 // Bits of `object_flags`, one word per scene object.
 // MOVING: the object is in the moved set M of the running redistribution.

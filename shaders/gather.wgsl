@@ -112,8 +112,9 @@ fn vs_gather(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
 
 // The radiosity a pixel shows: the reflected part R = B - E (what the
 // radiosity buffers hold) of the element of the seen patch nearest to the
-// fragment on the patch's chart (texel centres lie on the patch edges,
-// thesis §4.1; the same lookup as `fs_rad` in hemicube.wgsl). The emission
+// fragment on the patch's chart (`element_at` in common.wgsl, the same
+// lookup as `fs_rad` in hemicube.wgsl; never a texel above a triangle's
+// diagonal). The emission
 // reaches receivers through `GatherElement::direct` instead: a few pixels
 // of a small light alias.
 // The back of a surface occludes but leaves no light (radiosity leaves a
@@ -123,11 +124,7 @@ fn fs_gather(in: HemicubeOut) -> @location(0) vec4<f32> {
     if (in.front == 0u) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
-    let p = patches[in.patch_id];
-    let st = clamp(in.st, vec2<f32>(0.0), vec2<f32>(1.0));
-    let a = u32(round(st.x * f32(p.w - 1u)));
-    let b = u32(round(st.y * f32(p.h - 1u)));
-    let k = p.first + b * p.w + a;
+    let k = element_at(patches[in.patch_id], in.st);
     return vec4<f32>(radiosity[k].rgb, 1.0);
 }
 

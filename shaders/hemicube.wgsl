@@ -15,7 +15,8 @@
 //                    and the distance from the eye (Rgba16Float), for the
 //                    gathering and cross projection of thesis Alg. 4.4-4.5.
 
-// One vertex of a patch's two triangles: xyz in object space, w = bitcast
+// One vertex of a patch's triangles (two for a quad, one for a triangle
+// patch): xyz in object space, w = bitcast
 // patch id; st.xy = the patch parameters (s, t) of the corner, st.z =
 // bitcast object id.
 struct Vertex {
@@ -105,12 +106,7 @@ fn fs_rad(in: RadOut) -> @location(0) vec4<f32> {
         }
         return vec4<f32>(0.0, 0.0, 0.0, distance);
     }
-    // The element nearest to the fragment on its patch's chart (texel
-    // centres lie on the patch edges, thesis §4.1).
-    let p = patches[in.patch_id];
-    let st = clamp(in.st, vec2<f32>(0.0), vec2<f32>(1.0));
-    let a = u32(round(st.x * f32(p.w - 1u)));
-    let b = u32(round(st.y * f32(p.h - 1u)));
-    let e = p.first + b * p.w + a;
+    // The element nearest to the fragment on its patch's chart.
+    let e = element_at(patches[in.patch_id], in.st);
     return vec4<f32>(radiosity[e].rgb - unshot[e].rgb, distance);
 }

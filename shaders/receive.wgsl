@@ -62,18 +62,29 @@ fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, id: u32) -> f32
 // Whether patch `p`, placed by the pose set starting at `pose_base` in
 // `poses`, crosses the open segment from `a` to `b` (short of `b` by a
 // hair, so that a receiver on the patch's plane or on its edge is not
-// occluded by it). The patch's parallelogram is rebuilt from its three
-// corner elements in object space: their samples sit CORNER_OFFSET of a
-// cell inside the corners (server/src/atlas.rs).
+// occluded by it). The patch's frame is rebuilt from three corner elements
+// in object space: their samples sit CORNER_OFFSET of a cell inside the
+// corners (server/src/atlas.rs). A quad's are texels (0, 0), (w-1, 0) and
+// (0, h-1); a triangle's chart corner (0, h-1) lies above its diagonal and
+// stands for no surface, so its `v` comes from (w-1, 0) and (w-1, h-1),
+// and it occludes only on its half t <= s (the texels the item buffer
+// shows for it are the triangle's; its parallelogram would also shadow
+// through the neighbouring triangle's side).
 fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     let r = patches[p];
     let first = local_elements[r.first];
     let m = poses[pose_base + bitcast<u32>(first.lookup.w)];
     let e00 = (m * vec4<f32>(first.position.xyz, 1.0)).xyz;
     let e10 = (m * vec4<f32>(local_elements[r.first + r.w - 1u].position.xyz, 1.0)).xyz;
-    let e01 = (m * vec4<f32>(local_elements[r.first + (r.h - 1u) * r.w].position.xyz, 1.0)).xyz;
     let cu = (e10 - e00) / (f32(r.w - 1u) - 2.0 * CORNER_OFFSET);
-    let cv = (e01 - e00) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+    var cv: vec3<f32>;
+    if (r.triangle != 0u) {
+        let e11 = (m * vec4<f32>(local_elements[r.first + r.h * r.w - 1u].position.xyz, 1.0)).xyz;
+        cv = (e11 - e10) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+    } else {
+        let e01 = (m * vec4<f32>(local_elements[r.first + (r.h - 1u) * r.w].position.xyz, 1.0)).xyz;
+        cv = (e01 - e00) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+    }
     let o = e00 - (cu + cv) * CORNER_OFFSET;
     let u = cu * f32(r.w - 1u);
     let v = cv * f32(r.h - 1u);
@@ -90,27 +101,50 @@ fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     let nn = dot(n, n);
     let su = dot(q, cross(v, n)) / nn;
     let sv = dot(q, cross(n, u)) / nn;
-    return su > 0.0 && su < 1.0 && sv > 0.0 && sv < 1.0;
+    let upper = select(1.0, su, r.triangle != 0u);
+    return su > 0.0 && su < 1.0 && sv > 0.0 && sv < upper;
 }
 
 // Exact unoccluded form factor from the point `x` (normal `nx`) to the
-// shooter's parallelogram, clipped to the upper hemisphere of `x`
-// (Lambert's contour integral; the limit of infinitely fine subdivision of
-// eq. 2.2.7). Used only where the shooter is so close that the disk
-// approximation would need more than `max_subdivision`² sub-disks, e.g. for
-// samples on the edge a wall shares with the shooting floor.
+// shooter's region (its parallelogram, cut by `shooter_cut` on a triangle's
+// diagonal), clipped to the upper hemisphere of `x` (Lambert's contour
+// integral; the limit of infinitely fine subdivision of eq. 2.2.7). Used
+// only where the shooter is so close that the disk approximation would
+// need more than `max_subdivision`² sub-disks, e.g. for samples on the edge
+// a wall shares with the shooting floor.
 fn polygon_form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
-    var p = array<vec3<f32>, 4>(
-        s.corner.xyz - x,
-        s.corner.xyz + s.su.xyz - x,
-        s.corner.xyz + s.su.xyz + s.sv.xyz - x,
-        s.corner.xyz + s.sv.xyz - x,
+    var unit = array<vec2<f32>, 4>(
+        vec2<f32>(0.0, 0.0),
+        vec2<f32>(1.0, 0.0),
+        vec2<f32>(1.0, 1.0),
+        vec2<f32>(0.0, 1.0),
     );
+    let cut = shooter_cut(s);
+    let uncut = !is_cut(cut);
+    // The region's corners relative to `x`: the parallelogram cut by the
+    // diagonal (at most five).
+    var p: array<vec3<f32>, 5>;
+    var corners = 0u;
+    for (var i = 0u; i < 4u; i++) {
+        let a = unit[i];
+        let b = unit[(i + 1u) % 4u];
+        let ha = select(dot(cut.xy, a) + cut.z, 1.0, uncut);
+        let hb = select(dot(cut.xy, b) + cut.z, 1.0, uncut);
+        if (ha >= 0.0) {
+            p[corners] = s.corner.xyz + s.su.xyz * a.x + s.sv.xyz * a.y - x;
+            corners++;
+        }
+        if ((ha >= 0.0) != (hb >= 0.0)) {
+            let c = a + (b - a) * (ha / (ha - hb));
+            p[corners] = s.corner.xyz + s.su.xyz * c.x + s.sv.xyz * c.y - x;
+            corners++;
+        }
+    }
     var q: array<vec3<f32>, 8>;
     var count = 0u;
-    for (var i = 0u; i < 4u; i++) {
+    for (var i = 0u; i < corners; i++) {
         let a = p[i];
-        let b = p[(i + 1u) % 4u];
+        let b = p[(i + 1u) % corners];
         let da = dot(a, nx);
         let db = dot(b, nx);
         if (da >= 0.0) {
@@ -145,6 +179,9 @@ fn polygon_form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
 // The shooter is split into m = k×k sub-disks when it is large compared with
 // its distance (thesis §4.3.3, adaptive form factor subdivision); beyond
 // `max_subdivision` sub-disks per axis the exact limit is used instead.
+// A shooter cut by a triangle's diagonal (`shooter_cut`) keeps the part of
+// each sub-cell on the triangle: a sub-disk of that part's area at its
+// centroid, the sub-areas summing to A_s.
 fn form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
     let area = s.corner.w;
     // Distance to the nearest point of the shooter, not to its centre: a
@@ -162,13 +199,28 @@ fn form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
         return polygon_form_factor(s, x, nx);
     }
     let k = u32(max(wanted, 1.0));
+    let kf = f32(k);
     let m = f32(k * k);
-    let sub = area / m;
+    let cut = shooter_cut(s);
+    let cut_shooter = is_cut(cut);
+    // The share of the parallelogram on the triangle: sub-areas are A_s
+    // times each cell's share of it.
+    var kept = 1.0;
+    if (cut_shooter) {
+        kept = max(cut_cell(vec2<f32>(0.0), vec2<f32>(1.0), cut).x, 1e-12);
+    }
     var sum = 0.0;
     for (var j = 0u; j < k; j++) {
         for (var i = 0u; i < k; i++) {
-            let c = s.corner.xyz + s.su.xyz * ((f32(i) + 0.5) / f32(k))
-                + s.sv.xyz * ((f32(j) + 0.5) / f32(k));
+            var cell = vec3<f32>(1.0, (f32(i) + 0.5) / kf, (f32(j) + 0.5) / kf);
+            if (cut_shooter) {
+                cell = cut_cell(vec2<f32>(f32(i), f32(j)) / kf, vec2<f32>(f32(i + 1u), f32(j + 1u)) / kf, cut);
+                if (cell.x <= 0.0) {
+                    continue;
+                }
+            }
+            let sub = area * cell.x / (m * kept);
+            let c = s.corner.xyz + s.su.xyz * cell.y + s.sv.xyz * cell.z;
             let d = x - c;
             let r2 = dot(d, d);
             let rl = sqrt(r2);
@@ -178,9 +230,9 @@ fn form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
             let cs = dot(s.n.xyz, d) / rl;
             let cx = -dot(nx, d) / rl;
             if (cs > 0.0 && cx > 0.0) {
-                sum += cs * cx / (PI * r2 + sub);
+                sum += sub * cs * cx / (PI * r2 + sub);
             }
         }
     }
-    return sub * sum;
+    return sum;
 }

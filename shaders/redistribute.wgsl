@@ -269,13 +269,26 @@ fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
 // receiver `x` through a CROSS_GRID² grid on the shooter sample the back
 // hemicube of shot radiosity; each ray's direction is corrected for the
 // hemicube's different origin with the depth found along a parallel ray.
+// A shooter cut by a triangle's diagonal (`shooter_cut`) casts rays through
+// the part of each grid cell on the triangle, weighted by its share.
 fn projected_radiosity(slot: u32, s: Shooter, x: vec3<f32>) -> vec3<f32> {
     let b = back_shooters[slot];
     var acc = vec3<f32>(0.0);
+    var weight = 0.0;
     let g = f32(CROSS_GRID);
+    let cut = shooter_cut(s);
+    let cut_shooter = is_cut(cut);
     for (var j = 0u; j < CROSS_GRID; j++) {
         for (var i = 0u; i < CROSS_GRID; i++) {
-            let cell = s.corner.xyz + s.su.xyz * ((f32(i) + 0.5) / g) + s.sv.xyz * ((f32(j) + 0.5) / g);
+            var part = vec3<f32>(1.0, (f32(i) + 0.5) / g, (f32(j) + 0.5) / g);
+            if (cut_shooter) {
+                part = cut_cell(vec2<f32>(f32(i), f32(j)) / g, vec2<f32>(f32(i + 1u), f32(j + 1u)) / g, cut);
+                if (part.x <= 0.0) {
+                    continue;
+                }
+            }
+            weight += part.x;
+            let cell = s.corner.xyz + s.su.xyz * part.y + s.sv.xyz * part.z;
             let r = normalize(cell - x);
             let depth = sample_back(slot, b, r).a;
             // Nothing there (distance 0 is the cleared background): the
@@ -287,10 +300,10 @@ fn projected_radiosity(slot: u32, s: Shooter, x: vec3<f32>) -> vec3<f32> {
                 continue;
             }
             let p = cell + r * depth;
-            acc += sample_back(slot, b, p - b.eye.xyz).rgb;
+            acc += part.x * sample_back(slot, b, p - b.eye.xyz).rgb;
         }
     }
-    return acc / (g * g);
+    return acc / max(weight, 1e-12);
 }
 
 // One thread per element: what this batch redistributes to it.
@@ -446,24 +459,35 @@ fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
 }
 
 // The gathered irradiance of the tile (i, j) of a patch (any of its
-// texels holds it).
-fn tile_h(range: PatchRange, g: vec2<u32>, i: u32, j: u32) -> vec3<f32> {
-    return gathered[range.first + (j * range.h / g.y) * range.w + i * range.w / g.x].rgb;
+// texels holds it) in .rgb, and in .w 1 if the tile gathered (a tile of a
+// triangle's chart wholly above its diagonal stands for no surface and
+// never does, `begin_move`).
+fn tile_h(range: PatchRange, g: vec2<u32>, i: u32, j: u32) -> vec4<f32> {
+    return gathered[range.first + (j * range.h / g.y) * range.w + i * range.w / g.x];
 }
 
-// H at texel (x, y) of a patch, bilinear between the tile centres.
-fn interpolated_h(range: PatchRange, g: vec2<u32>, x: u32, y: u32) -> vec3<f32> {
+// H at texel (x, y) of a patch, bilinear between the centres of the tiles
+// that gathered (`own`, the texel's tile's H, if none of them weighs).
+fn interpolated_h(range: PatchRange, g: vec2<u32>, x: u32, y: u32, own: vec3<f32>) -> vec3<f32> {
     let lx = tile_lerp(x, range.w, g.x);
     let ly = tile_lerp(y, range.h, g.y);
     let i0 = u32(lx.x);
     let j0 = u32(ly.x);
     let i1 = min(i0 + 1u, g.x - 1u);
     let j1 = min(j0 + 1u, g.y - 1u);
-    return mix(
-        mix(tile_h(range, g, i0, j0), tile_h(range, g, i1, j0), lx.y),
-        mix(tile_h(range, g, i0, j1), tile_h(range, g, i1, j1), lx.y),
-        ly.y,
-    );
+    let h00 = tile_h(range, g, i0, j0);
+    let h10 = tile_h(range, g, i1, j0);
+    let h01 = tile_h(range, g, i0, j1);
+    let h11 = tile_h(range, g, i1, j1);
+    let w00 = (1.0 - lx.y) * (1.0 - ly.y) * step(0.5, h00.w);
+    let w10 = lx.y * (1.0 - ly.y) * step(0.5, h10.w);
+    let w01 = (1.0 - lx.y) * ly.y * step(0.5, h01.w);
+    let w11 = lx.y * ly.y * step(0.5, h11.w);
+    let total = w00 + w10 + w01 + w11;
+    if (total <= 0.0) {
+        return own;
+    }
+    return (h00.rgb * w00 + h10.rgb * w10 + h01.rgb * w01 + h11.rgb * w11) / total;
 }
 
 // After the last cross batch of a move, per element of M that gathered: B
@@ -484,7 +508,7 @@ fn smooth_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     let range = patches[bitcast<u32>(elements[e].normal.w)];
     let local = e - range.first;
     let g = vec2<u32>(tile_count(range.w), tile_count(range.h));
-    let h = interpolated_h(range, g, local % range.w, local / range.w);
+    let h = interpolated_h(range, g, local % range.w, local / range.w, gathered[e].rgb);
     let extra = elements[e].albedo.rgb * (h - gathered[e].rgb);
     radiosity[e] += vec4<f32>(elements[e].albedo.rgb * gathered[e].rgb + extra, 0.0);
     smoothed[e] = vec4<f32>(extra, 0.0);

@@ -58,8 +58,8 @@ use wgpu::util::DeviceExt;
 use super::binding::{Kind, Pass, Resources, Slot};
 use super::buffers::{map_read, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
-use super::hemicube::{FACES, render_pipeline};
-use super::placement::{self, PatchTable, SURFACE_OFFSET, world_areas};
+use super::hemicube::{FACES, corner_order, render_pipeline};
+use super::placement::{self, PatchRange, PatchTable, SURFACE_OFFSET, world_areas};
 use super::progressive::GpuShooter;
 use super::shaders;
 use crate::atlas::Atlas;
@@ -417,7 +417,7 @@ impl GatherSolver {
         // `B = E` is `R = 0`.
         let start = vec![[0.0f32; 4]; n.max(1)];
 
-        // Two world-space triangles per patch.
+        // World-space triangles: two per quad, one per triangle patch.
         let mut vertices = Vec::with_capacity(patches.len() * 6);
         for (p, wp) in patches.iter().enumerate() {
             let corners = [
@@ -426,7 +426,7 @@ impl GatherSolver {
                 (wp.origin + wp.u + wp.v, [1.0, 1.0]),
                 (wp.origin + wp.v, [0.0, 1.0]),
             ];
-            for i in [0, 1, 2, 0, 2, 3] {
+            for &i in corner_order(wp.triangle) {
                 let (c, st) = corners[i];
                 vertices.push(GatherVertex {
                     pos: v4(c, f32::from_bits(p as u32)),
@@ -449,7 +449,7 @@ impl GatherSolver {
         }
         let mut patch_ranges = patch_ranges;
         if patch_ranges.is_empty() {
-            patch_ranges.push([0; 4]);
+            patch_ranges.push(PatchRange::zeroed());
         }
 
         let storage = wgpu::BufferUsages::STORAGE;

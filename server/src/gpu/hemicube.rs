@@ -67,9 +67,10 @@ pub(super) const SHOT_RADIOSITY: Pass = Pass {
     ],
 };
 
-/// Two triangles per patch in object space, with the patch id, the patch
-/// parameters of each corner and the object id; `triangle_vertices` is the
-/// count to draw (the buffer is padded to one vertex when there is none).
+/// The triangles of every patch in object space (a quad's two, a triangle
+/// patch's one), with the patch id, the patch parameters of each corner and
+/// the object id; `triangle_vertices` is the count to draw (the buffer is
+/// padded to one vertex when there is none).
 pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<GpuVertex>, u32) {
     let mut vertices: Vec<GpuVertex> = Vec::with_capacity(shapes.len() * 6);
     for (p, shape) in shapes.iter().enumerate() {
@@ -81,7 +82,7 @@ pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<Gpu
             (origin + v, [0.0, 1.0]),
         ];
         let object = f32::from_bits(objects[p]);
-        for i in [0, 1, 2, 0, 2, 3] {
+        for &i in corner_order(shape.is_triangle()) {
             let (c, st) = corners[i];
             vertices.push(GpuVertex {
                 pos: v4(c, f32::from_bits(p as u32)),
@@ -94,6 +95,18 @@ pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<Gpu
         vertices.push(GpuVertex::zeroed());
     }
     (vertices, count)
+}
+
+/// Which corners (origin, `+u`, `+u+v`, `+v`) make a patch's triangles: a
+/// quad is cut along its diagonal from the origin; a triangle patch is the
+/// first of those two (its corners have patch parameters (0, 0), (1, 0),
+/// (1, 1), so the texel lookup of a fragment stays at `t <= s`).
+pub(super) fn corner_order(triangle: bool) -> &'static [usize] {
+    if triangle {
+        &[0, 1, 2]
+    } else {
+        &[0, 1, 2, 0, 2, 3]
+    }
 }
 
 /// A hemicube render pipeline of `pass` with its explicit layout: no

@@ -47,7 +47,24 @@ pub(super) fn invalid_flag(invalid: bool) -> f32 {
     if invalid { 1.0 } else { 0.0 }
 }
 
-/// A patch placed in the world, as the CPU needs it to place shooters.
+/// One patch's elements as the shaders find them (`PatchRange` in
+/// common.wgsl): first element, element count, chart size, and whether
+/// the patch is a triangle (the half `t <= s` of its chart, whose texels
+/// above the diagonal stand for no surface).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug, PartialEq)]
+pub(super) struct PatchRange {
+    pub(super) first: u32,
+    pub(super) count: u32,
+    pub(super) w: u32,
+    pub(super) h: u32,
+    pub(super) triangle: u32,
+}
+const _: () = assert!(std::mem::size_of::<PatchRange>() == 20);
+
+/// A patch placed in the world, as the CPU needs it to place shooters:
+/// the frame `origin + s u + t v` of its shape (a quad covers `s, t ∈
+/// [0, 1]`, a triangle the half `t <= s`).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct WorldPatch {
     pub(super) origin: Vec3,
@@ -57,27 +74,44 @@ pub(super) struct WorldPatch {
     pub(super) first: u32,
     pub(super) w: u32,
     pub(super) h: u32,
+    pub(super) triangle: bool,
 }
 
 impl WorldPatch {
     /// The point an element at patch parameters `st` receives at: its
-    /// sample moved `offset` towards the patch centre and `offset` off the
-    /// surface, as `place_elements` (progressive.wgsl) moves it.
+    /// sample moved `offset` towards the patch's centroid and `offset` off
+    /// the surface, as `place_elements` (progressive.wgsl) moves it.
     pub(super) fn receiving_point(&self, st: [f32; 2], offset: f32) -> Vec3 {
         let [s, t] = st;
         let sample = self.origin + self.u * s + self.v * t;
-        let centre = self.origin + (self.u + self.v) * 0.5;
-        let inward = (centre - sample).normalize_or_zero();
+        let inward = (self.centre() - sample).normalize_or_zero();
         sample + (inward + self.normal) * offset
     }
 
-    pub(super) fn corners(&self) -> [Vec3; 4] {
-        [
-            self.origin,
-            self.origin + self.u,
-            self.origin + self.u + self.v,
-            self.origin + self.v,
-        ]
+    /// The centroid: `(1/2, 1/2)` on a quad, `(2/3, 1/3)` on a triangle.
+    pub(super) fn centre(&self) -> Vec3 {
+        let [s, t] = centre_param(self.triangle);
+        self.origin + self.u * s + self.v * t
+    }
+
+    /// The corners (four, or a triangle's three).
+    pub(super) fn corners(&self) -> Vec<Vec3> {
+        let (o, u, v) = (self.origin, self.u, self.v);
+        if self.triangle {
+            vec![o, o + u, o + u + v]
+        } else {
+            vec![o, o + u, o + u + v, o + v]
+        }
+    }
+}
+
+/// Patch parameters of the centroid of a quad or a triangle
+/// (`PatchShape::centre_param`).
+fn centre_param(triangle: bool) -> [f32; 2] {
+    if triangle {
+        [2.0 / 3.0, 1.0 / 3.0]
+    } else {
+        [0.5, 0.5]
     }
 }
 
@@ -116,13 +150,20 @@ impl PatchTable {
         place_patches(&self.shapes, &self.objects, &self.layout, poses)
     }
 
-    /// First element, element count and chart size of every patch
+    /// First element, element count, chart size and shape of every patch
     /// (`PatchRange` in common.wgsl).
-    pub(super) fn ranges(&self) -> Vec<[u32; 4]> {
+    pub(super) fn ranges(&self) -> Vec<PatchRange> {
         self.layout
             .iter()
             .zip(&self.ends)
-            .map(|(&[first, w, h], end)| [first, end - first, w, h])
+            .zip(&self.shapes)
+            .map(|((&[first, w, h], end), shape)| PatchRange {
+                first,
+                count: end - first,
+                w,
+                h,
+                triangle: u32::from(shape.is_triangle()),
+            })
             .collect()
     }
 }
@@ -149,6 +190,7 @@ fn place_patches(
                 first,
                 w,
                 h,
+                triangle: shape.is_triangle(),
             }
         })
         .collect()
@@ -205,27 +247,35 @@ pub(super) fn local_elements(
         .enumerate()
         .map(|(i, e)| {
             let p = e.patch as usize;
-            let (origin, u, v) = shapes[p].frame();
+            let shape = &shapes[p];
+            let (origin, u, v) = shape.frame();
             let chart = atlas.charts[p];
             let normal = u.cross(v).normalize();
             let [s, t] = e.st;
             let sample = origin + u * s + v * t;
-            let centre = origin + (u + v) * 0.5;
+            let [cs, ct] = shape.centre_param();
+            let centre = origin + u * cs + v * ct;
             // Edge samples look up visibility a quarter cell inside their
             // own patch, so the item buffer shows their patch, not the
-            // neighbour sharing the edge.
-            let inset = |x: f32, cells: u32| {
-                let q = 0.25 / (cells.max(2) - 1) as f32;
-                x.clamp(q, 1.0 - q)
+            // neighbour sharing the edge; on a triangle that includes its
+            // diagonal edge `t = s` (the neighbour across it is the other
+            // half of a quad, or another triangle of a mesh).
+            let quarter = |cells: u32| 0.25 / (cells.max(2) - 1) as f32;
+            let (qs, qt) = (quarter(chart.w), quarter(chart.h));
+            let (ls, lt) = if shape.is_triangle() {
+                let ls = s.clamp(qs + qt, 1.0 - qs);
+                (ls, t.clamp(qt, (ls - qs).max(qt)))
+            } else {
+                (s.clamp(qs, 1.0 - qs), t.clamp(qt, 1.0 - qt))
             };
-            let lookup = origin + u * inset(s, chart.w) + v * inset(t, chart.h);
+            let lookup = origin + u * ls + v * lt;
             LocalElement {
                 position: v4(sample, e.area),
                 normal: v4(normal, f32::from_bits(e.patch)),
                 lookup: v4(lookup, f32::from_bits(e.object)),
                 albedo: v4(e.albedo, invalid_flag(validity.is_invalid(i))),
-                // Receiving points are moved a hair towards the patch centre
-                // and off the surface (like the reference solver's offset).
+                // Receiving points are moved a hair towards the patch's
+                // centroid and off the surface (like the reference solver's offset).
                 nudge: v4(
                     (centre - sample).normalize_or_zero(),
                     extent * SURFACE_OFFSET,

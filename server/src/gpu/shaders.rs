@@ -133,7 +133,7 @@ mod tests {
     use super::super::binding::{Pass, check};
     use super::super::gather::{self, GatherElement, GatherParams, GatherVertex};
     use super::super::hemicube::{self, GpuVertex};
-    use super::super::placement::{ELEMENT_BYTES, LocalElement};
+    use super::super::placement::{ELEMENT_BYTES, LocalElement, PatchRange};
     use super::super::progressive::{self, BatchUniform, GpuShooter, Selection};
     use super::*;
 
@@ -227,7 +227,7 @@ mod tests {
         let shared: [(&str, usize); 10] = [
             ("Shooter", size_of::<GpuShooter>()),
             ("Batch", size_of::<BatchUniform>()),
-            ("PatchRange", size_of::<[u32; 4]>()),
+            ("PatchRange", size_of::<PatchRange>()),
             ("Element", ELEMENT_BYTES as usize),
             ("LocalElement", size_of::<LocalElement>()),
             ("Selection", size_of::<Selection>()),

@@ -450,6 +450,7 @@ impl ProgressiveSolver {
             }
             Redistribution::Cross | Redistribution::Full => {
                 let side = self.options.cross_tile.max(1);
+                let tiling = self.tiling();
                 for p in 0..self.patches.len() {
                     if !in_m(p) {
                         continue;
@@ -461,15 +462,22 @@ impl ProgressiveSolver {
                     let (gx, gy) = (tiles(wp.w), tiles(wp.h));
                     for j in 0..gy {
                         for i in 0..gx {
-                            mv.tiles.push(CrossTile {
-                                patch: p as u32,
-                                texels: [
-                                    i * wp.w / gx,
-                                    j * wp.h / gy,
-                                    (i + 1) * wp.w / gx,
-                                    (j + 1) * wp.h / gy,
-                                ],
-                            });
+                            let texels = [
+                                i * wp.w / gx,
+                                j * wp.h / gy,
+                                (i + 1) * wp.w / gx,
+                                (j + 1) * wp.h / gy,
+                            ];
+                            // A tile wholly above a triangle's diagonal
+                            // stands for no surface: it neither gathers
+                            // nor shoots (`smooth_moving` reads only the
+                            // tiles that gathered).
+                            if tiling.covers_surface(&wp, &texels) {
+                                mv.tiles.push(CrossTile {
+                                    patch: p as u32,
+                                    texels,
+                                });
+                            }
                         }
                     }
                 }
@@ -741,17 +749,17 @@ impl ProgressiveSolver {
 
     /// The hemicube on the other side of a shooter: the eye as far behind
     /// the surface as it was in front, looking along -n (thesis Alg. 4.4
-    /// lines 10-11 place one on the back). Flipping twice gives the front.
+    /// lines 10-11 place one on the back), behind the centroid of its
+    /// region (of its part on the triangle, for a tile a triangle's
+    /// diagonal cuts). Flipping twice gives the front. The region and its
+    /// cut stay as they are.
     fn flipped(&self, s: &GpuShooter) -> GpuShooter {
         let n = Vec3::from_slice(&s.n[..3]);
-        let corner = Vec3::from_slice(&s.corner[..3]);
-        let su = Vec3::from_slice(&s.su[..3]);
-        let sv = Vec3::from_slice(&s.sv[..3]);
-        let eye = corner + (su + sv) * 0.5 - n * (self.near * 2.0);
+        let eye = s.centre() - n * (self.near * 2.0);
         let t2 = Vec3::from_slice(&s.t2[..3]);
         GpuShooter {
             eye: v4(eye, s.eye[3]),
-            t2: v4(-t2, 0.0),
+            t2: v4(-t2, s.t2[3]),
             n: v4(-n, s.n[3]),
             ..*s
         }

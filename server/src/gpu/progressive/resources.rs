@@ -10,7 +10,7 @@ use super::shooters::GpuShooter;
 use crate::gpu::binding::Resources;
 use crate::gpu::buffers::texture;
 use crate::gpu::hemicube::{self, FACES, GpuVertex};
-use crate::gpu::placement::{ELEMENT_BYTES, LocalElement};
+use crate::gpu::placement::{ELEMENT_BYTES, LocalElement, PatchRange};
 
 /// What the buffers start with, prepared on the CPU.
 pub(super) struct Upload<'a> {
@@ -20,7 +20,7 @@ pub(super) struct Upload<'a> {
     pub(super) emission: &'a [[f32; 4]],
     pub(super) start: &'a [[f32; 4]],
     /// First element, element count and chart size of every patch.
-    pub(super) patch_ranges: &'a [[u32; 4]],
+    pub(super) patch_ranges: &'a [PatchRange],
     /// The patches' triangles for the hemicube rasterizer.
     pub(super) vertices: &'a [GpuVertex],
     pub(super) objects: usize,

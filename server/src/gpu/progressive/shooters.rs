@@ -5,6 +5,12 @@
 //! The grid grows with the patch's share of the unshot power; tiles at
 //! contacts are split further; each tile's hemicube eye sits over the part
 //! of it that is in the room.
+//!
+//! A triangle's chart is square and its triangle the half `t <= s`
+//! (wallner §2 packs per-triangle lightmaps the same way): tiles wholly
+//! above the diagonal stand for no surface and do not shoot, and a tile the
+//! diagonal crosses is *cut* by it (`Shooter` in common.wgsl), so that its
+//! form factors integrate over the part of its rectangle on the triangle.
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -14,7 +20,10 @@ use crate::gpu::buffers::v4;
 use crate::gpu::placement::WorldPatch;
 use crate::validity::Validity;
 
-/// One shooter (`Shooter` in common.wgsl).
+/// One shooter (`Shooter` in common.wgsl): the region `corner + x su +
+/// y sv`, `(x, y) ∈ [0, 1]²`, cut to its part where `cut · (x, y, 1) >= 0`
+/// when the cut (`sv[3]`, `t1[3]`, `t2[3]`) is not zero in its first two
+/// coefficients.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 pub(in crate::gpu) struct GpuShooter {
@@ -28,6 +37,69 @@ pub(in crate::gpu) struct GpuShooter {
     pub(in crate::gpu) tile: [u32; 4],
 }
 const _: () = assert!(std::mem::size_of::<GpuShooter>() == 128);
+
+impl GpuShooter {
+    /// The coefficients `(a, b, c)` of the cut: the region keeps the points
+    /// `x, y` with `a x + b y + c >= 0` (all zero: uncut).
+    pub(in crate::gpu) fn cut(&self) -> [f32; 3] {
+        [self.sv[3], self.t1[3], self.t2[3]]
+    }
+
+    /// The centroid of the region (of its part on the triangle when cut).
+    pub(in crate::gpu) fn centre(&self) -> Vec3 {
+        let corner = Vec3::from_slice(&self.corner[..3]);
+        let su = Vec3::from_slice(&self.su[..3]);
+        let sv = Vec3::from_slice(&self.sv[..3]);
+        let (_, [x, y]) = cut_cell(self.cut(), [0.0, 0.0], [1.0, 1.0]);
+        corner + su * x + sv * y
+    }
+}
+
+/// The share of the cell `[lo, hi]` of the unit square on the kept side of
+/// `cut` (uncut: all of it) and the centroid of that part (the cell's
+/// centre when nothing is kept): `cut_cell` in common.wgsl.
+pub(in crate::gpu) fn cut_cell(cut: [f32; 3], lo: [f32; 2], hi: [f32; 2]) -> (f32, [f32; 2]) {
+    let middle = [(lo[0] + hi[0]) * 0.5, (lo[1] + hi[1]) * 0.5];
+    let [a, b, c] = cut.map(f64::from);
+    if a == 0.0 && b == 0.0 {
+        return (1.0, middle);
+    }
+    let corners = [
+        [lo[0], lo[1]],
+        [hi[0], lo[1]],
+        [hi[0], hi[1]],
+        [lo[0], hi[1]],
+    ]
+    .map(|p| p.map(f64::from));
+    let h = |p: [f64; 2]| a * p[0] + b * p[1] + c;
+    let mut kept: Vec<[f64; 2]> = Vec::with_capacity(5);
+    for i in 0..4 {
+        let (p, q) = (corners[i], corners[(i + 1) % 4]);
+        if h(p) >= 0.0 {
+            kept.push(p);
+        }
+        if (h(p) >= 0.0) != (h(q) >= 0.0) {
+            let f = h(p) / (h(p) - h(q));
+            kept.push([p[0] + (q[0] - p[0]) * f, p[1] + (q[1] - p[1]) * f]);
+        }
+    }
+    let full = f64::from(hi[0] - lo[0]) * f64::from(hi[1] - lo[1]);
+    let (mut twice, mut cx, mut cy) = (0.0, 0.0, 0.0);
+    for i in 0..kept.len() {
+        let (p, q) = (kept[i], kept[(i + 1) % kept.len()]);
+        let w = p[0] * q[1] - q[0] * p[1];
+        twice += w;
+        cx += (p[0] + q[0]) * w;
+        cy += (p[1] + q[1]) * w;
+    }
+    if kept.len() < 3 || full <= 0.0 || twice.abs() <= 1e-12 * full {
+        return (0.0, middle);
+    }
+    (
+        (twice.abs() * 0.5 / full) as f32,
+        [(cx / (3.0 * twice)) as f32, (cy / (3.0 * twice)) as f32],
+    )
+}
 
 /// What cutting a patch into shooters needs to know of the solver.
 pub(super) struct Tiling<'a> {
@@ -97,18 +169,71 @@ impl Tiling<'_> {
                 tiles.push([a0, b0, a1, b1]);
             }
         }
+        tiles.retain(|t| self.covers_surface(patch, t));
+        self.split_diagonal(patch, &mut tiles, limit);
         self.split_contacts(patch, &mut tiles, limit);
         tiles
             .into_iter()
+            .filter(|t| self.covers_surface(patch, t))
             .map(|t| self.shooter(patch_id, patch, areas, t))
             .collect()
+    }
+
+    /// On a triangle, halves the tiles the diagonal crosses, the largest
+    /// first, along the longer side, dropping halves wholly above it, until
+    /// every such tile is a single diagonal texel or there are `limit`
+    /// tiles. This is the diagonal's edge strip: like the strips along the
+    /// chart's sides (see [`Self::shooters`]), the texels along an edge
+    /// shoot their own radiosity from a region beside it, which receivers
+    /// just across the edge (on a mesh, every edge may be a crease) take
+    /// most of their light from.
+    fn split_diagonal(&self, patch: &WorldPatch, tiles: &mut Vec<[u32; 4]>, limit: usize) {
+        if !patch.triangle {
+            return;
+        }
+        let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
+        // A texel of the tile lies above the diagonal (b > a).
+        let crossed = |t: &[u32; 4]| t[3] - 1 > t[0];
+        while tiles.len() < limit {
+            let Some(k) = (0..tiles.len())
+                .filter(|&k| size(&tiles[k]) > 1 && crossed(&tiles[k]))
+                .max_by_key(|&k| (size(&tiles[k]), std::cmp::Reverse(k)))
+            else {
+                break;
+            };
+            let [a0, b0, a1, b1] = tiles[k];
+            let halves = if a1 - a0 >= b1 - b0 {
+                let m = (a0 + a1) / 2;
+                [[a0, b0, m, b1], [m, b0, a1, b1]]
+            } else {
+                let m = (b0 + b1) / 2;
+                [[a0, b0, a1, m], [a0, m, a1, b1]]
+            };
+            tiles.swap_remove(k);
+            tiles.extend(halves.into_iter().filter(|t| self.covers_surface(patch, t)));
+        }
+    }
+
+    /// Whether any texel of the tile stands for surface: false only for a
+    /// tile of a triangle's chart wholly above its diagonal, which holds no
+    /// power and would only take a hemicube.
+    pub(super) fn covers_surface(&self, patch: &WorldPatch, tile: &[u32; 4]) -> bool {
+        let [a0, b0, a1, b1] = *tile;
+        (b0..b1).any(|b| {
+            (a0..a1).any(|a| {
+                self.atlas.elements[(patch.first + b * patch.w + a) as usize].covers_surface()
+            })
+        })
     }
 
     /// Halves tiles that hold both valid and invalid elements (a floor
     /// tile reaching under a block, a ceiling tile reaching over a lamp
     /// hung below it), the largest first, along its longer side, until none
     /// is left or there are `limit` tiles (thesis §4.3.3 splits shooters by
-    /// power only).
+    /// power only). The texels above a triangle's diagonal are invalid but
+    /// stand for no surface, not for a contact: they count as neither (the
+    /// cut keeps such a tile's form factors on the triangle), or every tile
+    /// along the diagonal would take the split's budget.
     ///
     /// Such a tile shoots the average of its elements from one hemicube:
     /// whatever the block hides from that eye is lost for the whole tile,
@@ -128,10 +253,11 @@ impl Tiling<'_> {
             let (mut valid, mut invalid) = (false, false);
             for b in t[1]..t[3] {
                 for a in t[0]..t[2] {
-                    if self
-                        .validity
-                        .is_invalid((patch.first + b * patch.w + a) as usize)
-                    {
+                    let e = (patch.first + b * patch.w + a) as usize;
+                    if !self.atlas.elements[e].covers_surface() {
+                        continue;
+                    }
+                    if self.validity.is_invalid(e) {
                         invalid = true;
                     } else {
                         valid = true;
@@ -177,6 +303,14 @@ impl Tiling<'_> {
         let corner = patch.origin + patch.u * s0 + patch.v * u0;
         let su = patch.u * (s1 - s0);
         let sv = patch.v * (u1 - u0);
+        // On a triangle, a tile the diagonal crosses keeps its part with
+        // t <= s: at (x, y) of the tile, s = s0 + x (s1 - s0) and
+        // t = u0 + y (u1 - u0). Tiles wholly below it are uncut.
+        let cut = if patch.triangle && u1 > s0 {
+            [s1 - s0, -(u1 - u0), s0 - u0]
+        } else {
+            [0.0; 3]
+        };
         let mut area = 0.0;
         // The hemicube eye sits over the area-weighted centroid of the
         // tile's valid elements, not over the tile's centre: a floor tile
@@ -225,10 +359,10 @@ impl Tiling<'_> {
         GpuShooter {
             corner: v4(corner, area),
             su: v4(su, 0.0),
-            sv: v4(sv, 0.0),
+            sv: v4(sv, cut[0]),
             eye: v4(eye, 0.0),
-            t1: v4(t1, 0.0),
-            t2: v4(t2, 0.0),
+            t1: v4(t1, cut[1]),
+            t2: v4(t2, cut[2]),
             n: v4(normal, f32::from_bits(patch_id)),
             tile: [a0, b0, a1, b1],
         }
@@ -240,4 +374,86 @@ impl Tiling<'_> {
 /// the grid, within `capacity`.
 pub(super) fn contact_limit((gx, gy): (u32, u32), capacity: u32) -> usize {
     ((3 * gx * gy).div_ceil(2)).min(capacity) as usize
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::placement::PatchTable;
+    use crate::scene::Scene;
+
+    /// A slanted quad cut into two triangles and a lone obtuse one, at a
+    /// density that divides no edge.
+    const TRIANGLES: &str = r#"{
+        "name": "t",
+        "lightmap": { "texel_density": 6.7 },
+        "materials": [ { "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] } ],
+        "surfaces": [
+            { "name": "floor", "material": "m", "mesh": {
+                "positions": [[0, 0, 0], [2.1, 0.2, 0], [2.1, 0.3, -1.3], [0, 0.1, -1.3]],
+                "indices": [0, 1, 2, 0, 2, 3] } },
+            { "name": "sliver", "material": "m", "mesh": {
+                "positions": [[0, 1, 0], [1.7, 1.1, 0.2], [0.4, 1.05, 0.1]] } }
+        ]
+    }"#;
+
+    /// On triangles, the shooters cover the triangle and nothing else: no
+    /// tile lies wholly above the diagonal, each shooter's region (cut by
+    /// the diagonal where it crosses the tile) has the area of its
+    /// elements, and the regions add up to the triangle.
+    #[test]
+    fn triangle_shooters_cover_exactly_the_triangle() {
+        let scene = Scene::parse(TRIANGLES, "inline").expect("valid");
+        let atlas = Atlas::build(&scene).expect("fits");
+        let validity = Validity::all_valid(&atlas);
+        let poses = scene.initial_poses();
+        let patches = PatchTable::new(&scene, &atlas).place(&poses);
+        let areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
+        let tiling = Tiling {
+            emitted: 1.0,
+            validity: &validity,
+            atlas: &atlas,
+            lift: 1e-4,
+        };
+        for (p, wp) in patches.iter().enumerate() {
+            assert!(wp.triangle);
+            let area = scene.patches[p].shape.area();
+            for grid in [(1, 1), (3, 2), (4, 4), (5, 7)] {
+                let shooters = tiling.shooters(p as u32, wp, &areas, grid, 64);
+                let mut total = 0.0;
+                let mut cut = 0;
+                for s in &shooters {
+                    let su = Vec3::from_slice(&s.su[..3]);
+                    let sv = Vec3::from_slice(&s.sv[..3]);
+                    let (share, _) = cut_cell(s.cut(), [0.0, 0.0], [1.0, 1.0]);
+                    let region = su.cross(sv).length() * share;
+                    assert!(s.corner[3] > 0.0, "{grid:?}: tile {:?} has no area", s.tile);
+                    assert!(
+                        (region - s.corner[3]).abs() <= 1e-4 * area,
+                        "{grid:?}: tile {:?}: region {region}, elements {}",
+                        s.tile,
+                        s.corner[3]
+                    );
+                    total += region;
+                    cut += usize::from(share < 1.0);
+                }
+                assert!(
+                    (total - area).abs() <= 1e-4 * area,
+                    "patch {p} {grid:?}: regions {total}, triangle {area}"
+                );
+                assert!(cut > 0, "some tile straddles the diagonal");
+            }
+        }
+    }
+
+    /// The cut keeps the triangle's side and puts the centroid there: a
+    /// unit square cut by its diagonal keeps half, centroid (2/3, 1/3).
+    #[test]
+    fn cut_cell_keeps_the_lower_half_of_a_diagonal_square() {
+        let (share, [x, y]) = cut_cell([1.0, -1.0, 0.0], [0.0, 0.0], [1.0, 1.0]);
+        assert!((share - 0.5).abs() < 1e-6, "{share}");
+        assert!((x - 2.0 / 3.0).abs() < 1e-6 && (y - 1.0 / 3.0).abs() < 1e-6);
+        assert_eq!(cut_cell([0.0; 3], [0.0, 0.0], [1.0, 1.0]).0, 1.0);
+        assert_eq!(cut_cell([1.0, -1.0, -2.0], [0.0, 0.0], [1.0, 1.0]).0, 0.0);
+    }
 }
