@@ -196,6 +196,51 @@ fn path_tracer_under_a_triangular_light_matches_lamberts_formula() {
     }
 }
 
+/// The path tracer's element estimates on a triangular floor under the
+/// square lamp: the floor chart's texels above the diagonal stand for no
+/// surface and get their emission (none) without a path, zero error and
+/// zero irradiance (dilation fills them); every other floor texel is
+/// traced from a point on the triangle and sees the lamp.
+#[test]
+fn path_tracer_traces_only_the_texels_that_stand_for_surface() {
+    let (scene, atlas) = common::parse(
+        r#"{
+        "name": "triangle-floor", "lightmap": { "texel_density": 3 },
+        "materials": [
+            { "name": "lamp", "albedo": [0, 0, 0], "emission": [3, 3, 3] },
+            { "name": "grey", "albedo": [0.5, 0.5, 0.5] }
+        ],
+        "surfaces": [
+            { "name": "lamp", "material": "lamp", "quad": { "origin": [-0.5, 1.5, -0.5], "u": [1, 0, 0], "v": [0, 0, 1] } },
+            { "name": "floor", "material": "grey", "mesh": { "positions": [[-2, 0, -2], [-2, 0, 2], [2, 0, 2]] } }
+        ]
+    }"#,
+    );
+    assert!(scene.patches[1].shape.is_triangle());
+    let tracer = PathTracer::new(&scene, &scene.initial_poses());
+    let estimates = tracer.estimate_elements(&atlas, 8, &lightwire_server::pathtrace::Silent);
+    let (mut skipped, mut traced) = (0, 0);
+    for i in atlas.elements_of(1) {
+        let (e, est) = (&atlas.elements[i], &estimates[i]);
+        if e.covers_surface() {
+            traced += 1;
+            assert!(est.irradiance.x > 0.0, "texel {:?} not traced", e.texel);
+        } else {
+            skipped += 1;
+            assert_eq!(
+                (est.mean, est.std_error, est.irradiance),
+                (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO),
+                "texel {:?} traced",
+                e.texel
+            );
+        }
+    }
+    assert!(
+        skipped > 0 && traced > skipped,
+        "{skipped} skipped, {traced} traced"
+    );
+}
+
 /// A closed 2 m room of quads (red and green side walls, a ceiling light
 /// flush with the ceiling, a floating box that shadows the floor).
 const ROOM: &str = r#"{

@@ -357,7 +357,10 @@ impl PathTracer {
     /// object is), moved onto the patch ([`Self::surface_point`]), with the
     /// element's albedo and emission. Element `i` is seeded from `i` alone
     /// (batch seed 0). Indexed like `atlas.elements`; an element whose
-    /// patch is not in the scene gets its emission and zero error.
+    /// patch is not in the scene, or that stands for no surface (a texel of
+    /// a triangle's chart above its diagonal, which dilation fills), gets
+    /// its emission and zero error without a path: on meshes those are
+    /// nearly half the elements.
     pub fn estimate_elements(
         &self,
         atlas: &Atlas,
@@ -369,7 +372,10 @@ impl PathTracer {
             .iter()
             .map(|e| {
                 let [s, t] = e.st.map(f64::from);
-                match self.surface_point(e.patch, s, t) {
+                let traced = e
+                    .covers_surface()
+                    .then(|| self.surface_point(e.patch, s, t));
+                match traced.flatten() {
                     Some(p) => SurfacePoint {
                         albedo: e.albedo,
                         emission: e.emission,
