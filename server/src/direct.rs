@@ -10,6 +10,9 @@
 //! ray to each (the point-to-area form factor `cos θ_x cos θ_y / (π r²)`
 //! per sample, thesis §2.2.1, eq. 2.2.2 without the area average), removes
 //! that aliasing; the hemicube then carries only the reflected light.
+//! Emitters may be parallelograms or triangles (wallner §2's meshes): the
+//! exact form factor takes the patch's own polygon, and the sample grid is
+//! folded onto a triangle ([`grid_points`]).
 //!
 //! Users: the gather solver (`gpu/gather.rs`: the direct light of the
 //! emission, once per solve) and cross redistribution's regathering
@@ -22,7 +25,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::atlas::Atlas;
-use crate::raycast::{Raycaster, cosine_grid};
+use crate::raycast::{Raycaster, WorldPatch, cosine_grid};
 use crate::scene::{Pose, Scene};
 
 /// Samples per emitting patch for the solvers' direct light, `GRID`².
@@ -82,12 +85,15 @@ impl Emitters {
     ///
     /// Per patch, the unoccluded point-to-polygon form factor `F` is exact
     /// (Lambert's contour integral over the part of the patch above `x`'s
-    /// tangent plane, thesis §2.2.2), and a `grid` x `grid` stratification
-    /// of the patch, a shadow ray to each cell centre (anything but the
-    /// patch itself blocks), gives the visible, radiosity-weighted share of
-    /// it: `H += F Σ_k w_k V_k value_k / Σ_k w_k` with the point-to-area
-    /// kernel `w_k = cos θ_x cos θ_y / r²`. Sampling the kernel alone
-    /// misses most of a neighbouring wall's form factor at an edge, where
+    /// tangent plane, thesis §2.2.2; the triangle's three corners for a
+    /// triangle, wallner §2's meshes), and a `grid` x `grid` stratification
+    /// of the patch ([`grid_points`]), a shadow ray to each cell centre
+    /// (anything but the patch itself blocks), gives the visible,
+    /// radiosity-weighted share of it: `H += F Σ_k w_k V_k value_k /
+    /// Σ_k w_k` with the point-to-area kernel `w_k = a_k cos θ_x cos θ_y /
+    /// r²`, `a_k` the share of the patch's area the cell stands for.
+    /// Sampling the kernel alone misses most of a neighbouring wall's form
+    /// factor at an edge, where
     /// it grows without bound (the furnace's edge texels lost a fifth of
     /// their direct light at 16²).
     pub fn irradiance(
@@ -106,44 +112,33 @@ impl Emitters {
                 // An absent object's patch (`Raycaster::with_absent`).
                 continue;
             }
-            let corners = [
-                wp.origin,
-                wp.origin + wp.u,
-                wp.origin + wp.u + wp.v,
-                wp.origin + wp.v,
-            ];
-            let f = form_factor(x, n, &corners);
+            let f = form_factor(x, n, wp.corners());
             if f <= 0.0 {
                 continue;
             }
             let (mut seen, mut total) = (Vec3::ZERO, 0.0f64);
-            for a in 0..grid {
-                for b in 0..grid {
-                    let y = wp.origin
-                        + wp.u * ((a as f64 + 0.5) / grid as f64)
-                        + wp.v * ((b as f64 + 0.5) / grid as f64);
-                    let to = y - x;
-                    let r2 = to.length_squared();
-                    if r2 <= 0.0 {
-                        continue;
-                    }
-                    let r = r2.sqrt();
-                    let dir = to / r;
-                    let (cos_x, cos_y) = (n.dot(dir), -wp.normal.dot(dir));
-                    if cos_x <= 0.0 || cos_y <= 0.0 {
-                        continue;
-                    }
-                    let w = cos_x * cos_y / r2;
-                    total += w;
-                    let blocked = caster
-                        .closest_hit(x, dir, r * (1.0 - 1e-6))
-                        .is_some_and(|hit| hit.patch != p);
-                    if blocked {
-                        continue;
-                    }
-                    if let Some(j) = element_at(caster, atlas, p, y) {
-                        seen += value(j) * w as f32;
-                    }
+            for (y, share) in grid_points(wp, grid) {
+                let to = y - x;
+                let r2 = to.length_squared();
+                if r2 <= 0.0 {
+                    continue;
+                }
+                let r = r2.sqrt();
+                let dir = to / r;
+                let (cos_x, cos_y) = (n.dot(dir), -wp.normal.dot(dir));
+                if cos_x <= 0.0 || cos_y <= 0.0 {
+                    continue;
+                }
+                let w = share * cos_x * cos_y / r2;
+                total += w;
+                let blocked = caster
+                    .closest_hit(x, dir, r * (1.0 - 1e-6))
+                    .is_some_and(|hit| hit.patch != p);
+                if blocked {
+                    continue;
+                }
+                if let Some(j) = element_at(caster, atlas, p, y) {
+                    seen += value(j) * w as f32;
                 }
             }
             if total > 0.0 {
@@ -194,20 +189,54 @@ pub fn form_factor(x: DVec3, n: DVec3, corners: &[DVec3]) -> f64 {
     (sum / std::f64::consts::TAU).abs()
 }
 
+/// The points of a `grid` x `grid` stratification of the patch `wp` with the
+/// share of its area each stands for (the shares sum to 1).
+///
+/// A parallelogram's are its cell centres, `1 / grid²` each. A triangle's
+/// (the half `t <= s` of its frame) fold the square's grid onto the
+/// triangle by mirroring the cells above the diagonal onto those below,
+/// which keeps the sampling uniform over the triangle's area: a cell below
+/// the diagonal stands for itself and its mirror image (`2 / grid²`, at
+/// its centre), a cell on the diagonal for its lower half twice (`1 /
+/// grid²`, at that half's centroid, inside the triangle).
+pub fn grid_points(wp: &WorldPatch, grid: usize) -> impl Iterator<Item = (DVec3, f64)> + '_ {
+    let g = grid as f64;
+    let cell = 1.0 / (g * g);
+    let triangle = wp.is_triangle();
+    (0..grid).flat_map(move |a| {
+        let rows = if triangle { a + 1 } else { grid };
+        (0..rows).map(move |b| {
+            let (a, b) = (a as f64, b as f64);
+            if !triangle {
+                (wp.at((a + 0.5) / g, (b + 0.5) / g), cell)
+            } else if b < a {
+                (wp.at((a + 0.5) / g, (b + 0.5) / g), 2.0 * cell)
+            } else {
+                (wp.at((a + 2.0 / 3.0) / g, (a + 1.0 / 3.0) / g), cell)
+            }
+        })
+    })
+}
+
 /// The element of `patch` nearest to the world point `x` on it (`caster`
-/// holds the patches placed as `x` is).
+/// holds the patches placed as `x` is): the texel whose sample is nearest
+/// in patch parameters, after clamping `x` onto the patch. On a triangle a
+/// point beyond the diagonal is moved onto it, so the texel found has
+/// `b <= a` and stands for surface.
 pub fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Option<usize> {
     let wp = caster.patches().get(patch as usize)?;
-    let d = x - wp.origin;
-    let (uu, uv, vv) = (wp.u.dot(wp.u), wp.u.dot(wp.v), wp.v.dot(wp.v));
-    let det = uu * vv - uv * uv;
-    if det <= 0.0 {
+    if wp.area.is_nan() || wp.area <= 0.0 {
+        // An absent object's patch (`Raycaster::with_absent`).
         return None;
     }
-    let (du, dv) = (d.dot(wp.u), d.dot(wp.v));
-    let s = ((du * vv - dv * uv) / det).clamp(0.0, 1.0);
-    let t = ((dv * uu - du * uv) / det).clamp(0.0, 1.0);
+    let (s, t) = wp.param(x);
+    let (mut s, mut t) = (s.clamp(0.0, 1.0), t.clamp(0.0, 1.0));
+    if wp.is_triangle() && t > s {
+        let m = 0.5 * (s + t);
+        (s, t) = (m, m);
+    }
     let chart = atlas.charts.get(patch as usize)?;
+    // Rounding is monotonic, so `t <= s` gives row <= column.
     let c = (s * f64::from(chart.w.saturating_sub(1))).round() as u32;
     let r = (t * f64::from(chart.h.saturating_sub(1))).round() as u32;
     let e = atlas.element_at(chart.x + c, chart.y + r)? as usize;
@@ -293,6 +322,35 @@ mod tests {
         assert!((got - expected).abs() < 1e-9, "{got} vs {expected}");
         let reversed: Vec<DVec3> = corners.iter().rev().copied().collect();
         assert!((form_factor(DVec3::ZERO, DVec3::Z, &reversed) - got).abs() < 1e-12);
+    }
+
+    /// The folded grid on a triangle is a midpoint rule over it: every point
+    /// on the triangle, shares summing to 1, and the weighted mean of the
+    /// points its centroid (exact for linear functions); a grid over the
+    /// whole parallelogram would put it at the parallelogram's centre.
+    #[test]
+    fn the_grid_on_a_triangle_is_uniform_over_the_triangle() {
+        let (o, u, v) = (
+            DVec3::new(0.3, 1.0, -0.2),
+            DVec3::new(1.5, 0.2, 0.0),
+            DVec3::new(-0.4, 0.1, 0.9),
+        );
+        let tri = WorldPatch::triangle(o, u, v);
+        for grid in [1, 2, 5, 16] {
+            let points: Vec<(DVec3, f64)> = grid_points(&tri, grid).collect();
+            assert_eq!(points.len(), grid * (grid + 1) / 2);
+            let total: f64 = points.iter().map(|p| p.1).sum();
+            assert!((total - 1.0).abs() < 1e-12, "{grid}: {total}");
+            let mean: DVec3 = points.iter().map(|(y, w)| *y * *w).sum();
+            assert!((mean - tri.centre()).length() < 1e-12, "{grid}: {mean}");
+            for (y, _) in &points {
+                let (s, t) = tri.param(*y);
+                assert!(tri.contains(s, t) && t < s, "{grid}: ({s}, {t}) off");
+            }
+        }
+        let quad = WorldPatch::parallelogram(o, u, v);
+        let mean: DVec3 = grid_points(&quad, 4).map(|(y, w)| y * w).sum();
+        assert!((mean - quad.centre()).length() < 1e-12);
     }
 
     /// A floor point a millimetre from a wall that extends far in every

@@ -16,8 +16,9 @@
 //! reference solver keeps its own shadow-ray hierarchy (`reference/bvh.rs`)
 //! so that the two oracles share no code.
 //!
-//! Today every patch is a parallelogram ([`PatchShape::Quad`]); a new shape
-//! adds an arm to [`WorldPatch::new`] and an intersection routine here.
+//! A patch is a parallelogram ([`PatchShape::Quad`]) or the triangle half
+//! `t <= s` of one ([`PatchShape::Triangle`]); a new shape adds an arm to
+//! [`WorldPatch::new`] and a test in [`WorldPatch::intersect`].
 
 use glam::DVec3;
 
@@ -27,7 +28,9 @@ use crate::scene::{PatchShape, Pose, Scene};
 pub const LEAF_SIZE: usize = 4;
 
 /// A patch placed in the world: the parallelogram `origin + s u + t v`,
-/// `s, t ∈ [0, 1]`, facing `u × v`.
+/// `s, t ∈ [0, 1]`, or, for a triangle, its half `0 <= t <= s <= 1`
+/// (corners `origin`, `origin + u`, `origin + u + v`, as
+/// [`PatchShape::Triangle`]); it faces `u × v`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WorldPatch {
     pub origin: DVec3,
@@ -35,8 +38,13 @@ pub struct WorldPatch {
     pub v: DVec3,
     /// Unit normal of the front face, `normalize(u × v)`.
     pub normal: DVec3,
-    /// Area in m².
+    /// Area in m² (half the parallelogram's for a triangle).
     pub area: f64,
+    /// Whether only the half `t <= s` is surface.
+    triangle: bool,
+    /// `origin`, `origin + u`, `origin + u + v`, `origin + v`; a triangle
+    /// has the first three.
+    corners: [DVec3; 4],
     /// Unnormalised `u × v` and the dual vectors of `u` and `v` in the
     /// patch's plane: for `d = s u + t v`, `s = d·du` and `t = d·dv`.
     n: DVec3,
@@ -47,8 +55,14 @@ pub struct WorldPatch {
 impl WorldPatch {
     /// The patch `shape` (object-local) moved by `pose`.
     pub fn new(shape: &PatchShape, pose: &Pose) -> Self {
-        let (origin, u, v) = shape.transformed(pose).frame();
-        Self::parallelogram(origin.as_dvec3(), u.as_dvec3(), v.as_dvec3())
+        let placed = shape.transformed(pose);
+        let (origin, u, v) = placed.frame();
+        let (origin, u, v) = (origin.as_dvec3(), u.as_dvec3(), v.as_dvec3());
+        if placed.is_triangle() {
+            Self::triangle(origin, u, v)
+        } else {
+            Self::parallelogram(origin, u, v)
+        }
     }
 
     /// A world-space parallelogram. `u` and `v` must not be parallel (a
@@ -62,10 +76,28 @@ impl WorldPatch {
             v,
             normal: n / nn.sqrt(),
             area: nn.sqrt(),
+            triangle: false,
+            corners: [origin, origin + u, origin + u + v, origin + v],
             n,
             du: v.cross(n) / nn,
             dv: n.cross(u) / nn,
         }
+    }
+
+    /// The world-space triangle `origin`, `origin + u`, `origin + u + v`:
+    /// the half `t <= s` of [`Self::parallelogram`].
+    pub fn triangle(origin: DVec3, u: DVec3, v: DVec3) -> Self {
+        let whole = Self::parallelogram(origin, u, v);
+        Self {
+            area: 0.5 * whole.area,
+            triangle: true,
+            ..whole
+        }
+    }
+
+    /// Whether the patch is a triangle (only `t <= s` is surface).
+    pub fn is_triangle(&self) -> bool {
+        self.triangle
     }
 
     /// The point at patch parameters `(s, t)`.
@@ -73,20 +105,40 @@ impl WorldPatch {
         self.origin + self.u * s + self.v * t
     }
 
-    /// The centre of the patch.
+    /// Patch parameters `(s, t)` of the point of the patch's plane nearest
+    /// to `x` (not clamped to the patch).
+    pub fn param(&self, x: DVec3) -> (f64, f64) {
+        let d = x - self.origin;
+        (d.dot(self.du), d.dot(self.dv))
+    }
+
+    /// Whether patch parameters `(s, t)` lie on the patch, edges included.
+    pub fn contains(&self, s: f64, t: f64) -> bool {
+        let square = (0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&t);
+        square && (!self.triangle || t <= s)
+    }
+
+    /// The centroid of the patch: `(1/2, 1/2)` of a parallelogram,
+    /// `(2/3, 1/3)` of a triangle.
     pub fn centre(&self) -> DVec3 {
-        self.at(0.5, 0.5)
+        if self.triangle {
+            self.at(2.0 / 3.0, 1.0 / 3.0)
+        } else {
+            self.at(0.5, 0.5)
+        }
+    }
+
+    /// Corners counter-clockwise seen from the front: `origin`,
+    /// `origin + u`, `origin + u + v` and, for a parallelogram,
+    /// `origin + v` (the polygon of a point-to-polygon form factor).
+    pub fn corners(&self) -> &[DVec3] {
+        &self.corners[..if self.triangle { 3 } else { 4 }]
     }
 
     fn bounds(&self) -> Aabb {
         let mut b = Aabb::EMPTY;
-        for p in [
-            self.origin,
-            self.origin + self.u,
-            self.origin + self.v,
-            self.origin + self.u + self.v,
-        ] {
-            b.grow(p);
+        for &c in self.corners() {
+            b.grow(c);
         }
         b
     }
@@ -102,9 +154,8 @@ impl WorldPatch {
         if !(t > 0.0 && t < t_max) {
             return None;
         }
-        let d = origin + dir * t - self.origin;
-        let (s, w) = (d.dot(self.du), d.dot(self.dv));
-        ((0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&w)).then_some(t)
+        let (s, w) = self.param(origin + dir * t);
+        self.contains(s, w).then_some(t)
     }
 }
 
@@ -249,15 +300,9 @@ impl Raycaster {
     pub fn extent(&self) -> f64 {
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for p in &self.patches {
-            for c in [
-                p.origin,
-                p.origin + p.u,
-                p.origin + p.v,
-                p.origin + p.u + p.v,
-            ] {
-                lo = lo.min(c);
-                hi = hi.max(c);
-            }
+            let b = p.bounds();
+            lo = lo.min(b.min);
+            hi = hi.max(b.max);
         }
         (hi - lo).length().max(1e-9)
     }
@@ -491,8 +536,8 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    /// A deterministic soup of `n` random parallelograms in a 10 m cube,
-    /// a few large and many small, in every orientation.
+    /// A deterministic soup of `n` random parallelograms and triangles in a
+    /// 10 m cube, a few large and many small, in every orientation.
     fn soup(n: usize, seed: u64) -> Vec<WorldPatch> {
         let mut rng = fastrand::Rng::with_seed(seed);
         let mut v3 = |scale: f64| {
@@ -515,7 +560,12 @@ mod tests {
                     u = DVec3::new(u.x, 0.0, 0.0) + DVec3::X * 0.1;
                     v = DVec3::new(0.0, 0.0, v.z) + DVec3::Z * 0.1;
                 }
-                WorldPatch::parallelogram(origin, u, v)
+                // Every third one a triangle (half of its parallelogram).
+                if k % 3 == 2 {
+                    WorldPatch::triangle(origin, u, v)
+                } else {
+                    WorldPatch::parallelogram(origin, u, v)
+                }
             })
             .collect()
     }
@@ -657,6 +707,105 @@ mod tests {
             Raycaster::from_patches(Vec::new()).closest_hit(o, DVec3::Y, 1.0),
             None
         );
+    }
+
+    /// A triangle is the half `t <= s` of its frame: rays through that
+    /// half hit it (its edges included), rays through the other half of the
+    /// parallelogram miss; its bounds, centre, area and corners are the
+    /// triangle's. The triangle `(0,0,0)`, `(0,0,1)`, `(1,0,1)` on the floor
+    /// (`u = +z`, `v = +x`, facing up) covers the points with `x <= z`.
+    #[test]
+    fn a_triangle_is_hit_only_on_its_half_of_the_parallelogram() {
+        let tri = WorldPatch::triangle(DVec3::ZERO, DVec3::Z, DVec3::X);
+        let quad = WorldPatch::parallelogram(DVec3::ZERO, DVec3::Z, DVec3::X);
+        let rc = Raycaster::from_patches(vec![tri]);
+        let down = |x: f64, z: f64| rc.closest_hit(DVec3::new(x, 1.0, z), -DVec3::Y, 2.0);
+        let mut rng = fastrand::Rng::with_seed(5);
+        let (mut inside, mut outside) = (0, 0);
+        for _ in 0..2000 {
+            let (x, z) = (rng.f64(), rng.f64());
+            if (x - z).abs() < 1e-9 {
+                continue;
+            }
+            let hit = down(x, z);
+            // The same ray always hits the whole parallelogram.
+            assert!(
+                quad.intersect(DVec3::new(x, 1.0, z), -DVec3::Y, 2.0)
+                    .is_some()
+            );
+            if x < z {
+                inside += 1;
+                let h = hit.unwrap_or_else(|| panic!("({x}, {z}) is on the triangle"));
+                assert!(h.front && (h.distance - 1.0).abs() < 1e-12);
+            } else {
+                outside += 1;
+                assert_eq!(hit, None, "({x}, {z}) is off the triangle");
+            }
+        }
+        assert!(inside > 800 && outside > 800);
+        // Its edges, the diagonal included, belong to it.
+        for (x, z) in [(0.5, 0.5), (0.0, 0.3), (0.3, 1.0), (0.0, 0.0), (1.0, 1.0)] {
+            assert!(down(x, z).is_some(), "edge point ({x}, {z})");
+        }
+        assert!(down(0.5 + 1e-9, 0.5).is_none());
+        // From below: a back-face hit on the same half only.
+        let up = rc.closest_hit(DVec3::new(0.2, -1.0, 0.7), DVec3::Y, 2.0);
+        assert!(up.is_some_and(|h| !h.front));
+        assert!(
+            rc.closest_hit(DVec3::new(0.7, -1.0, 0.2), DVec3::Y, 2.0)
+                .is_none()
+        );
+        assert!((tri.area - 0.5).abs() < 1e-15 && (quad.area - 1.0).abs() < 1e-15);
+        assert!((tri.centre() - DVec3::new(1.0 / 3.0, 0.0, 2.0 / 3.0)).length() < 1e-15);
+        assert_eq!(tri.corners().len(), 3);
+        assert_eq!(quad.corners().len(), 4);
+        assert!(tri.contains(0.7, 0.7) && !tri.contains(0.3, 0.7));
+        // Bounds from the three corners: a triangle whose parallelogram's
+        // fourth corner, (-1, 0, 1), lies outside its box has the extent
+        // of its own corners (the parallelogram's would be √5).
+        let slim = WorldPatch::triangle(DVec3::ZERO, DVec3::X, DVec3::new(-1.0, 0.0, 1.0));
+        let rc = Raycaster::from_patches(vec![slim]);
+        assert!((rc.extent() - 2f64.sqrt()).abs() < 1e-12, "{}", rc.extent());
+    }
+
+    /// A scene's mesh surface is placed as triangles: a quad scene and its
+    /// triangulation hit the same points with the same distances, and the
+    /// triangle hit names the half the point is on.
+    #[test]
+    fn a_triangulated_scene_is_hit_where_its_quads_are() {
+        let scene = Scene::parse(
+            r#"{
+              "name": "tri", "lightmap": { "texel_density": 2 },
+              "materials": [ { "name": "light", "albedo": [0, 0, 0], "emission": [1, 1, 1] } ],
+              "surfaces": [
+                { "name": "floor", "material": "light",
+                  "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [1, 0, 0] } }
+              ]
+            }"#,
+            "raycast test",
+        )
+        .expect("scene");
+        let tri = scene.triangulated();
+        let poses = scene.initial_poses();
+        let (quads, triangles) = (Raycaster::new(&scene, &poses), Raycaster::new(&tri, &poses));
+        assert!(triangles.patches().iter().all(WorldPatch::is_triangle));
+        let mut rng = fastrand::Rng::with_seed(9);
+        for _ in 0..500 {
+            let o = DVec3::new(rng.f64() * 1.4 - 0.2, 1.0, rng.f64() * 2.4 - 0.2);
+            let (a, b) = (
+                quads.closest_hit(o, -DVec3::Y, 5.0),
+                triangles.closest_hit(o, -DVec3::Y, 5.0),
+            );
+            assert_eq!(a.is_some(), b.is_some(), "{o}");
+            if let (Some(a), Some(b)) = (a, b) {
+                assert!((a.distance - b.distance).abs() < 1e-9);
+                // Quad (s, t) = (z / 2, x); its first triangle has t <= s.
+                let (s, t) = (o.z / 2.0, o.x);
+                if (s - t).abs() > 1e-6 {
+                    assert_eq!(b.patch, u32::from(t > s), "{o}");
+                }
+            }
+        }
     }
 
     /// The nearer of two stacked patches wins, and a scene with a dynamic

@@ -36,8 +36,9 @@
 //!   light-source sampling; Shirley, Wang and Zimmerman, "Monte Carlo
 //!   techniques for direct lighting calculations", ACM TOG 1996): pick
 //!   one emitter patch with probability proportional to its power
-//!   `A_j Σ_c E_j,c`, a point `y` uniformly on it, and cast a shadow ray
-//!   (either face of any patch blocks it). The contribution to the
+//!   `A_j Σ_c E_j,c`, a point `y` uniformly on it (a parallelogram or a
+//!   triangle, the latter by folding the unit square onto it), and cast a
+//!   shadow ray (either face of any patch blocks it). The contribution to the
 //!   irradiance at `x_k` is `(E_j / π) cos θ_x cos θ_y / |y − x_k|² / p(y)`
 //!   with the area density `p(y) = P(j) / A_j`, times the weight of the
 //!   third point below, and zero when `y` is behind `x_k` or `x_k` is
@@ -356,7 +357,10 @@ impl PathTracer {
     /// object is), moved onto the patch ([`Self::surface_point`]), with the
     /// element's albedo and emission. Element `i` is seeded from `i` alone
     /// (batch seed 0). Indexed like `atlas.elements`; an element whose
-    /// patch is not in the scene gets its emission and zero error.
+    /// patch is not in the scene, or that stands for no surface (a texel of
+    /// a triangle's chart above its diagonal, which dilation fills), gets
+    /// its emission and zero error without a path: on meshes those are
+    /// nearly half the elements.
     pub fn estimate_elements(
         &self,
         atlas: &Atlas,
@@ -368,7 +372,10 @@ impl PathTracer {
             .iter()
             .map(|e| {
                 let [s, t] = e.st.map(f64::from);
-                match self.surface_point(e.patch, s, t) {
+                let traced = e
+                    .covers_surface()
+                    .then(|| self.surface_point(e.patch, s, t));
+                match traced.flatten() {
                     Some(p) => SurfacePoint {
                         albedo: e.albedo,
                         emission: e.emission,
@@ -448,7 +455,7 @@ impl PathTracer {
         };
         let patch = emitter.patch as usize;
         let wp = &self.rays.patches()[patch];
-        let y = wp.at(rng.f64(), rng.f64());
+        let y = uniform_point(wp, rng.f64(), rng.f64());
         let d = y - x;
         let r2 = d.length_squared();
         if r2 <= 0.0 {
@@ -468,6 +475,20 @@ impl PathTracer {
         let p_light = self.light_density(patch, r, cos_y);
         let weight = power_heuristic(p_light, cos_x * std::f64::consts::FRAC_1_PI);
         self.emission[patch] * (std::f64::consts::FRAC_1_PI * cos_x / p_light * weight)
+    }
+}
+
+/// The point of `wp` at uniform variates `(s, t)` on the unit square: the
+/// point `(s, t)` of a parallelogram; on a triangle (the half `t <= s` of
+/// its frame) a point with `t > s` is mirrored across the diagonal to
+/// `(t, s)`. The mirror maps the square's upper half onto the lower one
+/// preserving area, so the point is uniform over the triangle (density
+/// `1 / area`, as [`PathTracer::light_density`] assumes).
+fn uniform_point(wp: &WorldPatch, s: f64, t: f64) -> DVec3 {
+    if wp.is_triangle() && t > s {
+        wp.at(t, s)
+    } else {
+        wp.at(s, t)
     }
 }
 

@@ -9,12 +9,17 @@ use glam::DVec3;
 
 const LEAF_SIZE: usize = 4;
 
-/// A world-space parallelogram `origin + s u + t v`, `s, t ∈ [0, 1]`.
+/// A world-space patch: the parallelogram `origin + s u + t v`,
+/// `s, t ∈ [0, 1]`, or its triangle half `0 <= t <= s <= 1` (corners
+/// `origin`, `origin + u`, `origin + u + v`; the scene's
+/// `PatchShape::Triangle`).
 #[derive(Debug, Clone, Copy)]
-pub struct Parallelogram {
+pub struct Primitive {
     pub origin: DVec3,
     pub u: DVec3,
     pub v: DVec3,
+    /// Whether only the half `t <= s` is surface.
+    pub triangle: bool,
     /// Unnormalised normal `u × v`.
     n: DVec3,
     /// Dual vectors: for `d = s u + t v`, `s = d·du` and `t = d·dv`.
@@ -22,35 +27,52 @@ pub struct Parallelogram {
     dv: DVec3,
 }
 
-impl Parallelogram {
-    pub fn new(origin: DVec3, u: DVec3, v: DVec3) -> Self {
+impl Primitive {
+    /// The parallelogram `origin + s u + t v`, `s, t ∈ [0, 1]`.
+    pub fn parallelogram(origin: DVec3, u: DVec3, v: DVec3) -> Self {
         let n = u.cross(v);
         let nn = n.length_squared();
         Self {
             origin,
             u,
             v,
+            triangle: false,
             n,
             du: v.cross(n) / nn,
             dv: n.cross(u) / nn,
         }
     }
 
+    /// The triangle `origin`, `origin + u`, `origin + u + v`: the half
+    /// `t <= s` of [`Self::parallelogram`].
+    pub fn triangle(origin: DVec3, u: DVec3, v: DVec3) -> Self {
+        Self {
+            triangle: true,
+            ..Self::parallelogram(origin, u, v)
+        }
+    }
+
+    /// Corners counter-clockwise seen from the front (`u × v`): three for a
+    /// triangle, four for a parallelogram; `corners()[..count]` are used.
+    pub fn corners(&self) -> ([DVec3; 4], usize) {
+        let o = self.origin;
+        (
+            [o, o + self.u, o + self.u + self.v, o + self.v],
+            if self.triangle { 3 } else { 4 },
+        )
+    }
+
     fn bounds(&self) -> Aabb {
         let mut b = Aabb::empty();
-        for p in [
-            self.origin,
-            self.origin + self.u,
-            self.origin + self.v,
-            self.origin + self.u + self.v,
-        ] {
-            b.grow(p);
+        let (corners, count) = self.corners();
+        for p in &corners[..count] {
+            b.grow(*p);
         }
         b
     }
 
-    /// Ray parameter of the hit with `origin + t dir`, if it lies in
-    /// `(t_min, t_max)` and inside the parallelogram.
+    /// Whether the ray `ro + t rd` crosses the patch (either face) at a
+    /// `t` in `(t_min, t_max)`.
     fn hit(&self, ro: DVec3, rd: DVec3, t_min: f64, t_max: f64) -> bool {
         let denom = rd.dot(self.n);
         if denom.abs() < 1e-300 {
@@ -63,7 +85,7 @@ impl Parallelogram {
         let d = ro + rd * t - self.origin;
         let s = d.dot(self.du);
         let w = d.dot(self.dv);
-        (0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&w)
+        (0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&w) && (!self.triangle || w <= s)
     }
 }
 
@@ -117,14 +139,14 @@ enum Node {
 /// from (patch ids).
 #[derive(Debug, Clone)]
 pub struct Bvh {
-    prims: Vec<Parallelogram>,
+    prims: Vec<Primitive>,
     /// Primitive ids in leaf order.
     order: Vec<u32>,
     nodes: Vec<Node>,
 }
 
 impl Bvh {
-    pub fn new(prims: Vec<Parallelogram>) -> Self {
+    pub fn new(prims: Vec<Primitive>) -> Self {
         let mut order: Vec<u32> = (0..prims.len() as u32).collect();
         let mut nodes = Vec::new();
         if !prims.is_empty() {
@@ -188,7 +210,7 @@ impl Bvh {
 }
 
 fn build(
-    prims: &[Parallelogram],
+    prims: &[Primitive],
     order: &mut [u32],
     first: usize,
     end: usize,
@@ -244,8 +266,8 @@ fn build(
 mod tests {
     use super::*;
 
-    fn square(z: f64) -> Parallelogram {
-        Parallelogram::new(
+    fn square(z: f64) -> Primitive {
+        Primitive::parallelogram(
             DVec3::new(-1.0, -1.0, z),
             DVec3::new(2.0, 0.0, 0.0),
             DVec3::new(0.0, 2.0, 0.0),
@@ -274,17 +296,49 @@ mod tests {
         ));
     }
 
+    /// A triangle blocks only segments through its half `t <= s` of the
+    /// square (here `y <= x`), its diagonal included.
+    #[test]
+    fn a_triangle_blocks_only_its_half_of_the_square() {
+        let bvh = Bvh::new(vec![Primitive::triangle(
+            DVec3::new(-1.0, -1.0, 0.0),
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(0.0, 2.0, 0.0),
+        )]);
+        let through = |x: f64, y: f64| {
+            bvh.occluded(DVec3::new(x, y, -1.0), DVec3::new(x, y, 1.0), [u32::MAX; 2])
+        };
+        for (x, y) in [
+            (0.5, -0.5),
+            (0.9, 0.8),
+            (-0.9, -0.95),
+            (0.3, 0.3),
+            (0.99, -0.99),
+        ] {
+            assert!(through(x, y), "({x}, {y}) is on the triangle");
+        }
+        for (x, y) in [(-0.5, 0.5), (0.8, 0.9), (-0.95, -0.9), (-0.99, 0.99)] {
+            assert!(!through(x, y), "({x}, {y}) is off the triangle");
+        }
+    }
+
     #[test]
     fn many_primitives_agree_with_brute_force() {
         // A stack of squares at various heights and offsets.
-        let prims: Vec<Parallelogram> = (0..40)
+        let prims: Vec<Primitive> = (0..40)
             .map(|i| {
                 let f = i as f64;
-                Parallelogram::new(
+                let (o, u, v) = (
                     DVec3::new((f * 0.37).sin() * 3.0, (f * 0.91).cos() * 3.0, f * 0.25),
                     DVec3::new(0.8, 0.1, 0.0),
                     DVec3::new(0.0, 0.7, 0.2),
-                )
+                );
+                // Every third one a triangle: its bounds hold three corners.
+                if i % 3 == 2 {
+                    Primitive::triangle(o, u, v)
+                } else {
+                    Primitive::parallelogram(o, u, v)
+                }
             })
             .collect();
         let bvh = Bvh::new(prims.clone());

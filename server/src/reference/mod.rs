@@ -6,7 +6,13 @@
 //!
 //! 1. **Form factors** (thesis §2.2.1). Element `j` emits from the region
 //!    of its patch it stands for (a cell, half cell or quarter cell; see
-//!    [`crate::atlas`]); the regions tile every patch. From a point `x`, the
+//!    [`crate::atlas`]); the regions tile every patch. On a triangle patch
+//!    (wallner §2's meshes; the half `t <= s` of its frame) a region is the
+//!    element's box clipped by the diagonal: a triangle for a texel on the
+//!    diagonal, nothing for one above it (such an element neither sends nor
+//!    receives; its point value is computed and dilation replaces it), and
+//!    its quadrature points lie on the clipped polygon
+//!    (`Region::for_each_point`). From a point `x`, the
 //!    form factor to region `j` is the exact point-to-polygon value
 //!    ([`form_factor::point_to_polygon`]) times the fraction of shadow rays
 //!    from `x` to a stratified grid on region `j` that arrive
@@ -42,7 +48,7 @@ use rayon::prelude::*;
 
 use crate::atlas::Atlas;
 use crate::scene::{Pose, Scene};
-use bvh::{Bvh, Parallelogram};
+use bvh::{Bvh, Primitive};
 
 /// Largest element count the dense reference solver accepts (two matrices
 /// of 1.6 GB each).
@@ -105,8 +111,8 @@ struct WorldElement {
     normal: DVec3,
     area: f64,
     patch: u32,
-    /// Corners of the region the element emits from.
-    region: [DVec3; 4],
+    /// The region the element emits from and receives on.
+    region: Region,
     albedo: DVec3,
     emission: DVec3,
 }
@@ -126,10 +132,262 @@ pub struct ReferenceSolver {
 
 #[derive(Debug, Clone, Copy)]
 struct WorldPatch {
-    shape: Parallelogram,
+    shape: Primitive,
     normal: DVec3,
+    /// The centroid, towards which edge samples are nudged.
+    centre: DVec3,
     first: usize,
     end: usize,
+}
+
+/// The polygon an element stands for, in world space: its parameter box,
+/// on a triangle patch clipped by the diagonal `t <= s` (a triangle for a
+/// texel on the diagonal, nothing for one above it).
+#[derive(Debug, Clone, Copy)]
+struct Region {
+    /// Corners counter-clockwise seen from the front; `count` are used.
+    corners: [DVec3; MAX_REGION_CORNERS],
+    /// 4 for a box, 3 to 5 for a clipped one, 0 when the element stands
+    /// for no surface.
+    count: usize,
+    /// Whether the corners are a whole parameter box (a parallelogram),
+    /// integrated on its own `k × k` grid.
+    parallelogram: bool,
+    /// Its middle: the centroid of a box or triangle, the corners' mean of
+    /// a pentagon (the sample point for an empty region).
+    centre: DVec3,
+    /// The longest side (0 for an empty region).
+    size: f64,
+}
+
+/// A box clipped by one line has at most five corners.
+const MAX_REGION_CORNERS: usize = 5;
+
+impl Region {
+    /// The region `[s0, s1] × [t0, t1]` of a patch with frame `(o, u, v)`,
+    /// clipped to `t <= s` on a triangle; `sample` stands in for the centre
+    /// of an empty one.
+    fn new(
+        [s0, t0, s1, t1]: [f64; 4],
+        (o, u, v): (DVec3, DVec3, DVec3),
+        triangle: bool,
+        sample: DVec3,
+    ) -> Region {
+        let at = |(s, t): (f64, f64)| o + u * s + v * t;
+        let square = [(s0, t0), (s1, t0), (s1, t1), (s0, t1)];
+        let mut corners = [DVec3::ZERO; MAX_REGION_CORNERS];
+        // A quad's box, or a triangle's that lies wholly below the
+        // diagonal: a parallelogram, integrated on its own grid.
+        if !triangle || square.iter().all(|&(s, t)| t <= s) {
+            for (c, p) in corners.iter_mut().zip(square) {
+                *c = at(p);
+            }
+            let [p0, p1, p2, p3, _] = corners;
+            return Region {
+                corners,
+                count: 4,
+                parallelogram: true,
+                centre: (p0 + p2) * 0.5,
+                size: (p1 - p0).length().max((p3 - p0).length()),
+            };
+        }
+        let clipped = clip_below_diagonal(&square);
+        let count = clipped.len();
+        if count < 3 {
+            return Region {
+                corners,
+                count: 0,
+                parallelogram: false,
+                centre: sample,
+                size: 0.0,
+            };
+        }
+        for (c, p) in corners.iter_mut().zip(&clipped) {
+            *c = at(*p);
+        }
+        let polygon = &corners[..count];
+        Region {
+            corners,
+            count,
+            parallelogram: false,
+            centre: polygon.iter().copied().sum::<DVec3>() / count as f64,
+            size: (0..count)
+                .map(|k| (polygon[(k + 1) % count] - polygon[k]).length())
+                .fold(0.0, f64::max),
+        }
+    }
+
+    fn polygon(&self) -> &[DVec3] {
+        &self.corners[..self.count]
+    }
+
+    fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// Calls `visit(point, weight)` for the quadrature points of a `k × k`
+    /// grid on the region, with weights that sum to 1. A parallelogram's
+    /// are its cell centres (weight `1 / k²`). Any other polygon is cut into
+    /// a fan of triangles from its first corner, each weighted by its share
+    /// of the area and sampled by the `k × k` grid folded onto it (cells
+    /// above the triangle's diagonal mirrored onto those below, which keeps
+    /// the points uniform: a cell below the diagonal weighs `2 / k²` at its
+    /// centre, one on it `1 / k²` at its lower half's centroid), so every
+    /// point lies on the region. An empty region has none.
+    fn for_each_point(&self, k: usize, mut visit: impl FnMut(DVec3, f64)) {
+        let kf = k as f64;
+        let cell = 1.0 / (kf * kf);
+        if self.parallelogram {
+            let [o, p, _, q, _] = self.corners;
+            for b in 0..k {
+                for a in 0..k {
+                    let (s, t) = ((a as f64 + 0.5) / kf, (b as f64 + 0.5) / kf);
+                    visit(o + (p - o) * s + (q - o) * t, cell);
+                }
+            }
+            return;
+        }
+        let polygon = self.polygon();
+        let fan_area = |i: usize| {
+            let (a, b, c) = (polygon[0], polygon[i], polygon[i + 1]);
+            0.5 * (b - a).cross(c - a).length()
+        };
+        let fans = 1..polygon.len().saturating_sub(1);
+        let total: f64 = fans.clone().map(fan_area).sum();
+        if total <= 0.0 {
+            return;
+        }
+        for i in fans {
+            // The triangle a0 + α (b0 − a0) + β (c0 − b0), 0 <= β <= α <= 1.
+            let (a0, b0, c0) = (polygon[0], polygon[i], polygon[i + 1]);
+            let (u, v) = (b0 - a0, c0 - b0);
+            let share = fan_area(i) / total;
+            for a in 0..k {
+                let af = a as f64;
+                for b in 0..a {
+                    let (alpha, beta) = ((af + 0.5) / kf, (b as f64 + 0.5) / kf);
+                    visit(a0 + u * alpha + v * beta, 2.0 * cell * share);
+                }
+                let (alpha, beta) = ((af + 2.0 / 3.0) / kf, (af + 1.0 / 3.0) / kf);
+                visit(a0 + u * alpha + v * beta, cell * share);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// On a triangle patch, an element's region is its box clipped by the
+    /// diagonal: whole below it, a triangle on it, nothing above it; its
+    /// quadrature points lie on the clipped polygon, their weights sum to
+    /// 1 and their weighted mean is the polygon's centroid (a midpoint rule,
+    /// exact for linear functions).
+    #[test]
+    fn regions_on_a_triangle_are_clipped_and_sampled_inside() {
+        let frame = (
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(0.5, 0.0, 1.5),
+        );
+        let (o, u, v) = frame;
+        let param = |y: DVec3| {
+            // Invert y = o + s u + t v in the plane y = 0.
+            let d = y - o;
+            let det = u.x * v.z - u.z * v.x;
+            ((d.x * v.z - d.z * v.x) / det, (u.x * d.z - u.z * d.x) / det)
+        };
+        // (box, expected corner count, expected area share of the box)
+        let cases = [
+            ([0.5, 0.1, 0.7, 0.3], 4, 1.0),
+            ([0.2, 0.2, 0.4, 0.4], 3, 0.5),
+            ([0.0, 0.0, 0.1, 0.1], 3, 0.5),
+            ([0.2, 0.5, 0.4, 0.7], 0, 0.0),
+            ([0.3, 0.2, 0.6, 0.4], 5, 1.0 - 0.5 * 0.1 * 0.1 / (0.3 * 0.2)),
+        ];
+        for (bx, count, share) in cases {
+            let region = Region::new(bx, frame, true, o);
+            assert_eq!(region.count, count, "{bx:?}");
+            let mut total = 0.0;
+            let mut mean = DVec3::ZERO;
+            let mut points = 0;
+            region.for_each_point(4, |y, w| {
+                let (s, t) = param(y);
+                assert!(
+                    t <= s + 1e-12
+                        && s >= bx[0] - 1e-12
+                        && s <= bx[2] + 1e-12
+                        && t >= bx[1] - 1e-12
+                        && t <= bx[3] + 1e-12,
+                    "{bx:?}: ({s}, {t}) off the region"
+                );
+                total += w;
+                mean += y * w;
+                points += 1;
+            });
+            if count == 0 {
+                assert_eq!(points, 0);
+                continue;
+            }
+            assert!((total - 1.0).abs() < 1e-12, "{bx:?}: {total}");
+            // The polygon's area and centroid by the shoelace formula.
+            let polygon = region.polygon();
+            let (mut area, mut centroid) = (0.0, DVec3::ZERO);
+            for k in 1..polygon.len() - 1 {
+                let a = 0.5
+                    * (polygon[k] - polygon[0])
+                        .cross(polygon[k + 1] - polygon[0])
+                        .length();
+                area += a;
+                centroid += (polygon[0] + polygon[k] + polygon[k + 1]) / 3.0 * a;
+            }
+            centroid /= area;
+            assert!(
+                (mean - centroid).length() < 1e-12,
+                "{bx:?}: {mean} vs {centroid}"
+            );
+            let box_area = (bx[2] - bx[0]) * (bx[3] - bx[1]) * u.cross(v).length();
+            assert!(
+                (area / box_area - share).abs() < 1e-9,
+                "{bx:?}: {}",
+                area / box_area
+            );
+        }
+    }
+}
+
+/// Sutherland–Hodgman clip of the parameter polygon `square` by the
+/// half-plane `t <= s`, with repeated corners (where a corner lies on the
+/// diagonal) dropped.
+fn clip_below_diagonal(square: &[(f64, f64); 4]) -> Vec<(f64, f64)> {
+    fn same(p: (f64, f64), q: (f64, f64)) -> bool {
+        (q.0 - p.0).abs() <= 1e-12 && (q.1 - p.1).abs() <= 1e-12
+    }
+    let inside = |p: (f64, f64)| p.1 <= p.0;
+    let mut out: Vec<(f64, f64)> = Vec::with_capacity(2 * MAX_REGION_CORNERS);
+    let mut push = |p: (f64, f64)| {
+        if !out.last().is_some_and(|&q| same(p, q)) {
+            out.push(p);
+        }
+    };
+    for i in 0..4 {
+        let (p, q) = (square[i], square[(i + 1) % 4]);
+        if inside(p) {
+            push(p);
+        }
+        if inside(p) != inside(q) {
+            let (dp, dq) = (p.1 - p.0, q.1 - q.0);
+            let f = dp / (dp - dq);
+            push((p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f));
+        }
+    }
+    while out.len() > 1 && same(out[0], out[out.len() - 1]) {
+        out.pop();
+    }
+    // A convex box cut by one line keeps at most five corners.
+    out.truncate(MAX_REGION_CORNERS);
+    out
 }
 
 /// What a solve produced.
@@ -183,11 +441,18 @@ impl ReferenceSolver {
             .enumerate()
             .map(|(p, patch)| {
                 let pose = &poses[patch.object as usize];
-                let (origin, u, v) = patch.shape.transformed(pose).frame();
+                let placed = patch.shape.transformed(pose);
+                let (origin, u, v) = placed.frame();
+                let (origin, u, v) = (dvec(origin), dvec(u), dvec(v));
                 let range = atlas.elements_of(p as u32);
                 WorldPatch {
-                    shape: Parallelogram::new(dvec(origin), dvec(u), dvec(v)),
-                    normal: dvec(u).cross(dvec(v)).normalize(),
+                    shape: if placed.is_triangle() {
+                        Primitive::triangle(origin, u, v)
+                    } else {
+                        Primitive::parallelogram(origin, u, v)
+                    },
+                    normal: u.cross(v).normalize(),
+                    centre: dvec(placed.centre()),
                     first: range.start,
                     end: range.end,
                 }
@@ -201,19 +466,32 @@ impl ReferenceSolver {
                 let (o, u, v) = (wp.shape.origin, wp.shape.u, wp.shape.v);
                 let at = |s: f64, t: f64| o + u * s + v * t;
                 let [s, t] = [f64::from(e.st[0]), f64::from(e.st[1])];
-                // Nudge toward the patch centre so a sample on an edge is
-                // unambiguously on its own patch, then off the surface.
+                // Nudge toward the patch's centroid so a sample on an edge
+                // is unambiguously on its own patch, then off the surface.
                 let sample = at(s, t);
-                let inward = (at(0.5, 0.5) - sample).normalize_or_zero();
+                let inward = (wp.centre - sample).normalize_or_zero();
                 let x = sample + inward * SURFACE_OFFSET + wp.normal * SURFACE_OFFSET;
-                let [s0, t0, s1, t1] = e.region.map(f64::from);
+                let region = if e.covers_surface() {
+                    Region::new(
+                        e.region.map(f64::from),
+                        (o, u, v),
+                        wp.shape.triangle,
+                        sample,
+                    )
+                } else {
+                    // A triangle chart's texel above the diagonal: no
+                    // surface to emit from or receive on (its value is
+                    // the point value at its sample, and dilation
+                    // replaces it).
+                    Region::new([0.0; 4], (o, u, v), true, sample)
+                };
                 let scale = f64::from(poses[e.object as usize].scale);
                 WorldElement {
                     x,
                     normal: wp.normal,
                     area: f64::from(e.area) * scale * scale,
                     patch: e.patch,
-                    region: [at(s0, t0), at(s1, t0), at(s1, t1), at(s0, t1)],
+                    region,
                     albedo: dvec(e.albedo),
                     emission: dvec(e.emission),
                 }
@@ -441,25 +719,34 @@ fn fill_row(
         }
         // Some of the receiver must be in front of the source patch ...
         let front = |y: &DVec3| patch.normal.dot(*y - patch.shape.origin) > 0.0;
-        if !ei.region.iter().any(front) && !front(&ei.x) {
+        if !ei.region.polygon().iter().any(front) && !front(&ei.x) {
             continue;
         }
-        // ... and some of the patch above the receiver's horizon.
-        let s = &patch.shape;
-        let corners = [
-            s.origin,
-            s.origin + s.u,
-            s.origin + s.u + s.v,
-            s.origin + s.v,
-        ];
-        let horizon = ei.region[0] - ei.normal * SURFACE_OFFSET;
-        if corners.iter().all(|c| ei.normal.dot(*c - horizon) <= 0.0) {
+        // ... and some of the patch (its own three or four corners) above
+        // the receiver's horizon.
+        let (corners, count) = patch.shape.corners();
+        let horizon = ei
+            .region
+            .polygon()
+            .first()
+            .copied()
+            .unwrap_or(ei.x - ei.normal * (2.0 * SURFACE_OFFSET))
+            - ei.normal * SURFACE_OFFSET;
+        if corners[..count]
+            .iter()
+            .all(|c| ei.normal.dot(*c - horizon) <= 0.0)
+        {
             continue;
         }
         for j in patch.first..patch.end {
             let ej = &elements[j];
+            if ej.region.is_empty() {
+                continue; // Stands for no surface: sends nothing.
+            }
             point_row[j] = point_to_region(ei.x, ei, ej, bvh) as f32;
-            row[j] = region_to_region(ei, ej, bvh) as f32;
+            if !ei.region.is_empty() {
+                row[j] = region_to_region(ei, ej, bvh) as f32;
+            }
         }
     }
 }
@@ -476,22 +763,6 @@ fn grid(distance: f64, size: f64) -> usize {
     }
 }
 
-/// Centre of cell `(a, b)` of a `k × k` grid on a region.
-fn grid_point(region: &[DVec3; 4], k: usize, a: usize, b: usize) -> DVec3 {
-    let [o, p, _, q] = *region;
-    o + (p - o) * ((a as f64 + 0.5) / k as f64) + (q - o) * ((b as f64 + 0.5) / k as f64)
-}
-
-fn region_size(region: &[DVec3; 4]) -> f64 {
-    (region[1] - region[0])
-        .length()
-        .max((region[3] - region[0]).length())
-}
-
-fn region_centre(region: &[DVec3; 4]) -> DVec3 {
-    (region[0] + region[2]) * 0.5
-}
-
 /// Finest integration grid per axis.
 const FINEST_GRID: usize = 4;
 
@@ -499,20 +770,20 @@ const FINEST_GRID: usize = 4;
 /// pair, so `i → j` and `j → i` integrate over the same point pairs and
 /// cast the same shadow rays.
 fn pair_grid(ei: &WorldElement, ej: &WorldElement) -> usize {
-    let distance = (region_centre(&ei.region) - region_centre(&ej.region)).length();
-    grid(
-        distance,
-        region_size(&ei.region).max(region_size(&ej.region)),
-    )
+    let distance = (ei.region.centre - ej.region.centre).length();
+    grid(distance, ei.region.size.max(ej.region.size))
 }
 
 /// Unoccluded `F(x → region j)`: zero when `x` is behind region `j`
 /// (surfaces emit from their front face only).
 fn unoccluded(x: DVec3, ei: &WorldElement, ej: &WorldElement) -> f64 {
-    if ej.normal.dot(x - ej.region[0]) <= 0.0 {
+    let Some(corner) = ej.region.polygon().first() else {
+        return 0.0;
+    };
+    if ej.normal.dot(x - *corner) <= 0.0 {
         return 0.0;
     }
-    form_factor::point_to_polygon(x, ei.normal, &ej.region)
+    form_factor::point_to_polygon(x, ei.normal, ej.region.polygon())
 }
 
 /// `F(x → region j)` with visibility, for a point `x` on element `i`.
@@ -544,44 +815,39 @@ fn region_to_region_on(ei: &WorldElement, ej: &WorldElement, k: usize, bvh: &Bvh
     let lift = ei.normal * SURFACE_OFFSET;
     let mut sum = 0.0;
     let mut partial = false;
-    for b in 0..k {
-        for a in 0..k {
-            let x = grid_point(&ei.region, k, a, b) + lift;
-            let f = unoccluded(x, ei, ej);
-            if f > 0.0 {
-                let v = visibility(x, ei, ej, k, bvh);
-                partial |= v > 0.0 && v < 1.0;
-                sum += f * v;
-            }
+    ei.region.for_each_point(k, |x, w| {
+        let x = x + lift;
+        let f = unoccluded(x, ei, ej);
+        if f > 0.0 {
+            let v = visibility(x, ei, ej, k, bvh);
+            partial |= v > 0.0 && v < 1.0;
+            sum += w * f * v;
         }
-    }
-    (sum / (k * k) as f64, partial)
+    });
+    (sum, partial)
 }
 
-/// Fraction of a `k × k` grid of points on region `j` that `x` sees.
-/// Only points above `x`'s horizon count: the form factor has already
-/// clipped the region to that hemisphere, and visibility must describe the
-/// same part of it.
+/// Fraction (by quadrature weight) of the points of a `k × k` grid on
+/// region `j` (`Region::for_each_point`) that `x` sees. Only points above `x`'s
+/// horizon count: the form factor has already clipped the region to that
+/// hemisphere, and visibility must describe the same part of it.
 fn visibility(x: DVec3, ei: &WorldElement, ej: &WorldElement, k: usize, bvh: &Bvh) -> f64 {
     let skip = [ei.patch, ej.patch];
     let lift = ej.normal * SURFACE_OFFSET;
-    let (mut seen, mut counted) = (0, 0);
-    for b in 0..k {
-        for a in 0..k {
-            let y = grid_point(&ej.region, k, a, b) + lift;
-            if ei.normal.dot(y - x) <= 0.0 {
-                continue;
-            }
-            counted += 1;
+    let (mut seen, mut counted) = (0.0, 0.0);
+    ej.region.for_each_point(k, |y, w| {
+        let y = y + lift;
+        if ei.normal.dot(y - x) > 0.0 {
+            counted += w;
             if !bvh.occluded(x, y, skip) {
-                seen += 1;
+                seen += w;
             }
         }
-    }
-    if counted == 0 {
+    });
+    if counted <= 0.0 {
         // The grid missed the sliver above the horizon; judge by its centre.
-        let y = region_centre(&ej.region) + lift;
+        let y = ej.region.centre + lift;
         return if bvh.occluded(x, y, skip) { 0.0 } else { 1.0 };
     }
-    f64::from(seen) / f64::from(counted)
+    seen / counted
 }
