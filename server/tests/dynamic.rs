@@ -187,6 +187,50 @@ fn after_a_move_matches_a_from_scratch_solve(method: Redistribution) {
     negative_light_is_small_and_never_published(&d, &atlas, &published);
 }
 
+/// [`after_move_bound`] for the mesh box. Measured on 2026-12-02
+/// (lavapipe, `cornell-dynamic.glb` x0.28, 3,450 texels of which 1,701
+/// visible non-emitting): incremental 2.13% (the quad box 1.52%, issue 15's
+/// 2% not met on the mesh), cross 3.78% (the quad box 3.86%). The bounds
+/// hold the measured values with a margin; they are not the target.
+fn mesh_after_move_bound(method: Redistribution) -> f64 {
+    match method {
+        Redistribution::Incremental => 0.03,
+        Redistribution::Cross => 0.05,
+        Redistribution::Full => 0.02,
+    }
+}
+
+/// The same contract on a triangle mesh: `cornell-dynamic.glb` (the box a
+/// glTF node of twelve triangles, the room two triangles per wall) at about
+/// the density of the quad test, moved as above, incremental and cross
+/// against one from-scratch solve at the new pose (issue 18: a mesh
+/// dynamic object converges as the quad box does; bounds in
+/// [`mesh_after_move_bound`]).
+#[test]
+fn a_mesh_box_after_a_move_matches_a_from_scratch_solve() {
+    let (scene, atlas) = common::load("meshes/cornell-dynamic.glb", 0.28);
+    assert!(scene.patches.iter().all(|p| p.shape.is_triangle()));
+    let target = box_pose(&scene, 30.0, Vec3::new(0.4, 0.0, -0.3));
+    let expected = from_scratch(&scene, &atlas, &target);
+    let errors: Vec<_> = [Redistribution::Incremental, Redistribution::Cross]
+        .into_iter()
+        .map(|method| {
+            let mut d = session(&scene, &atlas, method);
+            assert!(settle(&mut d) >= 1, "the first solve publishes");
+            d.set_poses(&target, [1]);
+            assert!(settle(&mut d) >= 1, "the move publishes");
+            let published = radiosity(&d);
+            let error = common::visible_accuracy(&scene, &atlas, &target, &published, &expected);
+            eprintln!("{method} on triangles: after a move {error}");
+            (method, error)
+        })
+        .collect();
+    for (method, error) in errors {
+        let bound = mesh_after_move_bound(method);
+        assert!(error.nrmse <= bound, "{method}: {error} (bound {bound})");
+    }
+}
+
 /// Negative light (thesis §2.2.5): redistribution shoots negative
 /// radiosity, so the GPU state may hold texels below zero where what is
 /// taken back was shot with a different discretization than what was
