@@ -133,29 +133,41 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 // One workgroup per patch: Σ A_e (|B^u_r| + |B^u_g| + |B^u_b|), the unshot
 // power. Redistribution leaves negative unshot radiosity (thesis §2.2.5),
-// which must be shot like positive, so magnitudes are summed.
+// which must be shot like positive, so magnitudes are summed. A dispatch
+// holds at most 65,535 workgroups per dimension and a mesh may have more
+// patches (one per triangle), so workgroup `w` takes patches w, w + N,
+// w + 2N, ... for N dispatched workgroups.
 @compute @workgroup_size(64)
-fn patch_power_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
-    let p = patches[wid.x];
-    var acc = 0.0;
-    for (var k = lid; k < p.count; k += WG) {
-        let idx = p.first + k;
-        let el = elements[idx];
-        if (!absent(el)) {
-            let u = abs(unshot[idx].rgb);
-            acc += (u.r + u.g + u.b) * el.position.w;
+fn patch_power_main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let n = arrayLength(&patch_power);
+    for (var q = wid.x; q < n; q += groups.x) {
+        let p = patches[q];
+        var acc = 0.0;
+        for (var k = lid; k < p.count; k += WG) {
+            let idx = p.first + k;
+            let el = elements[idx];
+            if (!absent(el)) {
+                let u = abs(unshot[idx].rgb);
+                acc += (u.r + u.g + u.b) * el.position.w;
+            }
         }
-    }
-    partial[lid] = vec3<f32>(acc, 0.0, 0.0);
-    workgroupBarrier();
-    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
-        if (lid < stride) {
-            partial[lid] += partial[lid + stride];
-        }
+        partial[lid] = vec3<f32>(acc, 0.0, 0.0);
         workgroupBarrier();
-    }
-    if (lid == 0u) {
-        patch_power[wid.x] = partial[0].x;
+        for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+            if (lid < stride) {
+                partial[lid] += partial[lid + stride];
+            }
+            workgroupBarrier();
+        }
+        if (lid == 0u) {
+            patch_power[q] = partial[0].x;
+        }
+        // `partial` is reused by the next patch.
+        workgroupBarrier();
     }
 }
 

@@ -193,3 +193,34 @@ fn triangulated_furnace_gather_every_texel_within_one_percent() {
         report.bounces
     );
 }
+
+/// A mesh has a patch per triangle, and the per-patch power reduction
+/// once dispatched one workgroup per patch: past the adapter's 65,535
+/// workgroups per dimension a 101,400-triangle mesh failed validation
+/// (`lightwire bench meshes`). Workgroups now take patches in turns; with
+/// five workgroups for the triangulated furnace's 12 patches the solver
+/// must shoot exactly what one workgroup per patch shoots.
+#[test]
+fn more_patches_than_power_workgroups_select_the_same_shooters() {
+    let (scene, _) = common::load("furnace.json", 0.5);
+    let tri = scene.triangulated();
+    let atlas = Atlas::build(&tri).unwrap_or_else(|e| panic!("furnace triangulated: {e}"));
+    let run = |max_power_workgroups: u32| {
+        let options = ProgressiveOptions {
+            max_power_workgroups,
+            ..ProgressiveOptions::default()
+        };
+        let mut solver = ProgressiveSolver::new(gpu(), &tri, &atlas, &tri.initial_poses(), options)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let report = solver.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
+        (
+            report.shots,
+            solver.radiosity().unwrap_or_else(|e| panic!("{e}")),
+        )
+    };
+    assert!(tri.patches.len() > 5);
+    let (shots, b) = run(u32::MAX);
+    let (shots_in_turns, b_in_turns) = run(5);
+    assert_eq!(shots, shots_in_turns);
+    assert_eq!(b, b_in_turns, "the same shots give the same light");
+}

@@ -113,6 +113,11 @@ pub struct ProgressiveOptions {
     /// better placed tiles, created more (BENCHMARKS.md, "Incremental
     /// redistribution with split shooter tiles").
     pub split_contacts: bool,
+    /// Most workgroups one dispatch of the per-patch power reduction uses
+    /// (clamped to the adapter's per-dimension limit, 65,535 on most); a
+    /// mesh has a patch per triangle and may have more, which the
+    /// workgroups then take in turns. Tests lower it to exercise that.
+    pub max_power_workgroups: u32,
 }
 
 impl Default for ProgressiveOptions {
@@ -127,6 +132,7 @@ impl Default for ProgressiveOptions {
             cross_tile: 4,
             back_resolution: 16,
             split_contacts: true,
+            max_power_workgroups: u32::MAX,
         }
     }
 }
@@ -172,6 +178,8 @@ pub struct ProgressiveSolver {
     options: ProgressiveOptions,
     /// Shooters per batch the item-buffer target can hold.
     batch_capacity: u32,
+    /// Workgroups one dispatch may have per dimension (the adapter's limit).
+    max_workgroups: u32,
     /// Patches in object space, their objects and their elements.
     table: PatchTable,
     /// Patches placed at the current poses.
@@ -339,6 +347,10 @@ impl ProgressiveSolver {
             queue,
             options,
             batch_capacity,
+            max_workgroups: options
+                .max_power_workgroups
+                .min(gpu.limits.max_compute_workgroups_per_dimension)
+                .max(1),
             table,
             patches,
             poses: poses.to_vec(),

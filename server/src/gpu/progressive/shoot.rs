@@ -143,7 +143,10 @@ impl ProgressiveSolver {
             let mut pass = encoder.begin_compute_pass(&Default::default());
             pass.set_pipeline(&p.patch_power.0);
             pass.set_bind_group(0, &p.patch_power.1, &[]);
-            pass.dispatch_workgroups(self.patches.len().max(1) as u32, 1, 1);
+            // At most the dispatch limit; `patch_power_main` takes the
+            // rest in turns.
+            let groups = (self.patches.len() as u32).clamp(1, self.max_workgroups);
+            pass.dispatch_workgroups(groups, 1, 1);
             pass.set_pipeline(&p.select.0);
             pass.set_bind_group(0, &p.select.1, &[]);
             pass.dispatch_workgroups(1, 1, 1);
