@@ -217,9 +217,8 @@ pub const LIGHTMAP_EXR: &str = "lightmap.exr";
 
 /// A scene at `poses` as clients see it (the wire's [`SceneInfo`]: objects
 /// with poses, materials, per surface its object-space corners as a client
-/// draws them and its chart), the input of [`scene_glb`]. The same as
-/// `service::wire::scene_info` at the initial poses, which this module may
-/// not depend on; a test checks that both give the same `scene.glb`.
+/// draws them and its chart), the input of [`scene_glb`];
+/// `service::wire::scene_info` is this at the initial poses.
 pub fn describe(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> SceneInfo {
     SceneInfo {
         id: scene.name.clone(),

@@ -10,10 +10,7 @@
 //! Nothing past this module (the solvers, `gpu/`) sees a wire type.
 
 use glam::{Quat, Vec3};
-use lightwire_protocol::{
-    DEFAULT_TILE_SIZE, ErrorCode, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat,
-    Pose as WirePose, SceneInfo, SurfaceInfo,
-};
+use lightwire_protocol::{ErrorCode, ObjectSeq, Pose as WirePose, SceneInfo};
 
 use crate::atlas::Atlas;
 use crate::scene::{Pose, Scene};
@@ -89,50 +86,16 @@ pub fn to_wire(p: &Pose) -> WirePose {
     }
 }
 
-/// Describes a scene for clients.
+/// Describes a scene for clients, its objects at their initial poses
+/// (`bake::describe`, which `scene.glb` is written from too).
 pub fn scene_info(scene: &Scene, atlas: &Atlas) -> SceneInfo {
-    SceneInfo {
-        id: scene.name.clone(),
-        atlas_width: atlas.width,
-        atlas_height: atlas.height,
-        tile_size: DEFAULT_TILE_SIZE,
-        format: PixelFormat::Rgb9e5,
-        objects: scene
-            .objects
-            .iter()
-            .map(|o| ObjectInfo {
-                name: o.name.clone(),
-                dynamic: o.dynamic,
-                pose: to_wire(&o.initial_pose),
-            })
-            .collect(),
-        materials: scene
-            .materials
-            .iter()
-            .map(|m| MaterialInfo {
-                name: m.name.clone(),
-                albedo: m.albedo.to_array(),
-                emission: m.emission.to_array(),
-            })
-            .collect(),
-        surfaces: scene
-            .patches
-            .iter()
-            .zip(&atlas.charts)
-            .map(|(p, c)| SurfaceInfo {
-                name: p.name.clone(),
-                object: p.object,
-                material: p.material,
-                corners: p.shape.quad_corners().map(|c| c.to_array()),
-                rect: [c.x, c.y, c.w, c.h],
-            })
-            .collect(),
-    }
+    crate::bake::describe(scene, atlas, &scene.initial_poses())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use lightwire_protocol::{DEFAULT_TILE_SIZE, ObjectInfo, PixelFormat};
 
     fn pose(scale: f32) -> WirePose {
         WirePose {
