@@ -247,28 +247,49 @@ fn triangle_share([s0, t0, s1, t1]: [f32; 4]) -> f32 {
     if box_area <= 0.0 {
         return 0.0;
     }
-    // Clip the box polygon by the half-plane t <= s (one Sutherland-Hodgman
-    // step) and take the shoelace area.
-    let corners = [(s0, t0), (s1, t0), (s1, t1), (s0, t1)];
-    let inside = |p: (f64, f64)| p.1 <= p.0;
-    let mut clipped: Vec<(f64, f64)> = Vec::with_capacity(5);
-    for i in 0..4 {
-        let (p, q) = (corners[i], corners[(i + 1) % 4]);
-        if inside(p) {
-            clipped.push(p);
-        }
-        if inside(p) != inside(q) {
-            // Where t - s changes sign along p -> q.
-            let f = (p.1 - p.0) / ((p.1 - p.0) - (q.1 - q.0));
-            clipped.push((p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f));
-        }
-    }
+    let clipped = clip_below_diagonal(&[(s0, t0), (s1, t0), (s1, t1), (s0, t1)]);
     let mut twice = 0.0;
     for i in 0..clipped.len() {
         let (p, q) = (clipped[i], clipped[(i + 1) % clipped.len()]);
         twice += p.0 * q.1 - q.0 * p.1;
     }
     ((twice.abs() * 0.5) / box_area).clamp(0.0, 1.0) as f32
+}
+
+/// Sutherland–Hodgman clip of the parameter polygon `square` (four
+/// corners in order) by the half-plane `t <= s` of a triangle's chart, with
+/// repeated corners (where a corner lies on the diagonal) dropped: at most
+/// five corners. The atlas's element areas and the reference solver's
+/// element regions both come from it.
+pub fn clip_below_diagonal(square: &[(f64, f64); 4]) -> Vec<(f64, f64)> {
+    fn same(p: (f64, f64), q: (f64, f64)) -> bool {
+        (q.0 - p.0).abs() <= 1e-12 && (q.1 - p.1).abs() <= 1e-12
+    }
+    let inside = |p: (f64, f64)| p.1 <= p.0;
+    let mut out: Vec<(f64, f64)> = Vec::with_capacity(8);
+    let mut push = |p: (f64, f64)| {
+        if !out.last().is_some_and(|&q| same(p, q)) {
+            out.push(p);
+        }
+    };
+    for i in 0..4 {
+        let (p, q) = (square[i], square[(i + 1) % 4]);
+        if inside(p) {
+            push(p);
+        }
+        if inside(p) != inside(q) {
+            // Where t - s changes sign along p -> q.
+            let (dp, dq) = (p.1 - p.0, q.1 - q.0);
+            let f = dp / (dp - dq);
+            push((p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f));
+        }
+    }
+    while out.len() > 1 && same(out[0], out[out.len() - 1]) {
+        out.pop();
+    }
+    // A convex box cut by one line keeps at most five corners.
+    out.truncate(5);
+    out
 }
 
 /// The span of patch parameter an element covers along one axis.

@@ -191,7 +191,7 @@ impl Region {
                 size: (p1 - p0).length().max((p3 - p0).length()),
             };
         }
-        let clipped = clip_below_diagonal(&square);
+        let clipped = crate::atlas::clip_below_diagonal(&square);
         let count = clipped.len();
         if count < 3 {
             return Region {
@@ -355,39 +355,6 @@ mod tests {
             );
         }
     }
-}
-
-/// Sutherland–Hodgman clip of the parameter polygon `square` by the
-/// half-plane `t <= s`, with repeated corners (where a corner lies on the
-/// diagonal) dropped.
-fn clip_below_diagonal(square: &[(f64, f64); 4]) -> Vec<(f64, f64)> {
-    fn same(p: (f64, f64), q: (f64, f64)) -> bool {
-        (q.0 - p.0).abs() <= 1e-12 && (q.1 - p.1).abs() <= 1e-12
-    }
-    let inside = |p: (f64, f64)| p.1 <= p.0;
-    let mut out: Vec<(f64, f64)> = Vec::with_capacity(2 * MAX_REGION_CORNERS);
-    let mut push = |p: (f64, f64)| {
-        if !out.last().is_some_and(|&q| same(p, q)) {
-            out.push(p);
-        }
-    };
-    for i in 0..4 {
-        let (p, q) = (square[i], square[(i + 1) % 4]);
-        if inside(p) {
-            push(p);
-        }
-        if inside(p) != inside(q) {
-            let (dp, dq) = (p.1 - p.0, q.1 - q.0);
-            let f = dp / (dp - dq);
-            push((p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f));
-        }
-    }
-    while out.len() > 1 && same(out[0], out[out.len() - 1]) {
-        out.pop();
-    }
-    // A convex box cut by one line keeps at most five corners.
-    out.truncate(MAX_REGION_CORNERS);
-    out
 }
 
 /// What a solve produced.
