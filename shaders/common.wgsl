@@ -43,44 +43,65 @@ fn is_cut(cut: vec3<f32>) -> bool {
     return cut.x != 0.0 || cut.y != 0.0;
 }
 
+// Running sums of a polygon clipped by a line, taken edge by edge: a convex
+// polygon clipped by a line is the kept parts of its edges plus one edge
+// along the line, from the point where its boundary leaves the kept side
+// (`exit`) to the point where it comes back (`entry`); both stay zero when
+// it does not cross. Sums over edges do not depend on their order, so no
+// list of vertices is kept: a list indexed at run time lives in memory
+// rather than registers, and on a SIMD rasterizer (lavapipe runs every
+// branch of every invocation under a mask) it cost more than the rest of
+// the receiving shader (issue 19).
+struct Clip2 {
+    // Twice the signed area (shoelace) and the first moment times six.
+    twice: f32,
+    moment: vec2<f32>,
+    exit: vec2<f32>,
+    entry: vec2<f32>,
+};
+
+fn shoelace_edge(acc: ptr<function, Clip2>, a: vec2<f32>, b: vec2<f32>) {
+    let w = a.x * b.y - b.x * a.y;
+    (*acc).twice += w;
+    (*acc).moment += (a + b) * w;
+}
+
+// Edge a -> b of the polygon, kept where cut.x x + cut.y y + cut.z >= 0.
+fn clip_edge_2d(acc: ptr<function, Clip2>, a: vec2<f32>, b: vec2<f32>, cut: vec3<f32>) {
+    let ha = dot(cut.xy, a) + cut.z;
+    let hb = dot(cut.xy, b) + cut.z;
+    let ka = ha >= 0.0;
+    let kb = hb >= 0.0;
+    // Used only where the signs differ (then ha != hb).
+    let m = a + (b - a) * (ha / (ha - hb));
+    if (ka || kb) {
+        shoelace_edge(acc, select(m, a, ka), select(m, b, kb));
+    }
+    if (ka && !kb) {
+        (*acc).exit = m;
+    }
+    if (!ka && kb) {
+        (*acc).entry = m;
+    }
+}
+
 // The share of the cell [lo, hi] of the unit square that lies on the kept
-// side of `cut` (one Sutherland-Hodgman step and the shoelace formula), in
-// .x; the centroid of that part in .yz (the cell's centre when none is).
+// side of `cut` (one clipping step and the shoelace formula), in .x; the
+// centroid of that part in .yz (the cell's centre when none is).
 fn cut_cell(lo: vec2<f32>, hi: vec2<f32>, cut: vec3<f32>) -> vec3<f32> {
-    var corners = array<vec2<f32>, 4>(lo, vec2<f32>(hi.x, lo.y), hi, vec2<f32>(lo.x, hi.y));
-    var q: array<vec2<f32>, 5>;
-    var count = 0u;
-    for (var i = 0u; i < 4u; i++) {
-        let a = corners[i];
-        let b = corners[(i + 1u) % 4u];
-        let ha = dot(cut.xy, a) + cut.z;
-        let hb = dot(cut.xy, b) + cut.z;
-        if (ha >= 0.0) {
-            q[count] = a;
-            count++;
-        }
-        if ((ha >= 0.0) != (hb >= 0.0)) {
-            q[count] = a + (b - a) * (ha / (ha - hb));
-            count++;
-        }
-    }
+    var acc = Clip2(0.0, vec2<f32>(0.0), vec2<f32>(0.0), vec2<f32>(0.0));
+    let c1 = vec2<f32>(hi.x, lo.y);
+    let c3 = vec2<f32>(lo.x, hi.y);
+    clip_edge_2d(&acc, lo, c1, cut);
+    clip_edge_2d(&acc, c1, hi, cut);
+    clip_edge_2d(&acc, hi, c3, cut);
+    clip_edge_2d(&acc, c3, lo, cut);
+    shoelace_edge(&acc, acc.exit, acc.entry);
     let full = (hi.x - lo.x) * (hi.y - lo.y);
-    if (count < 3u || full <= 0.0) {
+    if (full <= 0.0 || abs(acc.twice) <= 1e-12 * full) {
         return vec3<f32>(0.0, (lo + hi) * 0.5);
     }
-    var twice = 0.0;
-    var centroid = vec2<f32>(0.0);
-    for (var i = 0u; i < count; i++) {
-        let a = q[i];
-        let b = q[(i + 1u) % count];
-        let w = a.x * b.y - b.x * a.y;
-        twice += w;
-        centroid += (a + b) * w;
-    }
-    if (abs(twice) <= 1e-12 * full) {
-        return vec3<f32>(0.0, (lo + hi) * 0.5);
-    }
-    return vec3<f32>(abs(twice) * 0.5 / full, centroid / (3.0 * twice));
+    return vec3<f32>(abs(acc.twice) * 0.5 / full, acc.moment / (3.0 * acc.twice));
 }
 
 // Per-batch constants. Mirrors `BatchUniform` in server/src/gpu/progressive/shoot.rs.

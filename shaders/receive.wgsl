@@ -105,72 +105,89 @@ fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     return su > 0.0 && su < 1.0 && sv > 0.0 && sv < upper;
 }
 
+// Running sum of Lambert's contour integral over the edges of a region
+// clipped to a receiver's upper hemisphere, edge by edge as `Clip2` does:
+// `exit` and `entry` are where the boundary crosses the horizon plane.
+struct Contour {
+    sum: f32,
+    exit: vec3<f32>,
+    entry: vec3<f32>,
+};
+
+fn contour_edge(acc: ptr<function, Contour>, a: vec3<f32>, b: vec3<f32>, nx: vec3<f32>) {
+    let c = cross(a, b);
+    let len = length(c);
+    if (len > 1e-20) {
+        (*acc).sum += atan2(len, dot(a, b)) * dot(nx, c) / len;
+    }
+}
+
+// Edge a -> b (relative to the receiver), kept above its horizon.
+fn horizon_edge(acc: ptr<function, Contour>, a: vec3<f32>, b: vec3<f32>, nx: vec3<f32>) {
+    let da = dot(a, nx);
+    let db = dot(b, nx);
+    let ka = da >= 0.0;
+    let kb = db >= 0.0;
+    let m = a + (b - a) * (da / (da - db));
+    if (ka || kb) {
+        contour_edge(acc, select(m, a, ka), select(m, b, kb), nx);
+    }
+    if (ka && !kb) {
+        (*acc).exit = m;
+    }
+    if (!ka && kb) {
+        (*acc).entry = m;
+    }
+}
+
+// Edge a -> b of the unit square of shooter `s`, cut by `cut` (whose exit
+// and entry points are kept in `cuts`), placed relative to `x` and clipped
+// to its horizon.
+fn region_edge(acc: ptr<function, Contour>, cuts: ptr<function, Clip2>, s: Shooter, a: vec2<f32>, b: vec2<f32>, cut: vec3<f32>, x: vec3<f32>, nx: vec3<f32>) {
+    let ha = dot(cut.xy, a) + cut.z;
+    let hb = dot(cut.xy, b) + cut.z;
+    let ka = ha >= 0.0;
+    let kb = hb >= 0.0;
+    let m = a + (b - a) * (ha / (ha - hb));
+    if (ka && !kb) {
+        (*cuts).exit = m;
+    }
+    if (!ka && kb) {
+        (*cuts).entry = m;
+    }
+    if (ka || kb) {
+        let p = select(m, a, ka);
+        let q = select(m, b, kb);
+        horizon_edge(acc, s.corner.xyz + s.su.xyz * p.x + s.sv.xyz * p.y - x, s.corner.xyz + s.su.xyz * q.x + s.sv.xyz * q.y - x, nx);
+    }
+}
+
 // Exact unoccluded form factor from the point `x` (normal `nx`) to the
 // shooter's region (its parallelogram, cut by `shooter_cut` on a triangle's
 // diagonal), clipped to the upper hemisphere of `x` (Lambert's contour
 // integral; the limit of infinitely fine subdivision of eq. 2.2.7). Used
 // only where the shooter is so close that the disk approximation would
 // need more than `max_subdivision`² sub-disks, e.g. for samples on the edge
-// a wall shares with the shooting floor.
+// a wall shares with the shooting floor. The region's edges are clipped
+// twice (by the cut, then by the horizon), each clipping adding the edge
+// along its line (`Clip2`).
 fn polygon_form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
-    var unit = array<vec2<f32>, 4>(
-        vec2<f32>(0.0, 0.0),
-        vec2<f32>(1.0, 0.0),
-        vec2<f32>(1.0, 1.0),
-        vec2<f32>(0.0, 1.0),
-    );
-    let cut = shooter_cut(s);
-    let uncut = !is_cut(cut);
-    // The region's corners relative to `x`: the parallelogram cut by the
-    // diagonal (at most five).
-    var p: array<vec3<f32>, 5>;
-    var corners = 0u;
-    for (var i = 0u; i < 4u; i++) {
-        let a = unit[i];
-        let b = unit[(i + 1u) % 4u];
-        let ha = select(dot(cut.xy, a) + cut.z, 1.0, uncut);
-        let hb = select(dot(cut.xy, b) + cut.z, 1.0, uncut);
-        if (ha >= 0.0) {
-            p[corners] = s.corner.xyz + s.su.xyz * a.x + s.sv.xyz * a.y - x;
-            corners++;
-        }
-        if ((ha >= 0.0) != (hb >= 0.0)) {
-            let c = a + (b - a) * (ha / (ha - hb));
-            p[corners] = s.corner.xyz + s.su.xyz * c.x + s.sv.xyz * c.y - x;
-            corners++;
-        }
-    }
-    var q: array<vec3<f32>, 8>;
-    var count = 0u;
-    for (var i = 0u; i < corners; i++) {
-        let a = p[i];
-        let b = p[(i + 1u) % corners];
-        let da = dot(a, nx);
-        let db = dot(b, nx);
-        if (da >= 0.0) {
-            q[count] = a;
-            count++;
-        }
-        if ((da >= 0.0) != (db >= 0.0)) {
-            q[count] = a + (b - a) * (da / (da - db));
-            count++;
-        }
-    }
-    if (count < 3u) {
-        return 0.0;
-    }
-    var sum = 0.0;
-    for (var e = 0u; e < count; e++) {
-        let a = q[e];
-        let b = q[(e + 1u) % count];
-        let c = cross(a, b);
-        let len = length(c);
-        if (len <= 1e-20) {
-            continue;
-        }
-        sum += atan2(len, dot(a, b)) * dot(nx, c) / len;
-    }
-    return abs(sum) / (2.0 * PI);
+    let given = shooter_cut(s);
+    // An uncut region: a cut that keeps everything.
+    let cut = select(vec3<f32>(0.0, 0.0, 1.0), given, is_cut(given));
+    var acc = Contour(0.0, vec3<f32>(0.0), vec3<f32>(0.0));
+    var cuts = Clip2(0.0, vec2<f32>(0.0), vec2<f32>(0.0), vec2<f32>(0.0));
+    region_edge(&acc, &cuts, s, vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 0.0), cut, x, nx);
+    region_edge(&acc, &cuts, s, vec2<f32>(1.0, 0.0), vec2<f32>(1.0, 1.0), cut, x, nx);
+    region_edge(&acc, &cuts, s, vec2<f32>(1.0, 1.0), vec2<f32>(0.0, 1.0), cut, x, nx);
+    region_edge(&acc, &cuts, s, vec2<f32>(0.0, 1.0), vec2<f32>(0.0, 0.0), cut, x, nx);
+    // The cut's own edge (zero length when the cut crosses nothing).
+    let ce = cuts.exit;
+    let cn = cuts.entry;
+    horizon_edge(&acc, s.corner.xyz + s.su.xyz * ce.x + s.sv.xyz * ce.y - x, s.corner.xyz + s.su.xyz * cn.x + s.sv.xyz * cn.y - x, nx);
+    // The horizon's edge.
+    contour_edge(&acc, acc.exit, acc.entry, nx);
+    return abs(acc.sum) / (2.0 * PI);
 }
 
 // Disk-approximation form factor from shooter `s` to a receiving point `x`

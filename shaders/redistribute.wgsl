@@ -33,6 +33,12 @@
 // (rgb): taken out of the shot radiosity the next move takes back, which
 // then equals what the tile shot.
 @group(0) @binding(23) var<storage, read_write> smoothed: array<vec4<f32>>;
+// The cross projection's grid on each slot's shooter, CROSS_GRID² cells
+// per slot, row by row: xyz the centroid of the cell's part on the
+// shooter's region (world), w that part's share of the cell (0 for a cell
+// wholly above a triangle's diagonal). The same for every receiver, so
+// placed once per batch (`cross_cells` in server/src/gpu/progressive/redistribute.rs).
+@group(0) @binding(24) var<storage, read> cross_cells: array<vec4<f32>>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
 var<workgroup> partial: array<vec3<f32>, 64>;
@@ -266,42 +272,35 @@ fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
 
 // P(C, j, i) of thesis eq. 3.3.2 by the non-incremental cross projection
 // (thesis §4.5.2, Alg. 4.5 PROJECTEDRADIOSITY and REPROJECT): rays from the
-// receiver `x` through a CROSS_GRID² grid on the shooter sample the back
-// hemicube of shot radiosity; each ray's direction is corrected for the
-// hemicube's different origin with the depth found along a parallel ray.
-// A shooter cut by a triangle's diagonal (`shooter_cut`) casts rays through
-// the part of each grid cell on the triangle, weighted by its share.
-fn projected_radiosity(slot: u32, s: Shooter, x: vec3<f32>) -> vec3<f32> {
+// receiver `x` through a CROSS_GRID² grid on the shooter in `slot` sample
+// the back hemicube of shot radiosity; each ray's direction is corrected
+// for the hemicube's different origin with the depth found along a
+// parallel ray. A shooter cut by a triangle's diagonal casts rays through
+// the part of each grid cell on the triangle, weighted by its share
+// (`cross_cells`).
+fn projected_radiosity(slot: u32, x: vec3<f32>) -> vec3<f32> {
     let b = back_shooters[slot];
     var acc = vec3<f32>(0.0);
     var weight = 0.0;
-    let g = f32(CROSS_GRID);
-    let cut = shooter_cut(s);
-    let cut_shooter = is_cut(cut);
-    for (var j = 0u; j < CROSS_GRID; j++) {
-        for (var i = 0u; i < CROSS_GRID; i++) {
-            var part = vec3<f32>(1.0, (f32(i) + 0.5) / g, (f32(j) + 0.5) / g);
-            if (cut_shooter) {
-                part = cut_cell(vec2<f32>(f32(i), f32(j)) / g, vec2<f32>(f32(i + 1u), f32(j + 1u)) / g, cut);
-                if (part.x <= 0.0) {
-                    continue;
-                }
-            }
-            weight += part.x;
-            let cell = s.corner.xyz + s.su.xyz * part.y + s.sv.xyz * part.z;
-            let r = normalize(cell - x);
-            let depth = sample_back(slot, b, r).a;
-            // Nothing there (distance 0 is the cleared background): the
-            // ray leaves the scene (an open side) and carried no light to
-            // block. Reprojecting it by distance 0 would sample the
-            // direction of the cell itself, nearly in the patch's plane,
-            // and take away light that never passed.
-            if (depth <= 0.0) {
-                continue;
-            }
-            let p = cell + r * depth;
-            acc += part.x * sample_back(slot, b, p - b.eye.xyz).rgb;
+    let first = slot * CROSS_GRID * CROSS_GRID;
+    for (var c = 0u; c < CROSS_GRID * CROSS_GRID; c++) {
+        let cell = cross_cells[first + c];
+        if (cell.w <= 0.0) {
+            continue;
         }
+        weight += cell.w;
+        let r = normalize(cell.xyz - x);
+        let depth = sample_back(slot, b, r).a;
+        // Nothing there (distance 0 is the cleared background): the
+        // ray leaves the scene (an open side) and carried no light to
+        // block. Reprojecting it by distance 0 would sample the
+        // direction of the cell itself, nearly in the patch's plane,
+        // and take away light that never passed.
+        if (depth <= 0.0) {
+            continue;
+        }
+        let p = cell.xyz + r * depth;
+        acc += cell.w * sample_back(slot, b, p - b.eye.xyz).rgb;
     }
     return acc / max(weight, 1e-12);
 }
@@ -405,7 +404,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                     // R_x(C, C), eq. 3.3.1: -P(C, j', i) for the light the
                     // new position blocks, +P(C, j, i) for what the old one
                     // no longer blocks; from either side of the patch.
-                    let p = projected_radiosity(q, s, x);
+                    let p = projected_radiosity(q, x);
                     r += select(p, -p, new_pose);
                 }
                 h += r * (v * form_factor(s, x, nx));

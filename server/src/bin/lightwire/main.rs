@@ -174,6 +174,11 @@ enum BenchCommand {
         /// most this many texels per side [default: 4].
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
         cross_tile: Option<u32>,
+        /// Cross redistribution: rays per side of the grid through each
+        /// tile for the cross projection (thesis Alg. 4.5 gridSize)
+        /// [default: 4].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
+        cross_grid: Option<u32>,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
     /// Cornell boxes of about the given triangle counts, written as .glb,
@@ -271,6 +276,7 @@ fn main() -> ExitCode {
                     profile,
                     profile_clock,
                     cross_tile,
+                    cross_grid,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -282,6 +288,7 @@ fn main() -> ExitCode {
                 density_scale,
                 progressive: gpu::ProgressiveOptions {
                     cross_tile: cross_tile.unwrap_or(gpu::ProgressiveOptions::default().cross_tile),
+                    cross_grid: cross_grid.unwrap_or(gpu::ProgressiveOptions::default().cross_grid),
                     ..gpu::ProgressiveOptions::default()
                 },
                 gather: gpu::GatherOptions::default(),

@@ -10,7 +10,7 @@ use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
 /// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6 and 14, redistribute.wgsl 15-23.
+/// adds 3, 5, 6 and 14, redistribute.wgsl 15-24.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -42,6 +42,7 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const BACK: Slot = Slot::new("back", 21, Kind::Uniform);
     pub(in crate::gpu) const GATHERED: Slot = Slot::new("gathered", 22, Kind::Storage);
     pub(in crate::gpu) const SMOOTHED: Slot = Slot::new("smoothed", 23, Kind::Storage);
+    pub(in crate::gpu) const CROSS_CELLS: Slot = Slot::new("cross_cells", 24, Kind::StorageRead);
 }
 
 use slot::*;
@@ -163,6 +164,7 @@ pub(in crate::gpu) const RECONSTRUCT_DYN: Pass = Pass {
         BACK_SAMPLER,
         BACK_SHOOTERS,
         BACK,
+        CROSS_CELLS,
     ],
 };
 

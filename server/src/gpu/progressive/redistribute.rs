@@ -52,7 +52,7 @@ use glam::Vec3;
 use super::pipelines::{
     GATHER_MOVING, RECONSTRUCT_DYN, RESET_MOVING, SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
 };
-use super::shooters::contact_limit;
+use super::shooters::{contact_limit, cut_cell};
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
 use crate::gpu::hemicube::{self, FACES};
@@ -182,6 +182,9 @@ pub(in crate::gpu) struct DynamicPasses {
     rad_back: (wgpu::RenderPipeline, wgpu::BindGroup),
     back_shooters: wgpu::Buffer,
     back_batch: wgpu::Buffer,
+    /// The cross projection's grid cells of every slot (`cross_cells` in
+    /// redistribute.wgsl).
+    cross_cells: wgpu::Buffer,
     front_view: wgpu::TextureView,
     back_msaa_view: wgpu::TextureView,
     back_view: wgpu::TextureView,
@@ -236,6 +239,13 @@ impl ProgressiveSolver {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let grid = self.options.cross_grid.max(1);
+        let cross_cells = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("cross projection cells"),
+            size: u64::from(cap) * u64::from(grid * grid) * 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let back_batch = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("back batch"),
             size: std::mem::size_of::<BatchUniform>() as u64,
@@ -274,7 +284,7 @@ impl ProgressiveSolver {
             label: Some("hemicube.wgsl (radiosity)"),
             source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
         });
-        let grid = [("CROSS_GRID", f64::from(self.options.cross_grid.max(1)))];
+        let grid = [("CROSS_GRID", f64::from(grid))];
         let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
         let resources = self
             .buffers
@@ -286,7 +296,8 @@ impl ProgressiveSolver {
             .view(slot::BACK_RAD, &back_view)
             .sampler(slot::BACK_SAMPLER, &sampler)
             .buffer(slot::BACK_SHOOTERS, &back_shooters)
-            .buffer(slot::BACK, &back_batch);
+            .buffer(slot::BACK, &back_batch)
+            .buffer(slot::CROSS_CELLS, &cross_cells);
         let compute = |pass: crate::gpu::binding::Pass, constants: &[(&str, f64)]| {
             pass.compute(device, &module, constants, |s| resources.get(s))
         };
@@ -329,6 +340,7 @@ impl ProgressiveSolver {
             rad_back: (back_pipeline, back_group),
             back_shooters,
             back_batch,
+            cross_cells,
             front_view,
             back_msaa_view,
             back_view,
@@ -677,6 +689,9 @@ impl ProgressiveSolver {
                 let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.queue
                     .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&through));
+                let cells = cross_cells(&list, self.options.cross_grid.max(1));
+                self.queue
+                    .write_buffer(&d.cross_cells, 0, bytemuck::cast_slice(&cells));
                 self.queue
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
                 self.profile.stop(setup, Stage::JobSetup);
@@ -770,5 +785,82 @@ impl ProgressiveSolver {
             .write_buffer(&self.buffers.shooters, 0, bytemuck::cast_slice(shooters));
         self.queue
             .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
+    }
+}
+
+/// The cross projection's sampling grid (thesis Alg. 4.5 PROJECTEDRADIOSITY,
+/// `gridSize` = `grid`) on every shooter of a cross batch: per shooter
+/// `grid`² cells, row by row, each the centroid of the cell's part on the
+/// shooter's region (world) and that part's share of the cell in the
+/// fourth component (0 for a cell wholly above a triangle's diagonal).
+/// They are the same for every receiver, so they are placed once per batch
+/// rather than once per receiver and shooter in `projected_radiosity`.
+fn cross_cells(shooters: &[GpuShooter], grid: u32) -> Vec<[f32; 4]> {
+    let g = grid as f32;
+    let mut cells = Vec::with_capacity(shooters.len() * (grid * grid) as usize);
+    for s in shooters {
+        let corner = Vec3::from_slice(&s.corner[..3]);
+        let su = Vec3::from_slice(&s.su[..3]);
+        let sv = Vec3::from_slice(&s.sv[..3]);
+        for j in 0..grid {
+            for i in 0..grid {
+                let lo = [i as f32 / g, j as f32 / g];
+                let hi = [(i + 1) as f32 / g, (j + 1) as f32 / g];
+                let (share, [x, y]) = cut_cell(s.cut(), lo, hi);
+                cells.push(v4(corner + su * x + sv * y, share));
+            }
+        }
+    }
+    cells
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bytemuck::Zeroable;
+
+    fn shooter(cut: [f32; 3]) -> GpuShooter {
+        GpuShooter {
+            corner: [1.0, 2.0, 3.0, 0.0],
+            su: [2.0, 0.0, 0.0, 0.0],
+            sv: [0.0, 0.0, 4.0, cut[0]],
+            t1: [1.0, 0.0, 0.0, cut[1]],
+            t2: [0.0, 0.0, 1.0, cut[2]],
+            ..GpuShooter::zeroed()
+        }
+    }
+
+    /// An uncut shooter's cells are its grid's cell centres, all whole; a
+    /// shooter cut by its diagonal keeps half of the grid's area, no cell
+    /// above the diagonal, every cell's point on its kept side.
+    #[test]
+    fn cross_cells_cover_the_shooter_region() {
+        let cells = cross_cells(&[shooter([0.0; 3])], 4);
+        assert_eq!(cells.len(), 16);
+        for (c, cell) in cells.iter().enumerate() {
+            let (i, j) = ((c % 4) as f32, (c / 4) as f32);
+            let expected = [
+                1.0 + 2.0 * (i + 0.5) / 4.0,
+                2.0,
+                3.0 + 4.0 * (j + 0.5) / 4.0,
+                1.0,
+            ];
+            for k in 0..4 {
+                assert!((cell[k] - expected[k]).abs() < 1e-6, "cell {c}: {cell:?}");
+            }
+        }
+        // Kept: x - y >= 0, the half below the diagonal from (0, 0) to (1, 1).
+        let cells = cross_cells(&[shooter([1.0, -1.0, 0.0])], 4);
+        let kept: f32 = cells.iter().map(|c| c[3]).sum();
+        assert!((kept / 16.0 - 0.5).abs() < 1e-6, "{kept}");
+        for (c, cell) in cells.iter().enumerate() {
+            let (i, j) = (c % 4, c / 4);
+            if j > i {
+                assert_eq!(cell[3], 0.0, "cell {c} lies above the diagonal");
+            } else {
+                let (x, y) = ((cell[0] - 1.0) / 2.0, (cell[2] - 3.0) / 4.0);
+                assert!(x - y >= -1e-6, "cell {c}: ({x}, {y}) off the triangle");
+            }
+        }
     }
 }
