@@ -66,22 +66,37 @@ fn shoelace_edge(acc: ptr<function, Clip2>, a: vec2<f32>, b: vec2<f32>) {
     (*acc).moment += (a + b) * w;
 }
 
-// Edge a -> b of the polygon, kept where cut.x x + cut.y y + cut.z >= 0.
-fn clip_edge_2d(acc: ptr<function, Clip2>, a: vec2<f32>, b: vec2<f32>, cut: vec3<f32>) {
+// The part of an edge a clipping line keeps: from `p` to `q`, if `any`.
+struct Kept {
+    p: vec2<f32>,
+    q: vec2<f32>,
+    any: bool,
+};
+
+// Edge a -> b of a polygon clipped by the line of `cut` (kept where
+// cut.x x + cut.y y + cut.z >= 0); where the boundary leaves or comes back
+// to the kept side is noted in `acc`.
+fn clip_by_line(acc: ptr<function, Clip2>, a: vec2<f32>, b: vec2<f32>, cut: vec3<f32>) -> Kept {
     let ha = dot(cut.xy, a) + cut.z;
     let hb = dot(cut.xy, b) + cut.z;
     let ka = ha >= 0.0;
     let kb = hb >= 0.0;
     // Used only where the signs differ (then ha != hb).
     let m = a + (b - a) * (ha / (ha - hb));
-    if (ka || kb) {
-        shoelace_edge(acc, select(m, a, ka), select(m, b, kb));
-    }
     if (ka && !kb) {
         (*acc).exit = m;
     }
     if (!ka && kb) {
         (*acc).entry = m;
+    }
+    return Kept(select(m, a, ka), select(m, b, kb), ka || kb);
+}
+
+// Edge a -> b of the polygon, kept where cut.x x + cut.y y + cut.z >= 0.
+fn clip_edge_2d(acc: ptr<function, Clip2>, a: vec2<f32>, b: vec2<f32>, cut: vec3<f32>) {
+    let kept = clip_by_line(acc, a, b, cut);
+    if (kept.any) {
+        shoelace_edge(acc, kept.p, kept.q);
     }
 }
 

@@ -144,20 +144,10 @@ fn horizon_edge(acc: ptr<function, Contour>, a: vec3<f32>, b: vec3<f32>, nx: vec
 // and entry points are kept in `cuts`), placed relative to `x` and clipped
 // to its horizon.
 fn region_edge(acc: ptr<function, Contour>, cuts: ptr<function, Clip2>, s: Shooter, a: vec2<f32>, b: vec2<f32>, cut: vec3<f32>, x: vec3<f32>, nx: vec3<f32>) {
-    let ha = dot(cut.xy, a) + cut.z;
-    let hb = dot(cut.xy, b) + cut.z;
-    let ka = ha >= 0.0;
-    let kb = hb >= 0.0;
-    let m = a + (b - a) * (ha / (ha - hb));
-    if (ka && !kb) {
-        (*cuts).exit = m;
-    }
-    if (!ka && kb) {
-        (*cuts).entry = m;
-    }
-    if (ka || kb) {
-        let p = select(m, a, ka);
-        let q = select(m, b, kb);
+    let kept = clip_by_line(cuts, a, b, cut);
+    if (kept.any) {
+        let p = kept.p;
+        let q = kept.q;
         horizon_edge(acc, s.corner.xyz + s.su.xyz * p.x + s.sv.xyz * p.y - x, s.corner.xyz + s.su.xyz * q.x + s.sv.xyz * q.y - x, nx);
     }
 }
