@@ -90,14 +90,22 @@ async fn joined_state(url: &str) -> (u64, Vec<u8>, Option<u64>) {
     }
 }
 
+/// How long the solver's state must stay put to count as settled: longer
+/// than `lightwire serve`'s `settle_ms` (500 ms by default; after that much
+/// idle time it publishes its unchanged lightmap once more, as a new
+/// version, to send the texels still waiting within the encoder's error
+/// budget) plus a tick or two on a loaded machine. A shorter wait could
+/// return the version before that flush, which the viewers then leave.
+const QUIET: Duration = Duration::from_millis(1500);
+
 /// Waits until the solver's state reflects `seq` of the box and stays put
-/// for a moment; returns it.
+/// for [`QUIET`]; returns it.
 async fn settled(solver: &Proc, seq: Option<u64>) -> (u64, Vec<u8>) {
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         let (version, texels, reflected) = joined_state(&solver.ws_url()).await;
         if reflected == seq {
-            tokio::time::sleep(Duration::from_millis(400)).await;
+            tokio::time::sleep(QUIET).await;
             let (again, _, _) = joined_state(&solver.ws_url()).await;
             if again == version {
                 return (version, texels);
@@ -228,11 +236,37 @@ async fn all_viewers(
         }
         assert!(
             started.elapsed() < bound,
-            "{what}: {pending} of {} viewers still not there after {bound:?}",
-            viewers.len()
+            "{what}: {pending} of {} viewers still not there after {bound:?}; they hold {}",
+            viewers.len(),
+            census(viewers)
         );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+}
+
+/// What the viewers hold, for a failure message: how many are on which
+/// relay at which version, after how many connections.
+fn census(viewers: &[Arc<ViewerState>]) -> String {
+    let mut counts = std::collections::BTreeMap::new();
+    for v in viewers {
+        let relay = match v.relay.load(Ordering::Relaxed) {
+            usize::MAX => "none".to_string(),
+            r => r.to_string(),
+        };
+        let key = (
+            relay,
+            v.version.load(Ordering::Relaxed),
+            v.connections.load(Ordering::Relaxed),
+        );
+        *counts.entry(key).or_insert(0usize) += 1;
+    }
+    counts
+        .iter()
+        .map(|((relay, version, connections), n)| {
+            format!("{n} on relay {relay} at version {version} after {connections} connection(s)")
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn holds(v: &ViewerState, version: u64, texels: &[u8]) -> bool {
