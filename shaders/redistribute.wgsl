@@ -369,11 +369,19 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
     } else if (kind == KIND_CROSS) {
         // Slots: [0, n) new front, [n, 2n) new back, [2n, 3n) old front,
         // [3n, 4n) old back hemicubes of the same n moving elements.
+        // Slots are marked MARK_CHUNK at a time (receive.wgsl, MARK_CHUNK),
+        // here with the cross method's own tests: about half fail, since an
+        // element lies in front of either a tile's front or its back
+        // hemicube; only the marked ones pay for the form factor and the
+        // projection.
         let has_new = (batch.mode & HAS_NEW) != 0u;
         let has_old = (batch.mode & HAS_OLD) != 0u;
-        for (var k = 0u; k < n; k++) {
-            for (var side = 0u; side < 4u; side++) {
-                let q = side * n + k;
+        let slots = 4u * n;
+        for (var first = 0u; first < slots; first += MARK_CHUNK) {
+            var marked = 0u;
+            for (var b = 0u; b < min(MARK_CHUNK, slots - first); b++) {
+                let q = first + b;
+                let side = q / n;
                 let new_pose = side < 2u;
                 let front = (side & 1u) == 0u;
                 if ((new_pose && !has_new) || (!new_pose && !has_old)) {
@@ -388,10 +396,17 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                 if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
                     continue;
                 }
-                let v = visibility(q, s, d - s.eye.xyz, x, id);
-                if (v <= 0.0) {
-                    continue;
+                if (visibility(q, s, d - s.eye.xyz, x, id) > 0.0) {
+                    marked |= 1u << b;
                 }
+            }
+            while (marked != 0u) {
+                let q = first + next_marked(&marked);
+                let side = q / n;
+                let k = q % n;
+                let new_pose = side < 2u;
+                let front = (side & 1u) == 0u;
+                let s = shooters[q];
                 var r = vec3<f32>(0.0);
                 if (new_pose && front) {
                     // R_p(M, C) and R_p(M, M) with the new total radiosity.
@@ -407,7 +422,8 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                     let p = projected_radiosity(q, x);
                     r += select(p, -p, new_pose);
                 }
-                h += r * (v * form_factor(s, x, nx));
+                // Visibility is 0 or 1: a marked slot sees x.
+                h += r * form_factor(s, x, nx);
             }
         }
     }
