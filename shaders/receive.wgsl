@@ -59,23 +59,6 @@ fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, id: u32) -> f32
     return select(1.0, 0.0, crosses(shown, pose_base, s.eye.xyz, x));
 }
 
-// Shooters or slots are received from MARK_CHUNK at a time where many of
-// them do not reach an element (cross redistribution: reconstruct_dyn):
-// first a cheap pass marks the ones that do, then only the marked ones pay
-// for the form factor and what else they need. A GPU whose lanes agree
-// skips the rest either way; lavapipe runs both sides of every branch under
-// a mask, but leaves a loop once no lane is in it, so the costly part for a
-// slot that does not reach the element is skipped only by not looping over
-// it.
-const MARK_CHUNK: u32 = 32u;
-
-// The lowest marked bit of `marked`, which is cleared.
-fn next_marked(marked: ptr<function, u32>) -> u32 {
-    let b = firstTrailingBit(*marked);
-    *marked &= *marked - 1u;
-    return b;
-}
-
 // Whether patch `p`, placed by the pose set starting at `pose_base` in
 // `poses`, crosses the open segment from `a` to `b` (short of `b` by a
 // hair, so that a receiver on the patch's plane or on its edge is not

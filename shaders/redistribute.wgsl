@@ -74,6 +74,22 @@ override CROSS_GRID: u32 = 4u;
 // redistribution (`ProgressiveOptions::cross_tile`).
 override CROSS_TILE: u32 = 4u;
 
+// reconstruct_dyn takes the cross method's slots MARK_CHUNK at a time:
+// first the cheap tests and the visibility mark the slots that reach the
+// element, then only the marked ones pay for the form factor and the
+// projection. A GPU whose lanes agree skips the rest either way; lavapipe
+// runs both sides of every branch under a mask but leaves a loop once no
+// lane is in it, so an unmarked slot costs nothing only by not being
+// looped over.
+const MARK_CHUNK: u32 = 32u;
+
+// The lowest marked bit of `marked`, which is cleared.
+fn next_marked(marked: ptr<function, u32>) -> u32 {
+    let b = firstTrailingBit(*marked);
+    *marked &= *marked - 1u;
+    return b;
+}
+
 fn is_moving(el: Element) -> bool {
     return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_MOVING) != 0u;
 }
@@ -369,11 +385,8 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
     } else if (kind == KIND_CROSS) {
         // Slots: [0, n) new front, [n, 2n) new back, [2n, 3n) old front,
         // [3n, 4n) old back hemicubes of the same n moving elements.
-        // Slots are marked MARK_CHUNK at a time (receive.wgsl, MARK_CHUNK),
-        // here with the cross method's own tests: about half fail, since an
-        // element lies in front of either a tile's front or its back
-        // hemicube; only the marked ones pay for the form factor and the
-        // projection.
+        // Marked MARK_CHUNK at a time: about half fail, since an element
+        // lies in front of either a tile's front or its back hemicube.
         let has_new = (batch.mode & HAS_NEW) != 0u;
         let has_old = (batch.mode & HAS_OLD) != 0u;
         let slots = 4u * n;
