@@ -1,5 +1,6 @@
 // Required by every other file in shaders/: the shooter record, the batch
-// constants, patch ranges, object flags and the hemicube face projection.
+// constants, patch ranges, the element record, object flags and the
+// hemicube face projection.
 // Rasterization (hemicube.wgsl) and the lookup in the reconstruction
 // shaders (`visibility` in receive.wgsl) must use the very same
 // projection, so it lives here once.
@@ -212,4 +213,26 @@ fn face_of(s: Shooter, d: vec3<f32>) -> u32 {
 fn face_local(s: Shooter, face: u32, d: vec3<f32>) -> vec3<f32> {
     let m = face_axes(s, face);
     return vec3<f32>(dot(d, m[0]), dot(d, m[1]), dot(d, m[2]));
+}
+
+// One element (lightmap texel), written only by `place_elements`; its size
+// is `ELEMENT_BYTES` in server/src/gpu/placement.rs.
+struct Element {
+    // xyz: world sample position, nudged a hair towards the patch centre
+    // and off the surface (so that a sample on an edge is in front of the
+    // neighbouring wall it touches), w: area (m²).
+    position: vec4<f32>,
+    // xyz: unit normal, w: bitcast patch id.
+    normal: vec4<f32>,
+    // xyz: point used for the visibility lookup (edge samples nudged into
+    // their own patch), w: bitcast object id.
+    lookup: vec4<f32>,
+    // rgb: albedo, w: 1 if invalid (see `is_invalid`).
+    albedo: vec4<f32>,
+};
+
+// `albedo.w` of an element is 1 when it is invalid (inside or under
+// geometry, server/src/validity.rs): it receives nothing.
+fn is_invalid(el: Element) -> bool {
+    return (u32(el.albedo.w) & 1u) != 0u;
 }

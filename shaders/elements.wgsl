@@ -3,22 +3,6 @@
 // and redistribute.wgsl see them: their records, their radiosity and the
 // buffers that describe patches and objects. Shared by those two files.
 
-// One element (lightmap texel), written only by `place_elements`; its size
-// is `ELEMENT_BYTES` in server/src/gpu/placement.rs.
-struct Element {
-    // xyz: world sample position, nudged a hair towards the patch centre
-    // and off the surface (so that a sample on an edge is in front of the
-    // neighbouring wall it touches), w: area (m²).
-    position: vec4<f32>,
-    // xyz: unit normal, w: bitcast patch id.
-    normal: vec4<f32>,
-    // xyz: point used for the visibility lookup (edge samples nudged into
-    // their own patch), w: bitcast object id.
-    lookup: vec4<f32>,
-    // rgb: albedo, w: 1 if invalid (see `is_invalid`).
-    albedo: vec4<f32>,
-};
-
 // An element in its object's space, as uploaded once; `place_elements`
 // puts it in the world at the current poses.
 struct LocalElement {
@@ -49,10 +33,4 @@ const WG: u32 = 64u;
 // Whether element `el` belongs to an object removed from the simulation.
 fn absent(el: Element) -> bool {
     return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_ABSENT) != 0u;
-}
-
-// `albedo.w` of an element is 1 when it is invalid (inside or under
-// geometry, server/src/validity.rs): it receives nothing.
-fn is_invalid(el: Element) -> bool {
-    return (u32(el.albedo.w) & 1u) != 0u;
 }

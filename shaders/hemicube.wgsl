@@ -13,7 +13,8 @@
 //   vs_main/fs_main  item buffers (R32Uint): the nearest patch id.
 //   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
 //                    and the distance from the eye (Rgba16Float), for the
-//                    gathering and cross projection of thesis Alg. 4.4-4.5.
+//                    gathering and cross projection of thesis Alg. 4.4-4.5
+//                    (the gathering ones without the emission E).
 
 // One vertex of a patch's triangles (two for a quad, one for a triangle
 // patch): xyz in object space, w = bitcast
@@ -32,12 +33,18 @@ struct Vertex {
 @group(0) @binding(5) var<storage, read> unshot: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> patches: array<PatchRange>;
 @group(0) @binding(7) var<storage, read> object_flags: array<u32>;
+@group(0) @binding(8) var<storage, read> emission: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read> elements: array<Element>;
 
 // What fs_rad does with moving objects. Normally they occlude but carry no
 // shot radiosity (R_g(C, M) gathers from the static set only). With
 // Batch.mode == RAD_BACK they are left out altogether, so that a back
 // hemicube sees the static surfaces behind the moving object.
 const RAD_BACK: u32 = 0x10000u;
+// With Batch.mode == RAD_TOTAL the static surfaces carry their total
+// radiosity B instead of B^s: cross redistribution's regathering
+// (`regather_moving` in redistribute.wgsl) sees the changes the move made.
+const RAD_TOTAL: u32 = 0x20000u;
 
 fn world_position(v: Vertex, slot: u32) -> vec3<f32> {
     let objects = arrayLength(&poses) / 2u;
@@ -108,5 +115,22 @@ fn fs_rad(in: RadOut) -> @location(0) vec4<f32> {
     }
     // The element nearest to the fragment on its patch's chart.
     let e = element_at(patches[in.patch_id], in.st);
-    return vec4<f32>(radiosity[e].rgb - unshot[e].rgb, distance);
+    if (batch.mode == RAD_BACK) {
+        // The cross projection: everything the static set shot.
+        return vec4<f32>(radiosity[e].rgb - unshot[e].rgb, distance);
+    }
+    // A moving tile's gathering: reflected light only (the emitters' direct
+    // light reaches each of its texels on its own, `moving_direct` in
+    // redistribute.wgsl).
+    let reflected = radiosity[e].rgb - emission[e].rgb;
+    if (batch.mode == RAD_TOTAL && !is_invalid(elements[e])) {
+        // What the texels show. An invalid texel (under geometry, a
+        // fragment beside it may still be nearest to its sample) keeps
+        // what redistribution hands it and never shoots it, so its total
+        // holds 1,000 moves' worth of changes; it gives its shot radiosity
+        // as below. Negative light (what a move took back before it was
+        // given) is not light a surface reflects.
+        return vec4<f32>(max(reflected, vec3<f32>(0.0)), distance);
+    }
+    return vec4<f32>(reflected - unshot[e].rgb, distance);
 }

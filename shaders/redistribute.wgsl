@@ -13,7 +13,14 @@
 //   shooter_energy_dyn   the intermediate texture T for incremental batches.
 //   gather_moving        R_g(C, M): each element of M gathers the shot
 //                        radiosity of C from its front hemicube (thesis
-//                        Alg. 4.5 GATHERRADIOSITY), and fills T.
+//                        Alg. 4.5 GATHERRADIOSITY) without the emission,
+//                        takes its own direct light (`moving_direct`),
+//                        and fills T.
+//   regather_moving      after the last batch: each tile of M gathers again,
+//                        from C's total radiosity, which now holds the
+//                        shadows and light M's new position casts on C
+//                        (`regathered`; what the texels show, not what
+//                        the tiles shot).
 //   reconstruct_dyn      every element receives the batch's redistribution:
 //                        INCREMENTALRECONSTRUCTIONSHADER (Alg. 4.3) or
 //                        CROSSPROJECTIONRECONSTRUCTIONSHADER (Alg. 4.5).
@@ -26,7 +33,8 @@
 @group(0) @binding(20) var<storage, read> back_shooters: array<Shooter>;
 @group(0) @binding(21) var<uniform> back: Batch;
 // Irradiance H each element of a moving tile gathered in this move (rgb;
-// the tile's value, the same for all its texels), w = 1 once gathered.
+// the tile's value, the same for all its texels), w = 1 once gathered and
+// 2 once `smooth_moving` has added it to the element's radiosity.
 // `smooth_moving` interpolates it between tile centres.
 @group(0) @binding(22) var<storage, read_write> gathered: array<vec4<f32>>;
 // What `smooth_moving` gave an element beyond its tile's constant ρ H
@@ -39,6 +47,17 @@
 // wholly above a triangle's diagonal). The same for every receiver, so
 // placed once per batch (`cross_cells` in server/src/gpu/progressive/redistribute.rs).
 @group(0) @binding(24) var<storage, read> cross_cells: array<vec4<f32>>;
+// Irradiance H each element of a moving tile gathered again once every
+// batch of the move had run (`regather_moving`; the tile's value, w = 1
+// once gathered): the light the texels show, interpolated between tile
+// centres by `smooth_moving`.
+@group(0) @binding(25) var<storage, read_write> regathered: array<vec4<f32>>;
+// Irradiance from the emitters' emission at each element of M at its new
+// position (rgb), computed per element on the CPU (`element_direct_light`
+// in server/src/direct.rs): the front hemicubes leave emission out
+// (hemicube.wgsl), so a tile gathers only reflected light, and every
+// texel gets its own direct light instead of its tile's.
+@group(0) @binding(26) var<storage, read> moving_direct: array<vec4<f32>>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
 var<workgroup> partial: array<vec3<f32>, 64>;
@@ -102,6 +121,7 @@ fn reset_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     old_shot[e] = radiosity[e] - unshot[e] - smoothed[e];
     gathered[e] = vec4<f32>(0.0);
+    regathered[e] = vec4<f32>(0.0);
     smoothed[e] = vec4<f32>(0.0);
     radiosity[e] = emission[e];
     unshot[e] = select(vec4<f32>(0.0), emission[e], (batch.mode & RESET_UNSHOT) != 0u);
@@ -175,26 +195,13 @@ fn delta_form_factor(face: u32, px: vec2<u32>, res: u32) -> f32 {
     return max(y, 0.0) * da / (PI * d * d);
 }
 
-// One workgroup per tile of M (one shooter each; eye.w holds the bitcast
-// first element of the tile's patch and su.w its chart width): gather the
-// shot radiosity of C seen from the tile's new position (thesis Alg. 4.5
-// lines 23-27) and record it for every texel of the tile (`gathered`; the
-// texels receive B += ρ H once every tile has gathered, interpolated
-// between tile centres by `smooth_moving`, so that a face does not show
-// its tiles as bands); the tile's average uses its own H; clear their
-// unshot radiosity, since the tile shoots everything (Alg. 4.4 lines
-// 13-14); and fill T with the tile's area-weighted new total radiosity and
-// negated old shot radiosity (Alg. 4.4 line 4, GENERATESHOOTINGPATCHES with
-// the "shot" type).
-@compute @workgroup_size(64)
-fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
-    let k = wid.x;
-    let s = shooters[k];
-    let has_new = (batch.mode & HAS_NEW) != 0u;
-    let has_old = (batch.mode & HAS_OLD) != 0u;
+// The irradiance the front hemicube of slot `k` sees (zero unless
+// `present`): the workgroup's sum of its pixels by their delta form
+// factors. Call from uniform control flow.
+fn front_irradiance(k: u32, lid: u32, present: bool) -> vec3<f32> {
     let res = batch.resolution;
     var acc = vec3<f32>(0.0);
-    if (has_new) {
+    if (present) {
         let per_face = res * res;
         for (var p = lid; p < 5u * per_face; p += WG) {
             let face = p / per_face;
@@ -214,6 +221,53 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
     }
     let h = partial[0];
     workgroupBarrier();
+    return h;
+}
+
+// After the last batch of a move, one workgroup per tile of M at its new
+// position (slot k's shooter as in `gather_moving`): H seen in the front
+// hemicube of C's total radiosity (hemicube.wgsl, RAD_TOTAL), recorded for
+// every texel of the tile. `gather_moving` gathered C's shot radiosity
+// B^s, which the cross projection must use (thesis §4.5.2) but which
+// lacks what M's new position changes on C: the shadow M casts on the
+// floor beside it, the light it reflects onto the walls. A face that sees
+// the floor around it read 10-30% too bright from B^s (cornell-large, a
+// box moved 0.5 m); the total radiosity B holds those changes once every
+// batch has run. What the tiles shot stays what they gathered first, so
+// the next move's take-back is unchanged (`smooth_moving`).
+@compute @workgroup_size(64)
+fn regather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+    let k = wid.x;
+    let s = shooters[k];
+    let h = front_irradiance(k, lid, true);
+    let first_element = bitcast<u32>(s.eye.w);
+    let chart_w = bitcast<u32>(s.su.w);
+    let tw = s.tile.z - s.tile.x;
+    let count = tw * (s.tile.w - s.tile.y);
+    for (var t = lid; t < count; t += WG) {
+        let e = first_element + (s.tile.y + t / tw) * chart_w + s.tile.x + t % tw;
+        regathered[e] = vec4<f32>(h, 1.0);
+    }
+}
+
+// One workgroup per tile of M (one shooter each; eye.w holds the bitcast
+// first element of the tile's patch and su.w its chart width): gather the
+// shot radiosity of C seen from the tile's new position (thesis Alg. 4.5
+// lines 23-27) and record it for every texel of the tile (`gathered`; the
+// texels receive B += ρ H once every tile has gathered, interpolated
+// between tile centres by `smooth_moving`, so that a face does not show
+// its tiles as bands); the tile's average uses its own H; clear their
+// unshot radiosity, since the tile shoots everything (Alg. 4.4 lines
+// 13-14); and fill T with the tile's area-weighted new total radiosity and
+// negated old shot radiosity (Alg. 4.4 line 4, GENERATESHOOTINGPATCHES with
+// the "shot" type).
+@compute @workgroup_size(64)
+fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+    let k = wid.x;
+    let s = shooters[k];
+    let has_new = (batch.mode & HAS_NEW) != 0u;
+    let has_old = (batch.mode & HAS_OLD) != 0u;
+    let h = front_irradiance(k, lid, has_new);
 
     let first_element = bitcast<u32>(s.eye.w);
     let chart_w = bitcast<u32>(s.su.w);
@@ -235,7 +289,7 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
         if (has_new) {
             gathered[e] = vec4<f32>(h, 1.0);
             unshot[e] = vec4<f32>(0.0);
-            total += (radiosity[e].rgb + elements[e].albedo.rgb * h) * a;
+            total += (radiosity[e].rgb + elements[e].albedo.rgb * (h + moving_direct[e].rgb)) * a;
         }
         if (has_old) {
             old += old_shot[e].rgb * a;
@@ -486,12 +540,22 @@ fn tile_lerp(x: u32, n: u32, g: u32) -> vec2<f32> {
     return vec2<f32>(f32(i), 0.0);
 }
 
-// The gathered irradiance of the tile (i, j) of a patch (any of its
-// texels holds it) in .rgb, and in .w 1 if the tile gathered (a tile of a
+// The irradiance of the tile (i, j) of a patch (`tile_value`; any of its
+// texels holds it) in .rgb, and in .w at least 1 if the tile gathered (a tile of a
 // triangle's chart wholly above its diagonal stands for no surface and
 // never does, `begin_move`).
 fn tile_h(range: PatchRange, g: vec2<u32>, i: u32, j: u32) -> vec4<f32> {
-    return gathered[range.first + (j * range.h / g.y) * range.w + i * range.w / g.x];
+    return tile_value(range.first + (j * range.h / g.y) * range.w + i * range.w / g.x);
+}
+
+// What element `e`'s tile gathered: again from the total radiosity once
+// `regather_moving` has run, else the first time.
+fn tile_value(e: u32) -> vec4<f32> {
+    let again = regathered[e];
+    if (again.w > 0.5) {
+        return again;
+    }
+    return gathered[e];
 }
 
 // H at texel (x, y) of a patch, bilinear between the centres of the tiles
@@ -518,26 +582,41 @@ fn interpolated_h(range: PatchRange, g: vec2<u32>, x: u32, y: u32, own: vec3<f32
     return (h00.rgb * w00 + h10.rgb * w10 + h01.rgb * w01 + h11.rgb * w11) / total;
 }
 
-// After the last cross batch of a move, per element of M that gathered: B
-// += ρ H with H interpolated bilinearly between the centres of the tiles
-// around the texel on its chart. Every tile's H is the value of a point
-// (its hemicube eye) standing for the tile (thesis Alg. 4.5 gathers once
-// per reduced element), so reading it as samples at tile centres rather
-// than as a constant per tile is the same data without the steps. What
-// the tile shot (`energy`) is its constant H, so the difference is kept
-// in `smoothed` and left out of what the next move takes back: otherwise
-// every move would leave a little light behind (or take too much).
+// After the last cross batch of a move, and again after `regather_moving`,
+// per element of M that gathered: B += ρ H with H the tiles' irradiance
+// (`tile_value`),
+// interpolated bilinearly between the centres of the tiles around the
+// texel on its chart. Every tile's H is the value of a point (its
+// hemicube eye) standing for the tile (thesis Alg. 4.5 gathers once per
+// reduced element), so reading it as samples at tile centres rather than
+// as a constant per tile is the same data without the steps. What the
+// tile shot (`energy`) is its constant first-gathered H, so the
+// difference is kept in `smoothed` and left out of what the next move
+// takes back: otherwise every move would leave a little light behind (or
+// take too much).
 @compute @workgroup_size(64)
 fn smooth_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     let e = gid.x;
-    if (e >= batch.element_count || !is_moving(elements[e]) || gathered[e].w < 0.5) {
+    if (e >= batch.element_count || !is_moving(elements[e])) {
+        return;
+    }
+    let first = gathered[e];
+    if (first.w < 0.5) {
         return;
     }
     let range = patches[bitcast<u32>(elements[e].normal.w)];
     let local = e - range.first;
     let g = vec2<u32>(tile_count(range.w), tile_count(range.h));
-    let h = interpolated_h(range, g, local % range.w, local / range.w, gathered[e].rgb);
-    let extra = elements[e].albedo.rgb * (h - gathered[e].rgb);
-    radiosity[e] += vec4<f32>(elements[e].albedo.rgb * gathered[e].rgb + extra, 0.0);
+    let h = interpolated_h(range, g, local % range.w, local / range.w, tile_value(e).rgb);
+    let extra = elements[e].albedo.rgb * (h - first.rgb);
+    if (first.w > 1.5) {
+        // Smoothed before (from the first gather): replace what that added
+        // beyond the tile's constant.
+        radiosity[e] += vec4<f32>(extra - smoothed[e].rgb, 0.0);
+    } else {
+        let constant = first.rgb + moving_direct[e].rgb;
+        radiosity[e] += vec4<f32>(elements[e].albedo.rgb * constant + extra, 0.0);
+        gathered[e].w = 2.0;
+    }
     smoothed[e] = vec4<f32>(extra, 0.0);
 }

@@ -263,7 +263,6 @@ pub fn gather(
     grid: usize,
 ) -> Vec<Vec3> {
     let caster = Raycaster::with_absent(scene, poses, absent);
-    let offset = 1e-5 * caster.extent();
     let emitters = Emitters::of(scene);
     let value = |j: usize| {
         let b = radiosity[j];
@@ -273,9 +272,7 @@ pub fn gather(
         .par_iter()
         .map(|&i| {
             let e = &atlas.elements[i];
-            let pose = &poses[e.object as usize];
-            let n = pose.transform_normal(e.normal).as_dvec3();
-            let x = pose.transform_point(e.position).as_dvec3() + n * offset;
+            let (x, n) = sample_point(&caster, atlas, poses, i);
             let mut h = Vec3::ZERO;
             for d in cosine_grid(n, side) {
                 let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
@@ -293,6 +290,40 @@ pub fn gather(
             h += emitters.irradiance(&caster, atlas, x, n, grid, value);
             let material = &scene.materials[scene.patches[e.patch as usize].material as usize];
             material.emission + material.albedo * h
+        })
+        .collect()
+}
+
+/// The sample point of element `i` placed by its object's pose, a hair
+/// above its surface (so that rays leave it), and its world normal.
+fn sample_point(caster: &Raycaster, atlas: &Atlas, poses: &[Pose], i: usize) -> (DVec3, DVec3) {
+    let e = &atlas.elements[i];
+    let pose = &poses[e.object as usize];
+    let n = pose.transform_normal(e.normal).as_dvec3();
+    let x = pose.transform_point(e.position).as_dvec3() + n * (1e-5 * caster.extent());
+    (x, n)
+}
+
+/// The irradiance from the emitters' emission at the sample points of
+/// `elements` ([`Emitters::irradiance`], `grid`² samples per emitting
+/// patch) against the scene at `poses` without the objects flagged in
+/// `absent`, in parallel: the direct light of cross redistribution's
+/// moving texels, each its own, where a tile's hemicube would give them
+/// one value for all (`gpu/progressive/redistribute.rs`).
+pub fn element_direct_light(
+    scene: &Scene,
+    atlas: &Atlas,
+    (poses, absent): (&[Pose], &[bool]),
+    elements: &[usize],
+    grid: usize,
+) -> Vec<Vec3> {
+    let caster = Raycaster::with_absent(scene, poses, absent);
+    let emitters = Emitters::of(scene);
+    elements
+        .par_iter()
+        .map(|&i| {
+            let (x, n) = sample_point(&caster, atlas, poses, i);
+            emitters.irradiance(&caster, atlas, x, n, grid, |j| atlas.elements[j].emission)
         })
         .collect()
 }

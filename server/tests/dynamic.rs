@@ -72,13 +72,15 @@ fn from_scratch_with(
 /// incremental sessions split tiles too: incremental 1.52%, so its bound
 /// is issue 15's 2%; and once rays of the cross projection that leave the
 /// scene stopped blocking light (`cross_projection_blocks_what_rays_say`):
-/// cross 3.82% before the negative-light change. The cross bound holds the
-/// measured value with a margin until the method is fixed; it is not the
-/// target.
+/// cross 3.82% before the negative-light change. Measured on 2026-12-03
+/// once cross tiles gathered reflected light only, took direct light per
+/// texel and gathered again from the total radiosity after the move's
+/// batches: cross 2.89% (3.86% before). The cross bound holds the measured
+/// value with a margin until the method is fixed; it is not the target.
 fn after_move_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.02,
-        Redistribution::Cross => 0.05,
+        Redistribution::Cross => 0.035,
         Redistribution::Full => 0.02,
     }
 }
@@ -90,12 +92,16 @@ fn after_move_bound(method: Redistribution) -> f64 {
 /// incremental sessions split tiles, incremental 0.42% after the first
 /// move, worst checkpoint 3.08%, 0.11% after the last; cross 6.17% worst
 /// once escaping rays stopped blocking light, first move 3.58%, last
-/// 3.54%, before the negative-light change). That error must not grow
-/// with the number of moves is asserted separately (`last <= first + ...`).
+/// 3.54%, before the negative-light change; on 2026-12-03, with cross
+/// tiles gathering again from the total radiosity, first move 2.69%, worst
+/// checkpoint 4.60%, last 2.70% — 7.19% last while that second gather
+/// still read the total radiosity of invalid texels, which keep what every
+/// move hands them). That error must not grow with the number of moves is
+/// asserted separately (`last <= first + ...`).
 fn drift_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.05,
-        Redistribution::Cross => 0.08,
+        Redistribution::Cross => 0.06,
         Redistribution::Full => 0.02,
     }
 }
@@ -166,10 +172,29 @@ fn radiosity(d: &Session) -> Vec<Vec3> {
     d.radiosity().unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// How far the moved box's own faces may be from a from-scratch solve,
+/// over their texels above the row that stands on the floor (NRMSE, the
+/// same test). Measured on 2026-12-03: incremental 1.53%; cross 3.17%,
+/// and 6.28% before its tiles gathered reflected light only, took direct
+/// light per texel and gathered again from the total radiosity once the
+/// move's batches had run (faces that see the box's own shadow on the
+/// floor read 10-30% too bright, the lit top flat). The contact row is
+/// left out: there a texel's sample lies on the floor's plane and the
+/// from-scratch solve itself reads it at about half of the row above.
+fn moved_faces_bound(method: Redistribution) -> f64 {
+    match method {
+        Redistribution::Incremental => 0.03,
+        Redistribution::Cross => 0.04,
+        Redistribution::Full => 0.02,
+    }
+}
+
 /// After moving the box (turned 30° and shifted 0.5 m) the session's state
 /// matches a from-scratch solve at the new pose: NRMSE
 /// ([`lightwire_server::metrics::accuracy`]: area-weighted, non-emitting
-/// elements) at most 2% (cornell-large at test density).
+/// elements) within [`after_move_bound`] (cornell-large at test density),
+/// and on the box's faces above their contact row within
+/// [`moved_faces_bound`].
 fn after_a_move_matches_a_from_scratch_solve(method: Redistribution) {
     let bound = after_move_bound(method);
     let (scene, atlas) = common::load("cornell-large.json", 0.35);
@@ -184,18 +209,36 @@ fn after_a_move_matches_a_from_scratch_solve(method: Redistribution) {
     let error = common::visible_accuracy(&scene, &atlas, &target, &published, &expected);
     eprintln!("{method}: after a move {error}");
     assert!(error.nrmse <= bound, "{method}: {error} (bound {bound})");
+
+    let o = scene.object_by_name("box").expect("the scene has a box");
+    let validity = Validity::compute(&scene, &atlas, &target);
+    let keep = validity.keep();
+    let faces = accuracy_where(&atlas, &published, &expected, |i| {
+        let e = &atlas.elements[i];
+        e.object == o && keep(i) && target[o as usize].transform_point(e.position).y > 1e-3
+    })
+    .expect("the box is lit");
+    let bound = moved_faces_bound(method);
+    eprintln!("{method}: the moved box above its contact {faces}");
+    assert!(
+        faces.nrmse <= bound,
+        "{method}: box faces {faces} (bound {bound})"
+    );
     negative_light_is_small_and_never_published(&d, &atlas, &published);
 }
 
 /// [`after_move_bound`] for the mesh box. Measured on 2026-12-02
 /// (lavapipe, `cornell-dynamic.glb` x0.28, 3,450 texels of which 1,701
 /// visible non-emitting): incremental 2.13% (the quad box 1.52%, issue 15's
-/// 2% not met on the mesh), cross 3.78% (the quad box 3.86%). The bounds
-/// hold the measured values with a margin; they are not the target.
+/// 2% not met on the mesh), cross 3.78% (the quad box 3.86%); on
+/// 2026-12-03, with cross tiles gathering reflected light and again from
+/// the total radiosity, and direct light per texel: cross 2.98% (the quad
+/// box 2.89%). The bounds hold the measured values with a margin; they are
+/// not the target.
 fn mesh_after_move_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.03,
-        Redistribution::Cross => 0.05,
+        Redistribution::Cross => 0.04,
         Redistribution::Full => 0.02,
     }
 }

@@ -43,6 +43,8 @@ pub(super) mod slot {
     pub(in crate::gpu) const UNSHOT: Slot = Slot::new("unshot", 5, Kind::StorageRead);
     pub(in crate::gpu) const PATCHES: Slot = Slot::new("patches", 6, Kind::StorageRead);
     pub(in crate::gpu) const OBJECT_FLAGS: Slot = Slot::new("object_flags", 7, Kind::StorageRead);
+    pub(in crate::gpu) const EMISSION: Slot = Slot::new("emission", 8, Kind::StorageRead);
+    pub(in crate::gpu) const ELEMENTS: Slot = Slot::new("elements", 9, Kind::StorageRead);
 }
 
 /// Item buffers: the nearest patch id per pixel.
@@ -52,7 +54,8 @@ pub(super) const ITEM_BUFFERS: Pass = Pass {
 };
 
 /// Shot radiosity `B - B^u` of the static surfaces and the distance from
-/// the eye (thesis Alg. 4.4-4.5).
+/// the eye (thesis Alg. 4.4-4.5); without the emission `E` for a moving
+/// tile's gathering, which takes its direct light per texel.
 pub(super) const SHOT_RADIOSITY: Pass = Pass {
     entries: &["vs_rad", "fs_rad"],
     slots: &[
@@ -64,6 +67,8 @@ pub(super) const SHOT_RADIOSITY: Pass = Pass {
         slot::UNSHOT,
         slot::PATCHES,
         slot::OBJECT_FLAGS,
+        slot::EMISSION,
+        slot::ELEMENTS,
     ],
 };
 

@@ -10,7 +10,7 @@ use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
 /// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6 and 14, redistribute.wgsl 15-24.
+/// adds 3, 5, 6 and 14, redistribute.wgsl 15-26.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -43,6 +43,9 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const GATHERED: Slot = Slot::new("gathered", 22, Kind::Storage);
     pub(in crate::gpu) const SMOOTHED: Slot = Slot::new("smoothed", 23, Kind::Storage);
     pub(in crate::gpu) const CROSS_CELLS: Slot = Slot::new("cross_cells", 24, Kind::StorageRead);
+    pub(in crate::gpu) const REGATHERED: Slot = Slot::new("regathered", 25, Kind::Storage);
+    pub(in crate::gpu) const MOVING_DIRECT: Slot =
+        Slot::new("moving_direct", 26, Kind::StorageRead);
 }
 
 use slot::*;
@@ -102,6 +105,7 @@ pub(in crate::gpu) const RESET_MOVING: Pass = Pass {
         EMISSION,
         OLD_SHOT,
         GATHERED,
+        REGATHERED,
         SMOOTHED,
     ],
 };
@@ -128,7 +132,15 @@ pub(in crate::gpu) const GATHER_MOVING: Pass = Pass {
         OLD_SHOT,
         FRONT_RAD,
         GATHERED,
+        MOVING_DIRECT,
     ],
+};
+
+/// Cross redistribution: moving tiles gather again, from the total
+/// radiosity, once a move's batches have run.
+pub(in crate::gpu) const REGATHER_MOVING: Pass = Pass {
+    entries: &["regather_moving"],
+    slots: &[SHOOTERS, BATCH, FRONT_RAD, REGATHERED],
 };
 
 /// Cross redistribution: a moving face's light read between tile centres.
@@ -141,7 +153,9 @@ pub(in crate::gpu) const SMOOTH_MOVING: Pass = Pass {
         BATCH,
         OBJECT_FLAGS,
         GATHERED,
+        REGATHERED,
         SMOOTHED,
+        MOVING_DIRECT,
     ],
 };
 
@@ -181,10 +195,11 @@ pub(in crate::gpu) const PROGRESSIVE_PASSES: [Pass; 5] = [
 /// Every pass of the redistribution module, for the naga check in
 /// shaders.rs.
 #[cfg(test)]
-pub(in crate::gpu) const REDISTRIBUTION_PASSES: [Pass; 5] = [
+pub(in crate::gpu) const REDISTRIBUTION_PASSES: [Pass; 6] = [
     RESET_MOVING,
     SHOOTER_ENERGY_DYN,
     GATHER_MOVING,
+    REGATHER_MOVING,
     SMOOTH_MOVING,
     RECONSTRUCT_DYN,
 ];

@@ -26,12 +26,20 @@
 //!   new position blocks (the non-incremental cross projection R_x(C, C),
 //!   eq. 3.3.1, with reprojection). Each tile then shoots its new total
 //!   radiosity and its negated old shot radiosity (area-weighted averages
-//!   over its texels). After the last batch the texels of M read the
-//!   tiles' gathered irradiance as samples at the tile centres, bilinear
-//!   between them (`smooth_moving`), so faces show no bands at tile
-//!   boundaries; what that adds beyond a tile's constant is kept apart and
-//!   left out of the old shot radiosity the next move takes back, which
-//!   therefore equals what the tile shot.
+//!   over its texels). A tile's hemicube gathers reflected light only: the
+//!   emitters' direct light is computed per texel on the CPU when the move
+//!   starts ([`element_direct_light`]), so a face under a lamp falls off
+//!   towards its edges as it should instead of showing its tiles' centres.
+//!   After the last batch, and after the static texels near the move have
+//!   gathered again (`regather.rs`), every tile gathers once more, from C's
+//!   total radiosity: B^s lacks what M's new position changes on C (its
+//!   shadow on the floor beside it above all), and the faces that see it
+//!   read 10-30% too bright from B^s alone. The texels of M read these
+//!   second gathers as samples at the tile centres, bilinear between them
+//!   (`smooth_moving`), so faces show no bands at tile boundaries; what
+//!   that adds beyond what the tile shot is kept apart and left out of the
+//!   old shot radiosity the next move takes back, which therefore equals
+//!   what the tile shot.
 //!
 //! Cross projection uses C's shot radiosity B^s; it cancels exactly only
 //! while B^s of C does not change. So progressive iterations never run
@@ -50,10 +58,12 @@ use std::str::FromStr;
 use glam::Vec3;
 
 use super::pipelines::{
-    GATHER_MOVING, RECONSTRUCT_DYN, RESET_MOVING, SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
+    GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHOOTER_ENERGY_DYN,
+    SMOOTH_MOVING, slot,
 };
 use super::shooters::{contact_limit, cut_cell};
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
+use crate::direct::element_direct_light;
 use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
 use crate::gpu::hemicube::{self, FACES};
 use crate::gpu::placement::{WorldPatch, world_areas};
@@ -115,6 +125,18 @@ const HAS_OLD: u32 = 0x200;
 const RESET_UNSHOT: u32 = 0x400;
 /// `Batch.mode` of a back hemicube pass (hemicube.wgsl `RAD_BACK`).
 const RAD_BACK: u32 = 0x10000;
+/// Samples per emitting patch of the moving elements' direct light,
+/// `DIRECT_GRID`² (as regather.rs: a shadow ray each, the unoccluded form
+/// factor exact whatever the count).
+const DIRECT_GRID: usize = 8;
+/// Top-face resolution of the regathering hemicubes, at most: they see
+/// reflected light only (no emitter), which varies slowly, so a quarter of
+/// the pixels of the default 64² does; on lavapipe the pass costs about
+/// what its pixels do.
+const REGATHER_RESOLUTION: u32 = 32;
+/// `Batch.mode` of the regathering hemicubes: total radiosity of the
+/// static set (hemicube.wgsl `RAD_TOTAL`).
+const RAD_TOTAL: u32 = 0x20000;
 /// Samples per pixel of the back hemicubes: multisampling blurs them, which
 /// hides the undersampling of the cross projection (thesis §4.5.2).
 const BACK_SAMPLES: u32 = 4;
@@ -176,12 +198,16 @@ pub(in crate::gpu) struct DynamicPasses {
     reset: (wgpu::ComputePipeline, wgpu::BindGroup),
     energy: (wgpu::ComputePipeline, wgpu::BindGroup),
     gather: (wgpu::ComputePipeline, wgpu::BindGroup),
+    regather: (wgpu::ComputePipeline, wgpu::BindGroup),
     smooth: (wgpu::ComputePipeline, wgpu::BindGroup),
     reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
     rad_front: (wgpu::RenderPipeline, wgpu::BindGroup),
     rad_back: (wgpu::RenderPipeline, wgpu::BindGroup),
     back_shooters: wgpu::Buffer,
     back_batch: wgpu::Buffer,
+    /// Direct light of M's elements at their new position (`moving_direct`
+    /// in redistribute.wgsl), written per move.
+    moving_direct: wgpu::Buffer,
     /// The cross projection's grid cells of every slot (`cross_cells` in
     /// redistribute.wgsl).
     cross_cells: wgpu::Buffer,
@@ -264,6 +290,18 @@ impl ProgressiveSolver {
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
+        let regathered = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("irradiance moving tiles gathered again after a move"),
+            size: u64::from(self.element_count.max(1)) * 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let moving_direct = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("direct light of moving elements"),
+            size: u64::from(self.element_count.max(1)) * 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let smoothed = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("interpolation of moving tiles beyond their constant"),
             size: u64::from(self.element_count.max(1)) * 16,
@@ -291,6 +329,8 @@ impl ProgressiveSolver {
             .resources()
             .buffer(slot::OLD_SHOT, &old_shot)
             .buffer(slot::GATHERED, &gathered)
+            .buffer(slot::REGATHERED, &regathered)
+            .buffer(slot::MOVING_DIRECT, &moving_direct)
             .buffer(slot::SMOOTHED, &smoothed)
             .view(slot::FRONT_RAD, &front_view)
             .view(slot::BACK_RAD, &back_view)
@@ -304,6 +344,7 @@ impl ProgressiveSolver {
         let reset = compute(RESET_MOVING, &[]);
         let energy = compute(SHOOTER_ENERGY_DYN, &[]);
         let gather = compute(GATHER_MOVING, &[]);
+        let regather = compute(REGATHER_MOVING, &[]);
         let smooth = compute(SMOOTH_MOVING, &tile);
         let reconstruct = compute(RECONSTRUCT_DYN, &grid);
         // Shot radiosity hemicubes: the front ones at the batch's shooters,
@@ -334,12 +375,14 @@ impl ProgressiveSolver {
             reset,
             energy,
             gather,
+            regather,
             smooth,
             reconstruct,
             rad_front: (front_pipeline, front_group),
             rad_back: (back_pipeline, back_group),
             back_shooters,
             back_batch,
+            moving_direct,
             cross_cells,
             front_view,
             back_msaa_view,
@@ -421,6 +464,9 @@ impl ProgressiveSolver {
         self.queue
             .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
         self.dynamic_passes();
+        if method != Redistribution::Incremental {
+            self.write_moving_direct(&mv.moving);
+        }
         let mut encoder = self.device.create_command_encoder(&Default::default());
         // The reset reads the elements only for their objects, so it may
         // run after placement.
@@ -530,26 +576,26 @@ impl ProgressiveSolver {
                 // empty move, e.g. the removal of no moving objects in a
                 // static scene, gathered nothing and may come before any
                 // pass was built.)
-                let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.profile.open(&mut encoder);
-                encode_compute(
-                    &mut encoder,
-                    &d.smooth,
-                    self.element_count.div_ceil(WORKGROUP),
-                );
-                self.profile.mark(&mut encoder, Stage::Smoothing);
+                self.encode_smoothing(&mut encoder);
                 self.queue.submit([encoder.finish()]);
                 encoder = self.device.create_command_encoder(&Default::default());
-            }
-            self.write_flags(&[]);
-            if mv.method == Redistribution::Cross {
-                // Before the next shooter is chosen: what the texels near
-                // the move now reflect is unshot.
+                // What the static texels near the move now reflect is
+                // unshot (before the next shooter is chosen); then the
+                // tiles gather again from the static set as it now is,
+                // those texels included, and their texels show that.
+                self.regather(&mv.moving)?;
+                self.regather_tiles(mv, &mut encoder);
+                self.encode_smoothing(&mut encoder);
+                self.queue.submit([encoder.finish()]);
+                encoder = self.device.create_command_encoder(&Default::default());
+            } else if mv.method == Redistribution::Cross {
                 self.regather(&mv.moving)?;
             } else {
                 // Incremental reshooting reaches them (tests/dynamic.rs).
                 self.regather.clear();
             }
+            self.write_flags(&[]);
             self.profile.open(&mut encoder);
             self.encode_selection(&mut encoder);
             self.profile.mark(&mut encoder, Stage::Selection);
@@ -658,17 +704,7 @@ impl ProgressiveSolver {
                 let mut list = Vec::with_capacity(4 * count as usize);
                 let tiling = self.tiling();
                 for (placed, areas) in [(&self.patches, &self.areas), (&old_patches, &old_areas)] {
-                    let front: Vec<GpuShooter> = tiles
-                        .iter()
-                        .map(|t| {
-                            let wp = &placed[t.patch as usize];
-                            let mut s = tiling.shooter(t.patch, wp, areas, t.texels);
-                            // gather_moving walks the tile's texels.
-                            s.eye[3] = f32::from_bits(wp.first);
-                            s.su[3] = f32::from_bits(wp.w);
-                            s
-                        })
-                        .collect();
+                    let front = front_shooters(&tiling, tiles, placed, areas);
                     let back: Vec<GpuShooter> = front.iter().map(|s| self.flipped(s)).collect();
                     list.extend(front);
                     list.extend(back);
@@ -743,6 +779,110 @@ impl ProgressiveSolver {
         Ok(())
     }
 
+    /// The direct light of every valid element of the objects flagged in
+    /// `moving` that are present at the current poses, per element on the
+    /// CPU ([`element_direct_light`]), into `moving_direct` (zero for the
+    /// rest of their patches). Cross redistribution's tiles gather only
+    /// reflected light and add this per texel: a tile's hemicube gave all
+    /// its texels the direct light of its centre, and a face under a lamp
+    /// read flat where the light falls off towards its edges (the top of
+    /// cornell-large's box 4.65-4.9 everywhere against 4.1-5.0).
+    fn write_moving_direct(&self, moving: &[bool]) {
+        let present = |o: usize| moving[o] && !self.absent[o];
+        let elements: Vec<usize> = (0..self.element_count as usize)
+            .filter(|&i| {
+                present(self.element_objects[i] as usize)
+                    && !self.validity.is_invalid(i)
+                    && self.atlas.elements[i].covers_surface()
+            })
+            .collect();
+        if elements.is_empty() {
+            return;
+        }
+        let light = element_direct_light(
+            &self.scene,
+            &self.atlas,
+            (&self.poses, &self.absent),
+            &elements,
+            DIRECT_GRID,
+        );
+        let mut values = vec![[0.0f32; 4]; self.element_count as usize];
+        for (&i, h) in elements.iter().zip(light) {
+            values[i] = [h.x, h.y, h.z, 0.0];
+        }
+        let d = self.dynamic.as_ref().expect("built in begin_move");
+        for (patch, p) in self.patches.iter().enumerate() {
+            if !present(self.table.objects[patch] as usize) {
+                continue;
+            }
+            let range = p.first as usize..(p.first + p.w * p.h) as usize;
+            self.queue.write_buffer(
+                &d.moving_direct,
+                p.first as u64 * 16,
+                bytemuck::cast_slice(&values[range]),
+            );
+        }
+    }
+
+    /// Encodes `smooth_moving` (profiled as smoothing).
+    fn encode_smoothing(&self, encoder: &mut wgpu::CommandEncoder) {
+        let d = self.dynamic.as_ref().expect("built in begin_move");
+        encode_compute(encoder, &d.smooth, self.element_count.div_ceil(WORKGROUP));
+        self.profile.mark(encoder, Stage::Smoothing);
+    }
+
+    /// Encodes the regathering of a cross move's tiles at their new
+    /// positions (`regather_moving` in redistribute.wgsl): front hemicubes
+    /// of the static set's total radiosity, as many tiles per pass as the
+    /// batch holds. Tiles of objects that are absent now (a removal) have
+    /// nothing to gather. Profiled as front hemicubes and tile gather.
+    fn regather_tiles(&mut self, mv: &Move, encoder: &mut wgpu::CommandEncoder) {
+        let tiles: Vec<CrossTile> = mv
+            .tiles
+            .iter()
+            .filter(|t| !self.absent[self.table.objects[t.patch as usize] as usize])
+            .copied()
+            .collect();
+        let tiling = self.tiling();
+        let res = self
+            .options
+            .hemicube_resolution
+            .clamp(1, REGATHER_RESOLUTION);
+        let capacity = self.batch_capacity.max(1) as usize;
+        let d = self.dynamic.as_ref().expect("built in begin_move");
+        self.profile.open(encoder);
+        for chunk in tiles.chunks(capacity) {
+            let list = front_shooters(&tiling, chunk, &self.patches, &self.areas);
+            let n = list.len() as u32;
+            let mut uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, RAD_TOTAL);
+            uniform.resolution = res;
+            // Each chunk's shooters and uniform must be in place when its
+            // passes run: submit what came before first.
+            let done = std::mem::replace(
+                encoder,
+                self.device.create_command_encoder(&Default::default()),
+            );
+            self.queue.submit([done.finish()]);
+            self.upload(&list, uniform);
+            hemicube::encode(
+                encoder,
+                (&d.rad_front.0, &d.rad_front.1),
+                &hemicube::Target {
+                    view: &d.front_view,
+                    resolve: None,
+                    depth: &self.buffers.depth_view,
+                    clear: wgpu::Color::TRANSPARENT,
+                    resolution: res,
+                },
+                n,
+                self.triangle_vertices,
+            );
+            self.profile.mark(encoder, Stage::FrontHemicubes);
+            encode_compute(encoder, &d.regather, n);
+            self.profile.mark(encoder, Stage::TileGather);
+        }
+    }
+
     /// Most tiles a redistribution job's grid may be split into at
     /// contacts: one and a half times the grid within the half of the
     /// batch a job gets, or the grid itself without `split_contacts`.
@@ -786,6 +926,28 @@ impl ProgressiveSolver {
         self.queue
             .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
     }
+}
+
+/// One shooter per cross tile at the placement `placed` (areas `areas`),
+/// with what `gather_moving` and `regather_moving` need to walk the tile's
+/// texels: the bitcast first element of its patch in `eye.w`, the chart
+/// width in `su.w`.
+fn front_shooters(
+    tiling: &super::shooters::Tiling<'_>,
+    tiles: &[CrossTile],
+    placed: &[WorldPatch],
+    areas: &[f32],
+) -> Vec<GpuShooter> {
+    tiles
+        .iter()
+        .map(|t| {
+            let wp = &placed[t.patch as usize];
+            let mut s = tiling.shooter(t.patch, wp, areas, t.texels);
+            s.eye[3] = f32::from_bits(wp.first);
+            s.su[3] = f32::from_bits(wp.w);
+            s
+        })
+        .collect()
 }
 
 /// The cross projection's sampling grid (thesis Alg. 4.5 PROJECTEDRADIOSITY,
