@@ -53,10 +53,13 @@
 // centres by `smooth_moving`.
 @group(0) @binding(25) var<storage, read_write> regathered: array<vec4<f32>>;
 // Irradiance from the emitters' emission at each element of M at its new
-// position (rgb), computed per element on the CPU (`element_direct_light`
-// in server/src/direct.rs): the front hemicubes leave emission out
-// (hemicube.wgsl), so a tile gathers only reflected light, and every
-// texel gets its own direct light instead of its tile's.
+// position (rgb, w = 0), computed per element on the CPU
+// (`element_direct_light` in server/src/direct.rs): the front hemicubes
+// leave emission out (hemicube.wgsl), so a tile gathers only reflected
+// light, and every texel gets its own direct light instead of its tile's.
+// Once every batch has run, a texel at a contact holds instead the
+// radiosity it gathered on its own (w = 1, regather.rs `gather_contacts`),
+// which the second `smooth_moving` shows where it is below the tiles'.
 @group(0) @binding(26) var<storage, read> moving_direct: array<vec4<f32>>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
@@ -608,7 +611,15 @@ fn smooth_moving(@builtin(global_invocation_id) gid: vec3<u32>) {
     let local = e - range.first;
     let g = vec2<u32>(tile_count(range.w), tile_count(range.h));
     let h = interpolated_h(range, g, local % range.w, local / range.w, tile_value(e).rgb);
-    let extra = elements[e].albedo.rgb * (h - first.rgb);
+    var extra = elements[e].albedo.rgb * (h - first.rgb);
+    let own = moving_direct[e];
+    if (first.w > 1.5 && own.w > 0.5) {
+        // A texel at a contact gathered on its own (regather.rs,
+        // `gather_contacts`): it shows that where it is below the tiles'
+        // value, the rest kept apart as below.
+        let kept = radiosity[e].rgb - smoothed[e].rgb;
+        extra = min(own.rgb, kept + extra) - kept;
+    }
     if (first.w > 1.5) {
         // Smoothed before (from the first gather): replace what that added
         // beyond the tile's constant.

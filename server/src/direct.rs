@@ -272,7 +272,7 @@ pub fn gather(
         .par_iter()
         .map(|&i| {
             let e = &atlas.elements[i];
-            let (x, n) = sample_point(&caster, atlas, poses, i);
+            let (x, n) = sample_point(scene, &caster, atlas, poses, i);
             let mut h = Vec3::ZERO;
             for d in cosine_grid(n, side) {
                 let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
@@ -295,13 +295,70 @@ pub fn gather(
 }
 
 /// The sample point of element `i` placed by its object's pose, a hair
-/// above its surface (so that rays leave it), and its world normal.
-fn sample_point(caster: &Raycaster, atlas: &Atlas, poses: &[Pose], i: usize) -> (DVec3, DVec3) {
+/// above its surface (so that rays leave it) and as far towards its
+/// patch's centre, and its world normal. Edge samples lie on the patch's
+/// boundary; where another surface meets it there (a wall's bottom row on
+/// the floor's plane, a box's contact row), a ray leaving the point on
+/// that surface's plane would pass it and see nothing: the wall's bottom
+/// row read about half of what the solvers give it. Nudged inwards, the
+/// point sees the meeting surface from just beside it, the limit the
+/// texel stands for (the reference solver, the path tracer and
+/// `validity.rs` place their samples the same way).
+fn sample_point(
+    scene: &Scene,
+    caster: &Raycaster,
+    atlas: &Atlas,
+    poses: &[Pose],
+    i: usize,
+) -> (DVec3, DVec3) {
     let e = &atlas.elements[i];
     let pose = &poses[e.object as usize];
     let n = pose.transform_normal(e.normal).as_dvec3();
-    let x = pose.transform_point(e.position).as_dvec3() + n * (1e-5 * caster.extent());
-    (x, n)
+    let x = pose.transform_point(e.position).as_dvec3();
+    let centre = scene.patches[e.patch as usize]
+        .shape
+        .transformed(pose)
+        .centre()
+        .as_dvec3();
+    let inward = (centre - x).normalize_or_zero();
+    (x + (n + inward) * (1e-5 * caster.extent()), n)
+}
+
+/// Which of `elements` stand at a contact: another surface lies within
+/// half a texel of the sample point in the direction of the patch edge
+/// nearest to it (a box's row on the floor it rests on, a face pushed
+/// against a wall), against the scene at `poses` without the objects
+/// flagged in `absent`. One ray each, from the nudged sample point
+/// outwards in the patch's plane; only samples on a patch's boundary can
+/// reach another surface that close. The light of such a texel changes
+/// within the texel (the floor beside a box darkens towards it), so a
+/// value gathered for a larger tile misreads it
+/// (`gpu/progressive/redistribute.rs` gathers these per texel).
+pub fn at_contact(
+    scene: &Scene,
+    atlas: &Atlas,
+    (poses, absent): (&[Pose], &[bool]),
+    elements: &[usize],
+) -> Vec<usize> {
+    let caster = Raycaster::with_absent(scene, poses, absent);
+    elements
+        .par_iter()
+        .copied()
+        .filter(|&i| {
+            let e = &atlas.elements[i];
+            let (x, n) = sample_point(scene, &caster, atlas, poses, i);
+            let pose = &poses[e.object as usize];
+            let centre = scene.patches[e.patch as usize]
+                .shape
+                .transformed(pose)
+                .centre()
+                .as_dvec3();
+            let outward = x - centre;
+            let outward = (outward - n * outward.dot(n)).normalize_or_zero();
+            let reach = 0.5 / f64::from(scene.patches[e.patch as usize].texel_density);
+            outward != DVec3::ZERO && caster.occluded(x, outward, reach)
+        })
+        .collect()
 }
 
 /// The irradiance from the emitters' emission at the sample points of
@@ -322,7 +379,7 @@ pub fn element_direct_light(
     elements
         .par_iter()
         .map(|&i| {
-            let (x, n) = sample_point(&caster, atlas, poses, i);
+            let (x, n) = sample_point(scene, &caster, atlas, poses, i);
             emitters.irradiance(&caster, atlas, x, n, grid, |j| atlas.elements[j].emission)
         })
         .collect()

@@ -39,7 +39,9 @@
 //!   (`smooth_moving`), so faces show no bands at tile boundaries; what
 //!   that adds beyond what the tile shot is kept apart and left out of the
 //!   old shot radiosity the next move takes back, which therefore equals
-//!   what the tile shot.
+//!   what the tile shot. A texel at a contact (a box's row on the floor)
+//!   sees light change within its own footprint, which no tile value
+//!   shows: it gathers on its own too, on the CPU (`regather.rs`).
 //!
 //! Cross projection uses C's shot radiosity B^s; it cancels exactly only
 //! while B^s of C does not change. So progressive iterations never run
@@ -207,7 +209,7 @@ pub(in crate::gpu) struct DynamicPasses {
     back_batch: wgpu::Buffer,
     /// Direct light of M's elements at their new position (`moving_direct`
     /// in redistribute.wgsl), written per move.
-    moving_direct: wgpu::Buffer,
+    pub(super) moving_direct: wgpu::Buffer,
     /// The cross projection's grid cells of every slot (`cross_cells` in
     /// redistribute.wgsl).
     cross_cells: wgpu::Buffer,
@@ -584,13 +586,13 @@ impl ProgressiveSolver {
                 // unshot (before the next shooter is chosen); then the
                 // tiles gather again from the static set as it now is,
                 // those texels included, and their texels show that.
-                self.regather(&mv.moving)?;
+                self.regather(&mv.moving, true)?;
                 self.regather_tiles(mv, &mut encoder);
                 self.encode_smoothing(&mut encoder);
                 self.queue.submit([encoder.finish()]);
                 encoder = self.device.create_command_encoder(&Default::default());
             } else if mv.method == Redistribution::Cross {
-                self.regather(&mv.moving)?;
+                self.regather(&mv.moving, false)?;
             } else {
                 // Incremental reshooting reaches them (tests/dynamic.rs).
                 self.regather.clear();
