@@ -243,16 +243,32 @@ pub fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Op
     (atlas.elements[e].patch == patch).then_some(e)
 }
 
+/// How [`gather`] reads the radiosity where a ray lands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lookup {
+    /// The element whose sample is nearest to the hit point.
+    Nearest,
+    /// Bilinear between the samples around it, as a client samples the
+    /// lightmap ([`Atlas::sample`]), on parallelogram patches (a
+    /// triangle's chart reads its nearest element): for values whose
+    /// invalid texels are filled (`Validity::dilate`). Near a contact a
+    /// hemisphere sees much of one texel of the surface it touches, and
+    /// the nearest sample changes from one receiver to the next: the
+    /// contact row of a moved box read light and dark in turn.
+    Bilinear,
+}
+
 /// `B = E + ρ H` of each element of `elements`, `H` the radiosity it sees
 /// over its hemisphere in `radiosity` (one RGBA value per element), against
 /// the scene at `poses` without the objects flagged in `absent`: emitters
 /// by next-event estimation (`grid`² samples
 /// per emitting patch, a shadow ray each, [`Emitters::irradiance`]),
 /// everything else by `side`² stratified cosine-distributed rays (Malley's
-/// method, [`cosine_grid`]), each reading the element nearest to the point
-/// it hits; a back face gives nothing. Users: cross redistribution's
+/// method, [`cosine_grid`]), each reading `radiosity` where it hits as
+/// `lookup` says; a back face gives nothing. Users: cross redistribution's
 /// regathering (`gpu/progressive/regather.rs`) and the tests that check
 /// what cross projection blocks against rays.
+#[allow(clippy::too_many_arguments)]
 pub fn gather(
     scene: &Scene,
     atlas: &Atlas,
@@ -261,12 +277,29 @@ pub fn gather(
     elements: &[usize],
     side: usize,
     grid: usize,
+    lookup: Lookup,
 ) -> Vec<Vec3> {
     let caster = Raycaster::with_absent(scene, poses, absent);
     let emitters = Emitters::of(scene);
     let value = |j: usize| {
         let b = radiosity[j];
         Vec3::new(b[0], b[1], b[2])
+    };
+    let values: Vec<Vec3> = match lookup {
+        Lookup::Bilinear => (0..radiosity.len()).map(value).collect(),
+        Lookup::Nearest => Vec::new(),
+    };
+    let seen = |patch: u32, x: DVec3| -> Option<Vec3> {
+        let wp = caster.patches().get(patch as usize)?;
+        let chart = atlas.charts.get(patch as usize)?;
+        if lookup == Lookup::Bilinear && !wp.is_triangle() && chart.w >= 2 && chart.h >= 2 {
+            if wp.area.is_nan() || wp.area <= 0.0 {
+                return None;
+            }
+            let (s, t) = wp.param(x);
+            return Some(atlas.sample(&values, patch, [s as f32, t as f32]));
+        }
+        element_at(&caster, atlas, patch, x).map(value)
     };
     elements
         .par_iter()
@@ -282,8 +315,8 @@ pub fn gather(
                 if !hit.front || emitters.contains(hit.patch) {
                     continue;
                 }
-                if let Some(j) = element_at(&caster, atlas, hit.patch, hit.point) {
-                    h += value(j);
+                if let Some(b) = seen(hit.patch, hit.point) {
+                    h += b;
                 }
             }
             h /= (side * side) as f32;

@@ -29,7 +29,7 @@ use glam::Vec3;
 use super::super::device::GpuError;
 use super::super::profile::Stage;
 use super::ProgressiveSolver;
-use crate::direct::{at_contact, gather};
+use crate::direct::{Lookup, at_contact, gather};
 
 /// Cosine-distributed rays per gathering element, as a `SIDE` x `SIDE`
 /// stratified grid (`raycast::cosine_grid`).
@@ -75,11 +75,12 @@ impl ProgressiveSolver {
         };
         self.profile.stop(readback, Stage::RegatherReadback);
         let gathering = self.profile.start();
-        // What a ray sees where it lands, as published: negative light
-        // (what a move took before refinement gives it back) reads as
-        // none, and invalid texels (under or inside geometry), which hold
-        // no light of their own and would give the floor beside a box the
-        // texels under it, are filled from their valid neighbours.
+        // What a ray sees where it lands, as published and as a client
+        // reads it (bilinearly): negative light (what a move took before
+        // refinement gives it back) reads as none, and invalid texels
+        // (under or inside geometry), which hold no light of their own and
+        // would give the floor beside a box the texels under it, are
+        // filled from their valid neighbours.
         let mut seen: Vec<Vec3> = radiosity
             .iter()
             .map(|b| Vec3::new(b[0], b[1], b[2]).max(Vec3::ZERO))
@@ -94,6 +95,7 @@ impl ProgressiveSolver {
             &elements,
             SIDE,
             GRID,
+            Lookup::Bilinear,
         );
         for (&i, b) in elements.iter().zip(lit) {
             let (old, u) = (radiosity[i], unshot[i]);
@@ -166,6 +168,7 @@ impl ProgressiveSolver {
             contacts,
             SIDE,
             GRID,
+            Lookup::Bilinear,
         );
         let d = self.dynamic.as_ref().expect("built in begin_move");
         for (&i, b) in contacts.iter().zip(lit) {
