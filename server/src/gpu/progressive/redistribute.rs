@@ -781,6 +781,25 @@ impl ProgressiveSolver {
         Ok(())
     }
 
+    /// Whether object `o` is flagged in `moving` and present now.
+    fn is_present_moving(&self, moving: &[bool], o: usize) -> bool {
+        moving.get(o).copied().unwrap_or(false) && !self.absent[o]
+    }
+
+    /// The elements that take part in a move's light of their own: valid,
+    /// surface-covering elements of the objects flagged in `moving` that
+    /// are present now (their direct light, `write_moving_direct`; their
+    /// contacts, regather.rs).
+    pub(super) fn present_moving_elements(&self, moving: &[bool]) -> Vec<usize> {
+        (0..self.element_count as usize)
+            .filter(|&i| {
+                self.is_present_moving(moving, self.element_objects[i] as usize)
+                    && !self.validity.is_invalid(i)
+                    && self.atlas.elements[i].covers_surface()
+            })
+            .collect()
+    }
+
     /// The direct light of every valid element of the objects flagged in
     /// `moving` that are present at the current poses, per element on the
     /// CPU ([`element_direct_light`]), into `moving_direct` (zero for the
@@ -790,14 +809,7 @@ impl ProgressiveSolver {
     /// read flat where the light falls off towards its edges (the top of
     /// cornell-large's box 4.65-4.9 everywhere against 4.1-5.0).
     fn write_moving_direct(&self, moving: &[bool]) {
-        let present = |o: usize| moving[o] && !self.absent[o];
-        let elements: Vec<usize> = (0..self.element_count as usize)
-            .filter(|&i| {
-                present(self.element_objects[i] as usize)
-                    && !self.validity.is_invalid(i)
-                    && self.atlas.elements[i].covers_surface()
-            })
-            .collect();
+        let elements = self.present_moving_elements(moving);
         if elements.is_empty() {
             return;
         }
@@ -814,7 +826,7 @@ impl ProgressiveSolver {
         }
         let d = self.dynamic.as_ref().expect("built in begin_move");
         for (patch, p) in self.patches.iter().enumerate() {
-            if !present(self.table.objects[patch] as usize) {
+            if !self.is_present_moving(moving, self.table.objects[patch] as usize) {
                 continue;
             }
             let range = p.first as usize..(p.first + p.w * p.h) as usize;

@@ -121,14 +121,7 @@ impl ProgressiveSolver {
     /// The valid elements of the present objects flagged in `moving` that
     /// stand at a contact ([`at_contact`]).
     fn moving_contacts(&self, moving: &[bool]) -> Vec<usize> {
-        let present = |o: usize| moving.get(o).copied().unwrap_or(false) && !self.absent[o];
-        let candidates: Vec<usize> = (0..self.element_count as usize)
-            .filter(|&i| {
-                present(self.element_objects[i] as usize)
-                    && !self.validity.is_invalid(i)
-                    && self.atlas.elements[i].covers_surface()
-            })
-            .collect();
+        let candidates = self.present_moving_elements(moving);
         if candidates.is_empty() {
             return candidates;
         }
