@@ -177,6 +177,12 @@ const OBJECT_MOVING: u32 = 1u;
 // ABSENT: the object is removed from the simulation (thesis §4.5.2): it is
 // not rasterized, does not receive and does not shoot.
 const OBJECT_ABSENT: u32 = 2u;
+// PASSIVE: the object occludes and is drawn in the hemicubes, but its
+// elements neither receive nor shoot in progressive iterations: a cross
+// session's moving objects, whose light comes from each move's gathers
+// and shots (redistribute.wgsl), while the static set is refined around
+// them (server/src/gpu/dynamic.rs).
+const OBJECT_PASSIVE: u32 = 4u;
 
 
 // Right, up and forward axes of hemicube face `face` (0 = top, along the

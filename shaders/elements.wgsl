@@ -34,3 +34,9 @@ const WG: u32 = 64u;
 fn absent(el: Element) -> bool {
     return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_ABSENT) != 0u;
 }
+
+// Whether element `el` belongs to an object that occludes but neither
+// receives nor shoots in progressive iterations (common.wgsl).
+fn passive(el: Element) -> bool {
+    return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_PASSIVE) != 0u;
+}

@@ -96,8 +96,9 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     let el = elements[e];
     let id = bitcast<u32>(el.normal.w);
     // A planar patch does not see itself; an element inside or under
-    // geometry (albedo.w, server/src/validity.rs) receives nothing.
-    if (id == batch.patch_id || absent(el) || is_invalid(el)) {
+    // geometry (albedo.w, server/src/validity.rs) receives nothing, nor
+    // does one of a passive object (common.wgsl).
+    if (id == batch.patch_id || absent(el) || passive(el) || is_invalid(el)) {
         return;
     }
     let x = el.position.xyz;
@@ -150,7 +151,7 @@ fn patch_power_main(
         for (var k = lid; k < p.count; k += WG) {
             let idx = p.first + k;
             let el = elements[idx];
-            if (!absent(el)) {
+            if (!absent(el) && !passive(el)) {
                 let u = abs(unshot[idx].rgb);
                 acc += (u.r + u.g + u.b) * el.position.w;
             }

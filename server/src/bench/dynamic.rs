@@ -131,10 +131,15 @@ pub struct SceneResult {
 pub struct MethodResult {
     /// gather | progressive | incremental | cross
     pub name: String,
-    /// Median milliseconds per frame.
+    /// Median milliseconds per frame: from the new poses until the
+    /// session is idle (for cross and incremental, refinement included).
     pub ms_per_frame: f64,
     pub ms_min: f64,
     pub ms_max: f64,
+    /// Median milliseconds from the new poses to the first complete state
+    /// that reflects them, the one a viewer waits for (publication not
+    /// included); for gather, the frame.
+    pub ms_to_state: f64,
     pub frames: usize,
     /// NRMSE of the last frame against the reference: area-weighted, over
     /// the non-emitting elements ([`crate::metrics::accuracy`]).
@@ -447,6 +452,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             ms_per_frame: median,
             ms_min: min,
             ms_max: max,
+            ms_to_state: median,
             frames: times.len(),
             nrmse,
             p95_rel,
@@ -480,13 +486,15 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             p.publish(&session, &atlas, &Profiler::disabled())?;
         }
         let mut times = Vec::new();
+        let mut to_state = Vec::new();
         let mut profiles = Vec::new();
         for frame in 1..=frames {
             profiler.begin_frame();
             let started = Instant::now();
             session.set_poses(&pose_at(frame), frame);
-            settle(&mut session)?;
+            let first = settle(&mut session)?;
             times.push(started.elapsed());
+            to_state.push(first.unwrap_or_else(|| started.elapsed()));
             if let Some(p) = &mut publication {
                 p.publish(&session, &atlas, &profiler)?;
             }
@@ -497,13 +505,17 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             .map(|clock| MethodProfile::new(clock, &profiles));
         let values = session.radiosity()?;
         let (median, min, max) = median_ms(&mut times);
-        eprintln!("  {name}: median {median:.1} ms per frame");
+        let (state_median, _, _) = median_ms(&mut to_state);
+        eprintln!(
+            "  {name}: median {median:.1} ms per frame, {state_median:.1} ms to the first state"
+        );
         let (nrmse, p95_rel) = judge(&values, &expected, &visible_last);
         methods.push(MethodResult {
             name: name.into(),
             ms_per_frame: median,
             ms_min: min,
             ms_max: max,
+            ms_to_state: state_median,
             frames: times.len(),
             nrmse,
             p95_rel,
@@ -521,10 +533,15 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
     })
 }
 
-/// Runs the session until it is idle.
-fn settle(session: &mut DynamicSolver<u32>) -> Result<()> {
+/// Runs the session until it is idle; returns how long it took to the
+/// first completed state, if there was one.
+fn settle(session: &mut DynamicSolver<u32>) -> Result<Option<Duration>> {
+    let started = Instant::now();
+    let mut first = None;
     while !session.is_idle() {
-        session.step(Duration::from_millis(100))?;
+        if session.step(Duration::from_millis(100))?.completed && first.is_none() {
+            first = Some(started.elapsed());
+        }
     }
-    Ok(())
+    Ok(first)
 }

@@ -78,12 +78,12 @@ pub enum Unit {
     /// Following new poses: a redistribution, or for the full method a new
     /// solver.
     Move,
-    /// Cross: the moving objects removed before refinement (thesis §4.5.2).
-    Removal,
-    /// Progressive refinement rounds (after a full or incremental move, or
-    /// of the static scene between a cross removal and insertion).
+    /// Progressive refinement rounds (after a full or incremental move; for
+    /// cross, of the static set around the passive moving objects, and its
+    /// first solve without them).
     Refinement,
-    /// Cross: the moving objects inserted again after refinement.
+    /// Cross: the moving objects inserted after the static set's first
+    /// solve.
     Insertion,
     /// What the service does with a completed state: read it back and
     /// encode the lightmap delta.
@@ -92,9 +92,8 @@ pub enum Unit {
 
 impl Unit {
     /// Every unit, in report order.
-    pub const ALL: [Unit; 5] = [
+    pub const ALL: [Unit; 4] = [
         Self::Move,
-        Self::Removal,
         Self::Refinement,
         Self::Insertion,
         Self::Publication,
@@ -104,7 +103,6 @@ impl Unit {
     pub fn name(self) -> &'static str {
         match self {
             Self::Move => "move",
-            Self::Removal => "removal",
             Self::Refinement => "refinement",
             Self::Insertion => "insertion",
             Self::Publication => "publication",
@@ -611,10 +609,7 @@ mod tests {
             ]
         );
         let units: Vec<&str> = Unit::ALL.iter().map(|u| u.name()).collect();
-        assert_eq!(
-            units,
-            ["move", "removal", "refinement", "insertion", "publication"]
-        );
+        assert_eq!(units, ["move", "refinement", "insertion", "publication"]);
         let mut distinct = stages.clone();
         distinct.sort_unstable();
         distinct.dedup();

@@ -203,6 +203,9 @@ pub struct ProgressiveSolver {
     atlas: Atlas,
     /// Objects removed from the simulation (thesis §4.5.2).
     absent: Vec<bool>,
+    /// Objects that occlude but neither receive nor shoot in progressive
+    /// iterations ([`ProgressiveSolver::set_passive`]).
+    passive: Vec<bool>,
     /// Element areas at scale 1 and their objects, for shooter areas.
     local_areas: Vec<f32>,
     element_objects: Vec<u32>,
@@ -363,6 +366,7 @@ impl ProgressiveSolver {
             regather: Vec::new(),
             scene: scene.clone(),
             atlas: atlas.clone(),
+            passive: vec![false; absent.len()],
             absent,
             local_areas,
             element_objects,
@@ -426,11 +430,34 @@ impl ProgressiveSolver {
                 if self.absent.get(o).copied().unwrap_or(false) {
                     f |= 2;
                 }
+                if self.passive.get(o).copied().unwrap_or(false) {
+                    f |= 4;
+                }
                 f
             })
             .collect();
         self.queue
             .write_buffer(&self.buffers.flags, 0, bytemuck::cast_slice(&flags));
+    }
+
+    /// Makes the objects flagged in `passive` occlude without taking part
+    /// in progressive iterations: their elements neither receive nor shoot,
+    /// and their unshot radiosity is not counted (`OBJECT_PASSIVE`,
+    /// common.wgsl). Cross redistribution lights its moving objects by
+    /// each move's gathers and shoots their light in the move; refinement
+    /// between moves then shoots the static set's unshot light (what the
+    /// last move deposited: the objects' reflection and shadows) with the
+    /// objects in place as occluders (`DynamicSolver`). Call between moves.
+    pub fn set_passive(&mut self, passive: &[bool]) -> Result<(), GpuError> {
+        self.passive = (0..self.absent.len())
+            .map(|o| passive.get(o).copied().unwrap_or(false))
+            .collect();
+        self.write_flags(&[]);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        self.encode_selection(&mut encoder);
+        self.queue.submit([encoder.finish()]);
+        self.selection = self.read_selection()?;
+        Ok(())
     }
 
     /// Places every element at the current poses (`place_elements`).

@@ -23,6 +23,19 @@
 //! every change of `B` is in progressive refinement (thesis §2.2.5): what
 //! the element passes on always matches what it holds, whatever the moves
 //! handed it before.
+//!
+//! Every re-tested static element that is invalid goes to `B = 0` the same
+//! way, its change added to its unshot radiosity. An element a box now
+//! covers thereby takes back, once refinement shoots it, the light it had
+//! reflected while it was uncovered; one that was covered all along holds
+//! nothing to take back. Without this, the cross projection's shadows left
+//! the texels under a box at about -2.9 where the floor beside it reads
+//! +2.5 (a texel under the box is behind it for light from either side),
+//! and refinement shot that as negative light: on cornell-low at a third
+//! of its density the texels under the box held -11.8 W (channels summed)
+//! of unshot power that they had never received, and refining with the
+//! box in place left the room 3.3% darker than a from-scratch solve
+//! instead of 1.2%.
 
 use glam::Vec3;
 
@@ -39,7 +52,8 @@ const GRID: usize = 8;
 
 impl ProgressiveSolver {
     /// Gathers the light of the valid elements re-tested since the last
-    /// cross move completed (see the module documentation), except those
+    /// cross move completed and zeroes the invalid ones (see the module
+    /// documentation), except those
     /// of the objects flagged in `moving`: cross redistribution relights
     /// those itself and keeps its own account of what they shot. With
     /// `contacts`, the elements of `moving` that stand at a contact
@@ -52,9 +66,17 @@ impl ProgressiveSolver {
         elements.sort_unstable();
         elements.dedup();
         elements.retain(|&i| {
-            let object = self.element_objects[i] as usize;
-            !self.validity.is_invalid(i) && !moving.get(object).copied().unwrap_or(false)
+            !moving
+                .get(self.element_objects[i] as usize)
+                .copied()
+                .unwrap_or(false)
         });
+        // Invalid elements hold no light: they go to zero, and what they
+        // held goes to their unshot radiosity like any other change (see
+        // the module documentation).
+        let (covered, elements): (Vec<usize>, Vec<usize>) = elements
+            .into_iter()
+            .partition(|&i| self.validity.is_invalid(i));
         let gathering = self.profile.start();
         let contacts = if contacts {
             self.moving_contacts(moving)
@@ -62,13 +84,13 @@ impl ProgressiveSolver {
             Vec::new()
         };
         self.profile.stop(gathering, Stage::Regather);
-        if elements.is_empty() && contacts.is_empty() {
+        if elements.is_empty() && covered.is_empty() && contacts.is_empty() {
             return Ok(());
         }
         self.profile.sync();
         let readback = self.profile.start();
         let radiosity = self.read_vec4(&self.buffers.radiosity)?;
-        let unshot = if elements.is_empty() {
+        let unshot = if elements.is_empty() && covered.is_empty() {
             Vec::new()
         } else {
             self.read_vec4(&self.buffers.unshot)?
@@ -97,7 +119,12 @@ impl ProgressiveSolver {
             GRID,
             Lookup::Bilinear,
         );
-        for (&i, b) in elements.iter().zip(lit) {
+        let zero = std::iter::repeat_n(Vec3::ZERO, covered.len());
+        for (&i, b) in elements
+            .iter()
+            .chain(&covered)
+            .zip(lit.into_iter().chain(zero))
+        {
             let (old, u) = (radiosity[i], unshot[i]);
             let delta = b - Vec3::new(old[0], old[1], old[2]);
             let offset = i as u64 * 16;
