@@ -453,6 +453,11 @@ impl ProgressiveSolver {
             .map(|o| passive.get(o).copied().unwrap_or(false))
             .collect();
         self.write_flags(&[]);
+        self.reselect()
+    }
+
+    /// Selects the next shooter anew from the current unshot radiosity.
+    fn reselect(&mut self) -> Result<(), GpuError> {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         self.encode_selection(&mut encoder);
         self.queue.submit([encoder.finish()]);
@@ -653,11 +658,7 @@ impl ProgressiveSolver {
             self.queue
                 .write_buffer(&self.buffers.unshot, 0, bytemuck::cast_slice(&u));
         }
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        self.encode_selection(&mut encoder);
-        self.queue.submit([encoder.finish()]);
-        self.selection = self.read_selection()?;
-        Ok(())
+        self.reselect()
     }
 
     /// Radiosity B per element (W/m² per channel), direct light included.
