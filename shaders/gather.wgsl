@@ -80,6 +80,11 @@ struct GatherElement {
 @group(0) @binding(10) var<storage, read_write> irradiance: array<vec4<f32>>;
 // x: Σ change over all elements.
 @group(0) @binding(11) var<storage, read_write> totals: vec4<f32>;
+// Per element: whose light it shows, itself or, for an invalid texel
+// (under or inside geometry), its nearest valid neighbour
+// (server/src/validity.rs, `Validity::donors`): the part of its region
+// beside the geometry is lit, the rest hidden by the geometry itself.
+@group(0) @binding(12) var<storage, read> donors: array<u32>;
 
 struct HemicubeOut {
     @builtin(position) clip: vec4<f32>,
@@ -124,7 +129,7 @@ fn fs_gather(in: HemicubeOut) -> @location(0) vec4<f32> {
     if (in.front == 0u) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
-    let k = element_at(patches[in.patch_id], in.st);
+    let k = donors[element_at(patches[in.patch_id], in.st)];
     return vec4<f32>(radiosity[k].rgb, 1.0);
 }
 

@@ -18,6 +18,13 @@
 //! - **Exclusion**: the GPU solver neither lets invalid elements receive
 //!   nor shoot (their area and power leave the solve), and the accuracy
 //!   metric leaves them out ([`Validity::keep`]).
+//! - **Sending** ([`Validity::donors`]): in the reference and the gather
+//!   solver (and so in the progressive solver's gathered corrections) an
+//!   invalid element sends its nearest valid neighbour's light, since the
+//!   part of its region beside the geometry is lit surface and the rest
+//!   is hidden. Progressive shooting does not: a shooter's one hemicube
+//!   eye cannot hide the part under the block, so it would send that
+//!   part's light into the room.
 //! - **Filling** ([`Validity::dilate`]): after every solve or publication,
 //!   each invalid texel takes the mean of its valid 8-neighbours in its own
 //!   chart, ring by ring inwards, so that bilinear filtering next to a
@@ -140,6 +147,65 @@ impl Validity {
     /// valid elements.
     pub fn keep(&self) -> impl Fn(usize) -> bool + '_ {
         move |i| !self.is_invalid(i)
+    }
+
+    /// For every element, the element whose light it shows in a solve:
+    /// itself when valid, the nearest valid element of its chart (in texel
+    /// steps; the lower index on a tie) when invalid, itself again when its
+    /// chart has none.
+    ///
+    /// A texel whose sample lies under a block still stands for a region
+    /// that reaches past the block's edge, by up to a texel, and that part
+    /// is floor in the light: as a sender it must show what the floor
+    /// beside the block shows, not its own (dark) value, while the rest of
+    /// its region is hidden by the block from every receiver anyway. Sent
+    /// dark, it paints a strip beside every contact black, which the side
+    /// of the block sees over half its hemisphere at the contact: on
+    /// cornell-large with its floor cut into triangles, whose texels fall
+    /// differently against the box, the box's bottom row read 60% darker
+    /// than with the quad floor (reference solver and GPU solvers alike).
+    pub fn donors(&self, atlas: &Atlas) -> Vec<u32> {
+        let n = self.invalid.len().min(atlas.elements.len());
+        (0..n)
+            .map(|i| {
+                if !self.invalid[i] {
+                    return i as u32;
+                }
+                let e = &atlas.elements[i];
+                let chart = atlas.charts[e.patch as usize];
+                let first = atlas.patch_elements[e.patch as usize] as usize;
+                let (a, b) = ((e.texel[0] - chart.x) as i64, (e.texel[1] - chart.y) as i64);
+                let (w, h) = (i64::from(chart.w), i64::from(chart.h));
+                // Ring r holds the texels at Chebyshev distance r; the
+                // nearest valid one by Euclidean distance lies within the
+                // first ring that has one, or the next (r √2 > r + 1 from
+                // r = 3 on, so two more rings always suffice).
+                let mut best: Option<(i64, usize)> = None;
+                for r in 1..w.max(h) {
+                    if let Some((d, _)) = best
+                        && d < r * r
+                    {
+                        break;
+                    }
+                    for y in (b - r).max(0)..=(b + r).min(h - 1) {
+                        for x in (a - r).max(0)..=(a + r).min(w - 1) {
+                            if (x - a).abs().max((y - b).abs()) != r {
+                                continue;
+                            }
+                            let j = first + (y * w + x) as usize;
+                            if self.invalid[j] {
+                                continue;
+                            }
+                            let d = (x - a).pow(2) + (y - b).pow(2);
+                            if best.is_none_or(|(bd, bj)| (d, j) < (bd, bj)) {
+                                best = Some((d, j));
+                            }
+                        }
+                    }
+                }
+                best.map_or(i as u32, |(_, j)| j as u32)
+            })
+            .collect()
     }
 
     /// Fills every invalid element of `values` (indexed like
@@ -345,5 +411,54 @@ mod tests {
                 assert_eq!(graded[i], before[i]);
             }
         }
+    }
+
+    #[test]
+    fn an_invalid_texel_sends_its_nearest_valid_neighbours_light() {
+        let scene = Scene::parse(BLOCK, "contact").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let poses = scene.initial_poses();
+        let v = Validity::compute(&scene, &atlas, &poses);
+        let donors = v.donors(&atlas);
+        assert_eq!(donors.len(), atlas.elements.len());
+        let texel = |i: usize| {
+            let e = &atlas.elements[i];
+            (i64::from(e.texel[0]), i64::from(e.texel[1]))
+        };
+        let mut donated = 0;
+        for (i, &d) in donors.iter().enumerate() {
+            let d = d as usize;
+            if !v.is_invalid(i) {
+                assert_eq!(d, i, "a valid element sends its own light");
+                continue;
+            }
+            if d == i {
+                // Only where the chart holds no valid texel (the crate's
+                // faces are all valid here; the floor has valid texels).
+                assert!(
+                    (0..atlas.elements.len())
+                        .filter(|&j| atlas.elements[j].patch == atlas.elements[i].patch)
+                        .all(|j| v.is_invalid(j)),
+                    "invalid element {i} has no donor although its chart has valid texels"
+                );
+                continue;
+            }
+            donated += 1;
+            assert!(!v.is_invalid(d), "donor {d} of {i} is invalid");
+            assert_eq!(atlas.elements[d].patch, atlas.elements[i].patch);
+            // No valid texel of the chart is nearer.
+            let ((a, b), (x, y)) = (texel(i), texel(d));
+            let dist = (x - a).pow(2) + (y - b).pow(2);
+            for j in 0..atlas.elements.len() {
+                if atlas.elements[j].patch == atlas.elements[i].patch && !v.is_invalid(j) {
+                    let (x, y) = texel(j);
+                    assert!(
+                        (x - a).pow(2) + (y - b).pow(2) >= dist,
+                        "{j} is nearer to {i} than {d}"
+                    );
+                }
+            }
+        }
+        assert!(donated > 0, "the floor under the crate has invalid texels");
     }
 }

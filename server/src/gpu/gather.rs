@@ -65,6 +65,7 @@ use super::shaders;
 use crate::atlas::Atlas;
 use crate::direct::direct_light;
 use crate::scene::{Pose, Scene};
+use crate::validity::Validity;
 
 /// Upper bound on the memory of the hemicube target (colour and depth) of
 /// one pass; fewer elements are batched at high resolutions.
@@ -228,6 +229,7 @@ mod slot {
     pub(super) const CHANGE: Slot = Slot::new("change", 9, Kind::Storage);
     pub(super) const IRRADIANCE: Slot = Slot::new("irradiance", 10, Kind::Storage);
     pub(super) const TOTALS: Slot = Slot::new("totals", 11, Kind::Storage);
+    pub(super) const DONORS: Slot = Slot::new("donors", 12, Kind::StorageRead);
 }
 
 use slot::*;
@@ -235,7 +237,7 @@ use slot::*;
 /// "Render all B_j to a hemicube placed on patch i" (thesis Alg. 4.1).
 const RADIOSITY_HEMICUBES: Pass = Pass {
     entries: &["vs_gather", "fs_gather"],
-    slots: &[VERTICES, RECEIVERS, PARAMS, RADIOSITY, PATCHES],
+    slots: &[VERTICES, RECEIVERS, PARAMS, RADIOSITY, PATCHES, DONORS],
 };
 
 /// Integrate each tile against the delta form factors.
@@ -486,6 +488,14 @@ impl GatherSolver {
         let vertex_buffer = init("gather vertices", bytemuck::cast_slice(&vertices), storage);
         let receiver_buffer = init("receivers", bytemuck::cast_slice(&receivers), storage);
         let element_buffer = init("gather elements", bytemuck::cast_slice(&elements), storage);
+        // What an invalid texel (under or inside geometry) shows in the
+        // hemicubes: its nearest valid neighbour's light
+        // (`Validity::donors`).
+        let mut donors = Validity::compute(scene, atlas, poses).donors(atlas);
+        if donors.is_empty() {
+            donors.push(0);
+        }
+        let donor_buffer = init("gather donors", bytemuck::cast_slice(&donors), storage);
         let patch_buffer = init(
             "gather patches",
             bytemuck::cast_slice(&patch_ranges),
@@ -557,6 +567,7 @@ impl GatherSolver {
                 .buffer(slot::PARAMS, &params)
                 .buffer(slot::RADIOSITY, &radiosity[k])
                 .buffer(slot::PATCHES, &patch_buffer)
+                .buffer(slot::DONORS, &donor_buffer)
                 .buffer(slot::UPDATED, &radiosity[1 - k])
                 .view(slot::HEMICUBES, &color_view)
                 .buffer(slot::MULTIPLIERS, &multiplier_buffer)

@@ -27,7 +27,11 @@
 //!    iteration on the dense matrix, starting from `B = E`. Each sweep
 //!    propagates one more bounce; iteration stops when the power added by a
 //!    sweep, `Σ_i A_i |ΔB_i|`, falls below a fraction (default 1e-4) of the
-//!    emitted power `Σ_i A_i E_i`.
+//!    emitted power `Σ_i A_i E_i`. An invalid element (its sample under or
+//!    inside geometry, [`crate::validity`]) sends its nearest valid
+//!    neighbour's radiosity instead of its own ([`Validity::donors`]): the
+//!    part of its region beside the geometry is lit surface, and the rest
+//!    is hidden from every visible receiver by the geometry itself.
 //! 3. **Point values.** A lightmap stores radiosity at texel sample points
 //!    (on patch edges, thesis §4.1), not region averages. A final gather
 //!    evaluates `B(x_i) = E_i + ρ_i Σ_j F(x_i → j) B_j` at every sample, with
@@ -48,6 +52,7 @@ use rayon::prelude::*;
 
 use crate::atlas::Atlas;
 use crate::scene::{Pose, Scene};
+use crate::validity::Validity;
 use bvh::{Bvh, Primitive};
 
 /// Largest element count the dense reference solver accepts (two matrices
@@ -126,6 +131,10 @@ pub struct ReferenceSolver {
     matrix: Vec<f32>,
     /// Point form factors from each element's sample point, `N × N`.
     point_matrix: Vec<f32>,
+    /// Whose light each element sends: its own, or for an invalid one
+    /// (under or inside geometry) its nearest valid neighbour's
+    /// ([`Validity::donors`]).
+    donors: Vec<u32>,
     /// Seconds spent computing form factors.
     pub form_factor_seconds: f64,
 }
@@ -382,6 +391,13 @@ pub struct EnergyBalance {
     pub emitted: DVec3,
     pub absorbed: DVec3,
     pub escaped: DVec3,
+    /// What invalid elements send beyond what their own samples receive
+    /// (`Σ A_i (B_i - E_i - ρ_i H_i)` over elements that send a donor's
+    /// light, [`Validity::donors`]): the light the visible part of a
+    /// contact texel's region reflects, and the same light sent from its
+    /// hidden part onto the hidden face of the block, which absorbs it.
+    /// A source like the emission: emitted + donated = absorbed + escaped.
+    pub donated: DVec3,
 }
 
 fn dvec(v: Vec3) -> DVec3 {
@@ -482,11 +498,13 @@ impl ReferenceSolver {
                     }
                 });
         }
+        let donors = Validity::compute(scene, atlas, poses).donors(atlas);
         Ok(Self {
             elements,
             patches,
             matrix,
             point_matrix,
+            donors,
             form_factor_seconds: started.elapsed().as_secs_f64(),
         })
     }
@@ -588,7 +606,21 @@ impl ReferenceSolver {
 
     /// Emitted radiosity of every element: where Jacobi iteration starts.
     fn emission(&self) -> Vec<DVec3> {
-        self.elements.iter().map(|e| e.emission).collect()
+        let mut b: Vec<DVec3> = self.elements.iter().map(|e| e.emission).collect();
+        self.send_donated(&mut b);
+        b
+    }
+
+    /// Every invalid element of `b` takes its donor's value
+    /// ([`Validity::donors`]): what the part of its region beside the
+    /// geometry it lies under sends (the rest is hidden from every
+    /// receiver).
+    fn send_donated(&self, b: &mut [DVec3]) {
+        for (i, &d) in self.donors.iter().enumerate() {
+            if d as usize != i {
+                b[i] = b[d as usize];
+            }
+        }
     }
 
     /// One Jacobi sweep from `b`: the next radiosity, the irradiance it was
@@ -596,12 +628,13 @@ impl ReferenceSolver {
     /// power (`Σ_i A_i |ΔB_i| / Σ_i A_i E_i`, 0 in a dark scene).
     fn sweep(&self, b: &[DVec3]) -> (Vec<DVec3>, Vec<DVec3>, f64) {
         let h = self.gather(b);
-        let next: Vec<DVec3> = self
+        let mut next: Vec<DVec3> = self
             .elements
             .iter()
             .zip(&h)
             .map(|(e, hi)| e.emission + e.albedo * *hi)
             .collect();
+        self.send_donated(&mut next);
         let (mut added, mut emitted) = (0.0, 0.0);
         for ((e, bn), bo) in self.elements.iter().zip(&next).zip(b) {
             added += e.area * (*bn - *bo).abs().element_sum();
@@ -629,13 +662,15 @@ impl ReferenceSolver {
     /// Where the power of a solution goes: absorbed by surfaces
     /// (`Σ A_i (1-ρ_i) H_i`) or escaped to infinity
     /// (`Σ A_i B_i (1 - Σ_j F_ij)`). In a converged, energy-conserving
-    /// discretisation the two add up to the emitted power.
+    /// discretisation the two add up to the emitted power and what the
+    /// invalid elements donate ([`EnergyBalance::donated`]).
     pub fn energy_balance(&self, solution: &Solution) -> EnergyBalance {
         let n = self.len();
         let mut balance = EnergyBalance {
             emitted: DVec3::ZERO,
             absorbed: DVec3::ZERO,
             escaped: DVec3::ZERO,
+            donated: DVec3::ZERO,
         };
         for (i, e) in self.elements.iter().enumerate() {
             let row_sum: f64 = self.matrix[i * n..(i + 1) * n]
@@ -646,6 +681,10 @@ impl ReferenceSolver {
             balance.absorbed += e.area * (DVec3::ONE - e.albedo) * dvec(solution.irradiance[i]);
             balance.escaped +=
                 e.area * dvec(solution.region_radiosity[i]) * (1.0 - row_sum).max(0.0);
+            if self.donors[i] as usize != i {
+                let own = e.emission + e.albedo * dvec(solution.irradiance[i]);
+                balance.donated += e.area * (dvec(solution.region_radiosity[i]) - own);
+            }
         }
         balance
     }
