@@ -61,6 +61,31 @@ pub use messages::{
 /// layout changed.
 pub const PROTOCOL_VERSION: u16 = 2;
 
+/// `Welcome.capabilities` bit: the server serves the scene's geometry as
+/// glTF binary at `/api/scenes/{id}/scene.glb` on the host and port of the
+/// WebSocket (`http` for `ws`, `https` for `wss`; `id` is
+/// `SceneInfo::id`), lightmap UVs as `TEXCOORD_1`, readable with the
+/// same token as the connection (PROTOCOL.md §3, "Capabilities").
+/// Receivers ignore bits they do not know, so older clients are
+/// unaffected.
+pub const CAP_SCENE_GLB: u32 = 1;
+
+/// The path of the scene's glTF binary ([`CAP_SCENE_GLB`]), relative to
+/// the server's origin: `/api/scenes/{id}/scene.glb` with `id`
+/// percent-encoded as a path segment.
+pub fn scene_glb_path(id: &str) -> String {
+    let mut path = String::from("/api/scenes/");
+    for b in id.bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+            path.push(b as char);
+        } else {
+            path.push_str(&format!("%{b:02X}"));
+        }
+    }
+    path.push_str("/scene.glb");
+    path
+}
+
 /// The `UnsupportedVersion` message for a peer that announced `theirs`:
 /// what this side speaks and what to do about it.
 pub fn version_mismatch(theirs: u16) -> String {
@@ -79,3 +104,18 @@ pub const MAX_FRAME_BYTES: usize = 8 * 1024 * 1024;
 
 /// The default edge length of a lightmap tile, in texels.
 pub const DEFAULT_TILE_SIZE: u16 = 8;
+
+#[cfg(test)]
+mod tests {
+    use super::scene_glb_path;
+
+    #[test]
+    fn the_scene_glb_path_percent_encodes_the_id_as_one_segment() {
+        assert_eq!(
+            scene_glb_path("cornell-large"),
+            "/api/scenes/cornell-large/scene.glb"
+        );
+        assert_eq!(scene_glb_path("a b/c"), "/api/scenes/a%20b%2Fc/scene.glb");
+        assert_eq!(scene_glb_path("é"), "/api/scenes/%C3%A9/scene.glb");
+    }
+}

@@ -169,7 +169,8 @@ pub enum ServerMessage {
         server: String,
         /// What this connection may do.
         role: Role,
-        /// Capability bits; v1 defines none.
+        /// Capability bits: [`CAP_SCENE_GLB`](crate::CAP_SCENE_GLB); ignore
+        /// bits you do not know.
         capabilities: u32,
         /// Everything a thin client needs to draw the scene.
         scene: SceneInfo,

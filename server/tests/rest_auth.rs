@@ -9,7 +9,9 @@
 //!   server's own origin is fine;
 //! - `/healthz` and `/readyz` stay open; `/metrics` is open by default and
 //!   needs an admin token with `metrics = "token"`;
-//! - in development mode (no tokens) the REST routes are open.
+//! - in development mode (no tokens) the REST routes are open;
+//! - the `Welcome` announces `scene.glb` (`CAP_SCENE_GLB`), and the path
+//!   the protocol crate builds from the scene id answers with the glb.
 
 use lightwire_testkit::http::{self, Response};
 use lightwire_testkit::{ADMIN_TOKEN, DRIVER_TOKEN, SCENE, VIEWER_TOKEN, lightwire, scene_path};
@@ -222,4 +224,53 @@ async fn development_mode_leaves_the_rest_routes_open() {
         assert_eq!(r.status, 200, "{route} in development mode: {}", r.text());
     }
     assert_eq!(http::get(&server.addr, "/metrics", None).await.status, 200);
+}
+
+/// The `Welcome` of a real server sets `CAP_SCENE_GLB`, and
+/// `scene_glb_path` of the scene id it carries, on the WebSocket's host
+/// and with the connection's token, is the scene as glTF binary.
+#[tokio::test]
+async fn the_welcome_says_where_the_scene_glb_is() {
+    use futures_util::StreamExt;
+    use lightwire_protocol::{CAP_SCENE_GLB, ServerMessage, decode_server, scene_glb_path};
+    use tokio_tungstenite::tungstenite::Message;
+
+    let server = lightwire!().solver("127.0.0.1:0");
+    server.ready().await;
+    let mut ws = lightwire_testkit::peer::hello(&server.ws_url(), VIEWER_TOKEN)
+        .await
+        .expect("connects");
+    let welcome = loop {
+        let frame = tokio::time::timeout(std::time::Duration::from_secs(10), ws.next())
+            .await
+            .expect("a frame arrives")
+            .expect("open")
+            .expect("ok");
+        if let Message::Binary(bytes) = frame {
+            break decode_server(&bytes).expect("decodes");
+        }
+    };
+    let ServerMessage::Welcome {
+        capabilities,
+        scene,
+        ..
+    } = welcome
+    else {
+        panic!("the first message is a Welcome: {welcome:?}");
+    };
+    assert_ne!(
+        capabilities & CAP_SCENE_GLB,
+        0,
+        "capabilities {capabilities:#x}"
+    );
+    let path = scene_glb_path(&scene.id);
+    assert_eq!(path, format!("/api/scenes/{SCENE}/scene.glb"));
+    let glb = http::get(&server.addr, &path, Some(VIEWER_TOKEN)).await;
+    assert_eq!(glb.status, 200, "{path}");
+    assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
+    assert_eq!(
+        &glb.body[..4],
+        b"glTF",
+        "a glTF binary begins with its magic"
+    );
 }

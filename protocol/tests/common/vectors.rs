@@ -234,6 +234,17 @@ pub fn all() -> Vec<Vector> {
             }),
         },
         Vector {
+            name: "server_welcome_scene_glb",
+            description: "Welcome as server_welcome, with capability bit 0 (CAP_SCENE_GLB): the scene's glTF binary is at /api/scenes/cornell/scene.glb",
+            msg: Msg::Server(S::Welcome {
+                protocol_version: PROTOCOL_VERSION,
+                server: "lightwire/0.1".into(),
+                role: Role::Driver,
+                capabilities: lightwire_protocol::CAP_SCENE_GLB,
+                scene: scene(),
+            }),
+        },
+        Vector {
             name: "server_keyframe",
             description: "Keyframe version 1 of the 3x2 atlas: tile 0 (2x2) and tile 1 (clipped to 1x2), reflecting object 0 at seq 7",
             msg: Msg::Server(S::Keyframe(keyframe())),

@@ -21,6 +21,27 @@
 /** The protocol version this code speaks (`Hello.protocol_version`). */
 export const PROTOCOL_VERSION = 2;
 
+/**
+ * `Welcome.capabilities` bit: the server serves the scene as glTF binary at
+ * `sceneGlbPath(scene.id)` on the WebSocket's host (PROTOCOL.md §3,
+ * "Capabilities"). Twin of `lightwire_protocol::CAP_SCENE_GLB`.
+ */
+export const CAP_SCENE_GLB = 1;
+
+/**
+ * `/api/scenes/{id}/scene.glb` with the id percent-encoded as one path
+ * segment (every UTF-8 byte but A-Z a-z 0-9 - . _ ~), as the Rust
+ * `scene_glb_path` writes it.
+ */
+export function sceneGlbPath(id) {
+  let segment = '';
+  for (const b of new TextEncoder().encode(id)) {
+    const c = String.fromCharCode(b);
+    segment += /[A-Za-z0-9\-._~]/.test(c) ? c : `%${b.toString(16).toUpperCase().padStart(2, '0')}`;
+  }
+  return `/api/scenes/${segment}/scene.glb`;
+}
+
 /** The largest frame either side accepts, checked before parsing (§1). */
 export const MAX_FRAME_BYTES = 8 * 1024 * 1024;
 

@@ -14,6 +14,7 @@ import test from 'node:test';
 import { fileURLToPath } from 'node:url';
 
 import {
+  CAP_SCENE_GLB,
   DecodeError,
   MAX_FRAME_BYTES,
   PROTOCOL_VERSION,
@@ -23,6 +24,7 @@ import {
   encodeServer,
   errorName,
   poseProblem,
+  sceneGlbPath,
 } from '../src/protocol.js';
 import { ApplyError, Lightmap, applyResidual, halfToFloat, rgb9e5Decode, zstdFrameProblem } from '../src/lightmap.js';
 import { decompress } from '../src/vendor/fzstd.js';
@@ -144,6 +146,18 @@ for (const v of manifest.vectors) {
     assert.deepEqual(encode(decoded), bytes, 'decode then encode is the identity');
   });
 }
+
+test('a Welcome with CAP_SCENE_GLB says where the scene glTF is, as the Rust crate builds the path', () => {
+  const plain = decodeServer(bin('server_welcome'));
+  assert.equal(plain.capabilities & CAP_SCENE_GLB, 0);
+  const welcome = decodeServer(bin('server_welcome_scene_glb'));
+  assert.equal(welcome.capabilities & CAP_SCENE_GLB, CAP_SCENE_GLB);
+  assert.equal(sceneGlbPath(welcome.scene.id), '/api/scenes/cornell/scene.glb');
+  // The cases of lightwire_protocol's own test.
+  assert.equal(sceneGlbPath('cornell-large'), '/api/scenes/cornell-large/scene.glb');
+  assert.equal(sceneGlbPath('a b/c'), '/api/scenes/a%20b%2Fc/scene.glb');
+  assert.equal(sceneGlbPath('é'), '/api/scenes/%C3%A9/scene.glb');
+});
 
 test('varints use the shortest form and all four lengths (PROTOCOL.md §2 examples)', () => {
   const ping = (nonce) => Buffer.from(encodeClient({ type: 'Ping', nonce })).toString('hex');

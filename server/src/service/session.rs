@@ -237,7 +237,8 @@ pub async fn run(
             SERVER_NAME.to_string()
         },
         role,
-        capabilities: 0,
+        // `http.rs` serves `scene.glb` on every router, solver and relay.
+        capabilities: lightwire_protocol::CAP_SCENE_GLB,
         scene: (*info).clone(),
     });
     if sink
