@@ -331,6 +331,14 @@ mod tests {
       ]
     }"#;
 
+    /// The block scene, its atlas and validity at the initial poses.
+    fn block_at_rest() -> (Scene, Atlas, Validity) {
+        let scene = Scene::parse(BLOCK, "contact").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let v = Validity::compute(&scene, &atlas, &scene.initial_poses());
+        (scene, atlas, v)
+    }
+
     fn floor_texel_at(atlas: &Atlas, poses: &[Pose], x: f32, z: f32) -> usize {
         (0..atlas.elements.len())
             .filter(|&i| atlas.elements[i].patch == 0)
@@ -379,10 +387,7 @@ mod tests {
 
     #[test]
     fn dilation_fills_invalid_texels_from_their_valid_neighbours_only() {
-        let scene = Scene::parse(BLOCK, "contact").expect("scene");
-        let atlas = Atlas::build(&scene).expect("atlas");
-        let poses = scene.initial_poses();
-        let v = Validity::compute(&scene, &atlas, &poses);
+        let (_, atlas, v) = block_at_rest();
         assert!(v.count() > 0);
         // Valid texels 1, invalid ones a poison value.
         let mut values: Vec<Vec3> = (0..atlas.elements.len())
@@ -415,10 +420,7 @@ mod tests {
 
     #[test]
     fn an_invalid_texel_sends_its_nearest_valid_neighbours_light() {
-        let scene = Scene::parse(BLOCK, "contact").expect("scene");
-        let atlas = Atlas::build(&scene).expect("atlas");
-        let poses = scene.initial_poses();
-        let v = Validity::compute(&scene, &atlas, &poses);
+        let (_, atlas, v) = block_at_rest();
         let donors = v.donors(&atlas);
         assert_eq!(donors.len(), atlas.elements.len());
         let texel = |i: usize| {
