@@ -87,6 +87,11 @@ const HAS_OLD: u32 = 0x200u;
 // reset_moving: keep the emission as unshot radiosity (incremental: it is
 // shot again by the progressive iterations that follow).
 const RESET_UNSHOT: u32 = 0x400u;
+// Cross: the batch's tiles have no back hemicubes (a closed object, whose
+// front faces hide all it hides from a point outside it); its slots are
+// [new front, old front] instead of [new front, new back, old front, old
+// back].
+const ONE_SIDED: u32 = 0x800u;
 
 // Side length of the cross projection's sampling grid on a shooter (thesis
 // Alg. 4.5 gridSize, 4 by default).
@@ -95,6 +100,12 @@ override CROSS_GRID: u32 = 4u;
 // Side length (texels) of the tiles moving patches are cut into for cross
 // redistribution (`ProgressiveOptions::cross_tile`).
 override CROSS_TILE: u32 = 4u;
+
+// Top-face resolution of the front hemicubes a moving tile gathers from,
+// in the move and again after it (`gather_moving`, `regather_moving`):
+// they see reflected light only, which varies slowly
+// (`ProgressiveSolver::gather_resolution`).
+override GATHER_RESOLUTION: u32 = 32u;
 
 // reconstruct_dyn takes the cross method's slots MARK_CHUNK at a time:
 // first the cheap tests and the visibility mark the slots that reach the
@@ -202,7 +213,7 @@ fn delta_form_factor(face: u32, px: vec2<u32>, res: u32) -> f32 {
 // `present`): the workgroup's sum of its pixels by their delta form
 // factors. Call from uniform control flow.
 fn front_irradiance(k: u32, lid: u32, present: bool) -> vec3<f32> {
-    let res = batch.resolution;
+    let res = GATHER_RESOLUTION;
     var acc = vec3<f32>(0.0);
     if (present) {
         let per_face = res * res;
@@ -441,17 +452,20 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     } else if (kind == KIND_CROSS) {
         // Slots: [0, n) new front, [n, 2n) new back, [2n, 3n) old front,
-        // [3n, 4n) old back hemicubes of the same n moving elements.
-        // Marked MARK_CHUNK at a time: about half fail, since an element
-        // lies in front of either a tile's front or its back hemicube.
+        // [3n, 4n) old back hemicubes of the same n moving elements (with
+        // ONE_SIDED: [0, n) new front, [n, 2n) old front; `side` below is
+        // the same either way). Marked MARK_CHUNK at a time: about half
+        // fail, since an element lies in front of either a tile's front or
+        // its back hemicube.
         let has_new = (batch.mode & HAS_NEW) != 0u;
         let has_old = (batch.mode & HAS_OLD) != 0u;
-        let slots = 4u * n;
+        let side_shift = select(0u, 1u, (batch.mode & ONE_SIDED) != 0u);
+        let slots = (4u >> side_shift) * n;
         for (var first = 0u; first < slots; first += MARK_CHUNK) {
             var marked = 0u;
             for (var b = 0u; b < min(MARK_CHUNK, slots - first); b++) {
                 let q = first + b;
-                let side = q / n;
+                let side = (q / n) << side_shift;
                 let new_pose = side < 2u;
                 let front = (side & 1u) == 0u;
                 if ((new_pose && !has_new) || (!new_pose && !has_old)) {
@@ -472,7 +486,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             while (marked != 0u) {
                 let q = first + next_marked(&marked);
-                let side = q / n;
+                let side = (q / n) << side_shift;
                 let k = q % n;
                 let new_pose = side < 2u;
                 let front = (side & 1u) == 0u;

@@ -393,6 +393,58 @@ impl Scene {
         out
     }
 
+    /// Per object, whether its patches form a closed surface facing out:
+    /// every patch edge (in object space, to 1e-5 of the object's size) is
+    /// met by an edge of another of its patches running the other way, and
+    /// the enclosed volume is positive (normals point out). A point outside
+    /// such an object sees only front faces of it, so whatever the object
+    /// hides from that point, a front face hides. A box is closed; a
+    /// mesh is closed when it is watertight without T-junctions; a single
+    /// quad, an open box or a box facing in are not.
+    pub fn closed_objects(&self) -> Vec<bool> {
+        use std::collections::HashMap;
+        (0..self.objects.len() as u32)
+            .map(|o| {
+                let shapes: Vec<&PatchShape> = self
+                    .patches
+                    .iter()
+                    .filter(|p| p.object == o)
+                    .map(|p| &p.shape)
+                    .collect();
+                let corners: Vec<Vec<Vec3>> = shapes.iter().map(|s| s.corners()).collect();
+                let size = corners
+                    .iter()
+                    .flatten()
+                    .fold(0.0f32, |m, c| m.max(c.abs().max_element()));
+                if corners.is_empty() || size <= 0.0 {
+                    return false;
+                }
+                let step = 1e-5 * size;
+                let key = |c: Vec3| (c / step).round().as_i64vec3().to_array();
+                // Directed edge counts: +1 for a->b, -1 for b->a under the
+                // key (smaller corner first).
+                let mut edges: HashMap<([i64; 3], [i64; 3]), i32> = HashMap::new();
+                let mut volume = 0.0f64;
+                for cs in &corners {
+                    for i in 0..cs.len() {
+                        let (a, b) = (key(cs[i]), key(cs[(i + 1) % cs.len()]));
+                        if a == b {
+                            return false;
+                        }
+                        let (k, d) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
+                        *edges.entry(k).or_insert(0) += d;
+                    }
+                    // Signed volume of the fan from the origin.
+                    for i in 1..cs.len() - 1 {
+                        let (a, b, c) = (cs[0].as_dvec3(), cs[i].as_dvec3(), cs[i + 1].as_dvec3());
+                        volume += a.dot(b.cross(c)) / 6.0;
+                    }
+                }
+                edges.values().all(|&n| n == 0) && volume > 0.0
+            })
+            .collect()
+    }
+
     /// Total emitted power (W) per channel at the given poses. Uniform scale
     /// changes emitter area, so poses matter.
     pub fn emitted_power(&self, poses: &[Pose]) -> Vec3 {
@@ -411,5 +463,51 @@ fn strip_position(message: &str) -> String {
     match message.rfind(" at line ") {
         Some(i) => message[..i].to_string(),
         None => message.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene_with(surfaces: &str) -> Scene {
+        let text = format!(
+            r#"{{ "name": "t", "lightmap": {{ "texel_density": 4 }},
+                "materials": [{{ "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] }}],
+                "objects": [{{ "name": "o" }}],
+                "surfaces": [{surfaces}] }}"#
+        );
+        Scene::parse(&text, "test.json").expect("a valid scene")
+    }
+
+    #[test]
+    fn a_box_facing_out_is_closed_and_stays_closed_triangulated() {
+        let scene = scene_with(
+            r#"{ "name": "b", "material": "m", "object": "o",
+                 "box": { "center": [0, 0, 0], "size": [1.6, 1.7, 0.4], "rotation": [0.1, 0.2, 0.3, 0.927] } }"#,
+        );
+        // The static world (object 0) has no patches.
+        assert_eq!(scene.closed_objects(), vec![false, true]);
+        assert_eq!(scene.triangulated().closed_objects(), vec![false, true]);
+    }
+
+    #[test]
+    fn open_or_inward_surfaces_are_not_closed() {
+        let inward = scene_with(
+            r#"{ "name": "b", "material": "m", "object": "o",
+                 "box": { "center": [0, 0, 0], "size": [1, 1, 1], "facing": "in" } }"#,
+        );
+        assert!(!inward.closed_objects()[1], "a box facing in");
+        let mut open = scene_with(
+            r#"{ "name": "b", "material": "m", "object": "o",
+                 "box": { "center": [0, 0, 0], "size": [1, 1, 1] } }"#,
+        );
+        open.patches.pop();
+        assert!(!open.closed_objects()[1], "a box without a face");
+        let quad = scene_with(
+            r#"{ "name": "q", "material": "m", "object": "o",
+                 "quad": { "origin": [0, 0, 0], "u": [1, 0, 0], "v": [0, 1, 0] } }"#,
+        );
+        assert!(!quad.closed_objects()[1], "a single quad");
     }
 }

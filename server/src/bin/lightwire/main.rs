@@ -179,6 +179,14 @@ enum BenchCommand {
         /// [default: 4].
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
         cross_grid: Option<u32>,
+        /// Top-face resolution of the progressive solver's item-buffer
+        /// hemicubes, in pixels (every method but gather) [default: 64].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(2..=512))]
+        hemicube_resolution: Option<u32>,
+        /// Cross redistribution: top-face resolution of the back hemicubes
+        /// of shot radiosity (thesis §4.5.2) [default: 16].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(2..=256))]
+        back_resolution: Option<u32>,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
     /// Cornell boxes of about the given triangle counts, written as .glb,
@@ -277,6 +285,8 @@ fn main() -> ExitCode {
                     profile_clock,
                     cross_tile,
                     cross_grid,
+                    hemicube_resolution,
+                    back_resolution,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -286,10 +296,16 @@ fn main() -> ExitCode {
                 degrees_per_frame: degrees,
                 methods,
                 density_scale,
-                progressive: gpu::ProgressiveOptions {
-                    cross_tile: cross_tile.unwrap_or(gpu::ProgressiveOptions::default().cross_tile),
-                    cross_grid: cross_grid.unwrap_or(gpu::ProgressiveOptions::default().cross_grid),
-                    ..gpu::ProgressiveOptions::default()
+                progressive: {
+                    let defaults = gpu::ProgressiveOptions::default();
+                    gpu::ProgressiveOptions {
+                        cross_tile: cross_tile.unwrap_or(defaults.cross_tile),
+                        cross_grid: cross_grid.unwrap_or(defaults.cross_grid),
+                        hemicube_resolution: hemicube_resolution
+                            .unwrap_or(defaults.hemicube_resolution),
+                        back_resolution: back_resolution.unwrap_or(defaults.back_resolution),
+                        ..defaults
+                    }
                 },
                 gather: gpu::GatherOptions::default(),
                 out,

@@ -206,6 +206,10 @@ pub struct ProgressiveSolver {
     /// Objects that occlude but neither receive nor shoot in progressive
     /// iterations ([`ProgressiveSolver::set_passive`]).
     passive: Vec<bool>,
+    /// Objects whose surface is closed and faces out
+    /// ([`Scene::closed_objects`]): cross redistribution gives their tiles
+    /// no back hemicubes.
+    closed: Vec<bool>,
     /// Element areas at scale 1 and their objects, for shooter areas.
     local_areas: Vec<f32>,
     element_objects: Vec<u32>,
@@ -364,6 +368,7 @@ impl ProgressiveSolver {
             poses: poses.to_vec(),
             validity,
             regather: Vec::new(),
+            closed: scene.closed_objects(),
             scene: scene.clone(),
             atlas: atlas.clone(),
             passive: vec![false; absent.len()],

@@ -140,7 +140,7 @@ pub(in crate::gpu) const GATHER_MOVING: Pass = Pass {
 /// radiosity, once a move's batches have run.
 pub(in crate::gpu) const REGATHER_MOVING: Pass = Pass {
     entries: &["regather_moving"],
-    slots: &[SHOOTERS, BATCH, FRONT_RAD, REGATHERED],
+    slots: &[SHOOTERS, FRONT_RAD, REGATHERED],
 };
 
 /// Cross redistribution: a moving face's light read between tile centres.

@@ -24,7 +24,8 @@
 //!   shot radiosity with depth at both positions, through which every
 //!   element of C sees what M's old position stopped blocking and what its
 //!   new position blocks (the non-incremental cross projection R_x(C, C),
-//!   eq. 3.3.1, with reprojection). Each tile then shoots its new total
+//!   eq. 3.3.1, with reprojection; a closed object's tiles need no back
+//!   item buffers, `run_job`). Each tile then shoots its new total
 //!   radiosity and its negated old shot radiosity (area-weighted averages
 //!   over its texels). A tile's hemicube gathers reflected light only: the
 //!   emitters' direct light is computed per texel on the CPU when the move
@@ -125,17 +126,19 @@ const KIND_CROSS: u32 = 3;
 const HAS_NEW: u32 = 0x100;
 const HAS_OLD: u32 = 0x200;
 const RESET_UNSHOT: u32 = 0x400;
+/// Cross: the tiles have no back hemicubes (a closed object's).
+const ONE_SIDED: u32 = 0x800;
 /// `Batch.mode` of a back hemicube pass (hemicube.wgsl `RAD_BACK`).
 const RAD_BACK: u32 = 0x10000;
 /// Samples per emitting patch of the moving elements' direct light,
 /// `DIRECT_GRID`² (as regather.rs: a shadow ray each, the unoccluded form
 /// factor exact whatever the count).
 const DIRECT_GRID: usize = 8;
-/// Top-face resolution of the regathering hemicubes, at most: they see
-/// reflected light only (no emitter), which varies slowly, so a quarter of
-/// the pixels of the default 64² does; on lavapipe the pass costs about
-/// what its pixels do.
-const REGATHER_RESOLUTION: u32 = 32;
+/// Top-face resolution of the hemicubes a moving tile gathers from, at
+/// most (in the move and again after it): they see reflected light only
+/// (no emitter), which varies slowly, so a quarter of the pixels of the
+/// default 64² does; on lavapipe the pass costs about what its pixels do.
+const GATHER_RESOLUTION: u32 = 32;
 /// `Batch.mode` of the regathering hemicubes: total radiosity of the
 /// static set (hemicube.wgsl `RAD_TOTAL`).
 const RAD_TOTAL: u32 = 0x20000;
@@ -220,6 +223,12 @@ pub(in crate::gpu) struct DynamicPasses {
 }
 
 impl ProgressiveSolver {
+    /// Top-face resolution of a moving tile's gathering hemicubes
+    /// (`GATHER_RESOLUTION` in redistribute.wgsl).
+    fn gather_resolution(&self) -> u32 {
+        self.options.hemicube_resolution.clamp(1, GATHER_RESOLUTION)
+    }
+
     fn dynamic_passes(&mut self) -> &DynamicPasses {
         if self.dynamic.is_none() {
             self.dynamic = Some(self.build_dynamic_passes());
@@ -230,6 +239,9 @@ impl ProgressiveSolver {
 
     fn build_dynamic_passes(&self) -> DynamicPasses {
         let device = &self.device;
+        // Sized as the item buffers, whose depth target the gathering
+        // hemicubes share (attachments of one pass match in size); they
+        // draw into its corner at their own resolution.
         let res = self.options.hemicube_resolution.max(1);
         let back_res = self.options.back_resolution.max(1);
         let cap = self.batch_capacity;
@@ -326,6 +338,7 @@ impl ProgressiveSolver {
         });
         let grid = [("CROSS_GRID", f64::from(grid))];
         let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
+        let gather_res = [("GATHER_RESOLUTION", f64::from(self.gather_resolution()))];
         let resources = self
             .buffers
             .resources()
@@ -345,8 +358,8 @@ impl ProgressiveSolver {
         };
         let reset = compute(RESET_MOVING, &[]);
         let energy = compute(SHOOTER_ENERGY_DYN, &[]);
-        let gather = compute(GATHER_MOVING, &[]);
-        let regather = compute(REGATHER_MOVING, &[]);
+        let gather = compute(GATHER_MOVING, &gather_res);
+        let regather = compute(REGATHER_MOVING, &gather_res);
         let smooth = compute(SMOOTH_MOVING, &tile);
         let reconstruct = compute(RECONSTRUCT_DYN, &grid);
         // Shot radiosity hemicubes: the front ones at the batch's shooters,
@@ -483,9 +496,8 @@ impl ProgressiveSolver {
         self.queue.submit([encoder.finish()]);
 
         // Incremental batches hold two hemicubes per shooter, cross batches
-        // four (front and back, at the new and the old position).
+        // two or four per tile (`cross_slots`).
         let half = self.batch_capacity / 2;
-        let quarter = (self.batch_capacity / 4).max(1);
         let in_m = |p: usize| mv.moving[self.table.objects[p] as usize];
         match method {
             Redistribution::Incremental => {
@@ -548,9 +560,10 @@ impl ProgressiveSolver {
                 let mut first = 0;
                 while (first as usize) < mv.tiles.len() {
                     let o = object(&mv.tiles[first as usize]);
+                    let per_job = (self.batch_capacity / self.cross_slots(o as usize)).max(1);
                     let count = mv.tiles[first as usize..]
                         .iter()
-                        .take(quarter as usize)
+                        .take(per_job as usize)
                         .take_while(|t| object(t) == o)
                         .count() as u32;
                     mv.jobs.push_back(Job::Cross { first, count });
@@ -634,7 +647,7 @@ impl ProgressiveSolver {
         let setup = self.profile.start();
         let old_patches = self.table.place(&mv.old_poses);
         let old_areas = world_areas(&self.local_areas, &self.element_objects, &mv.old_poses);
-        let res = self.options.hemicube_resolution.max(1);
+        let gather_res = self.gather_resolution();
         let mut encoder = self.device.create_command_encoder(&Default::default());
         match job {
             Job::Negative { patch, shooters } => {
@@ -700,29 +713,44 @@ impl ProgressiveSolver {
                 // Slots: [new front, new back, old front, old back], n each.
                 // The back hemicubes make the moving patches two-sided
                 // occluders for the cross projection: a static element
-                // behind a moving patch (inside a closed object, e.g. the
-                // floor under a box resting on it) loses the light the
-                // patch blocks from its front side.
-                let mut list = Vec::with_capacity(4 * count as usize);
+                // behind a moving patch loses the light the patch blocks
+                // from its front side. A closed object needs none: a point
+                // outside it sees only its front faces, and one of those
+                // blocks whatever it blocks; a point inside (the floor
+                // under a box resting on it) is invalid, and its light
+                // goes to zero when the move completes (regather.rs).
+                // Its slots are [new front, old front] (ONE_SIDED).
+                let slots = self.cross_slots(object);
+                let one_sided = slots == 2;
+                let mut list = Vec::with_capacity((slots * count) as usize);
                 let tiling = self.tiling();
                 for (placed, areas) in [(&self.patches, &self.areas), (&old_patches, &old_areas)] {
                     let front = front_shooters(&tiling, tiles, placed, areas);
-                    let back: Vec<GpuShooter> = front.iter().map(|s| self.flipped(s)).collect();
+                    let back: Vec<GpuShooter> = if one_sided {
+                        Vec::new()
+                    } else {
+                        front.iter().map(|s| self.flipped(s)).collect()
+                    };
                     list.extend(front);
                     list.extend(back);
                 }
+                let total = list.len() as u32;
+                let old_from = total / 2;
                 // The see-through radiosity hemicubes look the other way:
                 // what a patch hides from a receiver lies on its far side.
                 let through: Vec<GpuShooter> = list.iter().map(|s| self.flipped(s)).collect();
                 let mut mode = KIND_CROSS;
+                if one_sided {
+                    mode |= ONE_SIDED;
+                }
                 if has_new {
                     mode |= HAS_NEW;
                 }
                 if has_old {
                     mode |= HAS_OLD;
                 }
-                self.upload(&list, self.batch_uniform(patch, count, 2 * count, mode));
-                let mut back_uniform = self.batch_uniform(patch, count, 2 * count, RAD_BACK);
+                self.upload(&list, self.batch_uniform(patch, count, old_from, mode));
+                let mut back_uniform = self.batch_uniform(patch, count, old_from, RAD_BACK);
                 back_uniform.resolution = self.options.back_resolution.max(1);
                 let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.queue
@@ -734,7 +762,7 @@ impl ProgressiveSolver {
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
                 self.profile.stop(setup, Stage::JobSetup);
                 self.profile.open(&mut encoder);
-                self.encode_item_buffers(&mut encoder, 4 * count);
+                self.encode_item_buffers(&mut encoder, total);
                 self.profile.mark(&mut encoder, Stage::ItemBuffers);
                 let clear = wgpu::Color::TRANSPARENT;
                 if has_new {
@@ -746,7 +774,7 @@ impl ProgressiveSolver {
                             resolve: None,
                             depth: &self.buffers.depth_view,
                             clear,
-                            resolution: res,
+                            resolution: gather_res,
                         },
                         count,
                         self.triangle_vertices,
@@ -763,7 +791,7 @@ impl ProgressiveSolver {
                         clear,
                         resolution: back_uniform.resolution,
                     },
-                    4 * count,
+                    total,
                     self.triangle_vertices,
                 );
                 self.profile.mark(&mut encoder, Stage::BackHemicubes);
@@ -779,6 +807,17 @@ impl ProgressiveSolver {
         }
         self.queue.submit([encoder.finish()]);
         Ok(())
+    }
+
+    /// Hemicube slots per tile of object `o` in a cross batch: front and
+    /// back at the new and the old position, or the fronts only for a
+    /// closed object (see `run_job`).
+    fn cross_slots(&self, o: usize) -> u32 {
+        if self.closed.get(o).copied().unwrap_or(false) {
+            2
+        } else {
+            4
+        }
     }
 
     /// Whether object `o` is flagged in `moving` and present now.
@@ -858,18 +897,14 @@ impl ProgressiveSolver {
             .copied()
             .collect();
         let tiling = self.tiling();
-        let res = self
-            .options
-            .hemicube_resolution
-            .clamp(1, REGATHER_RESOLUTION);
+        let res = self.gather_resolution();
         let capacity = self.batch_capacity.max(1) as usize;
         let d = self.dynamic.as_ref().expect("built in begin_move");
         self.profile.open(encoder);
         for chunk in tiles.chunks(capacity) {
             let list = front_shooters(&tiling, chunk, &self.patches, &self.areas);
             let n = list.len() as u32;
-            let mut uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, RAD_TOTAL);
-            uniform.resolution = res;
+            let uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, RAD_TOTAL);
             // Each chunk's shooters and uniform must be in place when its
             // passes run: submit what came before first.
             let done = std::mem::replace(
