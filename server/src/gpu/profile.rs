@@ -130,7 +130,7 @@ pub enum Stage {
     /// R_g(C, M).
     FrontHemicubes,
     /// GPU: cross's back hemicubes of C's shot radiosity with depth
-    /// (multisampled), at both positions.
+    /// (multisampled if `back_samples` says so), at both positions.
     BackHemicubes,
     /// GPU: the moving tiles gather from their front hemicubes.
     TileGather,

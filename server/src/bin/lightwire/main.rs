@@ -184,9 +184,13 @@ enum BenchCommand {
         #[arg(long, value_parser = clap::value_parser!(u32).range(2..=512))]
         hemicube_resolution: Option<u32>,
         /// Cross redistribution: top-face resolution of the back hemicubes
-        /// of shot radiosity (thesis §4.5.2) [default: 16].
+        /// of shot radiosity (thesis §4.5.2) [default: 32].
         #[arg(long, value_parser = clap::value_parser!(u32).range(2..=256))]
         back_resolution: Option<u32>,
+        /// Cross redistribution: samples per pixel of the back hemicubes
+        /// (1 or 4; 4 blurs them) [default: 1].
+        #[arg(long, value_parser = back_samples)]
+        back_samples: Option<u32>,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
     /// Cornell boxes of about the given triangle counts, written as .glb,
@@ -218,6 +222,18 @@ enum BenchCommand {
     /// codecs over the recording side by side: bytes per version, encode
     /// and decode time, and the deviation a viewer sees.
     Codec(CodecArgs),
+}
+
+/// `--back-samples`: the sample counts every adapter renders (WebGPU's 1
+/// and 4).
+fn back_samples(text: &str) -> Result<u32, String> {
+    match text {
+        "1" => Ok(1),
+        "4" => Ok(4),
+        _ => Err(format!(
+            "{text:?} is not a sample count every adapter has: use 1 or 4"
+        )),
+    }
 }
 
 fn main() -> ExitCode {
@@ -287,6 +303,7 @@ fn main() -> ExitCode {
                     cross_grid,
                     hemicube_resolution,
                     back_resolution,
+                    back_samples,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -304,6 +321,7 @@ fn main() -> ExitCode {
                         hemicube_resolution: hemicube_resolution
                             .unwrap_or(defaults.hemicube_resolution),
                         back_resolution: back_resolution.unwrap_or(defaults.back_resolution),
+                        back_samples: back_samples.unwrap_or(defaults.back_samples),
                         ..defaults
                     }
                 },

@@ -106,6 +106,12 @@ pub struct ProgressiveOptions {
     /// the cross projection (thesis §4.5.2 renders them as low as 16, with
     /// multisampling as a blur).
     pub back_resolution: u32,
+    /// Samples per pixel of the back hemicubes: more than one blurs them
+    /// (resolved by averaging), which hides the undersampling of the cross
+    /// projection (thesis §4.5.2). At 32² one sample is more accurate
+    /// than 16² with four and costs the same on lavapipe (BENCHMARKS.md,
+    /// "back hemicubes at 32²"); WebGPU guarantees 1 and 4.
+    pub back_samples: u32,
     /// Split shooter tiles that straddle a contact (valid and invalid
     /// elements), up to 1.5 times the tiles of the power-based grid
     /// (`Tiling::split_contacts` in `shooters.rs`), for every method.
@@ -135,7 +141,8 @@ impl Default for ProgressiveOptions {
             indirect_only: false,
             cross_grid: 4,
             cross_tile: 4,
-            back_resolution: 16,
+            back_resolution: 32,
+            back_samples: 1,
             split_contacts: true,
             max_power_workgroups: u32::MAX,
         }

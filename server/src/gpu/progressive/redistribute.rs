@@ -142,9 +142,6 @@ const GATHER_RESOLUTION: u32 = 32;
 /// `Batch.mode` of the regathering hemicubes: total radiosity of the
 /// static set (hemicube.wgsl `RAD_TOTAL`).
 const RAD_TOTAL: u32 = 0x20000;
-/// Samples per pixel of the back hemicubes: multisampling blurs them, which
-/// hides the undersampling of the cross projection (thesis §4.5.2).
-const BACK_SAMPLES: u32 = 4;
 
 /// One GPU batch of a move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -217,7 +214,9 @@ pub(in crate::gpu) struct DynamicPasses {
     /// redistribute.wgsl).
     cross_cells: wgpu::Buffer,
     front_view: wgpu::TextureView,
-    back_msaa_view: wgpu::TextureView,
+    /// Multisampled back hemicubes, resolved into `back_view` (none with
+    /// one sample per pixel: drawn into `back_view` directly).
+    back_msaa_view: Option<wgpu::TextureView>,
     back_view: wgpu::TextureView,
     back_depth_view: wgpu::TextureView,
 }
@@ -256,21 +255,24 @@ impl ProgressiveSolver {
             attach,
         );
         let back_size = (FACES * back_res, back_res * cap);
-        let back_msaa_view = texture(
-            device,
-            "back hemicubes (multisampled)",
-            back_size,
-            rgba,
-            BACK_SAMPLES,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
+        let back_samples = self.options.back_samples.max(1);
+        let back_msaa_view = (back_samples > 1).then(|| {
+            texture(
+                device,
+                "back hemicubes (multisampled)",
+                back_size,
+                rgba,
+                back_samples,
+                wgpu::TextureUsages::RENDER_ATTACHMENT,
+            )
+        });
         let back_view = texture(device, "back hemicubes", back_size, rgba, 1, attach);
         let back_depth_view = texture(
             device,
             "back hemicube depth",
             back_size,
             wgpu::TextureFormat::Depth32Float,
-            BACK_SAMPLES,
+            back_samples,
             wgpu::TextureUsages::RENDER_ATTACHMENT,
         );
         let back_shooters = device.create_buffer(&wgpu::BufferDescriptor {
@@ -363,7 +365,8 @@ impl ProgressiveSolver {
         let smooth = compute(SMOOTH_MOVING, &tile);
         let reconstruct = compute(RECONSTRUCT_DYN, &grid);
         // Shot radiosity hemicubes: the front ones at the batch's shooters,
-        // the back ones (multisampled) at their own shooters and constants.
+        // the back ones (multisampled if asked) at their own shooters and
+        // constants.
         let rad = &hemicube::SHOT_RADIOSITY;
         let rad_layout = rad.layout(device);
         let rad_pipeline = |samples: u32| {
@@ -384,7 +387,7 @@ impl ProgressiveSolver {
             .resources()
             .buffer(hemicube::slot::SHOOTERS, &back_shooters)
             .buffer(hemicube::slot::BATCH, &back_batch);
-        let back_pipeline = rad_pipeline(BACK_SAMPLES);
+        let back_pipeline = rad_pipeline(back_samples);
         let back_group = rad.bind(device, &rad_layout, |s| back_resources.get(s));
         DynamicPasses {
             reset,
@@ -785,8 +788,8 @@ impl ProgressiveSolver {
                     &mut encoder,
                     (&d.rad_back.0, &d.rad_back.1),
                     &hemicube::Target {
-                        view: &d.back_msaa_view,
-                        resolve: Some(&d.back_view),
+                        view: d.back_msaa_view.as_ref().unwrap_or(&d.back_view),
+                        resolve: d.back_msaa_view.as_ref().map(|_| &d.back_view),
                         depth: &d.back_depth_view,
                         clear,
                         resolution: back_uniform.resolution,
