@@ -9,7 +9,8 @@
 // the old and at the new position of each shooter). An object whose matrix
 // is zero is absent: its triangles collapse to a point and draw nothing.
 //
-// Two kinds of target:
+// Two kinds of target (the vertex entry points are in the draw layouts'
+// files, hemicube_faces.wgsl and hemicube_rows.wgsl):
 //   vs_main/fs_main  item buffers (R32Uint): the nearest patch id.
 //   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
 //                    and the distance from the eye (Rgba16Float), for the
@@ -61,51 +62,65 @@ fn project(s: Shooter, face: u32, p: vec3<f32>) -> vec4<f32> {
     return vec4<f32>(l.x, l.y, z, l.z);
 }
 
-struct VertexOut {
-    @builtin(position) clip: vec4<f32>,
+// What a hemicube vertex carries to the rasterizer. The entry points that
+// place it in the target live in the files of the two draw layouts
+// (gpu/hemicube.rs `Draws`): hemicube_faces.wgsl (a viewport per face) and
+// hemicube_rows.wgsl (every face in one draw, clipped by clip distances).
+// Fragments read these at the same locations in both.
+struct ItemVertex {
+    clip: vec4<f32>,
+    id: u32,
+};
+
+// Vertex `vi` of instance `ii = slot * 5 + face`, projected into its face
+// (x, y in [-w, w]) with the patch id.
+fn item_vertex(vi: u32, ii: u32) -> ItemVertex {
+    let slot = ii / 5u;
+    let v = vertices[vi];
+    let clip = project(shooters[slot], ii % 5u, world_position(v, slot));
+    return ItemVertex(clip, bitcast<u32>(v.pos.w));
+}
+
+struct ItemFragment {
     @location(0) @interpolate(flat) id: u32,
 };
 
-@vertex
-fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VertexOut {
-    let slot = ii / 5u;
-    let v = vertices[vi];
-    var out: VertexOut;
-    out.clip = project(shooters[slot], ii % 5u, world_position(v, slot));
-    out.id = bitcast<u32>(v.pos.w);
-    return out;
-}
-
 @fragment
-fn fs_main(in: VertexOut) -> @location(0) u32 {
+fn fs_main(in: ItemFragment) -> @location(0) u32 {
     return in.id;
 }
 
-struct RadOut {
-    @builtin(position) clip: vec4<f32>,
+struct RadVertex {
+    clip: vec4<f32>,
+    patch_id: u32,
+    object: u32,
+    st: vec2<f32>,
+    offset: vec3<f32>,
+};
+
+fn rad_vertex(vi: u32, ii: u32) -> RadVertex {
+    let slot = ii / 5u;
+    let s = shooters[slot];
+    let v = vertices[vi];
+    let p = world_position(v, slot);
+    return RadVertex(
+        project(s, ii % 5u, p),
+        bitcast<u32>(v.pos.w),
+        bitcast<u32>(v.st.z),
+        v.st.xy,
+        p - s.eye.xyz,
+    );
+}
+
+struct RadFragment {
     @location(0) @interpolate(flat) patch_id: u32,
     @location(1) @interpolate(flat) object: u32,
     @location(2) st: vec2<f32>,
     @location(3) offset: vec3<f32>,
 };
 
-@vertex
-fn vs_rad(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> RadOut {
-    let slot = ii / 5u;
-    let s = shooters[slot];
-    let v = vertices[vi];
-    let p = world_position(v, slot);
-    var out: RadOut;
-    out.clip = project(s, ii % 5u, p);
-    out.patch_id = bitcast<u32>(v.pos.w);
-    out.object = bitcast<u32>(v.st.z);
-    out.st = v.st.xy;
-    out.offset = p - s.eye.xyz;
-    return out;
-}
-
 @fragment
-fn fs_rad(in: RadOut) -> @location(0) vec4<f32> {
+fn fs_rad(in: RadFragment) -> @location(0) vec4<f32> {
     let distance = length(in.offset);
     if ((object_flags[in.object] & OBJECT_MOVING) != 0u) {
         if (batch.mode == RAD_BACK) {

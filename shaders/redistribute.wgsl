@@ -338,8 +338,10 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
 }
 
 // Shot radiosity of the static set seen through back hemicube `slot` in
-// world direction `d` from its eye (bilinear; clamped inside the face so
-// that neighbouring faces do not bleed in), and in .a the distance.
+// world direction `d` from its eye (bilinear; clamped inside the drawn part
+// of the face — a side face's upper half, gpu/hemicube.rs `face_height` —
+// so that neighbouring faces and undrawn rows do not bleed in), and in .a
+// the distance.
 fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
     let face = face_of(b, d);
     let l = face_local(b, face, d);
@@ -348,7 +350,8 @@ fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
     }
     let res = f32(back.resolution);
     let ndc = l.xy / l.z;
-    let p = clamp(vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res), vec2<f32>(0.5), vec2<f32>(res - 0.5));
+    let rows = select(ceil(res * 0.5), res, face == 0u);
+    let p = clamp(vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res), vec2<f32>(0.5), vec2<f32>(res - 0.5, rows - 0.5));
     let size = vec2<f32>(textureDimensions(back_rad));
     let uv = (vec2<f32>(f32(face) * res, f32(slot) * res) + p) / size;
     return textureSampleLevel(back_rad, back_sampler, uv, 0.0);

@@ -120,12 +120,15 @@ impl Device {
         let adapter = lightwire_adapter::choose(name).await?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        // Timestamp queries where the adapter has them, for profiling
-        // (`gpu::profile`); nothing else changes with or without them.
-        let timestamps =
-            wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS;
+        // Where the adapter has them: timestamp queries, for profiling
+        // (`gpu::profile`; nothing else changes with or without them), and
+        // clip distances, which let a hemicube pass be one draw
+        // (`hemicube::Draws`; without them, a draw per face).
+        let optional = wgpu::Features::TIMESTAMP_QUERY
+            | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS
+            | wgpu::Features::CLIP_DISTANCES;
         let (device, queue) =
-            lightwire_adapter::request_device_with(&adapter, "lightwire", timestamps).await?;
+            lightwire_adapter::request_device_with(&adapter, "lightwire", optional).await?;
         let health = Arc::new(DeviceHealth::default());
         let lost = health.clone();
         device.set_device_lost_callback(move |reason, message| {
@@ -183,6 +186,14 @@ impl Device {
     /// Why the device is unusable, if it is (see [`DeviceHealth`]).
     pub fn failure(&self) -> Option<String> {
         self.health.failure()
+    }
+
+    /// Whether the device has clip distances, with which a hemicube pass is
+    /// one draw (`hemicube::Draws`).
+    pub fn has_clip_distances(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::CLIP_DISTANCES)
     }
 
     /// "NAME (BACKEND)", for logs.

@@ -582,6 +582,7 @@ impl GatherSolver {
         let hemicube = render_pipeline(
             &device,
             &module,
+            &[],
             &RADIOSITY_HEMICUBES,
             &hemicube_layout,
             wgpu::TextureFormat::Rgba32Float,

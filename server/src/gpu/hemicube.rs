@@ -114,13 +114,63 @@ pub(super) fn corner_order(triangle: bool) -> &'static [usize] {
     }
 }
 
+/// How a hemicube pass is split into draws. Both rasterize the same
+/// triangles into the same pixels of a target that holds a row of five
+/// face cells per shooter slot (`one_draw_and_per_face_draws_agree` in the
+/// progressive solver's tests).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Draws {
+    /// A draw per face of every slot, each with its face's viewport and
+    /// scissor (hemicube_faces.wgsl): works on every device.
+    PerFace,
+    /// One instanced draw for every face of every slot over a viewport
+    /// `rows` slots high; each triangle is clipped to its face's cell by
+    /// clip distances (hemicube_rows.wgsl). A draw has a fixed cost, on
+    /// lavapipe tens of microseconds, which five draws per slot turn into
+    /// most of a small scene's hemicube time.
+    One { rows: u32 },
+}
+
+impl Draws {
+    /// One draw where the device has clip distances and `allowed`, else
+    /// per face; `rows` is the slot capacity of the pass's targets.
+    pub(super) fn choose(device: &wgpu::Device, rows: u32, allowed: bool) -> Self {
+        if allowed && device.features().contains(wgpu::Features::CLIP_DISTANCES) {
+            Self::One { rows }
+        } else {
+            Self::PerFace
+        }
+    }
+
+    /// The hemicube shader module with this layout's vertex entry points.
+    pub(super) fn module(self, device: &wgpu::Device, label: &str) -> wgpu::ShaderModule {
+        device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(
+                super::shaders::hemicube(matches!(self, Self::One { .. })).into(),
+            ),
+        })
+    }
+
+    /// The pipeline constants of this layout's module (hemicube_rows.wgsl's
+    /// `ROWS`).
+    pub(super) fn constants(self) -> Vec<(&'static str, f64)> {
+        match self {
+            Self::PerFace => Vec::new(),
+            Self::One { rows } => vec![("ROWS", f64::from(rows))],
+        }
+    }
+}
+
 /// A hemicube render pipeline of `pass` with its explicit layout: no
 /// culling (surfaces are opaque from both sides), a 32-bit depth buffer
 /// compared with `depth_compare`, one colour target of `format`, `samples`
-/// samples.
+/// samples; `constants` are the module's pipeline-overridable constants.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn render_pipeline(
     device: &wgpu::Device,
     module: &wgpu::ShaderModule,
+    constants: &[(&str, f64)],
     pass: &Pass,
     layout: &wgpu::BindGroupLayout,
     format: wgpu::TextureFormat,
@@ -128,13 +178,17 @@ pub(super) fn render_pipeline(
     depth_compare: wgpu::CompareFunction,
 ) -> wgpu::RenderPipeline {
     let label = pass.entries.join("/");
+    let compilation_options = wgpu::PipelineCompilationOptions {
+        constants,
+        ..Default::default()
+    };
     device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
         label: Some(&label),
         layout: Some(&pass.pipeline_layout(device, layout)),
         vertex: wgpu::VertexState {
             module,
             entry_point: Some(pass.entries[0]),
-            compilation_options: Default::default(),
+            compilation_options: compilation_options.clone(),
             buffers: &[],
         },
         primitive: wgpu::PrimitiveState {
@@ -157,7 +211,7 @@ pub(super) fn render_pipeline(
         fragment: Some(wgpu::FragmentState {
             module,
             entry_point: Some(pass.entries[1]),
-            compilation_options: Default::default(),
+            compilation_options,
             targets: &[Some(wgpu::ColorTargetState {
                 format,
                 blend: None,
@@ -167,6 +221,14 @@ pub(super) fn render_pipeline(
         multiview_mask: None,
         cache: None,
     })
+}
+
+/// Rows of face `face`'s cell (`res` square) that a hemicube uses: all of
+/// the top face, the upper half of a side face (its lower half looks below
+/// the horizon). Nothing is drawn in the rest, which keeps the clear
+/// colour.
+pub(super) fn face_height(face: u32, res: u32) -> u32 {
+    if face == 0 { res } else { res.div_ceil(2) }
 }
 
 /// Where one hemicube render pass draws.
@@ -183,13 +245,15 @@ pub(super) struct Target<'a> {
 /// Rasterizes hemicube slots `0..slots` of the bound shooters into
 /// `target` (thesis §4.3.2: one large target, a viewport per face per
 /// shooter, all in one render pass); `triangle_vertices` of the patch
-/// triangles are drawn once per face.
+/// triangles are drawn once per face, in draws as `draws` says (the
+/// pipeline's module must be that layout's).
 pub(super) fn encode(
     encoder: &mut wgpu::CommandEncoder,
     (pipeline, group): (&wgpu::RenderPipeline, &wgpu::BindGroup),
     target: &Target<'_>,
     slots: u32,
     triangle_vertices: u32,
+    draws: Draws,
 ) {
     let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
         label: Some("hemicubes"),
@@ -221,11 +285,27 @@ pub(super) fn encode(
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, group, &[]);
     let res = target.resolution;
+    if let Draws::One { rows } = draws {
+        debug_assert!(slots <= rows, "{slots} slots in a target of {rows}");
+        // The viewport spans every row the target holds (the shader places
+        // by it); the scissor keeps to the slots drawn.
+        pass.set_viewport(
+            0.0,
+            0.0,
+            (FACES * res) as f32,
+            (rows * res) as f32,
+            0.0,
+            1.0,
+        );
+        pass.set_scissor_rect(0, 0, FACES * res, slots * res);
+        pass.draw(0..triangle_vertices, 0..slots * FACES);
+        return;
+    }
     for slot in 0..slots {
         for face in 0..FACES {
             let (x, y) = (face * res, slot * res);
             pass.set_viewport(x as f32, y as f32, res as f32, res as f32, 0.0, 1.0);
-            pass.set_scissor_rect(x, y, res, res);
+            pass.set_scissor_rect(x, y, res, face_height(face, res));
             let instance = slot * FACES + face;
             pass.draw(0..triangle_vertices, instance..instance + 1);
         }

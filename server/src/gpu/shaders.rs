@@ -10,7 +10,8 @@
 //! ```
 //!
 //! The module built from a file is the files of that line, in its order,
-//! then the file itself; each file once. The list is complete, not
+//! then the file itself; each file once; `enable` directives, which WGSL
+//! wants first, are moved to the top. The list is complete, not
 //! transitive: it names every file the module is made of, those that a
 //! listed file requires before it, so the first line of a file says all
 //! the WGSL its module holds. A file without the line requires nothing.
@@ -27,8 +28,13 @@
 //!   the batch's bindings (7-10, 12), visibility through the item buffers
 //!   and the form factor.
 //!
-//! Entry-point files, one module each: `hemicube.wgsl` (the hemicube
-//! rasterizer), `progressive.wgsl` (progressive refinement),
+//! - `hemicube.wgsl`: the hemicube rasterizer's bindings, projection and
+//!   fragment entry points.
+//!
+//! Entry-point files, one module each: `hemicube_faces.wgsl` and
+//! `hemicube_rows.wgsl` (the hemicube rasterizer's vertex entry points in
+//! its two draw layouts: a draw per face, or all faces in one draw with
+//! clip distances), `progressive.wgsl` (progressive refinement),
 //! `redistribute.wgsl` (redistribution after moves), `gather.wgsl` (gather
 //! radiosity). The progressive and redistribution modules share the
 //! bindings of `elements.wgsl` and `receive.wgsl` at the same indices, so
@@ -41,7 +47,7 @@
 //! pipeline binds what its entry points use.
 
 /// Every file in `shaders/`, by name.
-const FILES: [(&str, &str); 7] = [
+const FILES: [(&str, &str); 9] = [
     ("common.wgsl", include_str!("../../../shaders/common.wgsl")),
     (
         "elements.wgsl",
@@ -54,6 +60,14 @@ const FILES: [(&str, &str); 7] = [
     (
         "hemicube.wgsl",
         include_str!("../../../shaders/hemicube.wgsl"),
+    ),
+    (
+        "hemicube_faces.wgsl",
+        include_str!("../../../shaders/hemicube_faces.wgsl"),
+    ),
+    (
+        "hemicube_rows.wgsl",
+        include_str!("../../../shaders/hemicube_rows.wgsl"),
     ),
     (
         "progressive.wgsl",
@@ -99,12 +113,19 @@ fn requires(text: &str) -> Vec<&str> {
         .unwrap_or_default()
 }
 
-/// The module built from file `name`: the files it requires, then itself.
+/// The module built from file `name`: the files it requires, then itself,
+/// with every `enable` directive of those files moved to the top (WGSL
+/// wants directives before any declaration; a file states the extensions
+/// it uses where it uses them).
 fn assemble(name: &str) -> String {
     let text = source(name);
     let mut parts: Vec<&str> = requires(text).into_iter().map(source).collect();
     parts.push(text);
-    parts.join("\n")
+    let is_directive = |line: &&str| line.starts_with("enable ");
+    let lines = || parts.iter().flat_map(|part| part.lines());
+    let mut module: Vec<&str> = lines().filter(is_directive).collect();
+    module.extend(lines().filter(|line| !is_directive(line)));
+    module.join("\n")
 }
 
 /// The compute passes of progressive refinement (progressive.wgsl).
@@ -118,9 +139,16 @@ pub(super) fn redistribute() -> String {
 }
 
 /// The hemicube rasterizer (item buffers of patch ids, and radiosity
-/// hemicubes for cross redistribution; hemicube.wgsl).
-pub(super) fn hemicube() -> String {
-    assemble("hemicube.wgsl")
+/// hemicubes for cross redistribution; hemicube.wgsl) with the vertex
+/// entry points of one draw layout (`hemicube::Draws`): every face in one
+/// draw (`rows`, hemicube_rows.wgsl, needs clip distances) or a draw per
+/// face (hemicube_faces.wgsl).
+pub(super) fn hemicube(rows: bool) -> String {
+    assemble(if rows {
+        "hemicube_rows.wgsl"
+    } else {
+        "hemicube_faces.wgsl"
+    })
 }
 
 /// The gather solver's hemicubes and integration (gather.wgsl).
@@ -138,11 +166,12 @@ mod tests {
     use super::*;
 
     /// Every module the solvers build, by the label they give it.
-    fn modules() -> [(&'static str, String); 4] {
+    fn modules() -> [(&'static str, String); 5] {
         [
             ("progressive", progressive()),
             ("redistribute", redistribute()),
-            ("hemicube", hemicube()),
+            ("hemicube (faces)", hemicube(false)),
+            ("hemicube (rows)", hemicube(true)),
             ("gather", gather()),
         ]
     }
@@ -150,9 +179,12 @@ mod tests {
     fn parse(label: &str, source: &str) -> (naga::Module, naga::valid::ModuleInfo) {
         let module = naga::front::wgsl::parse_str(source)
             .unwrap_or_else(|e| panic!("{label}: {}", e.emit_to_string(source)));
+        // Clip distances: the one optional capability a module uses
+        // (hemicube_rows.wgsl; its pipelines exist only where the device
+        // has the feature).
         let info = naga::valid::Validator::new(
             naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::default(),
+            naga::valid::Capabilities::default() | naga::valid::Capabilities::CLIP_DISTANCES,
         )
         .validate(&module)
         .unwrap_or_else(|e| panic!("{label}: {}", e.emit_to_string(source)));
@@ -265,7 +297,8 @@ mod tests {
     /// WGSL declares: a binding changed on one side only fails here.
     #[test]
     fn every_pass_binds_what_its_shader_declares() {
-        let passes: [(&str, String, Vec<Pass>); 4] = [
+        let hemicube_passes = vec![hemicube::ITEM_BUFFERS, hemicube::SHOT_RADIOSITY];
+        let passes: [(&str, String, Vec<Pass>); 5] = [
             (
                 "progressive",
                 progressive(),
@@ -276,11 +309,8 @@ mod tests {
                 redistribute(),
                 progressive::REDISTRIBUTION_PASSES.to_vec(),
             ),
-            (
-                "hemicube",
-                hemicube(),
-                vec![hemicube::ITEM_BUFFERS, hemicube::SHOT_RADIOSITY],
-            ),
+            ("hemicube (faces)", hemicube(false), hemicube_passes.clone()),
+            ("hemicube (rows)", hemicube(true), hemicube_passes),
             ("gather", gather(), gather::ALL_PASSES.to_vec()),
         ];
         for (label, source, list) in passes {

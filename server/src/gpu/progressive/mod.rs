@@ -25,7 +25,7 @@ use glam::Vec3;
 
 use super::buffers::{WORKGROUP, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
-use super::hemicube::{FACES, patch_vertices};
+use super::hemicube::{Draws, FACES, patch_vertices};
 use super::placement::{
     self, ELEMENT_BYTES, INVALID_FLAG_OFFSET, LocalElement, PatchTable, WorldPatch, invalid_flag,
     pose_matrix, world_areas,
@@ -129,6 +129,11 @@ pub struct ProgressiveOptions {
     /// mesh has a patch per triangle and may have more, which the
     /// workgroups then take in turns. Tests lower it to exercise that.
     pub max_power_workgroups: u32,
+    /// Draw each hemicube pass as one instanced draw where the device has
+    /// clip distances (`hemicube::Draws::One`), else a draw per face of
+    /// every shooter. Both give the same hemicubes; tests turn it off to
+    /// compare.
+    pub one_draw_hemicubes: bool,
 }
 
 impl Default for ProgressiveOptions {
@@ -145,6 +150,7 @@ impl Default for ProgressiveOptions {
             back_samples: 1,
             split_contacts: true,
             max_power_workgroups: u32::MAX,
+            one_draw_hemicubes: true,
         }
     }
 }
@@ -190,6 +196,9 @@ pub struct ProgressiveSolver {
     options: ProgressiveOptions,
     /// Shooters per batch the item-buffer target can hold.
     batch_capacity: u32,
+    /// How hemicube passes are drawn: every target holds `batch_capacity`
+    /// slots.
+    draws: Draws,
     /// Workgroups one dispatch may have per dimension (the adapter's limit).
     max_workgroups: u32,
     /// Patches in object space, their objects and their elements.
@@ -359,13 +368,15 @@ impl ProgressiveSolver {
                 resolution: res,
             },
         );
-        let pipelines = Pipelines::new(&device, &buffers);
+        let draws = Draws::choose(&device, batch_capacity, options.one_draw_hemicubes);
+        let pipelines = Pipelines::new(&device, &buffers, draws);
 
         let mut solver = Self {
             device,
             queue,
             options,
             batch_capacity,
+            draws,
             max_workgroups: options
                 .max_power_workgroups
                 .min(gpu.limits.max_compute_workgroups_per_dimension)
@@ -502,6 +513,13 @@ impl ProgressiveSolver {
     /// Times redistribution's stages into `profile` (`gpu::profile`).
     pub fn set_profiler(&mut self, profile: Profiler) {
         self.profile = profile;
+    }
+
+    /// Whether each hemicube pass is one draw (the device has clip
+    /// distances and [`ProgressiveOptions::one_draw_hemicubes`] is on) or a
+    /// draw per face.
+    pub fn hemicubes_in_one_draw(&self) -> bool {
+        matches!(self.draws, Draws::One { .. })
     }
 
     /// Shooters shot since the solver was created.

@@ -5,7 +5,7 @@
 
 use super::resources::Buffers;
 use crate::gpu::binding::{Kind, Pass, Slot};
-use crate::gpu::hemicube;
+use crate::gpu::hemicube::{self, Draws};
 use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
@@ -216,21 +216,19 @@ pub(super) struct Pipelines {
 }
 
 impl Pipelines {
-    pub(super) fn new(device: &wgpu::Device, buffers: &Buffers) -> Self {
+    pub(super) fn new(device: &wgpu::Device, buffers: &Buffers, draws: Draws) -> Self {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("progressive.wgsl"),
             source: wgpu::ShaderSource::Wgsl(shaders::progressive().into()),
         });
-        let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("hemicube.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
-        });
+        let hemicube_module = draws.module(device, "hemicube.wgsl");
         let resources = buffers.resources();
         let compute = |pass: Pass| pass.compute(device, &module, &[], |s| resources.get(s));
         let item_layout = hemicube::ITEM_BUFFERS.layout(device);
         let item_pipeline = hemicube::render_pipeline(
             device,
             &hemicube_module,
+            &draws.constants(),
             &hemicube::ITEM_BUFFERS,
             &item_layout,
             wgpu::TextureFormat::R32Uint,

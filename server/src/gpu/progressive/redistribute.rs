@@ -334,10 +334,8 @@ impl ProgressiveSolver {
             label: Some("redistribute.wgsl"),
             source: wgpu::ShaderSource::Wgsl(shaders::redistribute().into()),
         });
-        let hemicube_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("hemicube.wgsl (radiosity)"),
-            source: wgpu::ShaderSource::Wgsl(shaders::hemicube().into()),
-        });
+        let hemicube_module = self.draws.module(device, "hemicube.wgsl (radiosity)");
+        let draw_constants = self.draws.constants();
         let grid = [("CROSS_GRID", f64::from(grid))];
         let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
         let gather_res = [("GATHER_RESOLUTION", f64::from(self.gather_resolution()))];
@@ -373,6 +371,7 @@ impl ProgressiveSolver {
             hemicube::render_pipeline(
                 device,
                 &hemicube_module,
+                &draw_constants,
                 rad,
                 &rad_layout,
                 rgba,
@@ -781,6 +780,7 @@ impl ProgressiveSolver {
                         },
                         count,
                         self.triangle_vertices,
+                        self.draws,
                     );
                     self.profile.mark(&mut encoder, Stage::FrontHemicubes);
                 }
@@ -796,6 +796,7 @@ impl ProgressiveSolver {
                     },
                     total,
                     self.triangle_vertices,
+                    self.draws,
                 );
                 self.profile.mark(&mut encoder, Stage::BackHemicubes);
                 encode_compute(&mut encoder, &d.gather, count);
@@ -928,6 +929,7 @@ impl ProgressiveSolver {
                 },
                 n,
                 self.triangle_vertices,
+                self.draws,
             );
             self.profile.mark(encoder, Stage::FrontHemicubes);
             encode_compute(encoder, &d.regather, n);

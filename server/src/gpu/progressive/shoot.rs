@@ -92,6 +92,7 @@ impl ProgressiveSolver {
             },
             slots,
             self.triangle_vertices,
+            self.draws,
         );
     }
 
