@@ -126,7 +126,9 @@ pub struct Config {
     pub listen: SocketAddr,
     /// Scene files to serve; each scene's `name` is its id.
     pub scenes: Vec<PathBuf>,
-    /// Ticks per second of each scene's loop.
+    /// Ticks per second of each scene's loop (a transform arriving between
+    /// ticks starts the next one early, no sooner than a quarter period
+    /// after the last).
     pub tick_hz: f64,
     /// Solver time per tick, milliseconds.
     pub budget_ms: f64,

@@ -2,7 +2,8 @@
 //! tick thread of `lightwire serve`, or the upstream connection of
 //! `lightwire relay`, which forwards them to its solver.
 
-use std::sync::Mutex;
+use std::sync::{Condvar, Mutex};
+use std::time::Instant;
 
 use lightwire_protocol::Pose;
 use tokio::sync::Notify;
@@ -20,9 +21,11 @@ pub struct PendingPose {
 /// inbox holds at most one pose per object however fast drivers send.
 pub struct Inbox {
     slots: Mutex<Slots>,
-    /// Wakes an async consumer (the relay) when a pose arrives; the tick
-    /// thread polls once per tick instead and never waits on it.
+    /// Wakes an async consumer (the relay) when a pose arrives.
     arrived: Notify,
+    /// Wakes the tick thread waiting between ticks
+    /// ([`Inbox::wait_until`]) when a pose arrives.
+    offered: Condvar,
 }
 
 struct Slots {
@@ -30,6 +33,8 @@ struct Slots {
     /// Highest seq accepted per object (also for already-drained slots), so
     /// a stale transform is recognised after its successor was consumed.
     accepted: Vec<u64>,
+    /// Some slot was filled since the last drain.
+    fresh: bool,
 }
 
 /// What the inbox did with an offered transform.
@@ -53,8 +58,10 @@ impl Inbox {
             slots: Mutex::new(Slots {
                 pending: vec![None; objects],
                 accepted: vec![0; objects],
+                fresh: false,
             }),
             arrived: Notify::new(),
+            offered: Condvar::new(),
         }
     }
 
@@ -64,6 +71,7 @@ impl Inbox {
         let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
         slots.pending = vec![None; objects];
         slots.accepted = vec![0; objects];
+        slots.fresh = false;
     }
 
     /// Offers a validated pose for `object`.
@@ -77,7 +85,9 @@ impl Inbox {
         }
         slots.accepted[object] = seq;
         slots.pending[object] = Some(PendingPose { seq, pose });
+        slots.fresh = true;
         drop(slots);
+        self.offered.notify_all();
         self.arrived.notify_one();
         Offer::Accepted
     }
@@ -85,12 +95,33 @@ impl Inbox {
     /// Takes every pending pose, by object index.
     pub fn drain(&self) -> Vec<(usize, PendingPose)> {
         let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
+        slots.fresh = false;
         slots
             .pending
             .iter_mut()
             .enumerate()
             .filter_map(|(i, s)| s.take().map(|p| (i, p)))
             .collect()
+    }
+
+    /// Blocks until a pose is waiting to be drained or `deadline` passes;
+    /// returns whether one is waiting. For the tick thread, which sleeps
+    /// between ticks here, so that a transform starts its work at once
+    /// instead of at the next tick.
+    pub fn wait_until(&self, deadline: Instant) -> bool {
+        let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
+        while !slots.fresh {
+            let now = Instant::now();
+            if now >= deadline {
+                return false;
+            }
+            slots = self
+                .offered
+                .wait_timeout(slots, deadline - now)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+        }
+        true
     }
 
     /// Resolves when a pose was offered since the last call (a permit is
@@ -124,6 +155,30 @@ mod tests {
         // Still stale after the slot was drained.
         assert_eq!(inbox.offer(1, 7, pose()), Offer::Stale { latest: 7 });
         assert!(inbox.drain().is_empty());
+    }
+
+    /// The tick thread's wait ends when a pose arrives, not at its
+    /// deadline, and a pose already waiting ends it at once; once drained,
+    /// the wait runs to the deadline.
+    #[test]
+    fn a_waiting_tick_thread_wakes_when_a_pose_arrives() {
+        use std::sync::Arc;
+        use std::time::Duration;
+        let inbox = Arc::new(Inbox::new(1));
+        let far = Instant::now() + Duration::from_secs(30);
+        let offering = inbox.clone();
+        let sender = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(20));
+            offering.offer(0, 1, pose())
+        });
+        assert!(inbox.wait_until(far), "woken by the offer");
+        assert!(Instant::now() < far);
+        assert_eq!(sender.join().ok(), Some(Offer::Accepted));
+        assert!(inbox.wait_until(far), "still waiting to be drained");
+        assert_eq!(inbox.drain().len(), 1);
+        let soon = Instant::now() + Duration::from_millis(10);
+        assert!(!inbox.wait_until(soon), "nothing new: runs to the deadline");
+        assert!(Instant::now() >= soon);
     }
 
     #[test]

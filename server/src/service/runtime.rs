@@ -16,7 +16,9 @@
 //!    replaces the previous one in a `watch` channel, echoing the seqs
 //!    that state reflects);
 //! 5. update stats and metrics, sleep to the next tick (ticks missed while
-//!    the solver ran long are skipped, not caught up).
+//!    the solver ran long are skipped, not caught up); a transform that
+//!    arrives meanwhile starts the next tick at once (at most four ticks
+//!    per period).
 //!
 //! When the solver fails (its `step` returns a [`SolverFailure`], or
 //! panics: each step runs under `catch_unwind`), the tick loop owns the
@@ -526,17 +528,28 @@ impl TickLoop {
         });
     }
 
-    /// Sleeps to the tick after `next`; returns it.
-    fn sleep_until_next(&self, mut next: Instant) -> Instant {
-        next += self.period;
+    /// Waits for the tick after the one scheduled at `next` and returns
+    /// when it starts: a period after `next`, or as soon as a transform
+    /// arrives, so that a move does not wait for the tick grid (up to a
+    /// period, 17 ms at 60 Hz) before its work starts; but never sooner
+    /// than a quarter period after `next`, so that drivers sending faster
+    /// than the ticks cannot run them back to back.
+    fn sleep_until_next(&self, next: Instant) -> Instant {
+        let due = next + self.period;
         let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
-        } else {
+        if due <= now {
             // Ran long (a blocking re-solve): skip the missed ticks.
-            next = now;
+            return now;
         }
-        next
+        let earliest = next + self.period / 4;
+        if earliest > now {
+            std::thread::sleep(earliest - now);
+        }
+        if self.runtime.feed.inbox.wait_until(due) {
+            Instant::now()
+        } else {
+            due
+        }
     }
 }
 
