@@ -402,47 +402,50 @@ impl Scene {
     /// mesh is closed when it is watertight without T-junctions; a single
     /// quad, an open box or a box facing in are not.
     pub fn closed_objects(&self) -> Vec<bool> {
-        use std::collections::HashMap;
         (0..self.objects.len() as u32)
-            .map(|o| {
-                let shapes: Vec<&PatchShape> = self
-                    .patches
-                    .iter()
-                    .filter(|p| p.object == o)
-                    .map(|p| &p.shape)
-                    .collect();
-                let corners: Vec<Vec<Vec3>> = shapes.iter().map(|s| s.corners()).collect();
-                let size = corners
-                    .iter()
-                    .flatten()
-                    .fold(0.0f32, |m, c| m.max(c.abs().max_element()));
-                if corners.is_empty() || size <= 0.0 {
+            .map(|o| self.is_closed(o))
+            .collect()
+    }
+
+    /// Whether object `o` is closed, as [`Scene::closed_objects`] says.
+    pub fn is_closed(&self, o: u32) -> bool {
+        use std::collections::HashMap;
+        let shapes: Vec<&PatchShape> = self
+            .patches
+            .iter()
+            .filter(|p| p.object == o)
+            .map(|p| &p.shape)
+            .collect();
+        let corners: Vec<Vec<Vec3>> = shapes.iter().map(|s| s.corners()).collect();
+        let size = corners
+            .iter()
+            .flatten()
+            .fold(0.0f32, |m, c| m.max(c.abs().max_element()));
+        if corners.is_empty() || size <= 0.0 {
+            return false;
+        }
+        let step = 1e-5 * size;
+        let key = |c: Vec3| (c / step).round().as_i64vec3().to_array();
+        // Directed edge counts: +1 for a->b, -1 for b->a under the
+        // key (smaller corner first).
+        let mut edges: HashMap<([i64; 3], [i64; 3]), i32> = HashMap::new();
+        let mut volume = 0.0f64;
+        for cs in &corners {
+            for i in 0..cs.len() {
+                let (a, b) = (key(cs[i]), key(cs[(i + 1) % cs.len()]));
+                if a == b {
                     return false;
                 }
-                let step = 1e-5 * size;
-                let key = |c: Vec3| (c / step).round().as_i64vec3().to_array();
-                // Directed edge counts: +1 for a->b, -1 for b->a under the
-                // key (smaller corner first).
-                let mut edges: HashMap<([i64; 3], [i64; 3]), i32> = HashMap::new();
-                let mut volume = 0.0f64;
-                for cs in &corners {
-                    for i in 0..cs.len() {
-                        let (a, b) = (key(cs[i]), key(cs[(i + 1) % cs.len()]));
-                        if a == b {
-                            return false;
-                        }
-                        let (k, d) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
-                        *edges.entry(k).or_insert(0) += d;
-                    }
-                    // Signed volume of the fan from the origin.
-                    for i in 1..cs.len() - 1 {
-                        let (a, b, c) = (cs[0].as_dvec3(), cs[i].as_dvec3(), cs[i + 1].as_dvec3());
-                        volume += a.dot(b.cross(c)) / 6.0;
-                    }
-                }
-                edges.values().all(|&n| n == 0) && volume > 0.0
-            })
-            .collect()
+                let (k, d) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
+                *edges.entry(k).or_insert(0) += d;
+            }
+            // Signed volume of the fan from the origin.
+            for i in 1..cs.len() - 1 {
+                let (a, b, c) = (cs[0].as_dvec3(), cs[i].as_dvec3(), cs[i + 1].as_dvec3());
+                volume += a.dot(b.cross(c)) / 6.0;
+            }
+        }
+        edges.values().all(|&n| n == 0) && volume > 0.0
     }
 
     /// Total emitted power (W) per channel at the given poses. Uniform scale

@@ -222,9 +222,10 @@ pub struct ProgressiveSolver {
     /// Objects that occlude but neither receive nor shoot in progressive
     /// iterations ([`ProgressiveSolver::set_passive`]).
     passive: Vec<bool>,
-    /// Objects whose surface is closed and faces out
+    /// Dynamic objects whose surface is closed and faces out
     /// ([`Scene::closed_objects`]): cross redistribution gives their tiles
-    /// no back hemicubes.
+    /// no back hemicubes. Static objects never move, so they are not
+    /// tested (a static mesh of 100k triangles would hash 300k edges).
     closed: Vec<bool>,
     /// Element areas at scale 1 and their objects, for shooter areas.
     local_areas: Vec<f32>,
@@ -386,7 +387,9 @@ impl ProgressiveSolver {
             poses: poses.to_vec(),
             validity,
             regather: Vec::new(),
-            closed: scene.closed_objects(),
+            closed: (0..scene.objects.len() as u32)
+                .map(|o| scene.objects[o as usize].dynamic && scene.is_closed(o))
+                .collect(),
             scene: scene.clone(),
             atlas: atlas.clone(),
             passive: vec![false; absent.len()],
