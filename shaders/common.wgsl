@@ -171,6 +171,10 @@ fn element_at(p: PatchRange, st: vec2<f32>) -> u32 {
     return p.first + b * p.w + a;
 }
 
+// An empty item-buffer pixel (`fs_clear_items` in hemicube.wgsl); no patch
+// selected.
+const NO_PATCH: u32 = 0xffffffffu;
+
 // Bits of `object_flags`, one word per scene object.
 // MOVING: the object is in the moved set M of the running redistribution.
 const OBJECT_MOVING: u32 = 1u;

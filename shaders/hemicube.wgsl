@@ -149,3 +149,25 @@ fn fs_rad(in: RadFragment) -> @location(0) vec4<f32> {
     }
     return vec4<f32>(reflected - unshot[e].rgb, distance);
 }
+
+// Clearing the slots a pass draws (gpu/hemicube.rs `encode`): a render
+// pass keeps what its targets held (a clear at the pass's start would
+// clear all of them, every slot the target can hold, which on a software
+// rasterizer costs as much as drawing), and this triangle, drawn over the
+// viewport and scissor of the slots in use, writes the far depth and
+// "nothing" there first.
+@vertex
+fn vs_clear(@builtin(vertex_index) vi: u32) -> @builtin(position) vec4<f32> {
+    let corner = vec2<f32>(f32((vi << 1u) & 2u), f32(vi & 2u));
+    return vec4<f32>(corner * 2.0 - 1.0, 1.0, 1.0);
+}
+
+@fragment
+fn fs_clear_items() -> @location(0) u32 {
+    return NO_PATCH;
+}
+
+@fragment
+fn fs_clear_radiosity() -> @location(0) vec4<f32> {
+    return vec4<f32>(0.0);
+}

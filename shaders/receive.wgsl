@@ -13,8 +13,6 @@
 @group(0) @binding(12) var<storage, read> poses: array<mat4x4<f32>>;
 
 const PI: f32 = 3.14159265358979;
-// An empty item-buffer pixel; no patch selected.
-const NO_PATCH: u32 = 0xffffffffu;
 // Inward offset of corner samples in cells (atlas::CORNER_OFFSET).
 const CORNER_OFFSET: f32 = 0.05;
 

@@ -116,15 +116,21 @@ impl Pass {
         })
     }
 
-    /// The pipeline layout of this pass (one bind group).
+    /// The pipeline layout of this pass: one bind group, or none when the
+    /// pass has no slots (then nothing needs to be bound to draw with it).
     pub(super) fn pipeline_layout(
         &self,
         device: &wgpu::Device,
         layout: &wgpu::BindGroupLayout,
     ) -> wgpu::PipelineLayout {
+        let groups = if self.slots.is_empty() {
+            &[][..]
+        } else {
+            &[Some(layout)][..]
+        };
         device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some(&self.label()),
-            bind_group_layouts: &[Some(layout)],
+            bind_group_layouts: groups,
             immediate_size: 0,
         })
     }

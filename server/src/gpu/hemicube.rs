@@ -19,9 +19,6 @@ use crate::scene::PatchShape;
 /// Hemicube faces per shooter: top and four sides.
 pub(super) const FACES: u32 = 5;
 
-/// Patch id of item-buffer pixels that see no surface.
-pub(super) const NO_PATCH: u32 = u32::MAX;
-
 /// One patch corner for the hemicube rasterizer (`Vertex` in hemicube.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -46,6 +43,19 @@ pub(super) mod slot {
     pub(in crate::gpu) const EMISSION: Slot = Slot::new("emission", 8, Kind::StorageRead);
     pub(in crate::gpu) const ELEMENTS: Slot = Slot::new("elements", 9, Kind::StorageRead);
 }
+
+/// Clearing the slots an item-buffer pass draws to "no patch" (no
+/// bindings).
+pub(super) const CLEAR_ITEMS: Pass = Pass {
+    entries: &["vs_clear", "fs_clear_items"],
+    slots: &[],
+};
+
+/// Clearing the slots a shot-radiosity pass draws to zero (no bindings).
+pub(super) const CLEAR_RADIOSITY: Pass = Pass {
+    entries: &["vs_clear", "fs_clear_radiosity"],
+    slots: &[],
+};
 
 /// Item buffers: the nearest patch id per pixel.
 pub(super) const ITEM_BUFFERS: Pass = Pass {
@@ -162,6 +172,55 @@ impl Draws {
     }
 }
 
+/// A hemicube pass's pipelines: the one that draws the patches (`draw`,
+/// nearer depth wins) and the one that first clears the slots it draws
+/// (`clear`), both for one target format and sample count.
+pub(super) struct Pipelines {
+    draw: wgpu::RenderPipeline,
+    clear: wgpu::RenderPipeline,
+}
+
+impl Pipelines {
+    /// The pipelines of `pass` (`ITEM_BUFFERS` into R32Uint, or
+    /// `SHOT_RADIOSITY` into Rgba16Float) with `module`, a module of
+    /// `draws`' layout.
+    pub(super) fn new(
+        device: &wgpu::Device,
+        (module, draws): (&wgpu::ShaderModule, Draws),
+        pass: &Pass,
+        layout: &wgpu::BindGroupLayout,
+        samples: u32,
+    ) -> Self {
+        let (format, clear) = if pass.entries == ITEM_BUFFERS.entries {
+            (wgpu::TextureFormat::R32Uint, &CLEAR_ITEMS)
+        } else {
+            (wgpu::TextureFormat::Rgba16Float, &CLEAR_RADIOSITY)
+        };
+        let draw = render_pipeline(
+            device,
+            module,
+            &draws.constants(),
+            pass,
+            layout,
+            format,
+            samples,
+            wgpu::CompareFunction::Less,
+        );
+        let empty = clear.layout(device);
+        let clear = render_pipeline(
+            device,
+            module,
+            &[],
+            clear,
+            &empty,
+            format,
+            samples,
+            wgpu::CompareFunction::Always,
+        );
+        Self { draw, clear }
+    }
+}
+
 /// A hemicube render pipeline of `pass` with its explicit layout: no
 /// culling (surfaces are opaque from both sides), a 32-bit depth buffer
 /// compared with `depth_compare`, one colour target of `format`, `samples`
@@ -237,7 +296,6 @@ pub(super) struct Target<'a> {
     /// Resolve target of a multisampled `view` (then `view` is discarded).
     pub(super) resolve: Option<&'a wgpu::TextureView>,
     pub(super) depth: &'a wgpu::TextureView,
-    pub(super) clear: wgpu::Color,
     /// Top-face resolution in pixels.
     pub(super) resolution: u32,
 }
@@ -246,10 +304,16 @@ pub(super) struct Target<'a> {
 /// `target` (thesis §4.3.2: one large target, a viewport per face per
 /// shooter, all in one render pass); `triangle_vertices` of the patch
 /// triangles are drawn once per face, in draws as `draws` says (the
-/// pipeline's module must be that layout's).
+/// pipelines' module must be that layout's).
+///
+/// The pass loads the targets and clears only the rows of `0..slots` with
+/// a draw (`vs_clear`): a clear at the start of the pass would clear every
+/// slot the target holds, and on lavapipe that cost as much as the
+/// drawing (cornell-low's cross passes 2-2.5x slower, BENCHMARKS.md). The
+/// rows outside keep stale values that nothing reads.
 pub(super) fn encode(
     encoder: &mut wgpu::CommandEncoder,
-    (pipeline, group): (&wgpu::RenderPipeline, &wgpu::BindGroup),
+    (pipelines, group): (&Pipelines, &wgpu::BindGroup),
     target: &Target<'_>,
     slots: u32,
     triangle_vertices: u32,
@@ -261,20 +325,19 @@ pub(super) fn encode(
             view: target.view,
             depth_slice: None,
             resolve_target: target.resolve,
+            // Stored, even a multisampled view that was resolved: wgpu
+            // clears a discarded texture in full before the next pass
+            // loads it, which is the cost this avoids.
             ops: wgpu::Operations {
-                load: wgpu::LoadOp::Clear(target.clear),
-                store: if target.resolve.is_some() {
-                    wgpu::StoreOp::Discard
-                } else {
-                    wgpu::StoreOp::Store
-                },
+                load: wgpu::LoadOp::Load,
+                store: wgpu::StoreOp::Store,
             },
         })],
         depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
             view: target.depth,
             depth_ops: Some(wgpu::Operations {
-                load: wgpu::LoadOp::Clear(1.0),
-                store: wgpu::StoreOp::Discard,
+                load: wgpu::LoadOp::Load,
+                store: wgpu::StoreOp::Store,
             }),
             stencil_ops: None,
         }),
@@ -282,9 +345,23 @@ pub(super) fn encode(
         occlusion_query_set: None,
         multiview_mask: None,
     });
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, group, &[]);
     let res = target.resolution;
+    if slots == 0 {
+        return;
+    }
+    pass.set_viewport(
+        0.0,
+        0.0,
+        (FACES * res) as f32,
+        (slots * res) as f32,
+        0.0,
+        1.0,
+    );
+    pass.set_scissor_rect(0, 0, FACES * res, slots * res);
+    pass.set_pipeline(&pipelines.clear);
+    pass.draw(0..3, 0..1);
+    pass.set_pipeline(&pipelines.draw);
+    pass.set_bind_group(0, group, &[]);
     if let Draws::One { rows } = draws {
         debug_assert!(slots <= rows, "{slots} slots in a target of {rows}");
         // The viewport spans every row the target holds (the shader places

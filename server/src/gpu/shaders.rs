@@ -297,7 +297,12 @@ mod tests {
     /// WGSL declares: a binding changed on one side only fails here.
     #[test]
     fn every_pass_binds_what_its_shader_declares() {
-        let hemicube_passes = vec![hemicube::ITEM_BUFFERS, hemicube::SHOT_RADIOSITY];
+        let hemicube_passes = vec![
+            hemicube::ITEM_BUFFERS,
+            hemicube::SHOT_RADIOSITY,
+            hemicube::CLEAR_ITEMS,
+            hemicube::CLEAR_RADIOSITY,
+        ];
         let passes: [(&str, String, Vec<Pass>); 5] = [
             (
                 "progressive",

@@ -212,7 +212,7 @@ pub(super) struct Pipelines {
     pub(super) select: (wgpu::ComputePipeline, wgpu::BindGroup),
     pub(super) place: (wgpu::ComputePipeline, wgpu::BindGroup),
     /// Item buffers of patch ids (hemicube.wgsl).
-    pub(super) item_buffers: (wgpu::RenderPipeline, wgpu::BindGroup),
+    pub(super) item_buffers: (hemicube::Pipelines, wgpu::BindGroup),
 }
 
 impl Pipelines {
@@ -225,15 +225,12 @@ impl Pipelines {
         let resources = buffers.resources();
         let compute = |pass: Pass| pass.compute(device, &module, &[], |s| resources.get(s));
         let item_layout = hemicube::ITEM_BUFFERS.layout(device);
-        let item_pipeline = hemicube::render_pipeline(
+        let item_pipeline = hemicube::Pipelines::new(
             device,
-            &hemicube_module,
-            &draws.constants(),
+            (&hemicube_module, draws),
             &hemicube::ITEM_BUFFERS,
             &item_layout,
-            wgpu::TextureFormat::R32Uint,
             1,
-            wgpu::CompareFunction::Less,
         );
         let item_group = hemicube::ITEM_BUFFERS.bind(device, &item_layout, |s| resources.get(s));
         Self {

@@ -203,8 +203,8 @@ pub(in crate::gpu) struct DynamicPasses {
     regather: (wgpu::ComputePipeline, wgpu::BindGroup),
     smooth: (wgpu::ComputePipeline, wgpu::BindGroup),
     reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
-    rad_front: (wgpu::RenderPipeline, wgpu::BindGroup),
-    rad_back: (wgpu::RenderPipeline, wgpu::BindGroup),
+    rad_front: (hemicube::Pipelines, wgpu::BindGroup),
+    rad_back: (hemicube::Pipelines, wgpu::BindGroup),
     back_shooters: wgpu::Buffer,
     back_batch: wgpu::Buffer,
     /// Direct light of M's elements at their new position (`moving_direct`
@@ -335,7 +335,6 @@ impl ProgressiveSolver {
             source: wgpu::ShaderSource::Wgsl(shaders::redistribute().into()),
         });
         let hemicube_module = self.draws.module(device, "hemicube.wgsl (radiosity)");
-        let draw_constants = self.draws.constants();
         let grid = [("CROSS_GRID", f64::from(grid))];
         let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
         let gather_res = [("GATHER_RESOLUTION", f64::from(self.gather_resolution()))];
@@ -368,15 +367,12 @@ impl ProgressiveSolver {
         let rad = &hemicube::SHOT_RADIOSITY;
         let rad_layout = rad.layout(device);
         let rad_pipeline = |samples: u32| {
-            hemicube::render_pipeline(
+            hemicube::Pipelines::new(
                 device,
-                &hemicube_module,
-                &draw_constants,
+                (&hemicube_module, self.draws),
                 rad,
                 &rad_layout,
-                rgba,
                 samples,
-                wgpu::CompareFunction::Less,
             )
         };
         let front_pipeline = rad_pipeline(1);
@@ -766,7 +762,6 @@ impl ProgressiveSolver {
                 self.profile.open(&mut encoder);
                 self.encode_item_buffers(&mut encoder, total);
                 self.profile.mark(&mut encoder, Stage::ItemBuffers);
-                let clear = wgpu::Color::TRANSPARENT;
                 if has_new {
                     hemicube::encode(
                         &mut encoder,
@@ -775,7 +770,6 @@ impl ProgressiveSolver {
                             view: &d.front_view,
                             resolve: None,
                             depth: &self.buffers.depth_view,
-                            clear,
                             resolution: gather_res,
                         },
                         count,
@@ -791,7 +785,6 @@ impl ProgressiveSolver {
                         view: d.back_msaa_view.as_ref().unwrap_or(&d.back_view),
                         resolve: d.back_msaa_view.as_ref().map(|_| &d.back_view),
                         depth: &d.back_depth_view,
-                        clear,
                         resolution: back_uniform.resolution,
                     },
                     total,
@@ -924,7 +917,6 @@ impl ProgressiveSolver {
                     view: &d.front_view,
                     resolve: None,
                     depth: &self.buffers.depth_view,
-                    clear: wgpu::Color::TRANSPARENT,
                     resolution: res,
                 },
                 n,

@@ -14,7 +14,7 @@ use super::ProgressiveSolver;
 use super::shooters::contact_limit;
 use crate::gpu::buffers::{WORKGROUP, encode_compute, map_read};
 use crate::gpu::device::GpuError;
-use crate::gpu::hemicube::{self, NO_PATCH};
+use crate::gpu::hemicube;
 
 /// Per-batch constants (`Batch` in common.wgsl).
 #[repr(C)]
@@ -82,12 +82,6 @@ impl ProgressiveSolver {
                 view: &self.buffers.item_view,
                 resolve: None,
                 depth: &self.buffers.depth_view,
-                clear: wgpu::Color {
-                    r: f64::from(NO_PATCH),
-                    g: 0.0,
-                    b: 0.0,
-                    a: 0.0,
-                },
                 resolution: self.options.hemicube_resolution.max(1),
             },
             slots,
