@@ -349,15 +349,13 @@ pub(super) fn encode(
     if slots == 0 {
         return;
     }
-    pass.set_viewport(
-        0.0,
-        0.0,
-        (FACES * res) as f32,
-        (slots * res) as f32,
-        0.0,
-        1.0,
-    );
-    pass.set_scissor_rect(0, 0, FACES * res, slots * res);
+    let width = FACES * res;
+    // A viewport over the first `rows` rows of face cells.
+    let rows_viewport = |pass: &mut wgpu::RenderPass<'_>, rows: u32| {
+        pass.set_viewport(0.0, 0.0, width as f32, (rows * res) as f32, 0.0, 1.0);
+    };
+    rows_viewport(&mut pass, slots);
+    pass.set_scissor_rect(0, 0, width, slots * res);
     pass.set_pipeline(&pipelines.clear);
     pass.draw(0..3, 0..1);
     pass.set_pipeline(&pipelines.draw);
@@ -365,16 +363,8 @@ pub(super) fn encode(
     if let Draws::One { rows } = draws {
         debug_assert!(slots <= rows, "{slots} slots in a target of {rows}");
         // The viewport spans every row the target holds (the shader places
-        // by it); the scissor keeps to the slots drawn.
-        pass.set_viewport(
-            0.0,
-            0.0,
-            (FACES * res) as f32,
-            (rows * res) as f32,
-            0.0,
-            1.0,
-        );
-        pass.set_scissor_rect(0, 0, FACES * res, slots * res);
+        // by it); the clear's scissor still keeps to the slots drawn.
+        rows_viewport(&mut pass, rows);
         pass.draw(0..triangle_vertices, 0..slots * FACES);
         return;
     }
