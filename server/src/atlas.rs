@@ -356,7 +356,7 @@ impl Atlas {
                         normal,
                         area,
                         region,
-                        albedo: material.albedo,
+                        albedo: patch.region_albedo(material, region, [s, t]),
                         emission: material.emission,
                     });
                 }

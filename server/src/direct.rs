@@ -321,8 +321,7 @@ pub fn gather(
             }
             h /= (side * side) as f32;
             h += emitters.irradiance(&caster, atlas, x, n, grid, value);
-            let material = &scene.materials[scene.patches[e.patch as usize].material as usize];
-            material.emission + material.albedo * h
+            e.emission + e.albedo * h
         })
         .collect()
 }

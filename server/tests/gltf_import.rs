@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use glam::{Quat, Vec2, Vec3};
 use lightwire_server::scene::gltf::content;
 use lightwire_server::scene::gltf::write::{
-    GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene, pack_glb,
+    GlbImage, GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene, pack_glb,
 };
 use lightwire_server::scene::gltf::{
     ImageSource, ImportOptions, ImportedScene, import, import_slice,
@@ -284,6 +284,8 @@ fn atrium_has_textured_floor_emissive_panel_and_instanced_columns() {
     let floor = scene.material("floor").expect("floor");
     let tex = floor.base_color_texture.as_ref().expect("floor texture");
     assert_eq!(tex.tex_coord, 0);
+    let decoded = floor.texture.as_ref().expect("the floor texture decoded");
+    assert_eq!((decoded.width, decoded.height), (8, 8));
     match &tex.source {
         ImageSource::Embedded { mime_type, bytes } => {
             assert_eq!(mime_type, "image/png");
@@ -988,4 +990,90 @@ fn singular_transforms_are_named() {
             && message.contains("cannot be a dynamic object's pose"),
         "{message}"
     );
+}
+
+/// One textured triangle: material 0 reads image 0 through TEXCOORD_0,
+/// which the primitive has when `uv0`.
+fn textured(png: Vec<u8>, uv0: bool) -> GlbScene {
+    let mut primitive = triangle_primitive(TRI, Some(0));
+    primitive.uv0 = uv0.then(|| vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
+    let mut doc = one_mesh_scene(vec![primitive], GlbNode::new("n", Some(0)));
+    doc.materials[0].base_color_texture = Some(0);
+    doc.images.push(GlbImage {
+        name: "checker".into(),
+        png,
+    });
+    doc
+}
+
+fn tiny_png() -> Vec<u8> {
+    let mut png = Vec::new();
+    let encoder = image::codecs::png::PngEncoder::new(&mut png);
+    image::ImageEncoder::write_image(
+        encoder,
+        &[188, 188, 188],
+        1,
+        1,
+        image::ExtendedColorType::Rgb8,
+    )
+    .expect("PNG");
+    png
+}
+
+#[test]
+fn a_base_colour_texture_is_decoded_to_linear_colour() {
+    let glb = textured(tiny_png(), true).to_glb().expect("write");
+    let scene = import_slice(&glb, None, "t.glb", &ImportOptions::default()).expect("imports");
+    let texture = scene.materials[0].texture.as_ref().expect("decoded");
+    // sRGB 188 is linear 0.5.
+    let c = texture.sample(Vec2::new(0.5, 0.5));
+    assert!((c - Vec3::splat(0.5)).abs().max_element() < 0.005, "{c}");
+}
+
+#[test]
+fn an_undecodable_texture_is_named_with_its_material_and_image() {
+    let glb = textured(b"not an image at all".to_vec(), true)
+        .to_glb()
+        .expect("write");
+    let message = error_of(&glb, "t.glb");
+    for part in [
+        "t.glb",
+        "material #0 \"grey\"",
+        "image #0 \"checker\"",
+        "cannot decode",
+    ] {
+        assert!(message.contains(part), "missing {part:?} in: {message}");
+    }
+}
+
+#[test]
+fn a_textured_primitive_without_its_texture_coordinates_is_named() {
+    let glb = textured(tiny_png(), false).to_glb().expect("write");
+    let message = error_of(&glb, "t.glb");
+    assert_names_everything(&message, "t.glb", 0);
+    assert!(message.contains("TEXCOORD_0"), "{message}");
+}
+
+#[test]
+fn a_texture_beside_the_gltf_loads_and_a_missing_one_is_named() {
+    let dir = temp_dir("texture-uri");
+    let (json, bin) = textured(tiny_png(), true)
+        .to_json_and_bin(Some("thing.bin"))
+        .expect("write");
+    // The image by URI instead of in the buffer.
+    let mut json: serde_json::Value = serde_json::from_str(&json).expect("json");
+    json["images"][0] = serde_json::json!({ "uri": "checker.png", "name": "checker" });
+    let gltf_path = dir.join("thing.gltf");
+    std::fs::write(&gltf_path, json.to_string()).expect("write gltf");
+    std::fs::write(dir.join("thing.bin"), &bin).expect("write bin");
+    std::fs::write(dir.join("checker.png"), tiny_png()).expect("write png");
+    let scene = import(&gltf_path, &ImportOptions::default()).expect("imports with its png");
+    assert!(scene.materials[0].texture.is_some());
+    std::fs::remove_file(dir.join("checker.png")).expect("remove png");
+    let message = import(&gltf_path, &ImportOptions::default())
+        .expect_err("no png")
+        .to_string();
+    for part in ["thing.gltf", "image #0 \"checker\"", "\"checker.png\""] {
+        assert!(message.contains(part), "missing {part:?} in: {message}");
+    }
 }

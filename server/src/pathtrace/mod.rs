@@ -108,6 +108,7 @@ use serde::Serialize;
 
 use crate::atlas::Atlas;
 use crate::raycast::{Raycaster, WorldPatch};
+use crate::scene::texture::AlbedoMap;
 use crate::scene::{Pose, Scene};
 
 /// Distance (m) by which ray origins leave their surface along the normal,
@@ -191,6 +192,9 @@ pub struct PathTracer {
     /// Per patch: albedo and emission of its material.
     albedo: Vec<DVec3>,
     emission: Vec<DVec3>,
+    /// Per patch: its base colour texture, looked up where a path bounces
+    /// (the albedo above is then the material's factor).
+    textures: Vec<Option<AlbedoMap>>,
     emitters: Vec<Emitter>,
     /// Per patch: the probability that next-event estimation picks it.
     selection: Vec<f64>,
@@ -208,6 +212,7 @@ impl PathTracer {
         let emission: Vec<DVec3> = (0..scene.patches.len())
             .map(|p| material(p).emission.as_dvec3())
             .collect();
+        let textures = scene.patches.iter().map(|p| p.albedo_map.clone()).collect();
         let power: Vec<f64> = rays
             .patches()
             .iter()
@@ -238,6 +243,7 @@ impl PathTracer {
             rays,
             albedo,
             emission,
+            textures,
             emitters,
             selection,
         }
@@ -259,7 +265,7 @@ impl PathTracer {
         Some(SurfacePoint {
             position: sample + inward * SURFACE_OFFSET,
             normal: wp.normal,
-            albedo: self.albedo[patch as usize].as_vec3(),
+            albedo: self.albedo_at(patch as usize, sample).as_vec3(),
             emission: self.emission[patch as usize].as_vec3(),
         })
     }
@@ -420,7 +426,7 @@ impl PathTracer {
                 let p_light = self.light_density(patch, hit.distance, -wp.normal.dot(dir));
                 h += throughput * self.emission[patch] * power_heuristic(p_bounce, p_light);
             }
-            throughput *= self.albedo[patch];
+            throughput *= self.albedo_at(patch, hit.point);
             bounces += 1;
             if throughput.max_element() <= 0.0 || bounces >= MAX_BOUNCES {
                 break;
@@ -436,6 +442,18 @@ impl PathTracer {
             x = hit.point + n * SURFACE_OFFSET;
         }
         h
+    }
+
+    /// The albedo of patch `patch` at the point `x` on it: its material's,
+    /// times its texture there (`scene/texture.rs`).
+    fn albedo_at(&self, patch: usize, x: DVec3) -> DVec3 {
+        match &self.textures[patch] {
+            None => self.albedo[patch],
+            Some(map) => {
+                let (s, t) = self.rays.patches()[patch].param(x);
+                self.albedo[patch] * map.sample(s as f32, t as f32).as_dvec3()
+            }
+        }
     }
 
     /// The solid-angle density with which [`Self::direct`] samples a point

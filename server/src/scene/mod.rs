@@ -18,6 +18,7 @@
 pub mod error;
 pub mod file;
 pub mod gltf;
+pub mod texture;
 mod validate;
 
 use std::path::Path;
@@ -131,6 +132,35 @@ pub struct Patch {
     pub texel_density: f32,
     /// Geometry in object-local space.
     pub shape: PatchShape,
+    /// A base colour texture on a triangle (glTF imports): the albedo is the
+    /// material's times the texture's (`texture.rs`).
+    pub albedo_map: Option<texture::AlbedoMap>,
+}
+
+impl Patch {
+    /// The albedo of the part `region = [s0, t0, s1, t1]` of the patch (the
+    /// lightmap element there): the material's, times the texture averaged
+    /// over the region when the patch has one. `st` is where to look the
+    /// texture up when the region holds no surface.
+    pub fn region_albedo(&self, material: &Material, region: [f32; 4], st: [f32; 2]) -> Vec3 {
+        match &self.albedo_map {
+            None => material.albedo,
+            Some(map) => {
+                let texture = map
+                    .region_average(region, self.shape.is_triangle())
+                    .unwrap_or_else(|| map.sample(st[0], st[1]));
+                material.albedo * texture
+            }
+        }
+    }
+
+    /// The albedo at the point `(s, t)` of the patch.
+    pub fn albedo_at(&self, material: &Material, s: f32, t: f32) -> Vec3 {
+        match &self.albedo_map {
+            None => material.albedo,
+            Some(map) => material.albedo * map.sample(s, t),
+        }
+    }
 }
 
 /// The geometry of a patch in object-local space.
@@ -162,20 +192,28 @@ impl PatchShape {
     /// corner opposite its longest edge, is the middle corner `p1`:
     /// `origin = p0`, `u = p1 - p0`, `v = p2 - p1`.
     pub fn triangle(a: Vec3, b: Vec3, c: Vec3) -> PatchShape {
-        let opposite_a = (b - c).length_squared();
-        let opposite_b = (c - a).length_squared();
-        let opposite_c = (a - b).length_squared();
-        let [p0, p1, p2] = if opposite_b >= opposite_a && opposite_b >= opposite_c {
-            [a, b, c]
-        } else if opposite_c >= opposite_a {
-            [b, c, a]
-        } else {
-            [c, a, b]
-        };
+        let corners = [a, b, c];
+        let [p0, p1, p2] = PatchShape::triangle_order(a, b, c).map(|k| corners[k]);
         PatchShape::Triangle {
             origin: p0,
             u: p1 - p0,
             v: p2 - p1,
+        }
+    }
+
+    /// Which of `a`, `b`, `c` [`PatchShape::triangle`] makes `p0`, `p1`,
+    /// `p2`: a rotation of `[0, 1, 2]` that puts the largest angle in the
+    /// middle. Per-vertex data (texture coordinates) follows the same order.
+    pub fn triangle_order(a: Vec3, b: Vec3, c: Vec3) -> [usize; 3] {
+        let opposite_a = (b - c).length_squared();
+        let opposite_b = (c - a).length_squared();
+        let opposite_c = (a - b).length_squared();
+        if opposite_b >= opposite_a && opposite_b >= opposite_c {
+            [0, 1, 2]
+        } else if opposite_c >= opposite_a {
+            [1, 2, 0]
+        } else {
+            [2, 0, 1]
         }
     }
 

@@ -6,11 +6,13 @@
 
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::Arc;
 
 use glam::{Quat, Vec3};
 
 use super::file::{BoxJson, Facing, ImportJson, MeshJson, PoseJson, QuadJson, SceneFile, Vec3Json};
 use super::gltf::{ImportOptions, ImportedScene};
+use super::texture::AlbedoMap;
 use super::{LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue};
 
 /// Largest atlas edge a scene may ask for.
@@ -279,6 +281,7 @@ pub fn validate(
                     material: material as u32,
                     texel_density: density,
                     shape,
+                    albedo_map: None,
                 });
             }
         }
@@ -661,6 +664,15 @@ fn merge_import(
             );
             continue;
         };
+        // The importer has checked that a textured primitive has the
+        // coordinates its texture reads.
+        let texture = imported
+            .materials
+            .get(inst.material as usize)
+            .and_then(|m| {
+                let set = m.base_color_texture.as_ref()?.tex_coord;
+                Some((m.texture.clone()?, inst.uvs(set)?))
+            });
         for (k, tri) in inst.indices.iter().enumerate() {
             let [a, b, d] = tri.map(|i| inst.positions.get(i as usize).copied());
             let (Some(a), Some(b), Some(d)) = (a, b, d) else {
@@ -670,6 +682,16 @@ fn merge_import(
                 );
                 break;
             };
+            // The base colour texture's coordinates at the patch's corners,
+            // in the order `PatchShape::triangle` puts the vertices.
+            let order = PatchShape::triangle_order(a, b, d);
+            let albedo_map = texture.as_ref().and_then(|(texture, uvs)| {
+                let uv = order.map(|j| uvs.get(tri[j] as usize).copied());
+                Some(AlbedoMap {
+                    texture: Arc::clone(texture),
+                    uv: [uv[0]?, uv[1]?, uv[2]?],
+                })
+            });
             into.patches.push(Patch {
                 name: format!("{node}/{mesh}/{}/{k}", inst.primitive),
                 surface_index,
@@ -677,6 +699,7 @@ fn merge_import(
                 material,
                 texel_density: density,
                 shape: PatchShape::triangle(a, b, d),
+                albedo_map,
             });
         }
     }

@@ -25,8 +25,10 @@
 //! - **Materials.** `baseColorFactor` RGB is the albedo, clamped to
 //!   [`ALBEDO_MAX`] with a warning; emission in W/m² per channel is
 //!   `emissiveFactor × KHR_materials_emissive_strength ×`
-//!   [`ImportOptions::emission_scale`]. The base colour texture is only
-//!   referenced ([`TextureRef`]); averaging it per texel is a later stage.
+//!   [`ImportOptions::emission_scale`]. The base colour texture is decoded
+//!   ([`ImportedMaterial::texture`], PNG or JPEG, embedded, a data URI or a
+//!   file beside the glTF) and multiplies the factor per lightmap texel
+//!   (`scene/texture.rs`).
 //!   A material whose `extras` hold `{"lightwire": {"albedo": [r, g, b],
 //!   "emission": [r, g, b]}}` (a baked `scene.glb`, see [`write`]) takes
 //!   its albedo and emission from there, and its base colour texture,
@@ -47,10 +49,12 @@ mod overlap;
 pub mod write;
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{Mat3, Mat4, Vec2, Vec3};
 
+use super::texture::{Filter, Texture, Wrap};
 use super::{Pose, SceneError, SceneIssue};
 
 pub use overlap::{UvOverlap, find_uv_overlaps};
@@ -145,8 +149,11 @@ pub struct ImportedMaterial {
     pub albedo: Vec3,
     /// Radiant exitance in W/m² per channel.
     pub emission: Vec3,
-    /// The base colour texture, for per-texel albedo later.
+    /// Where the base colour texture is.
     pub base_color_texture: Option<TextureRef>,
+    /// The base colour texture, decoded to linear RGB with its sampler's
+    /// wrapping and filter; the albedo is `albedo ×` the texture.
+    pub texture: Option<Arc<Texture>>,
 }
 
 /// A reference to an image, not decoded.
@@ -203,6 +210,17 @@ pub struct MeshInstance {
     /// `TEXCOORD_1`, the lightmap UVs, validated to lie in [0, 1] and not
     /// overlap within the mesh.
     pub lightmap_uvs: Option<Vec<Vec2>>,
+}
+
+impl MeshInstance {
+    /// The texture coordinate set `TEXCOORD_<set>`, if read (sets 0 and 1).
+    pub fn uvs(&self, set: u32) -> Option<&[Vec2]> {
+        match set {
+            0 => self.uv0.as_deref(),
+            1 => self.lightmap_uvs.as_deref(),
+            _ => None,
+        }
+    }
 }
 
 /// The name of the static world object.
@@ -263,6 +281,7 @@ pub fn import_slice(
     };
     let mut importer = Importer {
         options,
+        base: base.map(Path::to_path_buf),
         issues: Vec::new(),
         buffers: Vec::new(),
         primitives: HashMap::new(),
@@ -291,6 +310,8 @@ struct PrimitiveData {
 
 struct Importer<'o> {
     options: &'o ImportOptions,
+    /// Where relative URIs point.
+    base: Option<PathBuf>,
     issues: Vec<SceneIssue>,
     /// Loaded buffers; `None` where loading failed (already reported).
     buffers: Vec<Option<Vec<u8>>>,
@@ -519,6 +540,9 @@ impl Importer<'_> {
                                 &node, &mesh, &primitive, data, to_object, det, object, material,
                             );
                             if let Some(instance) = instance {
+                                self.check_texture_uvs(
+                                    &node, &mesh, &primitive, &materials, &instance,
+                                );
                                 instances.push(instance);
                             }
                         }
@@ -542,6 +566,7 @@ impl Importer<'_> {
                 albedo: Vec3::splat(ALBEDO_MAX),
                 emission: Vec3::ZERO,
                 base_color_texture: None,
+                texture: None,
             });
         }
         ImportedScene {
@@ -656,11 +681,118 @@ impl Importer<'_> {
                 source,
             }
         });
+        let texture = pbr
+            .base_color_texture()
+            .filter(|_| baked.is_none())
+            .zip(base_color_texture.as_ref())
+            .and_then(|(info, r)| self.decode_texture(&location, &info.texture(), r))
+            .map(Arc::new);
         ImportedMaterial {
             name,
             albedo,
             emission,
             base_color_texture,
+            texture,
+        }
+    }
+
+    /// Decodes a base colour texture with its sampler's wrapping and filter;
+    /// reports (and returns `None`) when its bytes cannot be had or decoded.
+    fn decode_texture(
+        &mut self,
+        location: &str,
+        texture: &::gltf::Texture,
+        r: &TextureRef,
+    ) -> Option<Texture> {
+        use ::gltf::texture::{MagFilter, WrappingMode};
+        let image = texture.source();
+        let location = format!(
+            "{location}, {}",
+            named("image", image.index(), image.name())
+        );
+        let bytes = match &r.source {
+            ImageSource::Embedded { bytes, .. } => bytes.clone(),
+            ImageSource::Uri { uri } => {
+                let described = match (&self.base, uri.starts_with("data:")) {
+                    (_, true) => "its data URI".to_string(),
+                    (Some(b), false) => format!("\"{uri}\" ({})", b.join(uri).display()),
+                    (None, false) => format!("\"{uri}\""),
+                };
+                // A buffer's URI and an image's resolve alike (a data URI
+                // or a path relative to the glTF file).
+                let source = ::gltf::buffer::Source::Uri(uri);
+                match ::gltf::buffer::Data::from_source_and_blob(
+                    source,
+                    self.base.as_deref(),
+                    &mut None,
+                ) {
+                    Ok(data) => data.0,
+                    Err(e) => {
+                        self.report(&location, format!("cannot load {described}: {e}"));
+                        return None;
+                    }
+                }
+            }
+        };
+        if bytes.is_empty() {
+            // An embedded image outside its buffer, already reported.
+            return None;
+        }
+        let sampler = texture.sampler();
+        let wrap = |mode: WrappingMode| match mode {
+            WrappingMode::Repeat => Wrap::Repeat,
+            WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+            WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+        };
+        let filter = match sampler.mag_filter() {
+            Some(MagFilter::Nearest) => Filter::Nearest,
+            Some(MagFilter::Linear) | None => Filter::Linear,
+        };
+        let name = named("image", image.index(), image.name());
+        match Texture::decode(
+            &name,
+            &bytes,
+            [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())],
+            filter,
+        ) {
+            Ok(t) => Some(t),
+            Err(e) => {
+                self.report(&location, e);
+                None
+            }
+        }
+    }
+
+    /// A primitive whose material has a base colour texture must have the
+    /// texture coordinates it reads.
+    fn check_texture_uvs(
+        &mut self,
+        node: &::gltf::Node,
+        mesh: &::gltf::Mesh,
+        primitive: &::gltf::Primitive,
+        materials: &[ImportedMaterial],
+        instance: &MeshInstance,
+    ) {
+        let Some(r) = materials
+            .get(instance.material as usize)
+            .and_then(|m| m.base_color_texture.as_ref())
+        else {
+            return;
+        };
+        if instance.uvs(r.tex_coord).is_none() {
+            let material = &materials[instance.material as usize].name;
+            let problem = if r.tex_coord > 1 {
+                format!(
+                    "material \"{material}\"'s base colour texture reads TEXCOORD_{}; only TEXCOORD_0 and TEXCOORD_1 are read",
+                    r.tex_coord
+                )
+            } else {
+                format!(
+                    "material \"{material}\" has a base colour texture read through TEXCOORD_{}, which this primitive does not have",
+                    r.tex_coord
+                )
+            };
+            self.report(&primitive_location(node, mesh, primitive.index()), problem);
         }
     }
 
