@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use lightwire_server::bake::{self, BakeStats};
@@ -22,6 +22,9 @@ pub(crate) struct SolveSettings {
     pub(crate) spp: Option<u32>,
     pub(crate) corrections: Option<u32>,
 }
+
+/// How often a GPU solve prints how far it is.
+const PROGRESS_EVERY: Duration = Duration::from_secs(5);
 
 /// Prints solver progress to stderr: every 10% of the form factors or of
 /// the path-traced elements, and every tenth sweep.
@@ -110,6 +113,36 @@ pub(crate) fn bake_command(
         corrections: settings.corrections,
     };
     let mut solver = solver::build(kind, &scene, &atlas, &poses, &solver_settings, &progress)?;
+    if kind.is_gpu() {
+        // The GPU solvers in slices, so that a long solve says how far it
+        // is; `solve` below then only finishes (corrections, readback).
+        let mut last = Instant::now();
+        while solver.residual_fraction() > tolerance {
+            if !solver.step(Duration::from_millis(500))? {
+                break;
+            }
+            if last.elapsed() >= PROGRESS_EVERY {
+                last = Instant::now();
+                let (done, residual) = match kind {
+                    SolverKind::Gather => (
+                        format!(
+                            "{} bounces and {} hemicubes done",
+                            solver.stats().iterations,
+                            solver.work()
+                        ),
+                        "changed in the last bounce",
+                    ),
+                    _ => (format!("{} shots done", solver.work()), "unshot"),
+                };
+                eprintln!(
+                    "  {}: {done}, {:.2e} of the emitted power {residual} (stop at {tolerance:.0e}), {:.1} s",
+                    solver.name(),
+                    solver.residual_fraction(),
+                    started.elapsed().as_secs_f64()
+                );
+            }
+        }
+    }
     solver.solve(tolerance)?;
     let values = solver.radiosity()?;
     eprintln!("  {}", solver.summary());
