@@ -104,6 +104,9 @@ pub struct Atlas {
     /// Element index per texel (row-major, `width * height`), or
     /// [`NO_ELEMENT`].
     pub texel_element: Vec<u32>,
+    /// Groups of elements of different charts that stand for the same point
+    /// of a surface (a seam's texels, [`Atlas::stitch`]).
+    pub seams: Vec<Vec<u32>>,
 }
 
 /// Chart sizes and positions without elements: enough to know whether a
@@ -113,6 +116,81 @@ pub struct Layout {
     pub width: u32,
     pub height: u32,
     pub charts: Vec<Chart>,
+}
+
+/// Two patches meet smoothly (their seam's texels are stitched) when their
+/// normals are this close: the cosine of 1°.
+pub const SEAM_COS: f32 = 0.999_847_7;
+/// Seam texels coincide when their grid points are this close (metres, in
+/// object space), and are looked up on a grid of this spacing.
+const SEAM_TOLERANCE: f32 = 1e-4;
+
+/// The seams of an atlas (issue 18, item 3): every chart is a patch of its
+/// own, so two patches that share an edge each have a row of texels on it
+/// (and a corner texel at each shared vertex), at the same grid points
+/// where their charts have as many texels along the edge (`atlas.rs`
+/// places edge samples on the edge). Each computes its own element
+/// average over its own side, so in a gradient the two disagree, and a
+/// client sees the seam. Texels of one object whose grid points (corner
+/// samples taken at the corner itself, not moved inward) coincide on
+/// patches that face the same way within 1° are one group; creases, where
+/// flat patches meet at an angle, are not seams: their light differs for
+/// real. Returns only groups of two or more.
+fn find_seams(scene: &Scene, charts: &[Chart], elements: &[Element]) -> Vec<Vec<u32>> {
+    use std::collections::HashMap;
+    let mut at: HashMap<(u32, [i64; 3]), Vec<u32>> = HashMap::new();
+    let mut first = 0usize;
+    for (patch, chart) in scene.patches.iter().zip(charts) {
+        let (origin, u, v) = patch.shape.frame();
+        let count = (chart.w * chart.h) as usize;
+        for (k, e) in elements[first..first + count].iter().enumerate() {
+            let (a, b) = ((k as u32) % chart.w, (k as u32) / chart.w);
+            let on_edge = a == 0
+                || b == 0
+                || a == chart.w - 1
+                || b == chart.h - 1
+                || (patch.shape.is_triangle() && a == b);
+            if !on_edge || !e.covers_surface() {
+                continue;
+            }
+            let point = origin
+                + u * (a as f32 / (chart.w - 1) as f32)
+                + v * (b as f32 / (chart.h - 1) as f32);
+            let key = (point / SEAM_TOLERANCE).round();
+            let key = [key.x as i64, key.y as i64, key.z as i64];
+            at.entry((e.object, key))
+                .or_default()
+                .push((first + k) as u32);
+        }
+        first += count;
+    }
+    let mut seams = Vec::new();
+    for (_, members) in at {
+        if members.len() < 2 {
+            continue;
+        }
+        // Members that face the same way, grouped greedily; a texel never
+        // meets another of its own chart at one point.
+        let mut groups: Vec<Vec<u32>> = Vec::new();
+        for i in members {
+            let n = elements[i as usize].normal;
+            match groups
+                .iter_mut()
+                .find(|g| elements[g[0] as usize].normal.dot(n) >= SEAM_COS)
+            {
+                Some(g) => g.push(i),
+                None => groups.push(vec![i]),
+            }
+        }
+        seams.extend(groups.into_iter().filter(|g| {
+            g.len() >= 2 && {
+                let p = elements[g[0] as usize].patch;
+                g.iter().any(|&i| elements[i as usize].patch != p)
+            }
+        }));
+    }
+    seams.sort_unstable();
+    seams
 }
 
 /// Texels along an edge of `length` metres at `density` texels per metre.
@@ -363,6 +441,7 @@ impl Atlas {
             }
         }
         patch_elements.push(elements.len() as u32);
+        let seams = find_seams(scene, &layout.charts, &elements);
         Ok(Atlas {
             width,
             height,
@@ -370,7 +449,33 @@ impl Atlas {
             elements,
             patch_elements,
             texel_element,
+            seams,
         })
+    }
+
+    /// Makes the texels of every seam agree: each group of
+    /// [`Atlas::seams`] takes the mean of its members that `keep` accepts
+    /// (the valid ones), and those members are set to it; groups without
+    /// such a member are left alone.
+    pub fn stitch(&self, values: &mut [Vec3], keep: impl Fn(usize) -> bool) {
+        for group in &self.seams {
+            let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+            for &i in group {
+                if let Some(v) = values.get(i as usize).filter(|_| keep(i as usize)) {
+                    sum += *v;
+                    n += 1;
+                }
+            }
+            if n < 2 {
+                continue;
+            }
+            let mean = sum / n as f32;
+            for &i in group {
+                if keep(i as usize) {
+                    values[i as usize] = mean;
+                }
+            }
+        }
     }
 
     /// The element at atlas texel `(x, y)`, if the texel is covered.

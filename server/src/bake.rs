@@ -179,8 +179,8 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 
 /// Writes all bake outputs for per-element radiosity `values`.
 /// Writes `lightmap.exr`, `lightmap.png`, `atlas.json`, `stats.json` and
-/// `scene.glb`; invalid texels ([`crate::validity`]) are filled from their
-/// neighbours first.
+/// `scene.glb`; seams are stitched and invalid texels ([`crate::validity`])
+/// filled from their neighbours first (`Validity::fill`).
 pub fn write_outputs(
     dir: &Path,
     scene: &Scene,
@@ -191,10 +191,11 @@ pub fn write_outputs(
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating output directory {}", dir.display()))?;
-    // Texels inside or under geometry take their visible neighbours' light,
-    // so that a client's bilinear filter never blends them in.
+    // Seams stitched, and texels inside or under geometry take their
+    // visible neighbours' light, so that a client's bilinear filter never
+    // blends them in.
     let mut values = values.to_vec();
-    crate::validity::Validity::compute(scene, atlas, poses).dilate(atlas, &mut values);
+    crate::validity::Validity::compute(scene, atlas, poses).fill(atlas, &mut values);
     let image = atlas.to_image(&values);
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;

@@ -208,11 +208,99 @@ impl Validity {
             .collect()
     }
 
+    /// What every publication does to a solver's radiosity before a client
+    /// sees it: the seams stitched over the valid texels
+    /// ([`Atlas::stitch`]), then the invalid texels filled
+    /// ([`Validity::dilate`]).
+    ///
+    /// A seam texel that is invalid (a corner inside the column an arch
+    /// stands on) is filled by dilation from its own chart, and its
+    /// partners on other charts from theirs; last, it takes the mean of
+    /// its group's valid texels (of all of them when none is valid), so
+    /// that both sides blend the same value towards it.
+    pub fn fill(&self, atlas: &Atlas, values: &mut [Vec3]) {
+        atlas.stitch(values, self.keep());
+        self.fill_rings(atlas, values);
+        for group in &atlas.seams {
+            if !group.iter().any(|&i| self.is_invalid(i as usize)) {
+                continue;
+            }
+            let mean = |pick: &dyn Fn(usize) -> bool| {
+                let (sum, n) = group
+                    .iter()
+                    .map(|&i| i as usize)
+                    .filter(|&i| pick(i) && i < values.len())
+                    .fold((Vec3::ZERO, 0u32), |(s, n), i| (s + values[i], n + 1));
+                (n > 0).then(|| sum / n as f32)
+            };
+            let Some(target) = mean(&|i| !self.is_invalid(i)).or_else(|| mean(&|_| true)) else {
+                continue;
+            };
+            for &i in group {
+                if self.is_invalid(i as usize) && (i as usize) < values.len() {
+                    values[i as usize] = target;
+                }
+            }
+        }
+        self.straighten_diagonals(atlas, values);
+    }
+
     /// Fills every invalid element of `values` (indexed like
     /// `atlas.elements`) with the mean of its valid or already filled
     /// 8-neighbours on its own chart, one ring at a time, until nothing
     /// more can be filled (a chart with no valid texel keeps its values).
+    ///
+    /// Then the row just above a triangle chart's diagonal is set again: a
+    /// client reads the lightmap bilinearly, and halfway between two
+    /// diagonal texels `(a, a)` and `(a + 1, a + 1)` it blends them with
+    /// `(a + 1, a)` below and `(a, a + 1)` above the diagonal. Setting the
+    /// latter to `v(a, a) + v(a + 1, a + 1) - v(a + 1, a)` (no lower than
+    /// zero; when `(a + 1, a)` is invalid too, both take the mean of the
+    /// two diagonal texels) makes the blend along the diagonal exactly the
+    /// linear one between the diagonal's own texels, so that the triangle's edge there
+    /// shows what its edge texels hold, as its other two edges do, and a
+    /// seam along it agrees with the neighbour's edge.
     pub fn dilate(&self, atlas: &Atlas, values: &mut [Vec3]) {
+        self.fill_rings(atlas, values);
+        self.straighten_diagonals(atlas, values);
+    }
+
+    /// The row above every triangle chart's diagonal, as [`Validity::dilate`]
+    /// says, from the values as they are (every texel filled).
+    fn straighten_diagonals(&self, atlas: &Atlas, values: &mut [Vec3]) {
+        if values.len() != self.invalid.len() {
+            return;
+        }
+        for (patch, chart) in atlas.charts.iter().enumerate() {
+            let first = atlas.patch_elements[patch] as usize;
+            let w = chart.w as usize;
+            let at = |a: usize, b: usize| first + b * w + a;
+            // A triangle's chart: its texel (0, 1) stands for no surface.
+            if chart.h < 2 || atlas.elements[at(0, 1)].covers_surface() {
+                continue;
+            }
+            for a in 0..(chart.w.min(chart.h) as usize - 1) {
+                let (above, d0, d1, below) =
+                    (at(a, a + 1), at(a, a), at(a + 1, a + 1), at(a + 1, a));
+                if !self.invalid[above] {
+                    continue;
+                }
+                if self.invalid[below] {
+                    // The texel below is invalid too (inside geometry):
+                    // both take the diagonal's mean, which keeps the sum.
+                    let mean = (values[d0] + values[d1]) * 0.5;
+                    values[above] = mean;
+                    values[below] = mean;
+                } else {
+                    values[above] = (values[d0] + values[d1] - values[below]).max(Vec3::ZERO);
+                }
+            }
+        }
+    }
+
+    /// Invalid texels from their valid or already filled 8-neighbours,
+    /// ring by ring (the first step of [`Validity::dilate`]).
+    fn fill_rings(&self, atlas: &Atlas, values: &mut [Vec3]) {
         if values.len() != self.invalid.len() || !self.invalid.iter().any(|&b| b) {
             return;
         }
@@ -416,6 +504,131 @@ mod tests {
                 assert_eq!(graded[i], before[i]);
             }
         }
+    }
+
+    /// The block scene with every quad cut in two along its diagonal.
+    fn triangulated_block() -> (Atlas, Validity) {
+        let scene = Scene::parse(BLOCK, "contact")
+            .expect("scene")
+            .triangulated();
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let v = Validity::compute(&scene, &atlas, &scene.initial_poses());
+        (atlas, v)
+    }
+
+    #[test]
+    fn seams_join_texels_of_coplanar_charts_at_one_point_and_never_across_a_crease() {
+        let (atlas, _) = triangulated_block();
+        assert!(!atlas.seams.is_empty());
+        for group in &atlas.seams {
+            let e0 = &atlas.elements[group[0] as usize];
+            assert!(
+                group
+                    .iter()
+                    .any(|&i| atlas.elements[i as usize].patch != e0.patch)
+            );
+            for &i in group {
+                let e = &atlas.elements[i as usize];
+                // One object, one facing: the box's faces meet at creases.
+                assert_eq!(e.object, e0.object);
+                assert!(e.normal.dot(e0.normal) > 0.999, "{group:?}");
+                // Grid points agree (corner samples are moved inwards by
+                // a twentieth of a texel, so allow that much).
+                assert!((e.position - e0.position).length() < 0.02, "{group:?}");
+            }
+        }
+        // Each floor triangle's diagonal texels pair with the other's.
+        let floor = atlas
+            .elements
+            .iter()
+            .filter(|e| {
+                e.patch == 0 && e.texel[0] - atlas.charts[0].x == e.texel[1] - atlas.charts[0].y
+            })
+            .count();
+        let paired = atlas
+            .seams
+            .iter()
+            .filter(|g| {
+                g.iter().any(|&i| atlas.elements[i as usize].patch == 0)
+                    && g.iter().any(|&i| atlas.elements[i as usize].patch == 1)
+            })
+            .count();
+        assert_eq!(
+            paired, floor,
+            "every diagonal texel of the floor's first triangle has its partner"
+        );
+    }
+
+    #[test]
+    fn stitching_makes_a_seams_valid_texels_equal_and_keeps_the_rest() {
+        let (atlas, v) = triangulated_block();
+        let mut values: Vec<Vec3> = (0..atlas.elements.len())
+            .map(|i| Vec3::splat(i as f32))
+            .collect();
+        let before = values.clone();
+        atlas.stitch(&mut values, v.keep());
+        let mut stitched = vec![false; values.len()];
+        for group in &atlas.seams {
+            let valid: Vec<usize> = group
+                .iter()
+                .map(|&i| i as usize)
+                .filter(|&i| !v.is_invalid(i))
+                .collect();
+            if valid.len() < 2 {
+                continue;
+            }
+            let mean = valid.iter().map(|&i| before[i]).sum::<Vec3>() / valid.len() as f32;
+            for &i in &valid {
+                assert!((values[i] - mean).length() < 1e-3, "{group:?}");
+                stitched[i] = true;
+            }
+        }
+        for i in 0..values.len() {
+            if !stitched[i] {
+                assert_eq!(values[i], before[i], "element {i} is on no seam");
+            }
+        }
+    }
+
+    #[test]
+    fn a_triangle_reads_linearly_along_its_diagonal_after_dilation() {
+        let (atlas, v) = triangulated_block();
+        // A smooth but curved field over each chart: v = 1 + a² + 2 b.
+        let mut values: Vec<Vec3> = atlas
+            .elements
+            .iter()
+            .map(|e| {
+                let c = atlas.charts[e.patch as usize];
+                let (a, b) = ((e.texel[0] - c.x) as f32, (e.texel[1] - c.y) as f32);
+                Vec3::splat(1.0 + a * a + 2.0 * b)
+            })
+            .collect();
+        v.dilate(&atlas, &mut values);
+        // Patch 0, the floor's first triangle: halfway between diagonal
+        // texels the bilinear read is the mean of the two (where none of
+        // the four is inside the block).
+        let c = atlas.charts[0];
+        let n = c.w.min(c.h);
+        let first = atlas.patch_elements[0] as usize;
+        let at = |a: u32, b: u32| first + (b * c.w + a) as usize;
+        let mut checked = 0;
+        for a in 0..n - 1 {
+            if [at(a, a), at(a + 1, a + 1), at(a + 1, a)]
+                .iter()
+                .any(|&i| v.is_invalid(i))
+            {
+                continue;
+            }
+            let s = (a as f32 + 0.5) / (n - 1) as f32;
+            let read = atlas.sample(&values, 0, [s, s]);
+            let line = (values[at(a, a)] + values[at(a + 1, a + 1)]) * 0.5;
+            assert!(
+                (read - line).length() < 1e-4,
+                "diagonal cell {a}: {read} vs {line}"
+            );
+            checked += 1;
+        }
+        assert!(checked > 5, "{checked} diagonal cells");
     }
 
     #[test]

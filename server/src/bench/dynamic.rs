@@ -303,7 +303,7 @@ impl Publication {
         let mut values = session.radiosity()?;
         profile.stop(readback, Stage::Readback);
         let encode = profile.start();
-        session.progressive().validity().dilate(atlas, &mut values);
+        session.progressive().validity().fill(atlas, &mut values);
         let image = atlas.to_image(&values);
         std::hint::black_box(self.encoder.publish(&image, Vec::new()));
         profile.stop(encode, Stage::Encode);
@@ -387,11 +387,12 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         &expected_image,
         white,
     )?;
-    // Images show what a client would see: invalid texels filled.
+    // Images show what a client would see: seams stitched, invalid texels
+    // filled.
     let write_images = |name: &str, values: &[Vec3], against: &[Vec3]| -> Result<()> {
         let (mut values, mut against) = (values.to_vec(), against.to_vec());
-        visible_last.dilate(&atlas, &mut values);
-        visible_last.dilate(&atlas, &mut against);
+        visible_last.fill(&atlas, &mut values);
+        visible_last.fill(&atlas, &mut against);
         let (values, against) = (&values[..], &against[..]);
         let image = atlas.to_image(values);
         write_png_with(

@@ -157,9 +157,10 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
             }
         };
         self.radiosity = solution.radiosity;
-        // Texels inside or under geometry take their neighbours' light.
+        // Seams stitched; texels inside or under geometry take their
+        // neighbours' light.
         crate::validity::Validity::compute(&self.scene, &self.atlas, &self.poses)
-            .dilate(&self.atlas, &mut self.radiosity);
+            .fill(&self.atlas, &mut self.radiosity);
         self.residual = solution.residual_fraction;
         self.reflected = self.tag.clone();
         let spent = started.elapsed();
@@ -257,12 +258,12 @@ impl<T: Clone> GpuLive<T> {
                 .session
                 .radiosity()
                 .map_err(|e| SolverFailure(format!("reading back radiosity failed: {e}")))?;
-            // Texels inside or under geometry at the state's poses take
-            // their neighbours' light.
+            // Seams stitched; texels inside or under geometry at the
+            // state's poses take their neighbours' light.
             self.session
                 .progressive()
                 .validity()
-                .dilate(&self.atlas, &mut r);
+                .fill(&self.atlas, &mut r);
             self.radiosity = r;
         }
         Ok(StepReport {
