@@ -114,11 +114,14 @@ pub(crate) fn bake_command(
     };
     let mut solver = solver::build(kind, &scene, &atlas, &poses, &solver_settings, &progress)?;
     if kind.is_gpu() {
-        // The GPU solvers in slices, so that a long solve says how far it
-        // is; `solve` below then only finishes (corrections, readback).
+        // The GPU solvers one batch (progressive) or one pass of hemicubes
+        // (gather) at a time, so that a long solve says how far it is and
+        // stops where `solve` would: after the batch or bounce that reaches
+        // the tolerance, never in the middle of the next. `solve` below
+        // then only finishes (corrections, readback).
         let mut last = Instant::now();
         while solver.residual_fraction() > tolerance {
-            if !solver.step(Duration::from_millis(500))? {
+            if !solver.step(Duration::ZERO)? {
                 break;
             }
             if last.elapsed() >= PROGRESS_EVERY {
