@@ -471,8 +471,8 @@ impl Atlas {
             }
             let mean = sum / n as f32;
             for &i in group {
-                if keep(i as usize) {
-                    values[i as usize] = mean;
+                if let Some(v) = values.get_mut(i as usize).filter(|_| keep(i as usize)) {
+                    *v = mean;
                 }
             }
         }

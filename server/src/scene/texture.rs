@@ -54,6 +54,10 @@ pub enum Filter {
     Linear,
 }
 
+/// Most pixels a texture may have (4096 x 4096; decoded it takes 12 bytes
+/// a pixel).
+pub const MAX_PIXELS: u64 = 4096 * 4096;
+
 /// A decoded texture: linear RGB, row 0 at `v = 0`.
 #[derive(Clone, PartialEq)]
 pub struct Texture {
@@ -95,6 +99,14 @@ impl Texture {
     ) -> Result<Texture, String> {
         let image =
             image::load_from_memory(bytes).map_err(|e| format!("cannot decode the image: {e}"))?;
+        let pixels = u64::from(image.width()) * u64::from(image.height());
+        if pixels > MAX_PIXELS {
+            return Err(format!(
+                "the image is {} x {} pixels; an albedo texture may have at most {MAX_PIXELS} (it is averaged into lightmap texels, which are far coarser)",
+                image.width(),
+                image.height()
+            ));
+        }
         let rgb = image.to_rgb32f();
         let (width, height) = rgb.dimensions();
         if width == 0 || height == 0 {
@@ -243,6 +255,24 @@ mod tests {
         let (k, w) = (Vec3::ZERO, Vec3::ONE);
         Texture::from_linear("checker", 2, 2, vec![k, w, w, k], [wrap; 2], filter)
             .expect("4 texels")
+    }
+
+    #[test]
+    fn an_image_larger_than_the_limit_is_refused_with_its_size() {
+        let mut png = Vec::new();
+        let encoder = image::codecs::png::PngEncoder::new(&mut png);
+        let pixels = vec![0u8; 4097 * 4096];
+        image::ImageEncoder::write_image(
+            encoder,
+            &pixels,
+            4097,
+            4096,
+            image::ExtendedColorType::L8,
+        )
+        .expect("PNG");
+        let error =
+            Texture::decode("big", &png, [Wrap::Repeat; 2], Filter::Linear).expect_err("too big");
+        assert!(error.contains("4097 x 4096"), "{error}");
     }
 
     #[test]
