@@ -11,13 +11,13 @@
 struct Shooter {
     // xyz: corner of the shooter's region (world), w: its area (m²).
     corner: vec4<f32>,
-    // Edge vectors of the region (world); su.w: cross redistribution's
-    // gather_moving takes the bitcast chart width of the shooter's patch.
+    // Edge vectors of the region (world); su.w: the bitcast chart width of
+    // the shooter's patch (a batch may shoot several patches).
     // sv.w: the first coefficient of the cut (see `shooter_cut`).
     su: vec4<f32>,
     sv: vec4<f32>,
-    // xyz: hemicube eye (region centre lifted off the surface); w: for
-    // gather_moving, the bitcast first element of the shooter's patch.
+    // xyz: hemicube eye (region centre lifted off the surface); w: the
+    // bitcast first element of the shooter's patch.
     eye: vec4<f32>,
     // Orthonormal frame of the hemicube: two tangents and the normal;
     // n.w is the bitcast id of the shooting patch; t1.w, t2.w: the second

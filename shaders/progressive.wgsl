@@ -60,13 +60,15 @@ fn place_elements(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(64)
 fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let s = shooters[wid.x];
+    let first_element = bitcast<u32>(s.eye.w);
+    let chart_w = bitcast<u32>(s.su.w);
     let tw = s.tile.z - s.tile.x;
     let count = tw * (s.tile.w - s.tile.y);
     var acc = vec3<f32>(0.0);
     for (var k = lid; k < count; k += WG) {
         let a = s.tile.x + k % tw;
         let b = s.tile.y + k / tw;
-        let idx = batch.first_element + b * batch.chart_w + a;
+        let idx = first_element + b * chart_w + a;
         acc += unshot[idx].rgb * elements[idx].position.w;
         unshot[idx] = vec4<f32>(0.0);
     }
@@ -86,7 +88,8 @@ fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
 // One thread per element: gather ΔB = ρ B_s^u A_s F from every shooter of
 // the batch whose item buffer shows this element's patch (thesis Alg. 4.2
 // lines 30-39); add it to B and B^u; keep the irradiance H for the energy
-// bookkeeping.
+// bookkeeping. A batch may shoot several patches (shoot.rs); an element
+// takes nothing from its own patch's shooters.
 @compute @workgroup_size(64)
 fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     let e = gid.x;
@@ -95,10 +98,10 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let el = elements[e];
     let id = bitcast<u32>(el.normal.w);
-    // A planar patch does not see itself; an element inside or under
-    // geometry (albedo.w, server/src/validity.rs) receives nothing, nor
-    // does one of a passive object (common.wgsl).
-    if (id == batch.patch_id || absent(el) || passive(el) || is_invalid(el)) {
+    // An element inside or under geometry (albedo.w,
+    // server/src/validity.rs) receives nothing, nor does one of a passive
+    // object (common.wgsl).
+    if (absent(el) || passive(el) || is_invalid(el)) {
         return;
     }
     let x = el.position.xyz;
@@ -106,9 +109,9 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
     var h = vec3<f32>(0.0);
     for (var k = 0u; k < batch.shooters; k++) {
         let s = shooters[k];
-        // In front of the shooter's plane, and some of the shooter above
-        // the element's horizon.
-        if (dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
+        // In front of the shooter's plane (a planar patch does not see
+        // itself), and some of the shooter above the element's horizon.
+        if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
             continue;
         }
         let v = visibility(k, s, el.lookup.xyz - s.eye.xyz, x, id);

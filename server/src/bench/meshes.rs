@@ -38,9 +38,21 @@ pub struct MeshResult {
     pub seconds_to_10pct: Option<f64>,
     pub seconds_to_1pct: Option<f64>,
     pub shots: u64,
+    /// Batches (one submission each; a batch may shoot several patches).
+    pub batches: u64,
     /// Unshot fraction when the run stopped (at 1% or at the time limit).
     pub unshot_at_end: f64,
     pub seconds: f64,
+}
+
+/// How each mesh is opened and solved.
+#[derive(Debug, Clone, Copy)]
+pub struct Settings {
+    /// Multiplies the default texel density of a `.glb`.
+    pub density_scale: f32,
+    /// A solve stops after this long.
+    pub limit: Duration,
+    pub progressive: ProgressiveOptions,
 }
 
 /// The cells per quad side that give about `triangles` triangles (`24 k²`).
@@ -52,7 +64,7 @@ pub fn cells_for(triangles: usize) -> usize {
 pub fn run_mesh(
     gpu: &Device,
     triangles: usize,
-    (density_scale, limit): (f32, Duration),
+    settings: &Settings,
     out: &Path,
 ) -> Result<MeshResult> {
     let k = cells_for(triangles);
@@ -64,16 +76,22 @@ pub fn run_mesh(
     std::fs::write(&file, &glb).with_context(|| format!("writing {}", file.display()))?;
 
     let started = Instant::now();
-    let (scene, atlas) = load_scene(&file, LoadOptions { density_scale })?;
+    let (scene, atlas) = load_scene(
+        &file,
+        LoadOptions {
+            density_scale: settings.density_scale,
+        },
+    )?;
     let load_seconds = started.elapsed().as_secs_f64();
     let poses = scene.initial_poses();
 
     let started = Instant::now();
-    let mut solver = Progressive::new(gpu, &scene, &atlas, &poses, ProgressiveOptions::default())?;
+    let mut solver = Progressive::new(gpu, &scene, &atlas, &poses, settings.progressive)?;
     let setup_seconds = started.elapsed().as_secs_f64();
 
     let started = Instant::now();
     let (mut to_10, mut to_1) = (None, None);
+    let mut batches = 0;
     let mut last_report = Instant::now();
     loop {
         let fraction = solver.residual_fraction();
@@ -85,9 +103,14 @@ pub fn run_mesh(
             to_1 = Some(t);
             break;
         }
-        if started.elapsed() > limit || !solver.step(Duration::ZERO)? {
+        if started.elapsed() > settings.limit {
             break;
         }
+        // A zero budget runs one batch.
+        if !solver.step(Duration::ZERO)? {
+            break;
+        }
+        batches += 1;
         if last_report.elapsed() > Duration::from_secs(10) {
             eprintln!(
                 "  {} triangles: {:.1} s, unshot {:.2}%, {} shots",
@@ -112,6 +135,7 @@ pub fn run_mesh(
         seconds_to_10pct: to_10,
         seconds_to_1pct: to_1,
         shots: solver.work(),
+        batches,
         unshot_at_end: solver.residual_fraction(),
         seconds: started.elapsed().as_secs_f64(),
     })

@@ -269,15 +269,18 @@ pub(crate) fn bench_solve_command(
     json: Option<PathBuf>,
     adapter: Option<&str>,
     (hemicube_resolution, gather_resolution): (u32, u32),
+    shared_batch_ratio: Option<f32>,
 ) -> Result<()> {
     if scenes.is_empty() {
         scenes = bench_scenes();
     }
     let gpu = gpu::Device::new(adapter)?;
     eprintln!("adapter: {}", gpu.describe());
+    let defaults = gpu::ProgressiveOptions::default();
     let options = gpu::ProgressiveOptions {
         hemicube_resolution,
-        ..Default::default()
+        shared_batch_ratio: shared_batch_ratio.unwrap_or(defaults.shared_batch_ratio),
+        ..defaults
     };
     let gather_options = gpu::GatherOptions {
         hemicube_resolution: gather_resolution,
@@ -329,7 +332,7 @@ pub(crate) fn bench_solve_command(
 /// `lightwire bench meshes`: one tessellated Cornell box per triangle count.
 pub(crate) fn bench_meshes_command(
     triangles: &[usize],
-    settings: (f32, std::time::Duration),
+    settings: lightwire_server::bench::meshes::Settings,
     out: &std::path::Path,
     json: Option<PathBuf>,
     adapter: Option<&str>,
@@ -338,15 +341,15 @@ pub(crate) fn bench_meshes_command(
     eprintln!("adapter: {}", gpu.describe());
     let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.2}"));
     println!(
-        "| triangles | .glb bytes | load s | atlas | texels/m | elements (texels) | setup s | s to 10% | s to 1% | shots | unshot at end |"
+        "| triangles | .glb bytes | load s | atlas | texels/m | elements (texels) | setup s | s to 10% | s to 1% | shots | batches | unshot at end |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     let mut results = Vec::new();
     for &n in triangles {
-        let r = lightwire_server::bench::meshes::run_mesh(&gpu, n, settings, out)
+        let r = lightwire_server::bench::meshes::run_mesh(&gpu, n, &settings, out)
             .with_context(|| format!("benchmarking a mesh of about {n} triangles"))?;
         println!(
-            "| {} | {} | {:.3} | {} x {} | {:.2} | {} ({}) | {:.2} | {} | {} | {} | {:.2}% |",
+            "| {} | {} | {:.3} | {} x {} | {:.2} | {} ({}) | {:.2} | {} | {} | {} | {} | {:.2}% |",
             r.triangles,
             r.file_bytes,
             r.load_seconds,
@@ -359,6 +362,7 @@ pub(crate) fn bench_meshes_command(
             fmt(r.seconds_to_10pct),
             fmt(r.seconds_to_1pct),
             r.shots,
+            r.batches,
             r.unshot_at_end * 100.0
         );
         results.push(r);

@@ -124,6 +124,11 @@ enum BenchCommand {
         /// Gather solver: top-face resolution of the hemicubes.
         #[arg(long, default_value_t = 32)]
         gather_resolution: u32,
+        /// Progressive solver: a batch fills the shooter slots its patch
+        /// leaves free with the next patches holding at least this share
+        /// of its unshot power; 0: one patch per batch [default: 0.5].
+        #[arg(long, value_parser = shared_batch_ratio)]
+        shared_batch_ratio: Option<f32>,
     },
     /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
     /// rotates a few degrees per frame; milliseconds per frame of gather,
@@ -216,6 +221,11 @@ enum BenchCommand {
         /// Use the adapter whose name contains this.
         #[arg(long)]
         adapter: Option<String>,
+        /// A batch fills the shooter slots its patch leaves free with the
+        /// next patches holding at least this share of its unshot power;
+        /// 0: one patch per batch [default: 0.5].
+        #[arg(long, value_parser = shared_batch_ratio)]
+        shared_batch_ratio: Option<f32>,
     },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
@@ -232,6 +242,16 @@ fn back_samples(text: &str) -> Result<u32, String> {
         "4" => Ok(4),
         _ => Err(format!(
             "{text:?} is not a sample count every adapter has: use 1 or 4"
+        )),
+    }
+}
+
+/// `--shared-batch-ratio`: a share in [0, 1].
+fn shared_batch_ratio(text: &str) -> Result<f32, String> {
+    match text.parse::<f32>() {
+        Ok(r) if (0.0..=1.0).contains(&r) => Ok(r),
+        _ => Err(format!(
+            "{text:?} is not a share of a patch's power: give a number from 0 to 1"
         )),
     }
 }
@@ -277,6 +297,7 @@ fn main() -> ExitCode {
                     adapter,
                     hemicube_resolution,
                     gather_resolution,
+                    shared_batch_ratio,
                 },
         } => bench_solve_command(
             scenes,
@@ -284,6 +305,7 @@ fn main() -> ExitCode {
             json,
             adapter.as_deref(),
             (hemicube_resolution, gather_resolution),
+            shared_batch_ratio,
         ),
         Command::Bench {
             what:
@@ -344,10 +366,19 @@ fn main() -> ExitCode {
                     out,
                     json,
                     adapter,
+                    shared_batch_ratio,
                 },
         } => bench_meshes_command(
             &triangles,
-            (density_scale, std::time::Duration::from_secs(max_seconds)),
+            lightwire_server::bench::meshes::Settings {
+                density_scale,
+                limit: std::time::Duration::from_secs(max_seconds),
+                progressive: gpu::ProgressiveOptions {
+                    shared_batch_ratio: shared_batch_ratio
+                        .unwrap_or(gpu::ProgressiveOptions::default().shared_batch_ratio),
+                    ..Default::default()
+                },
+            },
             &out,
             json,
             adapter.as_deref(),

@@ -3,7 +3,9 @@
 //! One *batch* is one SHOOTINGITERATION of the thesis: the patch with the
 //! most unshot power (found by the previous batch's reduction) is split into
 //! shooters, every shooter gets a hemicube item buffer, and every element
-//! gathers from all shooters at once. See the module doc of [`crate::gpu`]
+//! gathers from all shooters at once. Slots the patch leaves free go to
+//! small patches next in power (`shoot.rs`), so that a mesh of many small
+//! triangles does not pay a batch per triangle. See the module doc of [`crate::gpu`]
 //! for the data flow.
 //!
 //! The solver in parts, one concept per file:
@@ -134,6 +136,16 @@ pub struct ProgressiveOptions {
     /// every shooter. Both give the same hemicubes; tests turn it off to
     /// compare.
     pub one_draw_hemicubes: bool,
+    /// A batch whose patch leaves shooter slots free fills them with the
+    /// next patches by unshot power, down to `shared_batch_ratio` of the
+    /// first's (0 or above 1: one patch per batch, as the thesis shoots).
+    /// Every shooter of a batch is shot at once and every element gathers
+    /// from all of them, so it is still progressive refinement; what it
+    /// saves is a batch's fixed cost (the reconstruction over every
+    /// element, the selection, a submission and a readback), which a mesh
+    /// of many small triangles, a patch and a shooter each, otherwise pays
+    /// per triangle (BENCHMARKS.md, "shared batches").
+    pub shared_batch_ratio: f32,
 }
 
 impl Default for ProgressiveOptions {
@@ -151,6 +163,7 @@ impl Default for ProgressiveOptions {
             split_contacts: true,
             max_power_workgroups: u32::MAX,
             one_draw_hemicubes: true,
+            shared_batch_ratio: 0.5,
         }
     }
 }
@@ -183,7 +196,8 @@ pub struct EnergyBalance {
 
 /// Progressive refinement radiosity on the GPU: elements, B, B^u and the
 /// per-patch unshot power live in GPU buffers for the solver's lifetime;
-/// the CPU only places shooters and reads one 16-byte selection per batch.
+/// the CPU only places shooters and reads one 16-byte selection per batch
+/// (and the patches' powers, when batches are shared).
 ///
 /// Objects can move ([`ProgressiveSolver::redistribute`]): elements are kept
 /// in object space and placed at the current poses by a compute pass, and
@@ -239,6 +253,9 @@ pub struct ProgressiveSolver {
     far: f32,
     /// Latest selection read back: what the next batch shoots.
     selection: Selection,
+    /// Every patch's unshot power, read back with the selection when
+    /// batches are shared ([`ProgressiveOptions::shared_batch_ratio`]).
+    powers: Vec<f32>,
     shots: u64,
     batches: u64,
     shot_power: f64,
@@ -403,6 +420,7 @@ impl ProgressiveSolver {
             near: extent * 1e-4,
             far: extent * 4.0,
             selection: Selection::zeroed(),
+            powers: Vec::new(),
             shots: 0,
             batches: 0,
             shot_power: 0.0,
@@ -420,7 +438,7 @@ impl ProgressiveSolver {
         solver.encode_place(&mut encoder);
         solver.encode_selection(&mut encoder);
         solver.queue.submit([encoder.finish()]);
-        solver.selection = solver.read_selection()?;
+        solver.refresh_selection()?;
         if options.indirect_only {
             solver.shoot_direct(scene, poses)?;
         }
@@ -487,7 +505,7 @@ impl ProgressiveSolver {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         self.encode_selection(&mut encoder);
         self.queue.submit([encoder.finish()]);
-        self.selection = self.read_selection()?;
+        self.refresh_selection()?;
         Ok(())
     }
 
@@ -641,7 +659,6 @@ impl ProgressiveSolver {
     /// Shoots every emitting patch once, in patch order, and remembers what
     /// that delivered (plus the emission itself) as the direct part.
     fn shoot_direct(&mut self, scene: &Scene, poses: &[Pose]) -> Result<(), GpuError> {
-        let after = self.selection;
         for (p, patch) in scene.patches.iter().enumerate() {
             let material = &scene.materials[patch.material as usize];
             let scale = poses[patch.object as usize].scale;
@@ -649,12 +666,7 @@ impl ProgressiveSolver {
             if power <= 0.0 {
                 continue;
             }
-            self.selection = Selection {
-                patch_id: p as u32,
-                power,
-                ..after
-            };
-            self.batch_once()?;
+            self.shoot_patches(&[(p as u32, power)])?;
         }
         // `B` now holds E plus the first bounce of E.
         self.direct = Some(self.total_radiosity()?);

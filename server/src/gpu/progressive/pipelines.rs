@@ -53,7 +53,7 @@ use slot::*;
 /// GENERATESHOOTINGPATCHES: each shooter's unshot power into `energy`.
 pub(in crate::gpu) const SHOOTER_ENERGY: Pass = Pass {
     entries: &["shooter_energy"],
-    slots: &[ELEMENTS, UNSHOT, SHOOTERS, ENERGY, BATCH],
+    slots: &[ELEMENTS, UNSHOT, SHOOTERS, ENERGY],
 };
 
 /// RECONSTRUCTIONSHADER: every element gathers from the batch's shooters.

@@ -615,7 +615,7 @@ impl ProgressiveSolver {
             self.queue.submit([encoder.finish()]);
             self.profile.sync();
             let readback = self.profile.start();
-            self.selection = self.read_selection()?;
+            self.refresh_selection()?;
             self.profile.stop(readback, Stage::SelectionReadback);
             return Ok(false);
         }

@@ -119,12 +119,14 @@ impl Buffers {
             patch_power: empty(
                 "patch power",
                 (up.patch_ranges.len().max(1) * 4) as u64,
-                storage,
+                storage | copy_src,
             ),
             selection: empty("selection", selection_bytes, storage | copy_src),
+            // The selection, then every patch's unshot power (what a batch
+            // shared by several patches picks from, `shoot.rs`).
             selection_readback: empty(
                 "selection readback",
-                selection_bytes,
+                selection_bytes + (up.patch_ranges.len().max(1) * 4) as u64,
                 wgpu::BufferUsages::MAP_READ | copy_dst,
             ),
             shooters: empty(

@@ -16,6 +16,16 @@ use crate::gpu::buffers::{WORKGROUP, encode_compute, map_read};
 use crate::gpu::device::GpuError;
 use crate::gpu::hemicube;
 
+/// Most shooters a patch may be cut into (contact splits included) to join
+/// a batch it is not the first of. Sharing pays where a batch's fixed cost
+/// outweighs its shooters', which is so for the small patches a mesh has
+/// many of (a triangle's chart of 2 x 2 texels is at most four tiles); a
+/// large patch shot early alongside another, before it has received that
+/// one's light, is shot again later with a coarser grid, which made the
+/// quad scenes' progressive solution 0.1-0.5 points less accurate at the
+/// same unshot power (BENCHMARKS.md, "shared batches").
+const SHARED_TILES: usize = 4;
+
 /// Per-batch constants (`Batch` in common.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -90,24 +100,83 @@ impl ProgressiveSolver {
         );
     }
 
-    /// One SHOOTINGITERATION (thesis Alg. 4.2). Returns false when there
-    /// was nothing to shoot.
+    /// One SHOOTINGITERATION (thesis Alg. 4.2): the selected patch, and
+    /// the next ones by unshot power in the slots it leaves free
+    /// ([`Self::shared_patches`]). Returns false when there was nothing to
+    /// shoot.
     pub(super) fn batch_once(&mut self) -> Result<bool, GpuError> {
+        let patches = self.shared_patches();
+        self.shoot_patches(&patches)
+    }
+
+    /// The selected patch and its power, then, when batches are shared
+    /// ([`super::ProgressiveOptions::shared_batch_ratio`]), every other
+    /// patch holding at least that share of its unshot power, the most
+    /// powerful first (the lower id on a tie), at most a batch's capacity
+    /// of them.
+    pub(super) fn shared_patches(&self) -> Vec<(u32, f32)> {
         let sel = self.selection;
-        if sel.patch_id as usize >= self.patches.len() || sel.power <= 0.0 {
+        let mut picked = vec![(sel.patch_id, sel.power)];
+        let ratio = self.options.shared_batch_ratio;
+        if !(ratio > 0.0 && ratio <= 1.0) || sel.power <= 0.0 {
+            return picked;
+        }
+        let floor = sel.power * ratio;
+        let mut others: Vec<(u32, f32)> = (0..self.powers.len() as u32)
+            .map(|p| (p, self.powers[p as usize]))
+            .filter(|&(p, w)| p != sel.patch_id && w >= floor && w > 0.0)
+            .collect();
+        let order = |a: &(u32, f32), b: &(u32, f32)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
+        let room = self.batch_capacity as usize;
+        if others.len() > room {
+            others.select_nth_unstable_by(room, order);
+            others.truncate(room);
+        }
+        others.sort_by(order);
+        picked.extend(others);
+        picked
+    }
+
+    /// One batch shooting `patches` (id, unshot power), each tiled as it
+    /// would be alone in a batch; a further one joins only if it takes at
+    /// most [`SHARED_TILES`] shooters and they fit in the slots left.
+    /// Returns false when the first has nothing to shoot.
+    pub(super) fn shoot_patches(&mut self, patches: &[(u32, f32)]) -> Result<bool, GpuError> {
+        let Some(&(first, first_power)) = patches.first() else {
+            return Ok(false);
+        };
+        if first as usize >= self.patches.len() || first_power <= 0.0 {
             return Ok(false);
         }
-        let patch = self.patches[sel.patch_id as usize];
         let tiling = self.tiling();
-        let grid = tiling.grid(&patch, f64::from(sel.power), self.batch_capacity);
-        let limit = if self.options.split_contacts {
-            contact_limit(grid, self.batch_capacity)
-        } else {
-            (grid.0 * grid.1) as usize
-        };
-        let shooters = tiling.shooters(sel.patch_id, &patch, &self.areas, grid, limit);
+        let capacity = self.batch_capacity as usize;
+        let mut shooters = Vec::with_capacity(capacity);
+        let mut shot_power = 0.0;
+        for &(id, power) in patches {
+            let room = capacity - shooters.len();
+            let Some(patch) = self.patches.get(id as usize) else {
+                continue;
+            };
+            if room == 0 {
+                break;
+            }
+            let grid = tiling.grid(patch, f64::from(power), self.batch_capacity);
+            // Each patch is tiled as it would be alone in its batch, its
+            // contact splits included: one that might not fit waits.
+            let limit = if self.options.split_contacts {
+                contact_limit(grid, self.batch_capacity)
+            } else {
+                (grid.0 * grid.1) as usize
+            };
+            let first = shooters.is_empty();
+            if limit > room || (!first && limit > SHARED_TILES) {
+                continue;
+            }
+            shooters.extend(tiling.shooters(id, patch, &self.areas, grid, limit));
+            shot_power += f64::from(power);
+        }
         let count = shooters.len() as u32;
-        let uniform = self.batch_uniform(sel.patch_id, count, u32::MAX, 0);
+        let uniform = self.batch_uniform(first, count, u32::MAX, 0);
         self.queue
             .write_buffer(&self.buffers.shooters, 0, bytemuck::cast_slice(&shooters));
         self.queue
@@ -123,10 +192,10 @@ impl ProgressiveSolver {
         );
         self.encode_selection(&mut encoder);
         self.queue.submit([encoder.finish()]);
-        self.selection = self.read_selection()?;
+        self.refresh_selection()?;
         self.shots += u64::from(count);
         self.batches += 1;
-        self.shot_power += f64::from(sel.power);
+        self.shot_power += shot_power;
         Ok(true)
     }
 
@@ -146,17 +215,46 @@ impl ProgressiveSolver {
             pass.set_bind_group(0, &p.select.1, &[]);
             pass.dispatch_workgroups(1, 1, 1);
         }
+        let selection = std::mem::size_of::<Selection>() as u64;
         encoder.copy_buffer_to_buffer(
             &self.buffers.selection,
             0,
             &self.buffers.selection_readback,
             0,
-            std::mem::size_of::<Selection>() as u64,
+            selection,
         );
+        if self.shares_batches() {
+            encoder.copy_buffer_to_buffer(
+                &self.buffers.patch_power,
+                0,
+                &self.buffers.selection_readback,
+                selection,
+                4 * self.patches.len() as u64,
+            );
+        }
     }
 
-    pub(super) fn read_selection(&self) -> Result<Selection, GpuError> {
+    /// Whether a batch may shoot more than one patch.
+    fn shares_batches(&self) -> bool {
+        let ratio = self.options.shared_batch_ratio;
+        ratio > 0.0 && ratio <= 1.0 && self.patches.len() > 1
+    }
+
+    /// Reads what [`Self::encode_selection`] copied: the selection, and
+    /// the patches' powers when batches are shared.
+    pub(super) fn refresh_selection(&mut self) -> Result<(), GpuError> {
         let bytes = map_read(&self.device, &self.buffers.selection_readback)?;
-        Ok(bytemuck::pod_read_unaligned(&bytes))
+        let selection = std::mem::size_of::<Selection>();
+        self.selection = bytemuck::pod_read_unaligned(&bytes[..selection]);
+        if self.shares_batches() {
+            let powers = &bytes[selection..selection + 4 * self.patches.len()];
+            self.powers.clear();
+            self.powers.extend(
+                powers
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            );
+        }
+        Ok(())
     }
 }

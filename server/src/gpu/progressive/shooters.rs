@@ -358,9 +358,12 @@ impl Tiling<'_> {
         let eye = base + normal * self.lift;
         GpuShooter {
             corner: v4(corner, area),
-            su: v4(su, 0.0),
+            // The tile's elements: the shader finds them by its patch's
+            // first element and chart width (a batch may shoot several
+            // patches).
+            su: v4(su, f32::from_bits(patch.w)),
             sv: v4(sv, cut[0]),
-            eye: v4(eye, 0.0),
+            eye: v4(eye, f32::from_bits(patch.first)),
             t1: v4(t1, cut[1]),
             t2: v4(t2, cut[2]),
             n: v4(normal, f32::from_bits(patch_id)),
