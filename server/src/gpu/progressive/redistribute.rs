@@ -148,8 +148,14 @@ const RAD_TOTAL: u32 = 0x20000;
 pub enum Job {
     /// Incremental: a patch of M shoots its negated old shot radiosity.
     Negative { patch: u32, shooters: u32 },
-    /// Incremental: a patch of C shoots with old and new hemicubes.
-    Static { patch: u32, shooters: u32 },
+    /// Incremental: a patch of C shoots with old and new hemicubes; its
+    /// shooters `from..` that fit the batch (two hemicubes each), the rest
+    /// in the job that follows.
+    Static {
+        patch: u32,
+        shooters: u32,
+        from: u32,
+    },
     /// Cross: tiles `first..first + count` of [`Move::tiles`] shoot, one
     /// shooter per tile.
     Cross { first: u32, count: u32 },
@@ -493,9 +499,12 @@ impl ProgressiveSolver {
         }
         self.queue.submit([encoder.finish()]);
 
-        // Incremental batches hold two hemicubes per shooter, cross batches
-        // two or four per tile (`cross_slots`).
-        let half = self.batch_capacity / 2;
+        // Incremental patches are cut into as many shooters as a
+        // progressive batch gives them (a static patch's hemicubes, two per
+        // shooter, then take more than one batch when they do not fit);
+        // cross batches hold two or four hemicubes per tile
+        // (`cross_slots`).
+        let full = self.batch_capacity;
         let in_m = |p: usize| mv.moving[self.table.objects[p] as usize];
         match method {
             Redistribution::Incremental => {
@@ -503,7 +512,7 @@ impl ProgressiveSolver {
                     if in_m(p) && !mv.old_absent[self.table.objects[p] as usize] {
                         mv.jobs.push_back(Job::Negative {
                             patch: p as u32,
-                            shooters: self.grid_count(p, *power, half),
+                            shooters: self.grid_count(p, *power, full),
                         });
                     }
                 }
@@ -514,7 +523,8 @@ impl ProgressiveSolver {
                 for p in statics {
                     mv.jobs.push_back(Job::Static {
                         patch: p as u32,
-                        shooters: self.grid_count(p, patch_power[p], half),
+                        shooters: self.grid_count(p, patch_power[p], full),
+                        from: 0,
                     });
                 }
             }
@@ -578,7 +588,9 @@ impl ProgressiveSolver {
     /// selected, so that progressive refinement can continue.
     pub fn move_step(&mut self, mv: &mut Move) -> Result<bool, GpuError> {
         if let Some(job) = mv.jobs.pop_front() {
-            self.run_job(mv, job)?;
+            if let Some(rest) = self.run_job(mv, job)? {
+                mv.jobs.push_front(rest);
+            }
             mv.batches += 1;
         }
         if mv.jobs.is_empty() {
@@ -641,7 +653,10 @@ impl ProgressiveSolver {
             .saturating_sub(1)
     }
 
-    fn run_job(&mut self, mv: &Move, job: Job) -> Result<(), GpuError> {
+    /// Runs one batch of `job`; returns what is left of it for the next
+    /// batch (a static patch whose shooters did not all fit).
+    fn run_job(&mut self, mv: &Move, job: Job) -> Result<Option<Job>, GpuError> {
+        let mut rest = None;
         let setup = self.profile.start();
         let old_patches = self.table.place(&mv.old_poses);
         let old_areas = world_areas(&self.local_areas, &self.element_objects, &mv.old_poses);
@@ -674,16 +689,31 @@ impl ProgressiveSolver {
                 );
                 self.profile.mark(&mut encoder, Stage::Reconstruct);
             }
-            Job::Static { patch, shooters } => {
+            Job::Static {
+                patch,
+                shooters,
+                from,
+            } => {
                 let wp = self.patches[patch as usize];
                 let grid = self.shooter_grid_for_count(&wp, shooters);
-                let mut list = self.tiling().shooters(
+                let all = self.tiling().shooters(
                     patch,
                     &wp,
                     &self.areas,
                     grid,
                     self.job_split_limit(grid),
                 );
+                let half = (self.batch_capacity / 2) as usize;
+                let from = (from as usize).min(all.len());
+                let to = (from + half).min(all.len());
+                if to < all.len() {
+                    rest = Some(Job::Static {
+                        patch,
+                        shooters,
+                        from: to as u32,
+                    });
+                }
+                let mut list = all[from..to].to_vec();
                 let n = list.len() as u32;
                 list.extend_from_within(..);
                 self.upload(&list, self.batch_uniform(patch, n, n, KIND_STATIC));
@@ -803,7 +833,7 @@ impl ProgressiveSolver {
             }
         }
         self.queue.submit([encoder.finish()]);
-        Ok(())
+        Ok(rest)
     }
 
     /// Hemicube slots per tile of object `o` in a cross batch: front and
@@ -934,7 +964,7 @@ impl ProgressiveSolver {
     /// batch a job gets, or the grid itself without `split_contacts`.
     fn job_split_limit(&self, grid: (u32, u32)) -> usize {
         if self.options.split_contacts {
-            contact_limit(grid, self.batch_capacity / 2)
+            contact_limit(grid, self.batch_capacity)
         } else {
             (grid.0 * grid.1) as usize
         }
