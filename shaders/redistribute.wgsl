@@ -42,7 +42,8 @@
 // then equals what the tile shot.
 @group(0) @binding(23) var<storage, read_write> smoothed: array<vec4<f32>>;
 // The cross projection's grid on each slot's shooter, CROSS_GRID² cells
-// per slot, row by row: xyz the centroid of the cell's part on the
+// per slot, row by row, then the (CROSS_GRID / 2)² of the coarse grid
+// (`projected_radiosity`): xyz the centroid of the cell's part on the
 // shooter's region (world), w that part's share of the cell (0 for a cell
 // wholly above a triangle's diagonal). The same for every receiver, so
 // placed once per batch (`cross_cells` in server/src/gpu/progressive/redistribute.rs).
@@ -96,6 +97,14 @@ const ONE_SIDED: u32 = 0x800u;
 // Side length of the cross projection's sampling grid on a shooter (thesis
 // Alg. 4.5 gridSize, 4 by default).
 override CROSS_GRID: u32 = 4u;
+// A receiver whose form factor to a tile is below this samples the tile's
+// projection through the coarse grid (`cross_coarse_below` in
+// server/src/gpu/progressive/mod.rs; 0: never).
+override CROSS_COARSE_BELOW: f32 = 0.0;
+
+fn coarse_grid() -> u32 {
+    return max(CROSS_GRID / 2u, 1u);
+}
 
 // Side length (texels) of the tiles moving patches are cut into for cross
 // redistribution (`ProgressiveOptions::cross_tile`).
@@ -365,12 +374,17 @@ fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
 // parallel ray. A shooter cut by a triangle's diagonal casts rays through
 // the part of each grid cell on the triangle, weighted by its share
 // (`cross_cells`).
-fn projected_radiosity(slot: u32, x: vec3<f32>) -> vec3<f32> {
+// `coarse`: through the coarse grid instead (a receiver that sees the
+// tile small, `CROSS_COARSE_BELOW`).
+fn projected_radiosity(slot: u32, x: vec3<f32>, coarse: bool) -> vec3<f32> {
     let b = back_shooters[slot];
     var acc = vec3<f32>(0.0);
     var weight = 0.0;
-    let first = slot * CROSS_GRID * CROSS_GRID;
-    for (var c = 0u; c < CROSS_GRID * CROSS_GRID; c++) {
+    let fine = CROSS_GRID * CROSS_GRID;
+    let cg = coarse_grid();
+    let count = select(fine, cg * cg, coarse);
+    let first = slot * (fine + cg * cg) + select(0u, fine, coarse);
+    for (var c = 0u; c < count; c++) {
         let cell = cross_cells[first + c];
         if (cell.w <= 0.0) {
             continue;
@@ -494,6 +508,7 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let new_pose = side < 2u;
                 let front = (side & 1u) == 0u;
                 let s = shooters[q];
+                let ff = form_factor(s, x, nx);
                 var r = vec3<f32>(0.0);
                 if (new_pose && front) {
                     // R_p(M, C) and R_p(M, M) with the new total radiosity.
@@ -506,11 +521,11 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
                     // R_x(C, C), eq. 3.3.1: -P(C, j', i) for the light the
                     // new position blocks, +P(C, j, i) for what the old one
                     // no longer blocks; from either side of the patch.
-                    let p = projected_radiosity(q, x);
+                    let p = projected_radiosity(q, x, ff < CROSS_COARSE_BELOW);
                     r += select(p, -p, new_pose);
                 }
                 // Visibility is 0 or 1: a marked slot sees x.
-                h += r * form_factor(s, x, nx);
+                h += r * ff;
             }
         }
     }

@@ -184,6 +184,11 @@ enum BenchCommand {
         /// [default: 4].
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
         cross_grid: Option<u32>,
+        /// Cross redistribution: a receiver whose form factor to a tile is
+        /// below this samples the tile's projection through a grid of half
+        /// the side (0: never) [default: 0.005].
+        #[arg(long, value_parser = form_factor_threshold)]
+        cross_coarse_below: Option<f32>,
         /// Top-face resolution of the progressive solver's item-buffer
         /// hemicubes, in pixels (every method but gather) [default: 64].
         #[arg(long, value_parser = clap::value_parser!(u32).range(2..=512))]
@@ -256,6 +261,16 @@ fn shared_batch_ratio(text: &str) -> Result<f32, String> {
     }
 }
 
+/// A form factor for `--cross-coarse-below`: from 0 to 1.
+fn form_factor_threshold(text: &str) -> Result<f32, String> {
+    match text.parse::<f32>() {
+        Ok(f) if (0.0..=1.0).contains(&f) => Ok(f),
+        _ => Err(format!(
+            "{text:?} is not a form factor: give a number from 0 to 1"
+        )),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -323,6 +338,7 @@ fn main() -> ExitCode {
                     profile_clock,
                     cross_tile,
                     cross_grid,
+                    cross_coarse_below,
                     hemicube_resolution,
                     back_resolution,
                     back_samples,
@@ -340,6 +356,8 @@ fn main() -> ExitCode {
                     gpu::ProgressiveOptions {
                         cross_tile: cross_tile.unwrap_or(defaults.cross_tile),
                         cross_grid: cross_grid.unwrap_or(defaults.cross_grid),
+                        cross_coarse_below: cross_coarse_below
+                            .unwrap_or(defaults.cross_coarse_below),
                         hemicube_resolution: hemicube_resolution
                             .unwrap_or(defaults.hemicube_resolution),
                         back_resolution: back_resolution.unwrap_or(defaults.back_resolution),

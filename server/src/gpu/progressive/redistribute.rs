@@ -290,7 +290,7 @@ impl ProgressiveSolver {
         let grid = self.options.cross_grid.max(1);
         let cross_cells = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("cross projection cells"),
-            size: u64::from(cap) * u64::from(grid * grid) * 16,
+            size: u64::from(cap) * u64::from(cells_per_shooter(grid)) * 16,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -341,7 +341,13 @@ impl ProgressiveSolver {
             source: wgpu::ShaderSource::Wgsl(shaders::redistribute().into()),
         });
         let hemicube_module = self.draws.module(device, "hemicube.wgsl (radiosity)");
-        let grid = [("CROSS_GRID", f64::from(grid))];
+        let grid = [
+            ("CROSS_GRID", f64::from(grid)),
+            (
+                "CROSS_COARSE_BELOW",
+                f64::from(self.options.cross_coarse_below.max(0.0)),
+            ),
+        ];
         let tile = [("CROSS_TILE", f64::from(self.options.cross_tile.max(1)))];
         let gather_res = [("GATHER_RESOLUTION", f64::from(self.gather_resolution()))];
         let resources = self
@@ -1026,26 +1032,41 @@ fn front_shooters(
         .collect()
 }
 
+/// Side of the coarse grid of the cross projection (`cross_coarse_below`):
+/// half the full grid's, at least 1.
+fn coarse_grid(grid: u32) -> u32 {
+    (grid / 2).max(1)
+}
+
+/// Cells per shooter in `cross_cells`: the full grid's, then the coarse
+/// grid's.
+fn cells_per_shooter(grid: u32) -> u32 {
+    grid * grid + coarse_grid(grid) * coarse_grid(grid)
+}
+
 /// The cross projection's sampling grid (thesis Alg. 4.5 PROJECTEDRADIOSITY,
 /// `gridSize` = `grid`) on every shooter of a cross batch: per shooter
-/// `grid`² cells, row by row, each the centroid of the cell's part on the
-/// shooter's region (world) and that part's share of the cell in the
+/// `grid`² cells, row by row, then the cells of the coarse grid
+/// ([`coarse_grid`]) the same way; each the centroid of the cell's part on
+/// the shooter's region (world) and that part's share of the cell in the
 /// fourth component (0 for a cell wholly above a triangle's diagonal).
 /// They are the same for every receiver, so they are placed once per batch
 /// rather than once per receiver and shooter in `projected_radiosity`.
 fn cross_cells(shooters: &[GpuShooter], grid: u32) -> Vec<[f32; 4]> {
-    let g = grid as f32;
-    let mut cells = Vec::with_capacity(shooters.len() * (grid * grid) as usize);
+    let mut cells = Vec::with_capacity(shooters.len() * cells_per_shooter(grid) as usize);
     for s in shooters {
         let corner = Vec3::from_slice(&s.corner[..3]);
         let su = Vec3::from_slice(&s.su[..3]);
         let sv = Vec3::from_slice(&s.sv[..3]);
-        for j in 0..grid {
-            for i in 0..grid {
-                let lo = [i as f32 / g, j as f32 / g];
-                let hi = [(i + 1) as f32 / g, (j + 1) as f32 / g];
-                let (share, [x, y]) = cut_cell(s.cut(), lo, hi);
-                cells.push(v4(corner + su * x + sv * y, share));
+        for side in [grid, coarse_grid(grid)] {
+            let g = side as f32;
+            for j in 0..side {
+                for i in 0..side {
+                    let lo = [i as f32 / g, j as f32 / g];
+                    let hi = [(i + 1) as f32 / g, (j + 1) as f32 / g];
+                    let (share, [x, y]) = cut_cell(s.cut(), lo, hi);
+                    cells.push(v4(corner + su * x + sv * y, share));
+                }
             }
         }
     }
@@ -1074,8 +1095,18 @@ mod tests {
     #[test]
     fn cross_cells_cover_the_shooter_region() {
         let cells = cross_cells(&[shooter([0.0; 3])], 4);
-        assert_eq!(cells.len(), 16);
-        for (c, cell) in cells.iter().enumerate() {
+        assert_eq!(cells.len(), 16 + 4);
+        for (c, cell) in cells[16..].iter().enumerate() {
+            let (i, j) = ((c % 2) as f32, (c / 2) as f32);
+            let expected = [1.0 + (i + 0.5), 2.0, 3.0 + 2.0 * (j + 0.5), 1.0];
+            for k in 0..4 {
+                assert!(
+                    (cell[k] - expected[k]).abs() < 1e-6,
+                    "coarse cell {c}: {cell:?}"
+                );
+            }
+        }
+        for (c, cell) in cells[..16].iter().enumerate() {
             let (i, j) = ((c % 4) as f32, (c / 4) as f32);
             let expected = [
                 1.0 + 2.0 * (i + 0.5) / 4.0,
@@ -1089,6 +1120,9 @@ mod tests {
         }
         // Kept: x - y >= 0, the half below the diagonal from (0, 0) to (1, 1).
         let cells = cross_cells(&[shooter([1.0, -1.0, 0.0])], 4);
+        let kept: f32 = cells[16..].iter().map(|c| c[3]).sum();
+        assert!((kept / 4.0 - 0.5).abs() < 1e-6, "coarse: {kept}");
+        let cells = &cells[..16];
         let kept: f32 = cells.iter().map(|c| c[3]).sum();
         assert!((kept / 16.0 - 0.5).abs() < 1e-6, "{kept}");
         for (c, cell) in cells.iter().enumerate() {
