@@ -189,6 +189,12 @@ enum BenchCommand {
         /// the side (0: never) [default: 0.005].
         #[arg(long, value_parser = form_factor_threshold)]
         cross_coarse_below: Option<f32>,
+        /// Progressive refinement (the full method's solves, every
+        /// session's refinement): a batch fills the shooter slots its
+        /// patch leaves free with the next patches holding at least this
+        /// share of its unshot power; 0: one patch per batch [default: 0.5].
+        #[arg(long, value_parser = shared_batch_ratio)]
+        shared_batch_ratio: Option<f32>,
         /// Top-face resolution of the progressive solver's item-buffer
         /// hemicubes, in pixels (every method but gather) [default: 64].
         #[arg(long, value_parser = clap::value_parser!(u32).range(2..=512))]
@@ -339,6 +345,7 @@ fn main() -> ExitCode {
                     cross_tile,
                     cross_grid,
                     cross_coarse_below,
+                    shared_batch_ratio,
                     hemicube_resolution,
                     back_resolution,
                     back_samples,
@@ -358,6 +365,8 @@ fn main() -> ExitCode {
                         cross_grid: cross_grid.unwrap_or(defaults.cross_grid),
                         cross_coarse_below: cross_coarse_below
                             .unwrap_or(defaults.cross_coarse_below),
+                        shared_batch_ratio: shared_batch_ratio
+                            .unwrap_or(defaults.shared_batch_ratio),
                         hemicube_resolution: hemicube_resolution
                             .unwrap_or(defaults.hemicube_resolution),
                         back_resolution: back_resolution.unwrap_or(defaults.back_resolution),
