@@ -257,24 +257,22 @@ fn back_samples(text: &str) -> Result<u32, String> {
     }
 }
 
-/// `--shared-batch-ratio`: a share in [0, 1].
-fn shared_batch_ratio(text: &str) -> Result<f32, String> {
+/// A number from 0 to 1; `what` names it in the error.
+fn zero_to_one(text: &str, what: &str) -> Result<f32, String> {
     match text.parse::<f32>() {
-        Ok(r) if (0.0..=1.0).contains(&r) => Ok(r),
-        _ => Err(format!(
-            "{text:?} is not a share of a patch's power: give a number from 0 to 1"
-        )),
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        _ => Err(format!("{text:?} is not {what}: give a number from 0 to 1")),
     }
 }
 
-/// A form factor for `--cross-coarse-below`: from 0 to 1.
+/// `--shared-batch-ratio`: a share of a patch's power.
+fn shared_batch_ratio(text: &str) -> Result<f32, String> {
+    zero_to_one(text, "a share of a patch's power")
+}
+
+/// `--cross-coarse-below`: a form factor.
 fn form_factor_threshold(text: &str) -> Result<f32, String> {
-    match text.parse::<f32>() {
-        Ok(f) if (0.0..=1.0).contains(&f) => Ok(f),
-        _ => Err(format!(
-            "{text:?} is not a form factor: give a number from 0 to 1"
-        )),
-    }
+    zero_to_one(text, "a form factor")
 }
 
 fn main() -> ExitCode {

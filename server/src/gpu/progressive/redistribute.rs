@@ -1010,10 +1010,9 @@ impl ProgressiveSolver {
     }
 }
 
-/// One shooter per cross tile at the placement `placed` (areas `areas`),
-/// with what `gather_moving` and `regather_moving` need to walk the tile's
-/// texels: the bitcast first element of its patch in `eye.w`, the chart
-/// width in `su.w`.
+/// One shooter per cross tile at the placement `placed` (areas `areas`);
+/// `gather_moving` and `regather_moving` walk the tile's texels by the
+/// first element and chart width every shooter carries (`Tiling::shooter`).
 fn front_shooters(
     tiling: &super::shooters::Tiling<'_>,
     tiles: &[CrossTile],
@@ -1022,13 +1021,7 @@ fn front_shooters(
 ) -> Vec<GpuShooter> {
     tiles
         .iter()
-        .map(|t| {
-            let wp = &placed[t.patch as usize];
-            let mut s = tiling.shooter(t.patch, wp, areas, t.texels);
-            s.eye[3] = f32::from_bits(wp.first);
-            s.su[3] = f32::from_bits(wp.w);
-            s
-        })
+        .map(|t| tiling.shooter(t.patch, &placed[t.patch as usize], areas, t.texels))
         .collect()
 }
 
