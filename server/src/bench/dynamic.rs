@@ -105,6 +105,9 @@ pub struct Settings {
     pub density_scale: f32,
     pub progressive: ProgressiveOptions,
     pub gather: GatherOptions,
+    /// Gathered correction rounds of a cross session's first solve
+    /// (`DynamicOptions::corrections`).
+    pub corrections: u32,
     /// Where the images go (one directory per scene inside).
     pub out: PathBuf,
     /// Break each redistribution method's frames down by stage with this
@@ -473,6 +476,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         let options = DynamicOptions {
             method,
             progressive: settings.progressive,
+            corrections: settings.corrections,
             ..DynamicOptions::default()
         };
         let mut session = DynamicSolver::new(gpu, &scene, &atlas, &start, 0, options)?;

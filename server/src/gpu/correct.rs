@@ -28,7 +28,9 @@
 //!
 //! The gather solver is built at the progressive solver's poses and does
 //! not follow moves: corrections serve solves at fixed poses (`bake`,
-//! `bench solve`).
+//! `bench solve`) and the first solve of a cross session
+//! (`gpu::DynamicSolver`), whose static light then stays corrected while
+//! moves redistribute the moving objects' share of it.
 
 use glam::Vec3;
 
@@ -57,6 +59,8 @@ pub struct Correction {
     gather: GatherSolver,
     /// World area per element.
     areas: Vec<f32>,
+    /// Object per element.
+    objects: Vec<u32>,
     emitted: f64,
 }
 
@@ -87,6 +91,7 @@ impl Correction {
         Ok(Self {
             gather,
             areas,
+            objects,
             emitted,
         })
     }
@@ -99,11 +104,36 @@ impl Correction {
         solver: &mut ProgressiveSolver,
         threshold: f64,
     ) -> Result<CorrectionReport, GpuError> {
+        self.round_except(solver, threshold, &[])
+    }
+
+    /// A round that leaves the elements of the objects flagged in `frozen`
+    /// as they are (no residual of their own; they still occlude and are
+    /// seen by the gather sweep). A cross session freezes its moving
+    /// objects: their light is each move's business, and refinement holds
+    /// them passive (`gpu::DynamicSolver`).
+    pub fn round_except(
+        &mut self,
+        solver: &mut ProgressiveSolver,
+        threshold: f64,
+        frozen: &[bool],
+    ) -> Result<CorrectionReport, GpuError> {
         let b = solver.total_radiosity()?;
         self.gather.start_from(&b);
         self.gather.bounce()?;
         let gathered = self.gather.total_radiosity()?;
-        let residual: Vec<Vec3> = gathered.iter().zip(&b).map(|(g, b)| *g - *b).collect();
+        let residual: Vec<Vec3> = gathered
+            .iter()
+            .zip(&b)
+            .zip(&self.objects)
+            .map(|((g, b), &o)| {
+                if frozen.get(o as usize).copied().unwrap_or(false) {
+                    Vec3::ZERO
+                } else {
+                    *g - *b
+                }
+            })
+            .collect();
         let valid = solver.validity();
         let power: f64 = residual
             .iter()

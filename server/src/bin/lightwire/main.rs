@@ -207,6 +207,10 @@ enum BenchCommand {
         /// (1 or 4; 4 blurs them) [default: 1].
         #[arg(long, value_parser = back_samples)]
         back_samples: Option<u32>,
+        /// Cross redistribution: gathered correction rounds after the
+        /// first solve (0: none) [default: 2].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
+        corrections: Option<u32>,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
     /// Cornell boxes of about the given triangle counts, written as .glb,
@@ -347,6 +351,7 @@ fn main() -> ExitCode {
                     hemicube_resolution,
                     back_resolution,
                     back_samples,
+                    corrections,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -373,6 +378,7 @@ fn main() -> ExitCode {
                     }
                 },
                 gather: gpu::GatherOptions::default(),
+                corrections: corrections.unwrap_or(gpu::DynamicOptions::default().corrections),
                 out,
                 profile: profile.then_some(profile_clock),
             },
