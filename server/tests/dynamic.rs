@@ -426,19 +426,14 @@ fn refinement_carries_negative_light_like_positive() {
 /// `DynamicOptions::corrections`), carries its accuracy through a move:
 /// after the box has turned and shifted, the session with two rounds is
 /// nearer the CPU reference at the new pose than the one without, and
-/// within [`CORRECTED_BOUND`] of it (cornell-large x0.35, NRMSE over the
-/// visible non-emitting elements). Measured on 2026-12-04: 2.22% without,
-/// 1.86% with (at the bench's density, `bench dynamic --corrections 0|2`,
-/// the gap is wider: 1.82% and 1.02%).
-#[test]
-fn cross_corrections_bring_a_moved_scene_near_the_reference() {
-    let (scene, atlas) = common::load("cornell-large.json", 0.35);
+/// within `bound` of it (NRMSE over the visible non-emitting elements).
+fn corrected_cross_after_a_move(file: &str, scale: f32, bound: f64) {
+    let (scene, atlas) = common::load(file, scale);
     let target = box_pose(&scene, 30.0, Vec3::new(0.4, 0.0, -0.3));
     let reference =
         ReferenceSolver::new(&scene, &atlas, &target, &Silent).unwrap_or_else(|e| panic!("{e}"));
     let expected = reference.solve(SolveOptions::default(), &Silent).radiosity;
     let mut errors = Vec::new();
-    let mut states = Vec::new();
     for corrections in [0, 2] {
         let mut d = session_corrected(
             &scene,
@@ -447,33 +442,44 @@ fn cross_corrections_bring_a_moved_scene_near_the_reference() {
             ProgressiveOptions::default(),
             corrections,
         );
-        states.push(settle(&mut d));
+        assert!(settle(&mut d) >= 1, "the first solve publishes");
         d.set_poses(&target, [1]);
         assert!(settle(&mut d) >= 1, "the move publishes");
         let published = radiosity(&d);
         let error = common::visible_accuracy(&scene, &atlas, &target, &published, &expected);
-        eprintln!("cross, {corrections} correction rounds, after a move: {error}");
+        eprintln!("{file}: cross, {corrections} correction rounds, after a move: {error}");
         errors.push(error.nrmse);
     }
     assert!(
-        states.iter().all(|&n| n >= 1),
-        "the first solve publishes: {states:?}"
-    );
-    assert!(
         errors[1] < errors[0],
-        "corrections must bring the session nearer the reference: {errors:?}"
+        "{file}: corrections must bring the session nearer the reference: {errors:?}"
     );
     assert!(
-        errors[1] <= CORRECTED_BOUND,
-        "corrected cross after a move: {:.2}% (bound {:.2}%)",
+        errors[1] <= bound,
+        "{file}: corrected cross after a move: {:.2}% (bound {:.2}%)",
         errors[1] * 100.0,
-        CORRECTED_BOUND * 100.0
+        bound * 100.0
     );
 }
 
-/// [`cross_corrections_bring_a_moved_scene_near_the_reference`]'s bound:
-/// issue 15's 2% for a state a viewer sees.
-const CORRECTED_BOUND: f64 = 0.02;
+/// [`corrected_cross_after_a_move`] on cornell-large x0.35. Measured on
+/// 2026-12-04: 2.22% without, 1.86% with (at the bench's density,
+/// `bench dynamic --corrections 0|2`, the gap is wider: 1.82% and 1.02%).
+/// Bound: issue 15's 2% for a state a viewer sees.
+#[test]
+fn cross_corrections_bring_a_moved_scene_near_the_reference() {
+    corrected_cross_after_a_move("cornell-large.json", 0.35, 0.02);
+}
+
+/// [`corrected_cross_after_a_move`] on the mesh box (`cornell-dynamic.glb`
+/// x0.28, as `a_mesh_box_after_a_move_matches_a_from_scratch_solve`):
+/// measured on 2026-12-04: 2.81% without, 2.46% with. Issue 18 asks for
+/// 2% from a from-scratch reference at the new pose; the bound holds what
+/// is reached with a margin, it is not the target.
+#[test]
+fn cross_corrections_bring_a_moved_mesh_box_near_the_reference() {
+    corrected_cross_after_a_move("meshes/cornell-dynamic.glb", 0.28, 0.03);
+}
 
 #[test]
 fn incremental_after_a_move_matches_a_from_scratch_solve_within_its_bound() {
