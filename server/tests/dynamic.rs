@@ -481,6 +481,44 @@ fn cross_corrections_bring_a_moved_mesh_box_near_the_reference() {
     corrected_cross_after_a_move("meshes/cornell-dynamic.glb", 0.28, 0.03);
 }
 
+/// A closed box resting on the floor is cut into cross tiles on every face
+/// but its bottom: no receiver lies in front of that face (the floor's
+/// receiving points are a hair above its plane), so its tiles would gather,
+/// shoot and shadow nothing. Lifted 5 cm, the bottom faces the floor and
+/// is tiled again, whether it rests at the old pose or the new.
+#[test]
+fn a_box_resting_on_the_floor_has_no_tiles_on_its_bottom() {
+    let (scene, atlas) = common::load("cornell-low.json", 0.5);
+    let b = scene.object_by_name("box").expect("the scene has a box");
+    assert!(scene.closed_objects()[b as usize], "the quad box is closed");
+    let faces: Vec<u32> = (0..scene.patches.len() as u32)
+        .filter(|&p| scene.patches[p as usize].object == b)
+        .collect();
+    let bottom = faces
+        .iter()
+        .copied()
+        .find(|&p| scene.patches[p as usize].shape.normal().y < -0.99)
+        .expect("the box has a bottom");
+    let resting = scene.initial_poses();
+    let lifted = box_pose(&scene, 0.0, Vec3::new(0.0, 0.05, 0.0));
+    let turned = box_pose(&scene, 20.0, Vec3::ZERO);
+    let mut s = static_solve(&scene, &atlas, &resting, 1e-2);
+    let present = vec![false; scene.objects.len()];
+    let others: Vec<u32> = faces.iter().copied().filter(|&p| p != bottom).collect();
+    for (poses, expected) in [
+        (&resting, &others),
+        (&turned, &others),
+        (&lifted, &faces),
+        (&turned, &faces),
+    ] {
+        let mut mv = s
+            .begin_move(poses, &present, Redistribution::Cross)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&mv.tiled_patches(), expected);
+        s.finish_move(&mut mv).unwrap_or_else(|e| panic!("{e}"));
+    }
+}
+
 #[test]
 fn incremental_after_a_move_matches_a_from_scratch_solve_within_its_bound() {
     after_a_move_matches_a_from_scratch_solve(Redistribution::Incremental);

@@ -262,6 +262,9 @@ pub struct ProgressiveSolver {
     emitted: f64,
     near: f32,
     far: f32,
+    /// How far receiving points are moved off their surface and towards
+    /// their patch's centre (`placement::local_elements`).
+    surface_offset: f32,
     /// Latest selection read back: what the next batch shoots.
     selection: Selection,
     /// Every patch's unshot power, read back with the selection when
@@ -430,6 +433,7 @@ impl ProgressiveSolver {
             emitted,
             near: extent * 1e-4,
             far: extent * 4.0,
+            surface_offset: extent * placement::SURFACE_OFFSET,
             selection: Selection::zeroed(),
             powers: Vec::new(),
             shots: 0,

@@ -198,6 +198,13 @@ impl Move {
     pub fn is_empty_move(&self) -> bool {
         !self.moving.iter().any(|m| *m)
     }
+    /// Cross: the patches the move's tiles were cut from, each once, in
+    /// order.
+    pub fn tiled_patches(&self) -> Vec<u32> {
+        let mut patches: Vec<u32> = self.tiles.iter().map(|t| t.patch).collect();
+        patches.dedup();
+        patches
+    }
 }
 
 /// Pipelines and targets of the redistribution passes, built on the first
@@ -537,8 +544,21 @@ impl ProgressiveSolver {
             Redistribution::Cross | Redistribution::Full => {
                 let side = self.options.cross_tile.max(1);
                 let tiling = self.tiling();
+                let old_patches = self.table.place(&mv.old_poses);
                 for p in 0..self.patches.len() {
                     if !in_m(p) {
+                        continue;
+                    }
+                    let object = self.table.objects[p] as usize;
+                    // A closed object's face with no receiver in front of
+                    // it wherever it is (a box's bottom on the floor)
+                    // gathers, shoots and shadows nothing: no tiles.
+                    if self.cross_slots(object) == 2
+                        && (mv.old_absent[object]
+                            || self.faces_nothing(p, &old_patches, &mv.old_absent))
+                        && (self.absent[object]
+                            || self.faces_nothing(p, &self.patches, &self.absent))
+                    {
                         continue;
                     }
                     let wp = self.patches[p];
@@ -840,6 +860,41 @@ impl ProgressiveSolver {
         }
         self.queue.submit([encoder.finish()]);
         Ok(rest)
+    }
+
+    /// Whether no element receives in front of patch `p`'s plane with the
+    /// patches placed as `placed` and the objects flagged in `absent` left
+    /// out: `reconstruct_dyn`'s test of a receiver against a front slot
+    /// (`dot(x - corner, n) > 0`, `x` the receiving point, nudged off its
+    /// surface and towards its patch's centre as `place_elements` does)
+    /// then fails for every receiver, the patch's front hemicubes see
+    /// nothing, and its texels gather no light, direct or reflected. A
+    /// box resting on the floor: the floor's receiving points lie a hair
+    /// above its bottom's plane, the walls' above it. Patches wholly
+    /// behind the plane are passed over by their corners; those within a
+    /// hair of it by their elements.
+    fn faces_nothing(&self, p: usize, placed: &[WorldPatch], absent: &[bool]) -> bool {
+        let (o, n) = (placed[p].origin, placed[p].normal);
+        let hair = 2.0 * self.surface_offset;
+        placed.iter().enumerate().all(|(q, wp)| {
+            if q == p || absent[self.table.objects[q] as usize] {
+                return true;
+            }
+            let reach = wp
+                .corners()
+                .iter()
+                .map(|c| (*c - o).dot(n))
+                .fold(f32::NEG_INFINITY, f32::max);
+            if reach > hair {
+                return false;
+            }
+            reach < -hair
+                || (wp.first..wp.first + wp.w * wp.h).all(|i| {
+                    let e = &self.atlas.elements[i as usize];
+                    !e.covers_surface()
+                        || (wp.receiving_point(e.st, self.surface_offset) - o).dot(n) <= 0.0
+                })
+        })
     }
 
     /// Hemicube slots per tile of object `o` in a cross batch: front and
