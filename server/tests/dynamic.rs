@@ -216,6 +216,16 @@ fn radiosity(d: &Session) -> Vec<Vec3> {
     d.radiosity().unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// Runs a new session's first solve, then one move to `target` (seq 1);
+/// returns the state published for it.
+fn published_after_one_move(d: &mut Session, target: &[Pose]) -> Vec<Vec3> {
+    assert!(settle(d) >= 1, "the first solve publishes");
+    d.set_poses(target, [1]);
+    assert!(settle(d) >= 1, "the move publishes");
+    assert_eq!(d.reflected(), &[1], "the state reflects the move's seq");
+    radiosity(d)
+}
+
 /// How far the moved box's own faces may be from a from-scratch solve,
 /// over their texels above the row that stands on the floor (NRMSE, the
 /// same test). Measured on 2026-12-03: incremental 1.53%; cross 3.17%,
@@ -251,11 +261,7 @@ fn after_a_move_matches_a_from_scratch_solve(method: Redistribution) {
     let target = box_pose(&scene, 30.0, Vec3::new(0.4, 0.0, -0.3));
     let expected = from_scratch(&scene, &atlas, &target);
     let mut d = session(&scene, &atlas, method);
-    assert!(settle(&mut d) >= 1, "the first solve publishes");
-    d.set_poses(&target, [1]);
-    assert!(settle(&mut d) >= 1, "the move publishes");
-    assert_eq!(d.reflected(), &[1], "the state reflects the move's seq");
-    let published = radiosity(&d);
+    let published = published_after_one_move(&mut d, &target);
     let error = common::visible_accuracy(&scene, &atlas, &target, &published, &expected);
     eprintln!("{method}: after a move {error}");
     assert!(error.nrmse <= bound, "{method}: {error} (bound {bound})");
@@ -322,10 +328,7 @@ fn a_mesh_box_after_a_move_matches_a_from_scratch_solve() {
         .into_iter()
         .map(|method| {
             let mut d = session(&scene, &atlas, method);
-            assert!(settle(&mut d) >= 1, "the first solve publishes");
-            d.set_poses(&target, [1]);
-            assert!(settle(&mut d) >= 1, "the move publishes");
-            let published = radiosity(&d);
+            let published = published_after_one_move(&mut d, &target);
             let error = common::visible_accuracy(&scene, &atlas, &target, &published, &expected);
             eprintln!("{method} on triangles: after a move {error}");
             (method, error)
@@ -442,10 +445,7 @@ fn corrected_cross_after_a_move(file: &str, scale: f32, bound: f64) {
             ProgressiveOptions::default(),
             corrections,
         );
-        assert!(settle(&mut d) >= 1, "the first solve publishes");
-        d.set_poses(&target, [1]);
-        assert!(settle(&mut d) >= 1, "the move publishes");
-        let published = radiosity(&d);
+        let published = published_after_one_move(&mut d, &target);
         let error = common::visible_accuracy(&scene, &atlas, &target, &published, &expected);
         eprintln!("{file}: cross, {corrections} correction rounds, after a move: {error}");
         errors.push(error.nrmse);
