@@ -12,7 +12,9 @@ struct Shooter {
     // xyz: corner of the shooter's region (world), w: its area (m²).
     corner: vec4<f32>,
     // Edge vectors of the region (world); su.w: the bitcast chart width of
-    // the shooter's patch (a batch may shoot several patches).
+    // the shooter's patch (a batch may shoot several patches), zero for a
+    // cluster of triangles, whose tile.xy is then a range of `members`
+    // (progressive.wgsl).
     // sv.w: the first coefficient of the cut (see `shooter_cut`).
     su: vec4<f32>,
     sv: vec4<f32>,

@@ -16,6 +16,9 @@
 @group(0) @binding(5) var<storage, read_write> patch_power: array<f32>;
 @group(0) @binding(6) var<storage, read_write> selection: Selection;
 @group(0) @binding(14) var<storage, read_write> placed: array<Element>;
+// Patch ids of the triangle clusters (server/src/gpu/progressive/clusters.rs):
+// a cluster shooter (chart width 0) shoots the patches members[tile.x..tile.y].
+@group(0) @binding(27) var<storage, read> members: array<u32>;
 
 // patch id, its unshot power, total unshot power, unused.
 struct Selection {
@@ -55,7 +58,7 @@ fn place_elements(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 // One workgroup per shooter: B_s^u = Σ A_e B_e^u / A_s over the shooter's
-// tile of elements, stored in the intermediate buffer T (`energy`), and the
+// tile of elements (or its cluster's triangles), stored in the intermediate buffer T (`energy`), and the
 // tile's unshot radiosity cleared (thesis Alg. 4.2 lines 6-7, 23-29).
 @compute @workgroup_size(64)
 fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
@@ -65,12 +68,24 @@ fn shooter_energy(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
     let tw = s.tile.z - s.tile.x;
     let count = tw * (s.tile.w - s.tile.y);
     var acc = vec3<f32>(0.0);
-    for (var k = lid; k < count; k += WG) {
-        let a = s.tile.x + k % tw;
-        let b = s.tile.y + k / tw;
-        let idx = first_element + b * chart_w + a;
-        acc += unshot[idx].rgb * elements[idx].position.w;
-        unshot[idx] = vec4<f32>(0.0);
+    if (chart_w == 0u) {
+        // A cluster of whole triangles: every element of each member.
+        for (var m = s.tile.x + lid; m < s.tile.y; m += WG) {
+            let p = patches[members[m]];
+            for (var k = 0u; k < p.count; k++) {
+                let idx = p.first + k;
+                acc += unshot[idx].rgb * elements[idx].position.w;
+                unshot[idx] = vec4<f32>(0.0);
+            }
+        }
+    } else {
+        for (var k = lid; k < count; k += WG) {
+            let a = s.tile.x + k % tw;
+            let b = s.tile.y + k / tw;
+            let idx = first_element + b * chart_w + a;
+            acc += unshot[idx].rgb * elements[idx].position.w;
+            unshot[idx] = vec4<f32>(0.0);
+        }
     }
     partial[lid] = acc;
     workgroupBarrier();

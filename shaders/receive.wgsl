@@ -201,7 +201,14 @@ fn form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
     let r = max(length(rel - s.su.xyz * st.x - s.sv.xyz * st.y), 1e-12);
     let wanted = ceil(batch.subdivision * sqrt(area) / r);
     if (wanted > f32(batch.max_subdivision)) {
-        return polygon_form_factor(s, x, nx);
+        // A cluster of triangles (chart width 0, shooters.rs) covers only
+        // part of its rectangle: the exact form factor to the rectangle,
+        // scaled by the share it covers.
+        var cover = 1.0;
+        if (bitcast<u32>(s.su.w) == 0u) {
+            cover = min(area / max(length(cross(s.su.xyz, s.sv.xyz)), 1e-30), 1.0);
+        }
+        return polygon_form_factor(s, x, nx) * cover;
     }
     let k = u32(max(wanted, 1.0));
     let kf = f32(k);

@@ -269,7 +269,7 @@ pub(crate) fn bench_solve_command(
     json: Option<PathBuf>,
     adapter: Option<&str>,
     (hemicube_resolution, gather_resolution): (u32, u32),
-    shared_batch_ratio: Option<f32>,
+    (shared_batch_ratio, cluster_triangles): (Option<f32>, bool),
 ) -> Result<()> {
     if scenes.is_empty() {
         scenes = bench_scenes();
@@ -280,6 +280,7 @@ pub(crate) fn bench_solve_command(
     let options = gpu::ProgressiveOptions {
         hemicube_resolution,
         shared_batch_ratio: shared_batch_ratio.unwrap_or(defaults.shared_batch_ratio),
+        cluster_triangles,
         ..defaults
     };
     let gather_options = gpu::GatherOptions {

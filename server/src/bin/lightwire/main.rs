@@ -129,6 +129,10 @@ enum BenchCommand {
         /// of its unshot power; 0: one patch per batch [default: 0.5].
         #[arg(long, value_parser = shared_batch_ratio)]
         shared_batch_ratio: Option<f32>,
+        /// Progressive solver: shoot every triangle as its own patch, not
+        /// in clusters of near-coplanar triangles.
+        #[arg(long)]
+        no_clusters: bool,
     },
     /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
     /// rotates a few degrees per frame; milliseconds per frame of gather,
@@ -241,6 +245,10 @@ enum BenchCommand {
         /// 0: one patch per batch [default: 0.5].
         #[arg(long, value_parser = shared_batch_ratio)]
         shared_batch_ratio: Option<f32>,
+        /// Shoot every triangle as its own patch, not in clusters of
+        /// near-coplanar triangles (the solver before clusters).
+        #[arg(long)]
+        no_clusters: bool,
     },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
@@ -321,6 +329,7 @@ fn main() -> ExitCode {
                     hemicube_resolution,
                     gather_resolution,
                     shared_batch_ratio,
+                    no_clusters,
                 },
         } => bench_solve_command(
             scenes,
@@ -328,7 +337,7 @@ fn main() -> ExitCode {
             json,
             adapter.as_deref(),
             (hemicube_resolution, gather_resolution),
-            shared_batch_ratio,
+            (shared_batch_ratio, !no_clusters),
         ),
         Command::Bench {
             what:
@@ -398,6 +407,7 @@ fn main() -> ExitCode {
                     json,
                     adapter,
                     shared_batch_ratio,
+                    no_clusters,
                 },
         } => bench_meshes_command(
             &triangles,
@@ -407,6 +417,7 @@ fn main() -> ExitCode {
                 progressive: gpu::ProgressiveOptions {
                     shared_batch_ratio: shared_batch_ratio
                         .unwrap_or(gpu::ProgressiveOptions::default().shared_batch_ratio),
+                    cluster_triangles: !no_clusters,
                     ..Default::default()
                 },
             },

@@ -37,6 +37,7 @@ use crate::atlas::Atlas;
 use crate::scene::{Pose, Scene};
 use crate::validity::Validity;
 
+mod clusters;
 mod pipelines;
 mod redistribute;
 mod regather;
@@ -50,6 +51,7 @@ pub use redistribute::{Move, Redistribution};
 pub(in crate::gpu) use shoot::{BatchUniform, Selection};
 pub(in crate::gpu) use shooters::GpuShooter;
 
+use clusters::Clusters;
 use pipelines::Pipelines;
 use resources::{Buffers, Upload, non_empty};
 use shooters::Tiling;
@@ -156,6 +158,13 @@ pub struct ProgressiveOptions {
     /// of many small triangles, a patch and a shooter each, otherwise pays
     /// per triangle (BENCHMARKS.md, "shared batches").
     pub shared_batch_ratio: f32,
+    /// Shoot a mesh's small triangles in clusters: triangles of one
+    /// object and material joined through shared corners, their normals
+    /// within 20° (`clusters.rs`), cut per batch into as many shooters as
+    /// their power asks for, as a quad is. Without it a mesh needs about a
+    /// shot per triangle (BENCHMARKS.md, "shooting clusters"); tests turn
+    /// it off to compare.
+    pub cluster_triangles: bool,
 }
 
 impl Default for ProgressiveOptions {
@@ -175,6 +184,7 @@ impl Default for ProgressiveOptions {
             max_power_workgroups: u32::MAX,
             one_draw_hemicubes: true,
             shared_batch_ratio: 0.5,
+            cluster_triangles: true,
         }
     }
 }
@@ -265,6 +275,9 @@ pub struct ProgressiveSolver {
     /// How far receiving points are moved off their surface and towards
     /// their patch's centre (`placement::local_elements`).
     surface_offset: f32,
+    /// Regions of near-coplanar triangles shot together (empty without
+    /// [`ProgressiveOptions::cluster_triangles`] or triangles).
+    clusters: Clusters,
     /// Latest selection read back: what the next batch shoots.
     selection: Selection,
     /// Every patch's unshot power, read back with the selection when
@@ -387,9 +400,16 @@ impl ProgressiveSolver {
             })
             .collect();
 
+        let clusters = if options.cluster_triangles {
+            let materials: Vec<u32> = scene.patches.iter().map(|p| p.material).collect();
+            Clusters::build(&patches, &table.objects, &materials)
+        } else {
+            Clusters::default()
+        };
         let buffers = Buffers::new(
             &device,
             &Upload {
+                members: clusters.order(),
                 locals: &locals,
                 emission: &emission,
                 start: &start,
@@ -434,6 +454,7 @@ impl ProgressiveSolver {
             near: extent * 1e-4,
             far: extent * 4.0,
             surface_offset: extent * placement::SURFACE_OFFSET,
+            clusters,
             selection: Selection::zeroed(),
             powers: Vec::new(),
             shots: 0,

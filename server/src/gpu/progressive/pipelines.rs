@@ -10,7 +10,7 @@ use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
 /// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6 and 14, redistribute.wgsl 15-26.
+/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -46,14 +46,16 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const REGATHERED: Slot = Slot::new("regathered", 25, Kind::Storage);
     pub(in crate::gpu) const MOVING_DIRECT: Slot =
         Slot::new("moving_direct", 26, Kind::StorageRead);
+    pub(in crate::gpu) const MEMBERS: Slot = Slot::new("members", 27, Kind::StorageRead);
 }
 
 use slot::*;
 
-/// GENERATESHOOTINGPATCHES: each shooter's unshot power into `energy`.
+/// GENERATESHOOTINGPATCHES: each shooter's unshot power into `energy` (a
+/// cluster shooter's from its member patches).
 pub(in crate::gpu) const SHOOTER_ENERGY: Pass = Pass {
     entries: &["shooter_energy"],
-    slots: &[ELEMENTS, UNSHOT, SHOOTERS, ENERGY],
+    slots: &[ELEMENTS, UNSHOT, PATCHES, SHOOTERS, ENERGY, MEMBERS],
 };
 
 /// RECONSTRUCTIONSHADER: every element gathers from the batch's shooters.

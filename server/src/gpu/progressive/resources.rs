@@ -21,6 +21,9 @@ pub(super) struct Upload<'a> {
     pub(super) start: &'a [[f32; 4]],
     /// First element, element count and chart size of every patch.
     pub(super) patch_ranges: &'a [PatchRange],
+    /// Patch ids of the triangle clusters, each cluster's contiguous
+    /// (`clusters.rs`; may be empty).
+    pub(super) members: &'a [u32],
     /// The patches' triangles for the hemicube rasterizer.
     pub(super) vertices: &'a [GpuVertex],
     pub(super) objects: usize,
@@ -46,6 +49,8 @@ pub(super) struct Buffers {
     /// Irradiance received so far, for the energy bookkeeping.
     pub(super) irradiance: wgpu::Buffer,
     pub(super) patches: wgpu::Buffer,
+    /// What a cluster shooter's range names: patch ids (`clusters.rs`).
+    pub(super) members: wgpu::Buffer,
     pub(super) patch_power: wgpu::Buffer,
     /// The reduction's answer, and a mappable copy of it.
     pub(super) selection: wgpu::Buffer,
@@ -116,6 +121,11 @@ impl Buffers {
                 storage | copy_src,
             ),
             patches: init("patches", bytemuck::cast_slice(up.patch_ranges), storage),
+            members: init(
+                "cluster members",
+                bytemuck::cast_slice(&non_empty(up.members.to_vec())),
+                storage,
+            ),
             patch_power: empty(
                 "patch power",
                 (up.patch_ranges.len().max(1) * 4) as u64,
@@ -186,6 +196,7 @@ impl Buffers {
             .buffer(slot::EMISSION, &self.emission)
             .buffer(slot::IRRADIANCE, &self.irradiance)
             .buffer(slot::PATCHES, &self.patches)
+            .buffer(slot::MEMBERS, &self.members)
             .buffer(slot::PATCH_POWER, &self.patch_power)
             .buffer(slot::SELECTION, &self.selection)
             .buffer(slot::SHOOTERS, &self.shooters)

@@ -11,7 +11,8 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::ProgressiveSolver;
-use super::shooters::contact_limit;
+use super::clusters::{Piece, Unit};
+use super::shooters::{GpuShooter, contact_limit};
 use crate::gpu::buffers::{WORKGROUP, encode_compute, map_read};
 use crate::gpu::device::GpuError;
 use crate::gpu::hemicube;
@@ -105,8 +106,116 @@ impl ProgressiveSolver {
     /// ([`Self::shared_patches`]). Returns false when there was nothing to
     /// shoot.
     pub(super) fn batch_once(&mut self) -> Result<bool, GpuError> {
+        if !self.clusters.is_empty() {
+            return self.shoot_clusters();
+        }
         let patches = self.shared_patches();
         self.shoot_patches(&patches)
+    }
+
+    /// One batch where the scene's triangles form regions (`clusters.rs`):
+    /// the unit (a region, or a patch in none) with the most unshot power,
+    /// then, as [`Self::shared_patches`] does for patches, the next units
+    /// holding at least `shared_batch_ratio` of its power that take at
+    /// most [`SHARED_TILES`] shooters. A region is cut into as many pieces
+    /// as its power asks for ([`Tiling::wanted`], the count a quad of that
+    /// power is tiled into); a piece of one triangle is tiled as the
+    /// triangle alone would be, with what room is left.
+    fn shoot_clusters(&mut self) -> Result<bool, GpuError> {
+        let mut units = self.clusters.units(&self.powers);
+        let order = |a: &(Unit, f32), b: &(Unit, f32)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
+        let Some(best) = units.iter().copied().max_by(|a, b| order(b, a)) else {
+            return Ok(false);
+        };
+        if best.1 <= 0.0 {
+            return Ok(false);
+        }
+        let ratio = self.options.shared_batch_ratio;
+        let floor = if ratio > 0.0 && ratio <= 1.0 {
+            best.1 * ratio
+        } else {
+            f32::INFINITY
+        };
+        units.retain(|u| u.0 != best.0 && u.1 >= floor && u.1 > 0.0);
+        let room = self.batch_capacity as usize;
+        if units.len() > room {
+            units.select_nth_unstable_by(room, order);
+            units.truncate(room);
+        }
+        units.sort_by(order);
+        units.insert(0, best);
+
+        let tiling = self.tiling();
+        let capacity = self.batch_capacity as usize;
+        let mut shooters: Vec<GpuShooter> = Vec::with_capacity(capacity);
+        let mut shot_power = 0.0;
+        let mut first_patch = None;
+        for (unit, power) in units {
+            let room = capacity - shooters.len();
+            if room == 0 {
+                break;
+            }
+            let first = shooters.is_empty();
+            let most = if first { room } else { SHARED_TILES.min(room) };
+            let pieces = match unit {
+                Unit::Patch(id) => vec![Piece::Patch(id, power)],
+                Unit::Region(r) => {
+                    let wanted = tiling.wanted(f64::from(power), self.batch_capacity) as usize;
+                    if wanted > most {
+                        continue;
+                    }
+                    self.clusters.cut(r, wanted, &self.powers)
+                }
+            };
+            let mut spare = most.saturating_sub(pieces.len());
+            let mut taken = Vec::new();
+            for piece in &pieces {
+                match *piece {
+                    Piece::Patch(id, w) => {
+                        let Some(patch) = self.patches.get(id as usize) else {
+                            continue;
+                        };
+                        // Tiled as it would be alone, its contact splits
+                        // included, within the room left.
+                        let mut grid = tiling.grid(patch, f64::from(w), self.batch_capacity);
+                        let limit = |grid| {
+                            if self.options.split_contacts {
+                                contact_limit(grid, self.batch_capacity)
+                            } else {
+                                (grid.0 * grid.1) as usize
+                            }
+                        };
+                        if limit(grid) > spare + 1 {
+                            grid = (1, 1);
+                        }
+                        let limit = limit(grid).min(spare + 1);
+                        spare -= limit - 1;
+                        taken.extend(tiling.shooters(id, patch, &self.areas, grid, limit));
+                        first_patch.get_or_insert(id);
+                    }
+                    Piece::Members { start, end, .. } => {
+                        let members = self.clusters.members(start, end);
+                        taken.push(tiling.cluster_shooter(
+                            members,
+                            [start, end],
+                            &self.patches,
+                            &self.areas,
+                        ));
+                        first_patch.get_or_insert(members[0]);
+                    }
+                }
+            }
+            if taken.len() > most {
+                continue;
+            }
+            shooters.extend(taken);
+            shot_power += f64::from(power);
+        }
+        if shooters.is_empty() {
+            return Ok(false);
+        }
+        self.submit_batch(&shooters, first_patch.unwrap_or(0), shot_power)?;
+        Ok(true)
     }
 
     /// The selected patch and its power, then, when batches are shared
@@ -175,10 +284,22 @@ impl ProgressiveSolver {
             shooters.extend(tiling.shooters(id, patch, &self.areas, grid, limit));
             shot_power += f64::from(power);
         }
+        self.submit_batch(&shooters, first, shot_power)?;
+        Ok(true)
+    }
+
+    /// Shoots `shooters` in one batch (`first`: the patch whose chart the
+    /// batch constants name) and selects anew.
+    fn submit_batch(
+        &mut self,
+        shooters: &[GpuShooter],
+        first: u32,
+        shot_power: f64,
+    ) -> Result<(), GpuError> {
         let count = shooters.len() as u32;
         let uniform = self.batch_uniform(first, count, u32::MAX, 0);
         self.queue
-            .write_buffer(&self.buffers.shooters, 0, bytemuck::cast_slice(&shooters));
+            .write_buffer(&self.buffers.shooters, 0, bytemuck::cast_slice(shooters));
         self.queue
             .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
 
@@ -196,7 +317,7 @@ impl ProgressiveSolver {
         self.shots += u64::from(count);
         self.batches += 1;
         self.shot_power += shot_power;
-        Ok(true)
+        Ok(())
     }
 
     /// Per-patch unshot power and the arg-max reduction, then a copy of the
@@ -223,7 +344,7 @@ impl ProgressiveSolver {
             0,
             selection,
         );
-        if self.shares_batches() {
+        if self.reads_powers() {
             encoder.copy_buffer_to_buffer(
                 &self.buffers.patch_power,
                 0,
@@ -234,10 +355,12 @@ impl ProgressiveSolver {
         }
     }
 
-    /// Whether a batch may shoot more than one patch.
-    fn shares_batches(&self) -> bool {
+    /// Whether the CPU needs every patch's unshot power: when a batch may
+    /// shoot more than one patch, or regions of triangles are chosen by
+    /// the sum of theirs.
+    fn reads_powers(&self) -> bool {
         let ratio = self.options.shared_batch_ratio;
-        ratio > 0.0 && ratio <= 1.0 && self.patches.len() > 1
+        (ratio > 0.0 && ratio <= 1.0 && self.patches.len() > 1) || !self.clusters.is_empty()
     }
 
     /// Reads what [`Self::encode_selection`] copied: the selection, and
@@ -246,7 +369,7 @@ impl ProgressiveSolver {
         let bytes = map_read(&self.device, &self.buffers.selection_readback)?;
         let selection = std::mem::size_of::<Selection>();
         self.selection = bytemuck::pod_read_unaligned(&bytes[..selection]);
-        if self.shares_batches() {
+        if self.reads_powers() {
             let powers = &bytes[selection..selection + 4 * self.patches.len()];
             self.powers.clear();
             self.powers.extend(

@@ -116,16 +116,22 @@ impl Tiling<'_> {
     /// more it shoots, the finer it is split), as a grid over its chart of
     /// at most `capacity` shooters.
     pub(super) fn grid(&self, patch: &WorldPatch, power: f64, capacity: u32) -> (u32, u32) {
+        let wanted = self.wanted(power, capacity);
+        let aspect = (patch.u.length() / patch.v.length().max(1e-12)) as f64;
+        let gx = ((f64::from(wanted) * aspect).sqrt().round() as u32).clamp(1, patch.w);
+        let gy = (wanted / gx).clamp(1, patch.h);
+        (gx, gy)
+    }
+
+    /// How many shooters `power` asks for, at most `capacity`: the
+    /// capacity times the square root of its share of the emitted power.
+    pub(super) fn wanted(&self, power: f64, capacity: u32) -> u32 {
         let share = if self.emitted > 0.0 {
             (power / self.emitted).clamp(0.0, 1.0)
         } else {
             1.0
         };
-        let wanted = ((f64::from(capacity) * share.sqrt()).ceil() as u32).clamp(1, capacity);
-        let aspect = (patch.u.length() / patch.v.length().max(1e-12)) as f64;
-        let gx = ((f64::from(wanted) * aspect).sqrt().round() as u32).clamp(1, patch.w);
-        let gy = (wanted / gx).clamp(1, patch.h);
-        (gx, gy)
+        ((f64::from(capacity) * share.sqrt()).ceil() as u32).clamp(1, capacity)
     }
 
     /// Patch `patch_id`, placed as `patch` (at the current or the old pose,
@@ -368,6 +374,97 @@ impl Tiling<'_> {
             t2: v4(t2, cut[2]),
             n: v4(normal, f32::from_bits(patch_id)),
             tile: [a0, b0, a1, b1],
+        }
+    }
+}
+
+impl Tiling<'_> {
+    /// One shooter for the triangles `members` (a piece of a region of
+    /// near-coplanar triangles, `clusters.rs`), which sit at `range` of
+    /// the GPU's member list. Its region is the rectangle around their
+    /// corners in the plane of their area-weighted normal through their
+    /// centroid, its area theirs (the form factors' sub-disks spread the
+    /// area over the rectangle, exact for a piece of a planar grid, and
+    /// the disk approximation of eq. 2.2.7 where the piece is far); its
+    /// eye sits over the centroid of their valid elements. A zero chart
+    /// width marks it for `shooter_energy`, which then collects and
+    /// clears the members' elements.
+    pub(super) fn cluster_shooter(
+        &self,
+        members: &[u32],
+        range: [u32; 2],
+        patches: &[WorldPatch],
+        areas: &[f32],
+    ) -> GpuShooter {
+        let (mut area, mut centroid, mut normal) = (0.0f32, Vec3::ZERO, Vec3::ZERO);
+        let (mut valid_area, mut valid_centroid) = (0.0f32, Vec3::ZERO);
+        for &m in members {
+            let patch = &patches[m as usize];
+            let mut patch_area = 0.0;
+            for e in patch.first..patch.first + patch.w * patch.h {
+                let e = e as usize;
+                let [es, et] = self.atlas.elements[e].st;
+                let at = patch.origin + patch.u * es + patch.v * et;
+                patch_area += areas[e];
+                centroid += at * areas[e];
+                if !self.validity.is_invalid(e) {
+                    valid_area += areas[e];
+                    valid_centroid += at * areas[e];
+                }
+            }
+            area += patch_area;
+            normal += patch.normal * patch_area;
+        }
+        let first = &patches[members[0] as usize];
+        let normal = normal.try_normalize().unwrap_or(first.normal);
+        let centroid = if area > 0.0 {
+            centroid / area
+        } else {
+            first.centre()
+        };
+        let base = if valid_area > 0.0 {
+            valid_centroid / valid_area
+        } else {
+            centroid
+        };
+        // The rectangle's axes along the first triangle's edge that gives
+        // the smallest rectangle (a piece of a grid: along the grid).
+        let bounds = |t1: Vec3| {
+            let t2 = normal.cross(t1);
+            let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+            for &m in members {
+                for c in patches[m as usize].corners() {
+                    let d = c - centroid;
+                    for (k, t) in [t1, t2].into_iter().enumerate() {
+                        lo[k] = lo[k].min(d.dot(t));
+                        hi[k] = hi[k].max(d.dot(t));
+                    }
+                }
+            }
+            (t1, t2, lo, hi)
+        };
+        let (t1, t2, lo, hi) = [first.u, first.v, first.u + first.v]
+            .into_iter()
+            .filter_map(|e| (e - normal * e.dot(normal)).try_normalize())
+            .map(bounds)
+            .min_by(|a, b| {
+                let size = |(_, _, lo, hi): &(Vec3, Vec3, [f32; 2], [f32; 2])| {
+                    (hi[0] - lo[0]) * (hi[1] - lo[1])
+                };
+                size(a).total_cmp(&size(b))
+            })
+            .unwrap_or_else(|| bounds(normal.any_orthonormal_vector()));
+        let corner = centroid + t1 * lo[0] + t2 * lo[1];
+        let eye = base + normal * self.lift;
+        GpuShooter {
+            corner: v4(corner, area),
+            su: v4(t1 * (hi[0] - lo[0]), f32::from_bits(0)),
+            sv: v4(t2 * (hi[1] - lo[1]), 0.0),
+            eye: v4(eye, f32::from_bits(0)),
+            t1: v4(t1, 0.0),
+            t2: v4(t2, 0.0),
+            n: v4(normal, f32::from_bits(members[0])),
+            tile: [range[0], range[1], 0, 0],
         }
     }
 }
