@@ -83,7 +83,8 @@ pub struct SolverSettings {
     /// Path tracer: paths per element (default [`pathtrace::DEFAULT_SPP`]).
     pub spp: Option<u32>,
     /// Progressive: gathered correction rounds after refinement
-    /// ([`gpu::Correction`]; default [`DEFAULT_CORRECTIONS`]).
+    /// ([`gpu::Correction`]; default [`DEFAULT_CORRECTIONS`], or none
+    /// where a sweep is too large, [`gpu::corrections_affordable`]).
     pub corrections: Option<u32>,
 }
 
@@ -98,6 +99,8 @@ pub const DEFAULT_CORRECTIONS: u32 = 2;
 pub trait Progress: Sync {
     /// A GPU solver is about to run on this adapter.
     fn adapter(&self, _description: &str) {}
+    /// Something the user should know about how the solve runs.
+    fn note(&self, _text: &str) {}
     /// Reference: `done` of `total` form-factor rows computed.
     fn form_factors(&self, _done: usize, _total: usize) {}
     /// Reference: one more Jacobi sweep; `residual` is its power fraction.
@@ -224,7 +227,21 @@ pub fn build<'a>(
                 ..defaults
             };
             let mut solver = Progressive::new(&gpu, scene, atlas, poses, options)?;
-            let rounds = settings.corrections.unwrap_or(DEFAULT_CORRECTIONS);
+            let rounds = settings.corrections.unwrap_or_else(|| {
+                if gpu::corrections_affordable(scene, atlas) {
+                    DEFAULT_CORRECTIONS
+                } else {
+                    progress.note(&format!(
+                        "no gathered corrections by default: {} elements x {} patches is \
+                         above {} (a gather sweep would take very long); --corrections N \
+                         asks for them",
+                        atlas.elements.len(),
+                        scene.patches.len(),
+                        gpu::MAX_DEFAULT_SWEEP
+                    ));
+                    0
+                }
+            });
             if rounds > 0 {
                 // The gather sweep at its own default resolution: 64 changed
                 // nothing measurable on cornell-large or cornell-blocks.

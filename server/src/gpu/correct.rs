@@ -64,6 +64,23 @@ pub struct Correction {
     emitted: f64,
 }
 
+/// Most `elements x patches` a correction takes on unless asked for: a
+/// gather sweep renders every patch into one hemicube per element, so its
+/// cost grows with both, about a microsecond per unit on lavapipe (the
+/// 864-triangle box of `bench meshes` at x0.5, 18,000 x 864, took about
+/// 15 s a round): at this bound a round takes a minute or two. The quad
+/// scenes and the mesh box (`scenes/meshes/cornell-dynamic.glb`) are
+/// below 10^7; the atrium at full density is 2.8 x 10^8, the tessellated
+/// boxes with 9,600 and 101,400 triangles 8.7 x 10^8 and 4 x 10^10 (a
+/// round of hours: a service on it would sit in the sweep).
+pub const MAX_DEFAULT_SWEEP: u64 = 100_000_000;
+
+/// Whether gathered corrections of `scene` over `atlas` run by default
+/// (see [`MAX_DEFAULT_SWEEP`]).
+pub fn corrections_affordable(scene: &Scene, atlas: &Atlas) -> bool {
+    (atlas.elements.len() as u64).saturating_mul(scene.patches.len() as u64) <= MAX_DEFAULT_SWEEP
+}
+
 impl Correction {
     /// Builds the gather sweep for `scene` at `poses`, which must be the
     /// poses the corrected solver was built at. `options.indirect_only` is

@@ -454,7 +454,10 @@ impl<T: Clone> DynamicSolver<T> {
                     // reaches the clients seconds sooner, and the
                     // corrected one follows.
                     self.complete(report);
-                    if !after_move && self.options.corrections > 0 {
+                    if !after_move
+                        && self.options.corrections > 0
+                        && super::corrections_affordable(&self.scene, &self.atlas)
+                    {
                         self.phase = Phase::Correcting {
                             correction: None,
                             left: self.options.corrections,

@@ -66,7 +66,7 @@ pub mod profile;
 mod progressive;
 mod shaders;
 
-pub use correct::{Correction, CorrectionReport};
+pub use correct::{Correction, CorrectionReport, MAX_DEFAULT_SWEEP, corrections_affordable};
 pub use device::{Device, GpuError};
 pub use dynamic::{DynamicOptions, DynamicSolver, DynamicStep};
 pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};

@@ -229,6 +229,16 @@ impl<T: Clone> GpuLive<T> {
             method,
             ..Default::default()
         };
+        if options.corrections > 0 && !crate::gpu::corrections_affordable(scene, &atlas) {
+            tracing::warn!(
+                scene = %scene.name,
+                elements = atlas.elements.len(),
+                patches = scene.patches.len(),
+                "the first solve is published without gathered corrections: a gather sweep \
+                 over this many elements and patches is too slow (more than {} of their product)",
+                crate::gpu::MAX_DEFAULT_SWEEP
+            );
+        }
         let (session, error) = device.capture(|| {
             crate::gpu::DynamicSolver::new(&device, scene, &atlas, poses, tag, options)
         });

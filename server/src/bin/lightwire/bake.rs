@@ -45,6 +45,9 @@ impl solver::Progress for StderrProgress {
     fn adapter(&self, description: &str) {
         eprintln!("  adapter: {description}");
     }
+    fn note(&self, text: &str) {
+        eprintln!("  {text}");
+    }
     fn points(&self, done: usize, total: usize) {
         if let Some(decile) = self.new_decile(done, total) {
             eprintln!(
