@@ -127,21 +127,19 @@ impl Clusters {
                 clusters.region_of[m as usize] = r;
             }
             let start = clusters.order.len() as u32;
-            let mut members: Vec<(u32, Vec3)> = region
-                .iter()
-                .map(|&m| (m, patches[m as usize].centre()))
-                .collect();
-            let root = clusters.split(&mut members, start);
+            let mut units = quads(&region, patches, &key);
+            let root = clusters.split(&mut units, start);
             clusters.roots.push(root);
         }
         clusters
     }
 
-    /// Appends `members` to the order as one node, halved along the
-    /// longest axis of their centres until single triangles; returns the
-    /// node. `start` is where they begin in the order.
-    fn split(&mut self, members: &mut [(u32, Vec3)], start: u32) -> u32 {
-        let end = start + members.len() as u32;
+    /// Appends `units` to the order as one node, halved along the longest
+    /// axis of their centres until single units, a quad's unit then into
+    /// its two triangles; returns the node. `start` is where they begin in
+    /// the order.
+    fn split(&mut self, members: &mut [(Unit2, Vec3)], start: u32) -> u32 {
+        let end = start + members.iter().map(|(u, _)| unit_size(u)).sum::<u32>();
         let id = self.nodes.len() as u32;
         self.nodes.push(Node {
             start,
@@ -149,7 +147,22 @@ impl Clusters {
             children: None,
         });
         if members.len() == 1 {
-            self.order.push(members[0].0);
+            let [a, b] = members[0].0;
+            if b == u32::MAX {
+                self.order.push(a);
+            } else {
+                let halves = [a, b].map(|t| {
+                    let at = self.order.len() as u32;
+                    self.order.push(t);
+                    self.nodes.push(Node {
+                        start: at,
+                        end: at + 1,
+                        children: None,
+                    });
+                    self.nodes.len() as u32 - 1
+                });
+                self.nodes[id as usize].children = Some(halves);
+            }
             return id;
         }
         let (lo, hi) = members.iter().fold(
@@ -166,11 +179,12 @@ impl Clusters {
         };
         let mid = members.len() / 2;
         members.select_nth_unstable_by(mid, |a, b| {
-            a.1[axis].total_cmp(&b.1[axis]).then(a.0.cmp(&b.0))
+            a.1[axis].total_cmp(&b.1[axis]).then(a.0[0].cmp(&b.0[0]))
         });
         let (left, right) = members.split_at_mut(mid);
+        let left_size: u32 = left.iter().map(|(u, _)| unit_size(u)).sum();
         let a = self.split(left, start);
-        let b = self.split(right, start + mid as u32);
+        let b = self.split(right, start + left_size);
         self.nodes[id as usize].children = Some([a, b]);
         id
     }
@@ -268,6 +282,73 @@ impl Clusters {
     }
 }
 
+/// A region's triangles as the tree splits them: a pair that forms a
+/// quad, or one triangle (`[t, u32::MAX]`).
+type Unit2 = [u32; 2];
+
+/// Triangles in a unit.
+fn unit_size(unit: &Unit2) -> u32 {
+    if unit[1] == u32::MAX { 1 } else { 2 }
+}
+
+/// The triangles of `region` paired into quads where two share an edge
+/// that is the longest of both (a quad cut along its diagonal, as
+/// exporters triangulate quads), each unit with its area-weighted centre:
+/// the tree then never separates a quad's halves until it reaches them,
+/// so a piece of a tessellated grid covers the rectangle its shooter
+/// stands in for. `key` names a corner.
+fn quads<K: std::hash::Hash + Ord>(
+    region: &[u32],
+    patches: &[WorldPatch],
+    key: &impl Fn(Vec3) -> K,
+) -> Vec<(Unit2, Vec3)> {
+    // The longest edge of each triangle, by its corners' keys.
+    let mut by_edge: HashMap<(K, K), Vec<u32>> = HashMap::new();
+    let longest = |t: u32| {
+        let c = patches[t as usize].corners();
+        (0..3)
+            .max_by(|&i, &j| {
+                let len = |i: usize| (c[(i + 1) % 3] - c[i]).length_squared();
+                len(i).total_cmp(&len(j))
+            })
+            .map(|i| (c[i], c[(i + 1) % 3]))
+            .unwrap_or((c[0], c[1]))
+    };
+    for &t in region {
+        let (a, b) = longest(t);
+        // Both triangles name the edge alike: the lesser corner first.
+        let (a, b) = (key(a), key(b));
+        let edge = if a <= b { (a, b) } else { (b, a) };
+        by_edge.entry(edge).or_default().push(t);
+    }
+    let mut partner: HashMap<u32, u32> = HashMap::new();
+    for ts in by_edge.values() {
+        if let [a, b] = ts[..] {
+            partner.insert(a, b);
+            partner.insert(b, a);
+        }
+    }
+    let area = |t: u32| {
+        let p = &patches[t as usize];
+        p.u.cross(p.v).length() * 0.5
+    };
+    let mut units = Vec::with_capacity(region.len());
+    for &t in region {
+        match partner.get(&t) {
+            Some(&m) if m < t => {}
+            Some(&m) => {
+                let (wa, wb) = (area(t), area(m));
+                let centre = (patches[t as usize].centre() * wa
+                    + patches[m as usize].centre() * wb)
+                    / (wa + wb).max(f32::MIN_POSITIVE);
+                units.push(([t, m], centre));
+            }
+            None => units.push(([t, u32::MAX], patches[t as usize].centre())),
+        }
+    }
+    units
+}
+
 /// What a batch picks first: a patch in no region, or a region.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub(super) enum Unit {
@@ -318,6 +399,24 @@ mod tests {
         let mut order = clusters.order().to_vec();
         order.sort_unstable();
         assert_eq!(order, (0..n as u32 - 1).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn a_quad_s_two_triangles_stay_together_until_its_piece_is_split() {
+        let patches = grid(4);
+        let n = patches.len();
+        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n]);
+        let powers = vec![1.0; n];
+        // 16 pieces of 32 triangles: every piece is one cell's two halves.
+        for piece in clusters.cut(0, 16, &powers) {
+            let Piece::Members { start, end, .. } = piece else {
+                panic!("a single triangle: {piece:?}");
+            };
+            let mut members = clusters.members(start, end).to_vec();
+            members.sort_unstable();
+            assert_eq!(members.len(), 2);
+            assert_eq!(members[0] / 2, members[1] / 2, "{members:?}");
+        }
     }
 
     #[test]
