@@ -17,8 +17,8 @@ use std::sync::OnceLock;
 
 use glam::Vec3;
 use lightwire_server::atlas::Atlas;
-use lightwire_server::gpu::ProgressiveSolver;
 use lightwire_server::gpu::{Correction, Device, GatherOptions, GatherSolver, ProgressiveOptions};
+use lightwire_server::gpu::{ProgressiveSolver, StepReport};
 use lightwire_server::metrics::{self, Accuracy};
 use lightwire_server::scene::Scene;
 use lightwire_server::solver::{self, SolverKind, SolverSettings};
@@ -468,14 +468,7 @@ fn more_patches_than_power_workgroups_select_the_same_shooters() {
 /// two lightmaps 0.05% apart.
 #[test]
 fn shared_batches_light_a_mesh_as_one_patch_per_batch_does() {
-    let glb = lightwire_server::scene::gltf::content::cornell_tessellated(3)
-        .to_glb()
-        .unwrap_or_else(|e| panic!("{e}"));
-    let path = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("cornell-216.glb");
-    std::fs::write(&path, glb).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let scene = Scene::load_with(&path, lightwire_server::scene::LoadOptions::default())
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
+    let (scene, atlas) = tessellated(3, 1.0);
     assert_eq!(scene.patches.len(), 216);
     let run = |shared_batch_ratio: f32| {
         let options = ProgressiveOptions {
@@ -483,13 +476,7 @@ fn shared_batches_light_a_mesh_as_one_patch_per_batch_does() {
             cluster_triangles: false,
             ..ProgressiveOptions::default()
         };
-        let poses = scene.initial_poses();
-        let mut solver = ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, options)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let report = solver.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
-        let mut b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-        Validity::compute(&scene, &atlas, &poses).fill(&atlas, &mut b);
-        (report, b)
+        solve_to_a_thousandth(&scene, &atlas, options, 0)
     };
     let (alone, b_alone) = run(0.0);
     let (shared, b_shared) = run(0.5);
@@ -510,6 +497,33 @@ fn shared_batches_light_a_mesh_as_one_patch_per_batch_does() {
         alone.batches
     );
     assert!(error.nrmse <= 0.01, "{error}");
+}
+
+/// The progressive solver with `options` solved to 0.1% unshot, then
+/// `corrections` gathered rounds as a bake runs them: what the solve did
+/// (corrections not counted) and the radiosity, filled as published.
+fn solve_to_a_thousandth(
+    scene: &Scene,
+    atlas: &Atlas,
+    options: ProgressiveOptions,
+    corrections: u32,
+) -> (StepReport, Vec<Vec3>) {
+    let poses = scene.initial_poses();
+    let mut solver = ProgressiveSolver::new(gpu(), scene, atlas, &poses, options)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let report = solver.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
+    if corrections > 0 {
+        let mut correction = Correction::new(gpu(), scene, atlas, &poses, GatherOptions::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+        for _ in 0..corrections {
+            correction
+                .round(&mut solver, 1e-3)
+                .unwrap_or_else(|e| panic!("{e}"));
+        }
+    }
+    let mut b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    Validity::compute(scene, atlas, &poses).fill(atlas, &mut b);
+    (report, b)
 }
 
 /// The tessellated Cornell box of `k x k` cells per quad, written as a
@@ -549,21 +563,7 @@ fn clusters_light_a_mesh_as_triangles_shot_alone_do() {
             cluster_triangles,
             ..ProgressiveOptions::default()
         };
-        let poses = scene.initial_poses();
-        let mut solver = ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, options)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let report = solver.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
-        let mut correction =
-            Correction::new(gpu(), &scene, &atlas, &poses, GatherOptions::default())
-                .unwrap_or_else(|e| panic!("{e}"));
-        for _ in 0..2 {
-            correction
-                .round(&mut solver, 1e-3)
-                .unwrap_or_else(|e| panic!("{e}"));
-        }
-        let mut b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-        Validity::compute(&scene, &atlas, &poses).fill(&atlas, &mut b);
-        (report, b)
+        solve_to_a_thousandth(&scene, &atlas, options, 2)
     };
     let (alone, b_alone) = run(false);
     let (clustered, b_clustered) = run(true);
