@@ -93,9 +93,7 @@ fn main() -> Result<()> {
     let path = scene_path.context(
         "usage: accuracy_by_surface SCENE.json [--density-scale S] [--direct] [--gather] [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]... [--correct N] [--polish N] [--gather-resolution PIXELS]",
     )?;
-    let options = LoadOptions {
-        density_scale: density,
-    };
+    let options = LoadOptions::scaled(density);
     let scene = if close {
         let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
         let mut json: serde_json::Value = serde_json::from_str(&text)?;

@@ -28,7 +28,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .unwrap_or_else(|| "scenes/cornell-large.json".into());
     let density_scale: f32 = args.get(2).map_or(Ok(0.35), |s| s.parse())?;
     let spp: u32 = args.get(3).map_or(Ok(16_384), |s| s.parse())?;
-    let scene = Scene::load_with(std::path::Path::new(&path), LoadOptions { density_scale })?;
+    let scene = Scene::load_with(
+        std::path::Path::new(&path),
+        LoadOptions::scaled(density_scale),
+    )?;
     let atlas = Atlas::build(&scene).map_err(|e| format!("{path}: {e}"))?;
     let poses = scene.initial_poses();
     let runs = [

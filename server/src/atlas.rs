@@ -584,7 +584,13 @@ mod tests {
 
     #[test]
     fn triangle_charts_hold_the_triangle_below_the_diagonal() {
-        let scene = scene(TRIANGLES);
+        // Unpaired: the floor's two triangles form a parallelogram, which
+        // would otherwise be one quad patch (`scene/pairs.rs`).
+        let options = crate::scene::LoadOptions {
+            pair_triangles: false,
+            ..Default::default()
+        };
+        let scene = Scene::parse_with(TRIANGLES, "test", options).unwrap_or_else(|e| panic!("{e}"));
         let atlas = Atlas::build(&scene).expect("fits");
         assert_eq!(scene.patches.len(), 3);
         for (p, patch) in scene.patches.iter().enumerate() {

@@ -181,11 +181,11 @@ fn time_to_fractions(solver: &mut dyn BatchSolver) -> Result<([Option<f64>; 3], 
 pub fn solve_scene(
     gpu: &Device,
     path: &Path,
-    density_scale: f32,
+    load: LoadOptions,
     options: ProgressiveOptions,
     gather_options: GatherOptions,
 ) -> Result<SceneResult> {
-    let (scene, atlas) = load_scene(path, LoadOptions { density_scale })?;
+    let (scene, atlas) = load_scene(path, load)?;
     let poses = scene.initial_poses();
 
     // Progressive: setup (upload, pipeline compilation) is not counted.

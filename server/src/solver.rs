@@ -776,7 +776,7 @@ mod tests {
     #[test]
     fn cpu_solvers_do_everything_in_the_first_step() -> Result<()> {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/plates.json");
-        let (scene, atlas) = load_scene(&path, LoadOptions { density_scale: 1.0 })?;
+        let (scene, atlas) = load_scene(&path, LoadOptions::default())?;
         let poses = scene.initial_poses();
         let settings = SolverSettings {
             spp: Some(4),

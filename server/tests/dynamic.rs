@@ -315,7 +315,7 @@ fn mesh_after_move_bound(method: Redistribution) -> f64 {
 /// [`mesh_after_move_bound`]).
 #[test]
 fn a_mesh_box_after_a_move_matches_a_from_scratch_solve() {
-    let (scene, atlas) = common::load("meshes/cornell-dynamic.glb", 0.28);
+    let (scene, atlas) = common::load_triangles("meshes/cornell-dynamic.glb", 0.28);
     assert!(scene.patches.iter().all(|p| p.shape.is_triangle()));
     let b = scene.object_by_name("box").expect("the scene has a box");
     assert!(
@@ -472,13 +472,14 @@ fn cross_corrections_bring_a_moved_scene_near_the_reference() {
 }
 
 /// [`corrected_cross_after_a_move`] on the mesh box (`cornell-dynamic.glb`,
-/// at x0.45: 3,802 visible non-emitting texels):
+/// at x0.45, as loaded by default: each face's two triangles one quad
+/// patch, `scene/pairs.rs`; 3,523 visible non-emitting texels):
 /// issue 18's "a mesh dynamic object moved by a driver converges as the
 /// quad box does (at most 2% from a from-scratch reference at the new
-/// pose)", against the CPU reference. Measured on 2026-12-04: 2.28%
-/// without, 1.70% with; at x0.28 (the density of the mesh test against a
-/// from-scratch progressive solve) 2.81% and 2.46%, the contacts' texels
-/// being coarser there.
+/// pose)", against the CPU reference. Measured on 2026-12-04: 1.87%
+/// without, 1.39% with (a triangle per patch, 3,802 texels: 2.28% and
+/// 1.70%). The triangles themselves are tested after a move in
+/// `a_mesh_box_after_a_move_matches_a_from_scratch_solve`.
 #[test]
 fn cross_corrections_bring_a_moved_mesh_box_near_the_reference() {
     corrected_cross_after_a_move("meshes/cornell-dynamic.glb", 0.45, 0.02);

@@ -52,7 +52,13 @@ const ROOM: &str = r#"{
 }"#;
 
 fn room() -> (Scene, Atlas) {
-    parse_scene(ROOM, "export-room.json", LoadOptions::default()).expect("the room loads")
+    // Unpaired: the wall's two triangles form a parallelogram, which would
+    // otherwise be one quad patch; here they show how triangles export.
+    let options = LoadOptions {
+        pair_triangles: false,
+        ..LoadOptions::default()
+    };
+    parse_scene(ROOM, "export-room.json", options).expect("the room loads")
 }
 
 /// A lightmap with a different value in every texel, so that a texture
@@ -234,7 +240,15 @@ fn reimporting_gives_the_same_triangles_materials_and_dynamic_objects() {
     let dir = temp_dir("reimport");
     let path = dir.join("scene.glb");
     std::fs::write(&path, &glb).expect("write");
-    let again = Scene::load(&path).expect("scene.glb opens as a scene");
+    // (Unpaired, a patch per exported triangle.)
+    let again = Scene::load_with(
+        &path,
+        LoadOptions {
+            pair_triangles: false,
+            ..LoadOptions::default()
+        },
+    )
+    .expect("scene.glb opens as a scene");
     assert_eq!(again.patches.len(), pairs.len());
     assert_eq!(again.materials, scene.materials);
     let dynamic: Vec<(&str, bool)> = again

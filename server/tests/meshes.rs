@@ -17,9 +17,25 @@ fn a_glb_opens_as_a_scene_of_triangles() {
     let (scene, atlas) = load_scene(&path, LoadOptions::default())
         .unwrap_or_else(|e| panic!("cornell-large.glb must load: {e}"));
     assert_eq!(scene.name, "cornell-large");
-    // Five walls, the light and the box's six faces, two triangles each.
-    assert_eq!(scene.patches.len(), 24);
-    assert!(scene.patches.iter().all(|p| p.shape.is_triangle()));
+    // Five walls, the light and the box's six faces, two triangles each,
+    // and each face's two a parallelogram: one quad patch per face
+    // (`scene/pairs.rs`), a triangle each without pairing.
+    assert_eq!(scene.patches.len(), 12);
+    assert!(
+        scene
+            .patches
+            .iter()
+            .all(|p| !p.shape.is_triangle() && p.mesh)
+    );
+    let unpaired = LoadOptions {
+        pair_triangles: false,
+        ..LoadOptions::default()
+    };
+    let triangles = Scene::load_with(&path, unpaired).expect("loads");
+    assert_eq!(triangles.patches.len(), 24);
+    assert!(triangles.patches.iter().all(|p| p.shape.is_triangle()));
+    let area = |s: &Scene| s.patches.iter().map(|p| p.shape.area()).sum::<f32>();
+    assert!((area(&scene) - area(&triangles)).abs() < 1e-4 * area(&scene));
     assert_eq!(scene.objects.len(), 1, "nothing in cornell-large.glb moves");
     let light = scene
         .materials
@@ -39,7 +55,7 @@ fn a_glb_opens_as_a_scene_of_triangles() {
     assert!((covered - area).abs() < 1e-3 * area, "{covered} vs {area}");
 
     // --density-scale applies as to scene files.
-    let half = Scene::load_with(&path, LoadOptions { density_scale: 0.5 }).expect("loads");
+    let half = Scene::load_with(&path, LoadOptions::scaled(0.5)).expect("loads");
     assert!((half.texel_density - 0.5 * scene.texel_density).abs() < 1e-4);
 }
 
@@ -74,7 +90,11 @@ fn a_scene_file_imports_a_dynamic_glb_beside_its_own_quads() {
         .iter()
         .filter(|p| p.object == box_object as u32)
         .collect();
-    assert_eq!(box_patches.len(), 12, "six faces, two triangles each");
+    assert_eq!(
+        box_patches.len(),
+        6,
+        "six faces, two triangles each, paired"
+    );
     assert!(
         box_patches
             .iter()
@@ -85,7 +105,7 @@ fn a_scene_file_imports_a_dynamic_glb_beside_its_own_quads() {
     assert_eq!(cart.len(), 6);
     assert!(
         cart.iter()
-            .all(|p| !p.shape.is_triangle() && p.texel_density == 2.0)
+            .all(|p| !p.shape.is_triangle() && !p.mesh && p.texel_density == 2.0)
     );
     Atlas::build(&scene).expect("fits");
 }

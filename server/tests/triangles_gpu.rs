@@ -410,8 +410,12 @@ fn atrium_chart_seams_agree_within_two_percent() {
         worst.0 * 100.0,
         worst.1
     );
+    // Not a vacuous pass: the atrium has 1,984 seams between patches that
+    // face the same way (more when every triangle has its own chart; a
+    // parallelogram's two triangles share one since `scene/pairs.rs`, and
+    // its diagonal is no seam).
     assert!(
-        seams > 2000 && points > 3 * 2000,
+        seams > 1500 && points > 3 * 1500,
         "{seams} seams, {points} points"
     );
     assert!(
@@ -537,7 +541,11 @@ fn tessellated(k: usize, density_scale: f32) -> (Scene, Atlas) {
     std::fs::write(&path, glb).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let scene = Scene::load_with(
         &path,
-        lightwire_server::scene::LoadOptions { density_scale },
+        // Every triangle its own patch: these tests are about triangles.
+        lightwire_server::scene::LoadOptions {
+            density_scale,
+            pair_triangles: false,
+        },
     )
     .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));

@@ -205,12 +205,7 @@ pub fn record(
     script_path: &Path,
     settings: &Settings,
 ) -> Result<Recording> {
-    let (scene, atlas) = load_scene(
-        scene_path,
-        LoadOptions {
-            density_scale: settings.density_scale,
-        },
-    )?;
+    let (scene, atlas) = load_scene(scene_path, LoadOptions::scaled(settings.density_scale))?;
     let cache = settings
         .out
         .join("recordings")

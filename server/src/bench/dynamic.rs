@@ -104,6 +104,8 @@ pub struct Settings {
     /// The methods to run.
     pub methods: Vec<Method>,
     pub density_scale: f32,
+    /// Triangles that form a parallelogram share a chart (`LoadOptions`).
+    pub pair_triangles: bool,
     pub progressive: ProgressiveOptions,
     pub gather: GatherOptions,
     /// Gathered correction rounds of a cross session's first solve
@@ -335,6 +337,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         path,
         LoadOptions {
             density_scale: settings.density_scale,
+            pair_triangles: settings.pair_triangles,
         },
     )?;
     let object = scene.dynamic_objects().next().with_context(|| {

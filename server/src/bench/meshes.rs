@@ -23,6 +23,8 @@ use crate::solver::{BatchSolver, Progressive};
 #[derive(Debug, Serialize)]
 pub struct MeshResult {
     pub triangles: usize,
+    /// Patches: triangles, or pairs of them sharing a chart.
+    pub patches: usize,
     pub file: PathBuf,
     pub file_bytes: u64,
     /// Import, validation, charts and packing.
@@ -53,6 +55,8 @@ pub struct Settings {
     /// A solve stops after this long.
     pub limit: Duration,
     pub progressive: ProgressiveOptions,
+    /// Triangles that form a parallelogram share a chart (`LoadOptions`).
+    pub pair_triangles: bool,
 }
 
 /// The cells per quad side that give about `triangles` triangles (`24 k²`).
@@ -80,6 +84,7 @@ pub fn run_mesh(
         &file,
         LoadOptions {
             density_scale: settings.density_scale,
+            pair_triangles: settings.pair_triangles,
         },
     )?;
     let load_seconds = started.elapsed().as_secs_f64();
@@ -114,7 +119,7 @@ pub fn run_mesh(
         if last_report.elapsed() > Duration::from_secs(10) {
             eprintln!(
                 "  {} triangles: {:.1} s, unshot {:.2}%, {} shots",
-                scene.patches.len(),
+                24 * k * k,
                 t,
                 fraction * 100.0,
                 solver.work()
@@ -123,7 +128,8 @@ pub fn run_mesh(
         }
     }
     Ok(MeshResult {
-        triangles: scene.patches.len(),
+        triangles: 24 * k * k,
+        patches: scene.patches.len(),
         file_bytes: glb.len() as u64,
         file,
         load_seconds,

@@ -18,6 +18,7 @@
 pub mod error;
 pub mod file;
 pub mod gltf;
+mod pairs;
 pub mod texture;
 mod validate;
 
@@ -135,6 +136,10 @@ pub struct Patch {
     /// A base colour texture on a triangle (glTF imports): the albedo is the
     /// material's times the texture's (`texture.rs`).
     pub albedo_map: Option<texture::AlbedoMap>,
+    /// Whether the patch is part of a triangle mesh: a triangle, or two
+    /// that form a parallelogram and share one chart (`pairs.rs`). Mesh
+    /// patches may shoot in clusters (`gpu/progressive/clusters.rs`).
+    pub mesh: bool,
 }
 
 impl Patch {
@@ -315,11 +320,28 @@ impl PatchShape {
 pub struct LoadOptions {
     /// Multiplies every texel density (scene-wide and per-surface).
     pub density_scale: f32,
+    /// Two triangles of a mesh that form a parallelogram become one quad
+    /// patch with one chart (`pairs.rs`); off, every triangle keeps its
+    /// own (tests of the triangle paths, `--no-pairing`).
+    pub pair_triangles: bool,
+}
+
+impl LoadOptions {
+    /// The defaults with another density scale.
+    pub fn scaled(density_scale: f32) -> Self {
+        Self {
+            density_scale,
+            ..Self::default()
+        }
+    }
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { density_scale: 1.0 }
+        Self {
+            density_scale: 1.0,
+            pair_triangles: true,
+        }
     }
 }
 

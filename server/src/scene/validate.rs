@@ -272,6 +272,7 @@ pub fn validate(
                 Vec::new()
             }
         };
+        let from_mesh = s.mesh.is_some();
         if let (Some(material), Some(object), Some(density)) = (material, object, density) {
             for (name, shape) in shapes {
                 patches.push(Patch {
@@ -282,6 +283,7 @@ pub fn validate(
                     texel_density: density,
                     shape,
                     albedo_map: None,
+                    mesh: from_mesh,
                 });
             }
         }
@@ -344,6 +346,9 @@ pub fn validate(
 
     if !c.issues.is_empty() {
         return Err(c.issues);
+    }
+    if options.pair_triangles {
+        patches = super::pairs::pair_triangles(patches);
     }
     Ok(Scene {
         name: raw.name,
@@ -700,6 +705,7 @@ fn merge_import(
                 texel_density: density,
                 shape: PatchShape::triangle(a, b, d),
                 albedo_map,
+                mesh: true,
             });
         }
     }
@@ -778,9 +784,11 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
             "has no emitter: no material has an emissiveFactor > 0, so everything would be black",
         );
     }
-    if c.issues.is_empty() {
-        Ok(scene)
-    } else {
-        Err(c.issues)
+    if !c.issues.is_empty() {
+        return Err(c.issues);
     }
+    if options.pair_triangles {
+        scene.patches = super::pairs::pair_triangles(std::mem::take(&mut scene.patches));
+    }
+    Ok(scene)
 }

@@ -14,7 +14,21 @@ pub use lightwire_testkit::scene_path;
 
 /// Loads a scene from `scenes/` at a density scale, with its atlas.
 pub fn load(name: &str, density_scale: f32) -> (Scene, Atlas) {
-    let scene = Scene::load_with(&scene_path(name), LoadOptions { density_scale })
+    let scene = Scene::load_with(&scene_path(name), LoadOptions::scaled(density_scale))
+        .unwrap_or_else(|e| panic!("{name} must load: {e}"));
+    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{name} must fit: {e}"));
+    (scene, atlas)
+}
+
+/// [`load`] with every triangle of a mesh its own patch, also where two
+/// form a parallelogram that would otherwise share a chart: for tests of
+/// the triangle paths.
+pub fn load_triangles(name: &str, density_scale: f32) -> (Scene, Atlas) {
+    let options = LoadOptions {
+        density_scale,
+        pair_triangles: false,
+    };
+    let scene = Scene::load_with(&scene_path(name), options)
         .unwrap_or_else(|e| panic!("{name} must load: {e}"));
     let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{name} must fit: {e}"));
     (scene, atlas)

@@ -79,7 +79,7 @@ fn bench_scenes() -> Vec<PathBuf> {
 
 /// Whether the scene file has a dynamic object for `bench dynamic` to move.
 fn has_dynamic_object(path: &std::path::Path, density_scale: f32) -> Result<bool> {
-    let scene = Scene::load_with(path, LoadOptions { density_scale })
+    let scene = Scene::load_with(path, LoadOptions::scaled(density_scale))
         .with_context(|| format!("loading {}", path.display()))?;
     Ok(scene.dynamic_objects().next().is_some())
 }
@@ -201,13 +201,8 @@ pub(crate) fn bench_codec_command(args: CodecArgs) -> Result<()> {
     // Every script must exist before anything is recorded.
     let mut plan = Vec::new();
     for path in &scenes {
-        let scene = Scene::load_with(
-            path,
-            LoadOptions {
-                density_scale: settings.density_scale,
-            },
-        )
-        .with_context(|| format!("loading {}", path.display()))?;
+        let scene = Scene::load_with(path, LoadOptions::scaled(settings.density_scale))
+            .with_context(|| format!("loading {}", path.display()))?;
         for name in &scripts {
             let script = bench::codec::script_path(&script_dir, &scene.name, name);
             if !script.is_file() {
@@ -270,6 +265,7 @@ pub(crate) fn bench_solve_command(
     adapter: Option<&str>,
     (hemicube_resolution, gather_resolution): (u32, u32),
     (shared_batch_ratio, cluster_triangles): (Option<f32>, bool),
+    pair_triangles: bool,
 ) -> Result<()> {
     if scenes.is_empty() {
         scenes = bench_scenes();
@@ -294,7 +290,11 @@ pub(crate) fn bench_solve_command(
     );
     println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for path in &scenes {
-        let result = bench::solve_scene(&gpu, path, density_scale, options, gather_options)
+        let load = LoadOptions {
+            density_scale,
+            pair_triangles,
+        };
+        let result = bench::solve_scene(&gpu, path, load, options, gather_options)
             .with_context(|| format!("benchmarking {}", path.display()))?;
         for s in &result.solvers {
             let t: Vec<Option<f64>> = s.seconds_to.values().copied().collect();
@@ -342,16 +342,17 @@ pub(crate) fn bench_meshes_command(
     eprintln!("adapter: {}", gpu.describe());
     let fmt = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.2}"));
     println!(
-        "| triangles | .glb bytes | load s | atlas | texels/m | elements (texels) | setup s | s to 10% | s to 1% | shots | batches | unshot at end |"
+        "| triangles | patches | .glb bytes | load s | atlas | texels/m | elements (texels) | setup s | s to 10% | s to 1% | shots | batches | unshot at end |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     let mut results = Vec::new();
     for &n in triangles {
         let r = lightwire_server::bench::meshes::run_mesh(&gpu, n, &settings, out)
             .with_context(|| format!("benchmarking a mesh of about {n} triangles"))?;
         println!(
-            "| {} | {} | {:.3} | {} x {} | {:.2} | {} ({}) | {:.2} | {} | {} | {} | {} | {:.2}% |",
+            "| {} | {} | {} | {:.3} | {} x {} | {:.2} | {} ({}) | {:.2} | {} | {} | {} | {} | {:.2}% |",
             r.triangles,
+            r.patches,
             r.file_bytes,
             r.load_seconds,
             r.atlas[0],

@@ -133,6 +133,10 @@ enum BenchCommand {
         /// in clusters of near-coplanar triangles.
         #[arg(long)]
         no_clusters: bool,
+        /// Give every triangle of a mesh its own chart, also where two form
+        /// a parallelogram (the import before pairing).
+        #[arg(long)]
+        no_pairing: bool,
     },
     /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
     /// rotates a few degrees per frame; milliseconds per frame of gather,
@@ -215,6 +219,10 @@ enum BenchCommand {
         /// first solve (0: none) [default: 2].
         #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
         corrections: Option<u32>,
+        /// Give every triangle of a mesh its own chart, also where two form
+        /// a parallelogram (the import before pairing).
+        #[arg(long)]
+        no_pairing: bool,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
     /// Cornell boxes of about the given triangle counts, written as .glb,
@@ -249,6 +257,10 @@ enum BenchCommand {
         /// near-coplanar triangles (the solver before clusters).
         #[arg(long)]
         no_clusters: bool,
+        /// Give every triangle its own chart, also where two form a
+        /// parallelogram (the import before pairing).
+        #[arg(long)]
+        no_pairing: bool,
     },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
@@ -330,6 +342,7 @@ fn main() -> ExitCode {
                     gather_resolution,
                     shared_batch_ratio,
                     no_clusters,
+                    no_pairing,
                 },
         } => bench_solve_command(
             scenes,
@@ -338,6 +351,7 @@ fn main() -> ExitCode {
             adapter.as_deref(),
             (hemicube_resolution, gather_resolution),
             (shared_batch_ratio, !no_clusters),
+            !no_pairing,
         ),
         Command::Bench {
             what:
@@ -361,6 +375,7 @@ fn main() -> ExitCode {
                     back_resolution,
                     back_samples,
                     corrections,
+                    no_pairing,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -370,6 +385,7 @@ fn main() -> ExitCode {
                 degrees_per_frame: degrees,
                 methods,
                 density_scale,
+                pair_triangles: !no_pairing,
                 progressive: {
                     let defaults = gpu::ProgressiveOptions::default();
                     gpu::ProgressiveOptions {
@@ -408,6 +424,7 @@ fn main() -> ExitCode {
                     adapter,
                     shared_batch_ratio,
                     no_clusters,
+                    no_pairing,
                 },
         } => bench_meshes_command(
             &triangles,
@@ -420,6 +437,7 @@ fn main() -> ExitCode {
                     cluster_triangles: !no_clusters,
                     ..Default::default()
                 },
+                pair_triangles: !no_pairing,
             },
             &out,
             json,

@@ -8,7 +8,7 @@ use lightwire_server::load::load_scene;
 use lightwire_server::scene::{LoadOptions, Scene};
 
 pub(crate) fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
-    Ok(load_scene(path, LoadOptions { density_scale })?)
+    Ok(load_scene(path, LoadOptions::scaled(density_scale))?)
 }
 
 pub(crate) fn validate_command(paths: &[PathBuf], density_scale: f32) -> Result<()> {

@@ -19,7 +19,10 @@
 //! is tiled as before. Wallner's system clusters the same way in spirit:
 //! its lightmaps are per triangle, its shooting is by atlas region (§2).
 //!
-//! Quads and triangles that join no region are shot as their own patches.
+//! A mesh's patches are its triangles and the quads of two triangles that
+//! form a parallelogram (`scene/pairs.rs`, `Patch::mesh`); both join
+//! regions, a quad as one unit of the tree. Patches of hand-written quads
+//! and boxes never do. Patches that join no region are shot on their own.
 
 use std::collections::{BinaryHeap, HashMap};
 
@@ -72,15 +75,22 @@ pub(super) enum Piece {
 
 impl Clusters {
     /// Regions of `patches` (placed at the solver's first poses; a region
-    /// moves rigidly with its object): `objects` and `materials` per patch.
-    pub(super) fn build(patches: &[WorldPatch], objects: &[u32], materials: &[u32]) -> Self {
+    /// moves rigidly with its object): `objects` and `materials` per patch,
+    /// and which patches are part of a mesh (`Patch::mesh`: its triangles
+    /// and the pairs of them that share a chart); only those join regions.
+    pub(super) fn build(
+        patches: &[WorldPatch],
+        objects: &[u32],
+        materials: &[u32],
+        mesh: &[bool],
+    ) -> Self {
         let n = patches.len();
         let mut clusters = Self {
             region_of: vec![u32::MAX; n],
             ..Self::default()
         };
         let triangles: Vec<u32> = (0..n as u32)
-            .filter(|&p| patches[p as usize].triangle)
+            .filter(|&p| mesh.get(p as usize).copied().unwrap_or(false))
             .collect();
         if triangles.len() < 2 {
             return clusters;
@@ -325,7 +335,7 @@ fn quads<K: std::hash::Hash + Ord>(
             .map(|i| (c[i], c[(i + 1) % 3]))
             .unwrap_or((c[0], c[1]))
     };
-    for &t in region {
+    for &t in region.iter().filter(|&&t| patches[t as usize].triangle) {
         let (a, b) = longest(t);
         // Both triangles name the edge alike: the lesser corner first.
         let (a, b) = (key(a), key(b));
@@ -341,7 +351,7 @@ fn quads<K: std::hash::Hash + Ord>(
     }
     let area = |t: u32| {
         let p = &patches[t as usize];
-        p.u.cross(p.v).length() * 0.5
+        p.u.cross(p.v).length() * if p.triangle { 0.5 } else { 1.0 }
     };
     let mut units = Vec::with_capacity(region.len());
     for &t in region {
@@ -401,7 +411,7 @@ mod tests {
     fn a_planar_grid_is_one_region_and_a_wall_beside_it_another() {
         let patches = grid(4);
         let n = patches.len();
-        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n]);
+        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n], &vec![true; n]);
         // 32 floor triangles in one region; the standing triangle shares
         // corners with the floor but faces another way: on its own.
         assert_eq!(clusters.roots.len(), 1);
@@ -416,7 +426,7 @@ mod tests {
     fn a_quad_s_two_triangles_stay_together_until_its_piece_is_split() {
         let patches = grid(4);
         let n = patches.len();
-        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n]);
+        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n], &vec![true; n]);
         let powers = vec![1.0; n];
         // 16 pieces of 32 triangles: every piece is one cell's two halves.
         for piece in clusters.cut(0, 16, &powers) {
@@ -437,12 +447,12 @@ mod tests {
         // The first row of cells (8 triangles) in another material.
         let mut materials = vec![0; n];
         materials[..8].fill(1);
-        let clusters = Clusters::build(&patches, &vec![0; n], &materials);
+        let clusters = Clusters::build(&patches, &vec![0; n], &materials, &vec![true; n]);
         assert_eq!(clusters.roots.len(), 2);
         assert_ne!(clusters.region_of[0], clusters.region_of[8]);
         let mut objects = vec![0; n];
         objects[2] = 1;
-        let clusters = Clusters::build(&patches, &objects, &vec![0; n]);
+        let clusters = Clusters::build(&patches, &objects, &vec![0; n], &vec![true; n]);
         assert_eq!(clusters.region_of[2], u32::MAX);
         assert_ne!(clusters.region_of[3], u32::MAX);
     }
@@ -451,7 +461,7 @@ mod tests {
     fn a_surface_of_few_triangles_is_no_region() {
         let patches = grid(1);
         let n = patches.len();
-        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n]);
+        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n], &vec![true; n]);
         assert!(clusters.is_empty());
         assert!(clusters.region_of.iter().all(|&r| r == u32::MAX));
     }
@@ -460,7 +470,7 @@ mod tests {
     fn a_region_is_cut_where_the_power_is() {
         let patches = grid(4);
         let n = patches.len();
-        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n]);
+        let clusters = Clusters::build(&patches, &vec![0; n], &vec![0; n], &vec![true; n]);
         // All the power on triangle 0: cutting into three pieces halves
         // towards it, and pieces without power are left out.
         let mut powers = vec![0.0; n];

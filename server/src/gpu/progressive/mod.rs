@@ -402,7 +402,8 @@ impl ProgressiveSolver {
 
         let clusters = if options.cluster_triangles {
             let materials: Vec<u32> = scene.patches.iter().map(|p| p.material).collect();
-            Clusters::build(&patches, &table.objects, &materials)
+            let mesh: Vec<bool> = scene.patches.iter().map(|p| p.mesh).collect();
+            Clusters::build(&patches, &table.objects, &materials, &mesh)
         } else {
             Clusters::default()
         };

@@ -1,0 +1,441 @@
+//! Two triangles of a mesh that form a parallelogram share one chart.
+//!
+//! A mesh has a patch per triangle, and a triangle's chart is a square
+//! whose half above the diagonal stands for no surface (`atlas.rs`): a
+//! quad cut in two, as every exporter triangulates quads, costs two
+//! square charts and twice its texels, half of them dead, and each small
+//! triangle gets at least three texels whatever the density asks. Where
+//! two triangles of one mesh surface (same object, material, density and
+//! texture) share an edge and their four corners form a parallelogram
+//! (the shared edge a diagonal of it), they become one quad patch: one
+//! chart over the parallelogram, every texel on the surface, the same
+//! geometry. Wallner's system packs per-triangle lightmaps into charts
+//! of many triangles (§2); this is its smallest case, the quad. Charts of
+//! more triangles (near-planar regions, an asset's own `TEXCOORD_1`)
+//! are not built.
+//!
+//! Pairs through an edge that is the longest of both triangles (a quad
+//! cut along its diagonal) are taken first, so that a grid of cells
+//! pairs cell by cell rather than across cells; then pairs through any
+//! shared edge. A texture pairs only when its coordinates are affine
+//! over the parallelogram (the fourth corner's coordinates are what the
+//! other three give), since `AlbedoMap` interpolates linearly over the
+//! patch.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use glam::{Vec2, Vec3};
+
+use super::texture::AlbedoMap;
+use super::{Patch, PatchShape};
+
+/// The fourth corner lies within this fraction of the shared edge's length
+/// of where the parallelogram puts it (or within the f32 rounding of the
+/// corners' coordinates, about 1e-7 of their magnitude, when that is more).
+const PARALLELOGRAM_TOLERANCE: f32 = 1e-5;
+/// Texture coordinates agree within this (plus the same fraction of their
+/// magnitude).
+const UV_TOLERANCE: f32 = 1e-5;
+
+/// Corners are the same when they lie within this fraction of the
+/// meshes' extent of each other (a triangle's corners are recomputed from
+/// its frame, `origin + u + v`, so shared corners differ by f32 rounding).
+/// They are found through a grid of this spacing.
+const CORNER_QUANTUM: f32 = 1e-5;
+
+/// A corner's cell on the grid.
+type Key = [i64; 3];
+
+/// The corners' grid: a point's cell, and the cells a point within a
+/// hundredth of a cell of it may round to (more than one only near a
+/// cell's border), so that two copies of one corner always meet.
+struct Grid {
+    lo: Vec3,
+    quantum: f32,
+}
+
+impl Grid {
+    fn key(&self, p: Vec3) -> Key {
+        ((p - self.lo) / self.quantum)
+            .round()
+            .as_i64vec3()
+            .to_array()
+    }
+
+    fn keys(&self, p: Vec3) -> Vec<Key> {
+        let f = (p - self.lo) / self.quantum;
+        let mut keys = vec![self.key(p)];
+        for axis in 0..3 {
+            let x = f[axis];
+            let half = x.floor() + 0.5;
+            if (x - half).abs() < 0.01 {
+                let other = if x < half { half.ceil() } else { half.floor() } as i64;
+                let more: Vec<Key> = keys
+                    .iter()
+                    .map(|k| {
+                        let mut k = *k;
+                        k[axis] = other;
+                        k
+                    })
+                    .collect();
+                keys.extend(more);
+            }
+        }
+        keys
+    }
+
+    fn same(&self, a: Vec3, b: Vec3) -> bool {
+        (a - b).abs().max_element() <= self.quantum
+    }
+}
+
+/// What two triangles must share to be one patch.
+#[derive(Clone, PartialEq, Eq, Hash)]
+struct Group {
+    object: u32,
+    material: u32,
+    surface_index: usize,
+    density: u32,
+    texture: Option<usize>,
+}
+
+fn group(p: &Patch) -> Group {
+    Group {
+        object: p.object,
+        material: p.material,
+        surface_index: p.surface_index,
+        density: p.texel_density.to_bits(),
+        texture: p
+            .albedo_map
+            .as_ref()
+            .map(|m| Arc::as_ptr(&m.texture) as usize),
+    }
+}
+
+/// A triangle's corners counter-clockwise from the front, with the texture
+/// coordinates at each (`AlbedoMap::uv` is in the same order).
+fn corners(p: &Patch) -> Option<([Vec3; 3], Option<[Vec2; 3]>)> {
+    match p.shape {
+        PatchShape::Triangle { origin, u, v } => Some((
+            [origin, origin + u, origin + u + v],
+            p.albedo_map.as_ref().map(|m| m.uv),
+        )),
+        PatchShape::Quad { .. } => None,
+    }
+}
+
+fn close_uv(a: Vec2, b: Vec2) -> bool {
+    (a - b).length() <= UV_TOLERANCE * (1.0 + a.length().max(b.length()))
+}
+
+/// The quad of triangles `a` and `b` if they share their edge `ka` of `a`
+/// (corners `ka`, `ka + 1`) as a diagonal of a parallelogram with
+/// consistent texture coordinates.
+fn join(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
+    let (ca, uva) = corners(a)?;
+    let (cb, uvb) = corners(b)?;
+    let (d0, d1, x) = (ca[ka], ca[(ka + 1) % 3], ca[(ka + 2) % 3]);
+    // `b` runs the shared edge the other way: d1, d0, then its third corner.
+    let kb = (0..3).find(|&k| grid.same(cb[k], d1) && grid.same(cb[(k + 1) % 3], d0))?;
+    let y = cb[(kb + 2) % 3];
+    // Within the tolerance, or the rounding of the sums at the corners'
+    // magnitude (a small cell far from the origin).
+    let magnitude = [x, y, d0, d1]
+        .iter()
+        .map(|p| p.abs().max_element())
+        .fold(0.0f32, f32::max);
+    let tolerance =
+        (PARALLELOGRAM_TOLERANCE * (d1 - d0).length()).max(8.0 * f32::EPSILON * magnitude);
+    if (x + y - d0 - d1).length() > tolerance {
+        return None;
+    }
+    let albedo_map = match (&a.albedo_map, uva, uvb) {
+        (None, None, None) => None,
+        (Some(map), Some(uva), Some(uvb)) => {
+            let (t0, t1, tx) = (uva[ka], uva[(ka + 1) % 3], uva[(ka + 2) % 3]);
+            let (s1, s0, ty) = (uvb[kb], uvb[(kb + 1) % 3], uvb[(kb + 2) % 3]);
+            if !(close_uv(t0, s0) && close_uv(t1, s1) && close_uv(tx + ty, t0 + t1)) {
+                return None;
+            }
+            // The quad's frame below: corners x, d0, y (s, t = 0,0 / 1,0 / 1,1).
+            Some(AlbedoMap {
+                texture: Arc::clone(&map.texture),
+                uv: [tx, t0, ty],
+            })
+        }
+        _ => return None,
+    };
+    let suffix = b.name.rsplit('/').next().unwrap_or(&b.name);
+    Some(Patch {
+        name: format!("{}+{suffix}", a.name),
+        // Corners x, d0, y, d1 counter-clockwise: `a` is (x, d0, d1), `b`
+        // is (d0, y, d1), and u × v faces as both do.
+        shape: PatchShape::Quad {
+            origin: x,
+            u: d0 - x,
+            v: y - d0,
+        },
+        albedo_map,
+        ..a.clone()
+    })
+}
+
+/// Joins pairs of triangles of `patches` that form a parallelogram into one
+/// quad patch each (see the module documentation); quads, lone triangles
+/// and the order of what remains are kept (a quad takes its first
+/// triangle's place).
+pub fn pair_triangles(patches: Vec<Patch>) -> Vec<Patch> {
+    let (lo, hi) = patches
+        .iter()
+        .filter_map(corners)
+        .flat_map(|(c, _)| c)
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(c), hi.max(c))
+        });
+    let quantum = ((hi - lo).max_element() * CORNER_QUANTUM).max(f32::MIN_POSITIVE);
+    let grid = Grid { lo, quantum };
+    // Directed edges of every triangle: (group, from, to) -> (patch, edge).
+    let mut edges: HashMap<(Group, Key, Key), Vec<(usize, usize)>> = HashMap::new();
+    for (i, p) in patches.iter().enumerate() {
+        if let Some((c, _)) = corners(p) {
+            let g = group(p);
+            for k in 0..3 {
+                edges
+                    .entry((g.clone(), grid.key(c[k]), grid.key(c[(k + 1) % 3])))
+                    .or_default()
+                    .push((i, k));
+            }
+        }
+    }
+    let longest = |p: &Patch, k: usize| -> bool {
+        let Some((c, _)) = corners(p) else {
+            return false;
+        };
+        let len = |k: usize| (c[(k + 1) % 3] - c[k]).length_squared();
+        (0..3).all(|j| len(k) >= len(j))
+    };
+    let mut partner: Vec<Option<Patch>> = vec![None; patches.len()];
+    let mut used = vec![false; patches.len()];
+    for diagonal_only in [true, false] {
+        for (i, a) in patches.iter().enumerate() {
+            let Some((c, _)) = corners(a) else {
+                continue;
+            };
+            if used[i] {
+                continue;
+            }
+            let g = group(a);
+            let found = (0..3).find_map(|ka| {
+                if diagonal_only && !longest(a, ka) {
+                    return None;
+                }
+                // `b` runs the edge the other way; its copies of the two
+                // corners may round to neighbouring cells.
+                let (from, to) = (grid.keys(c[(ka + 1) % 3]), grid.keys(c[ka]));
+                from.iter()
+                    .flat_map(|f| to.iter().map(move |t| (*f, *t)))
+                    .filter_map(|(f, t)| edges.get(&(g.clone(), f, t)))
+                    .flatten()
+                    .find_map(|&(j, kb)| {
+                        if j == i || used[j] || (diagonal_only && !longest(&patches[j], kb)) {
+                            return None;
+                        }
+                        join(a, ka, &patches[j], &grid).map(|q| (j, q))
+                    })
+            });
+            if let Some((j, quad)) = found {
+                used[i] = true;
+                used[j] = true;
+                partner[i] = Some(quad);
+            }
+        }
+    }
+    patches
+        .into_iter()
+        .zip(used)
+        .zip(partner)
+        .filter_map(|((p, used), quad)| match (used, quad) {
+            (false, _) => Some(p),
+            (true, Some(q)) => Some(q),
+            (true, None) => None,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::texture::{Filter, Texture, Wrap};
+
+    fn triangle(name: &str, a: Vec3, b: Vec3, c: Vec3) -> Patch {
+        Patch {
+            name: name.to_string(),
+            surface_index: 0,
+            object: 0,
+            material: 0,
+            texel_density: 4.0,
+            shape: PatchShape::triangle(a, b, c),
+            albedo_map: None,
+            mesh: true,
+        }
+    }
+
+    /// An `n` x `n` grid of unit cells on the floor, each cut along the
+    /// diagonal from its (0, 0) corner, facing up.
+    fn grid(n: usize) -> Vec<Patch> {
+        let p = |i: usize, j: usize| Vec3::new(i as f32, 0.0, -(j as f32));
+        let mut out = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let k = out.len();
+                out.push(triangle(
+                    &format!("m/{k}"),
+                    p(i, j),
+                    p(i + 1, j),
+                    p(i + 1, j + 1),
+                ));
+                out.push(triangle(
+                    &format!("m/{}", k + 1),
+                    p(i, j),
+                    p(i + 1, j + 1),
+                    p(i, j + 1),
+                ));
+            }
+        }
+        out
+    }
+
+    fn area(patches: &[Patch]) -> f32 {
+        patches.iter().map(|p| p.shape.area()).sum()
+    }
+
+    #[test]
+    fn a_grid_of_cells_pairs_cell_by_cell_into_unit_squares_facing_as_before() {
+        let triangles = grid(3);
+        let paired = pair_triangles(triangles.clone());
+        assert_eq!(paired.len(), 9);
+        assert!((area(&paired) - area(&triangles)).abs() < 1e-5);
+        for q in &paired {
+            let PatchShape::Quad { u, v, .. } = q.shape else {
+                panic!("{} is not a quad", q.name);
+            };
+            // Each cell alone: unit edges along the grid, facing up.
+            assert!((u.length() - 1.0).abs() < 1e-6 && (v.length() - 1.0).abs() < 1e-6);
+            assert!(u.dot(v).abs() < 1e-6, "{}: not a cell", q.name);
+            assert!(q.shape.normal().dot(Vec3::Y) > 0.999, "{}", q.name);
+        }
+        assert_eq!(paired[0].name, "m/0+1");
+        // The quad covers both triangles' points.
+        let q = &paired[0];
+        let (o, u, v) = q.shape.frame();
+        for t in &triangles[..2] {
+            let c = t.shape.centre();
+            let d = c - o;
+            let (s, w) = (d.dot(u) / u.length_squared(), d.dot(v) / v.length_squared());
+            assert!(q.shape.contains(s, w), "{} centre off the quad", t.name);
+        }
+    }
+
+    /// A slanted parallelogram off the grid: the corners the two triangles
+    /// recompute from their frames differ in the last bits, and still meet.
+    #[test]
+    fn a_slanted_parallelogram_pairs_despite_rounding() {
+        let p = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(2.1, 0.2, 0.0),
+            Vec3::new(2.1, 0.3, -1.3),
+            Vec3::new(0.0, 0.1, -1.3),
+        ];
+        let halves = vec![
+            triangle("f/0", p[0], p[1], p[2]),
+            triangle("f/1", p[0], p[2], p[3]),
+        ];
+        let paired = pair_triangles(halves.clone());
+        assert_eq!(paired.len(), 1);
+        assert!((area(&paired) - area(&halves)).abs() < 1e-5);
+        let corners = paired[0].shape.corners();
+        for c in p {
+            assert!(
+                corners.iter().any(|q| (*q - c).length() < 1e-5),
+                "corner {c} lost"
+            );
+        }
+    }
+
+    #[test]
+    fn triangles_that_are_no_parallelogram_or_differ_stay_triangles() {
+        // A kite: shares an edge, but the corners are no parallelogram.
+        let a = Vec3::ZERO;
+        let b = Vec3::new(1.0, 0.0, 0.0);
+        let c = Vec3::new(0.0, 0.0, -1.0);
+        let kite = vec![
+            triangle("k/0", a, b, c),
+            triangle("k/1", b, Vec3::new(2.0, 0.0, -2.0), c),
+        ];
+        assert_eq!(pair_triangles(kite.clone()), kite);
+        // A parallelogram, but of two materials, or folded (not coplanar).
+        let mut two = grid(1);
+        two[1].material = 1;
+        assert_eq!(pair_triangles(two.clone()), two);
+        let mut folded = grid(1);
+        folded[1] = triangle(
+            "m/1",
+            Vec3::ZERO,
+            Vec3::new(1.0, 0.0, -1.0),
+            Vec3::new(0.0, 0.3, -1.0),
+        );
+        assert_eq!(pair_triangles(folded).len(), 2);
+        // Opposite windings (one faces down) never pair.
+        let mut flipped = grid(1);
+        let (o, u, v) = flipped[1].shape.frame();
+        flipped[1] = triangle("m/1", o + u + v, o + u, o);
+        assert_eq!(pair_triangles(flipped).len(), 2);
+    }
+
+    #[test]
+    fn a_texture_pairs_only_when_affine_and_then_reads_the_same_everywhere() {
+        let texture = Arc::new(
+            Texture::from_linear(
+                "checker",
+                2,
+                2,
+                vec![Vec3::ZERO, Vec3::ONE, Vec3::ONE, Vec3::ZERO],
+                [Wrap::Repeat; 2],
+                Filter::Nearest,
+            )
+            .expect("texture"),
+        );
+        // Texture coordinates = 0.3 * (x, -z) at every corner: affine.
+        let mut cells = grid(2);
+        for p in &mut cells {
+            let (o, u, v) = p.shape.frame();
+            let at = |q: Vec3| Vec2::new(q.x, -q.z) * 0.3;
+            p.albedo_map = Some(AlbedoMap {
+                texture: Arc::clone(&texture),
+                uv: [at(o), at(o + u), at(o + u + v)],
+            });
+        }
+        let paired = pair_triangles(cells.clone());
+        assert_eq!(paired.len(), 4);
+        for (q, t) in paired.iter().zip(cells.chunks(2)) {
+            let map = q.albedo_map.as_ref().expect("keeps its texture");
+            let (o, u, v) = q.shape.frame();
+            for tri in t {
+                let (to, tu, tv) = tri.shape.frame();
+                let p = to + tu * 0.6 + tv * 0.3;
+                let d = p - o;
+                let (s, w) = (d.dot(u) / u.length_squared(), d.dot(v) / v.length_squared());
+                let want = tri.albedo_map.as_ref().expect("textured").uv_at(0.6, 0.3);
+                assert!((map.uv_at(s, w) - want).length() < 1e-5, "{}", q.name);
+            }
+        }
+        // One corner's coordinates moved: the map is no longer affine over
+        // that cell, whose triangles stay apart.
+        let mut bent = cells;
+        if let Some(m) = bent[1].albedo_map.as_mut() {
+            m.uv[2] += Vec2::new(0.2, 0.0);
+        }
+        assert_eq!(pair_triangles(bent).len(), 5);
+    }
+}
