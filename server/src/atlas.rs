@@ -586,10 +586,7 @@ mod tests {
     fn triangle_charts_hold_the_triangle_below_the_diagonal() {
         // Unpaired: the floor's two triangles form a parallelogram, which
         // would otherwise be one quad patch (`scene/pairs.rs`).
-        let options = crate::scene::LoadOptions {
-            pair_triangles: false,
-            ..Default::default()
-        };
+        let options = crate::scene::LoadOptions::unpaired(1.0);
         let scene = Scene::parse_with(TRIANGLES, "test", options).unwrap_or_else(|e| panic!("{e}"));
         let atlas = Atlas::build(&scene).expect("fits");
         assert_eq!(scene.patches.len(), 3);

@@ -13,6 +13,18 @@ fn lightwire(args: &[&str]) -> Output {
         .expect("the lightwire binary runs")
 }
 
+/// Runs `lightwire` with `args` and `--json json`, which must succeed,
+/// and reads the report it wrote there.
+fn lightwire_json(args: &[&str], json: &std::path::Path) -> (Output, serde_json::Value) {
+    let mut args = args.to_vec();
+    args.extend(["--json", json.to_str().expect("utf-8")]);
+    let out = lightwire(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report =
+        serde_json::from_str(&std::fs::read_to_string(json).expect("written")).expect("JSON");
+    (out, report)
+}
+
 fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
@@ -205,19 +217,17 @@ fn bench_solve_writes_times_nrmse_and_reference_time_at_equal_nrmse() {
     let json =
         std::env::temp_dir().join(format!("lightwire-bench-solve-{}.json", std::process::id()));
     let scene = repo().join("scenes/cornell-low.json");
-    let out = lightwire(&[
-        "bench",
-        "solve",
-        "--scene",
-        scene.to_str().expect("utf-8"),
-        "--density-scale",
-        "0.25",
-        "--json",
-        json.to_str().expect("utf-8"),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    let (_, report) = lightwire_json(
+        &[
+            "bench",
+            "solve",
+            "--scene",
+            scene.to_str().expect("utf-8"),
+            "--density-scale",
+            "0.25",
+        ],
+        &json,
+    );
     std::fs::remove_file(&json).ok();
     let scenes = report.as_array().expect("one object per scene");
     assert_eq!(scenes.len(), 1);
@@ -269,26 +279,24 @@ fn bench_dynamic_profile_writes_the_breakdown_per_method() {
     let dir = std::env::temp_dir().join(format!("lightwire-bench-profile-{}", std::process::id()));
     let json = dir.join("dynamic.json");
     let scene = repo().join("scenes/cornell-low.json");
-    let out = lightwire(&[
-        "bench",
-        "dynamic",
-        "--profile",
-        "--scene",
-        scene.to_str().expect("utf-8"),
-        "--density-scale",
-        "0.25",
-        "--frames",
-        "1",
-        "--methods",
-        "progressive,cross",
-        "--out",
-        dir.to_str().expect("utf-8"),
-        "--json",
-        json.to_str().expect("utf-8"),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    let (out, report) = lightwire_json(
+        &[
+            "bench",
+            "dynamic",
+            "--profile",
+            "--scene",
+            scene.to_str().expect("utf-8"),
+            "--density-scale",
+            "0.25",
+            "--frames",
+            "1",
+            "--methods",
+            "progressive,cross",
+            "--out",
+            dir.to_str().expect("utf-8"),
+        ],
+        &json,
+    );
     std::fs::remove_dir_all(&dir).ok();
     let methods = report[0]["methods"].as_array().expect("methods");
     assert_eq!(methods.len(), 2, "{report}");
@@ -343,23 +351,21 @@ fn bench_dynamic_profile_writes_the_breakdown_per_method() {
 fn bench_meshes_reports_each_mesh() {
     let dir = std::env::temp_dir().join(format!("lightwire-bench-meshes-{}", std::process::id()));
     let json = dir.join("meshes.json");
-    let out = lightwire(&[
-        "bench",
-        "meshes",
-        "--triangles",
-        "24,96",
-        "--density-scale",
-        "0.25",
-        "--max-seconds",
-        "3",
-        "--out",
-        dir.to_str().expect("utf-8"),
-        "--json",
-        json.to_str().expect("utf-8"),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    let (out, report) = lightwire_json(
+        &[
+            "bench",
+            "meshes",
+            "--triangles",
+            "24,96",
+            "--density-scale",
+            "0.25",
+            "--max-seconds",
+            "3",
+            "--out",
+            dir.to_str().expect("utf-8"),
+        ],
+        &json,
+    );
     let rows = report.as_array().expect("one row per mesh");
     assert_eq!(rows.len(), 2, "{report}");
     for (row, triangles) in rows.iter().zip([24, 96]) {
@@ -381,24 +387,22 @@ fn bench_meshes_reports_each_mesh() {
     assert!(text(&out.stdout).contains("| triangles | patches | .glb bytes | load s |"));
     // --no-pairing: a patch per triangle, whose square chart holds texels
     // above its diagonal that stand for no surface.
-    let out = lightwire(&[
-        "bench",
-        "meshes",
-        "--triangles",
-        "24",
-        "--density-scale",
-        "0.25",
-        "--max-seconds",
-        "3",
-        "--no-pairing",
-        "--out",
-        dir.to_str().expect("utf-8"),
-        "--json",
-        json.to_str().expect("utf-8"),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).expect("written")).expect("JSON");
+    let (_, report) = lightwire_json(
+        &[
+            "bench",
+            "meshes",
+            "--triangles",
+            "24",
+            "--density-scale",
+            "0.25",
+            "--max-seconds",
+            "3",
+            "--no-pairing",
+            "--out",
+            dir.to_str().expect("utf-8"),
+        ],
+        &json,
+    );
     let row = &report[0];
     assert_eq!(row["patches"], 24, "{row}");
     let (elements, texels) = (row["elements"].as_u64(), row["texels"].as_u64());

@@ -54,10 +54,7 @@ const ROOM: &str = r#"{
 fn room() -> (Scene, Atlas) {
     // Unpaired: the wall's two triangles form a parallelogram, which would
     // otherwise be one quad patch; here they show how triangles export.
-    let options = LoadOptions {
-        pair_triangles: false,
-        ..LoadOptions::default()
-    };
+    let options = LoadOptions::unpaired(1.0);
     parse_scene(ROOM, "export-room.json", options).expect("the room loads")
 }
 
@@ -241,14 +238,8 @@ fn reimporting_gives_the_same_triangles_materials_and_dynamic_objects() {
     let path = dir.join("scene.glb");
     std::fs::write(&path, &glb).expect("write");
     // (Unpaired, a patch per exported triangle.)
-    let again = Scene::load_with(
-        &path,
-        LoadOptions {
-            pair_triangles: false,
-            ..LoadOptions::default()
-        },
-    )
-    .expect("scene.glb opens as a scene");
+    let again =
+        Scene::load_with(&path, LoadOptions::unpaired(1.0)).expect("scene.glb opens as a scene");
     assert_eq!(again.patches.len(), pairs.len());
     assert_eq!(again.materials, scene.materials);
     let dynamic: Vec<(&str, bool)> = again

@@ -27,10 +27,7 @@ fn a_glb_opens_as_a_scene_of_triangles() {
             .iter()
             .all(|p| !p.shape.is_triangle() && p.mesh)
     );
-    let unpaired = LoadOptions {
-        pair_triangles: false,
-        ..LoadOptions::default()
-    };
+    let unpaired = LoadOptions::unpaired(1.0);
     let triangles = Scene::load_with(&path, unpaired).expect("loads");
     assert_eq!(triangles.patches.len(), 24);
     assert!(triangles.patches.iter().all(|p| p.shape.is_triangle()));

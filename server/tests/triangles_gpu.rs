@@ -542,10 +542,7 @@ fn tessellated(k: usize, density_scale: f32) -> (Scene, Atlas) {
     let scene = Scene::load_with(
         &path,
         // Every triangle its own patch: these tests are about triangles.
-        lightwire_server::scene::LoadOptions {
-            density_scale,
-            pair_triangles: false,
-        },
+        lightwire_server::scene::LoadOptions::unpaired(density_scale),
     )
     .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));

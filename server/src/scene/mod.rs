@@ -334,6 +334,16 @@ impl LoadOptions {
             ..Self::default()
         }
     }
+
+    /// Another density scale, and every triangle of a mesh its own patch
+    /// and chart, also where two form a parallelogram (tests of the
+    /// triangle paths, `--no-pairing`).
+    pub fn unpaired(density_scale: f32) -> Self {
+        Self {
+            density_scale,
+            pair_triangles: false,
+        }
+    }
 }
 
 impl Default for LoadOptions {

@@ -24,10 +24,7 @@ pub fn load(name: &str, density_scale: f32) -> (Scene, Atlas) {
 /// form a parallelogram that would otherwise share a chart: for tests of
 /// the triangle paths.
 pub fn load_triangles(name: &str, density_scale: f32) -> (Scene, Atlas) {
-    let options = LoadOptions {
-        density_scale,
-        pair_triangles: false,
-    };
+    let options = LoadOptions::unpaired(density_scale);
     let scene = Scene::load_with(&scene_path(name), options)
         .unwrap_or_else(|e| panic!("{name} must load: {e}"));
     let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{name} must fit: {e}"));

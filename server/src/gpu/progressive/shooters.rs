@@ -504,10 +504,7 @@ mod tests {
     #[test]
     fn triangle_shooters_cover_exactly_the_triangle() {
         // Unpaired: the floor's two triangles would otherwise be one quad.
-        let options = crate::scene::LoadOptions {
-            pair_triangles: false,
-            ..Default::default()
-        };
+        let options = crate::scene::LoadOptions::unpaired(1.0);
         let scene = Scene::parse_with(TRIANGLES, "inline", options).expect("valid");
         let atlas = Atlas::build(&scene).expect("fits");
         let validity = Validity::all_valid(&atlas);
