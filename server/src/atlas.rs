@@ -208,11 +208,23 @@ fn texels_along(length: f32, density: f32) -> u32 {
 /// sampled at most twice as coarsely (at most sqrt(2) times unless that
 /// angle is obtuse), as a quad's cell diagonal is; a quad cut in two
 /// (`Scene::triangulated`) keeps the quad's grid.
+///
+/// A quad merged from `n` equal cells along an edge (`Patch::cells`) gets
+/// `n` times the spacings one cell's chart would have, plus one: its edge
+/// texels fall where the cells' would, also where it meets a smaller merged
+/// chart of the same tessellation.
 fn chart_size(patch: &Patch) -> (u32, u32) {
+    let along = |length: f32, cells: u32| {
+        if cells <= 1 {
+            return texels_along(length, patch.texel_density);
+        }
+        let cell = texels_along(length / cells as f32, patch.texel_density) - 1;
+        cells.saturating_mul(cell).saturating_add(1)
+    };
     match patch.shape {
         PatchShape::Quad { u, v, .. } => (
-            texels_along(u.length(), patch.texel_density),
-            texels_along(v.length(), patch.texel_density),
+            along(u.length(), patch.cells[0]),
+            along(v.length(), patch.cells[1]),
         ),
         PatchShape::Triangle { u, v, .. } => {
             let n = texels_along(u.length().max(v.length()), patch.texel_density);
@@ -756,5 +768,83 @@ mod tests {
             err.contains("atlas overflow") && err.contains("surface #0 \"room/"),
             "{err}"
         );
+    }
+
+    /// An L-shaped floor of 0.37 m cells (a 3 x 3 grid without a corner
+    /// cell), at a density that puts no whole number of texels in a cell:
+    /// its triangles merge into parallelograms that meet along part of an
+    /// edge (`scene/pairs.rs`), and every edge texel of one that lies on
+    /// the other's edge is a seam texel shared with it, as the cells' own
+    /// charts would have been.
+    #[test]
+    fn merged_charts_meeting_at_a_t_junction_share_their_edge_texels() {
+        let c = 0.37f32;
+        let (mut positions, mut indices) = (Vec::new(), Vec::new());
+        for j in 0..3u32 {
+            for i in 0..3u32 {
+                if (i, j) == (2, 2) {
+                    continue;
+                }
+                let k = positions.len() as u32;
+                let (x, z) = (i as f32 * c, -(j as f32) * c);
+                for (dx, dz) in [(0.0, 0.0), (c, 0.0), (c, -c), (0.0, -c)] {
+                    positions.push(format!("[{}, 0, {}]", x + dx, z + dz));
+                }
+                indices.extend([k, k + 1, k + 2, k, k + 2, k + 3]);
+            }
+        }
+        let text = format!(
+            r#"{{
+            "name": "t",
+            "lightmap": {{ "texel_density": 6.7 }},
+            "materials": [ {{ "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] }} ],
+            "surfaces": [ {{ "name": "floor", "material": "m", "mesh": {{
+                "positions": [{}], "indices": {indices:?} }} }} ]
+        }}"#,
+            positions.join(", ")
+        );
+        let scene = scene(&text);
+        assert!(
+            (2..=3).contains(&scene.patches.len()),
+            "{:?}",
+            scene.patches.iter().map(|p| &p.name).collect::<Vec<_>>()
+        );
+        let cells: u32 = scene.patches.iter().map(|p| p.cells[0] * p.cells[1]).sum();
+        assert_eq!(cells, 8, "every cell in a grid of equal cells");
+        let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
+        let seam: std::collections::HashSet<u32> = atlas.seams.iter().flatten().copied().collect();
+        let on_edge_of = |q: &Patch, x: Vec3| {
+            let k = q.shape.corners();
+            (0..k.len()).any(|i| {
+                let (a, d) = (k[i], k[(i + 1) % k.len()] - k[i]);
+                let t = ((x - a).dot(d) / d.length_squared()).clamp(0.0, 1.0);
+                (a + d * t - x).length() < 1e-5
+            })
+        };
+        let mut checked = 0;
+        for (i, e) in atlas.elements.iter().enumerate() {
+            let p = &scene.patches[e.patch as usize];
+            let chart = atlas.charts[e.patch as usize];
+            let [a, b] = [e.texel[0] - chart.x, e.texel[1] - chart.y];
+            let (o, u, v) = p.shape.frame();
+            let x =
+                o + u * (a as f32 / (chart.w - 1) as f32) + v * (b as f32 / (chart.h - 1) as f32);
+            let shared = scene
+                .patches
+                .iter()
+                .enumerate()
+                .any(|(k, q)| k != e.patch as usize && on_edge_of(q, x));
+            if shared {
+                checked += 1;
+                assert!(
+                    seam.contains(&(i as u32)),
+                    "{} texel {a},{b} at {x} is on another chart's edge but no seam texel",
+                    p.name
+                );
+            }
+        }
+        // The shared boundary is at least two cells long: eight spacings
+        // or more at 2.48 texels per cell.
+        assert!(checked >= 2 * 6, "{checked} texels on shared edges");
     }
 }

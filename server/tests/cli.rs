@@ -372,44 +372,50 @@ fn bench_meshes_reports_each_mesh() {
         assert_eq!(row["triangles"], triangles, "{row}");
         let file = std::path::PathBuf::from(row["file"].as_str().expect("file"));
         assert!(file.exists(), "{row}");
-        // Every cell's two triangles form a square: one quad patch each,
-        // whose chart holds no texel off the surface.
-        assert_eq!(row["patches"], triangles / 2, "{row}");
+        // Each face's cells merge into one parallelogram (a face is a
+        // grid of squares cut in two): one quad patch per face, whose
+        // chart holds no texel off the surface.
+        assert_eq!(row["patches"], 12, "{row}");
         let (elements, texels) = (row["elements"].as_u64(), row["texels"].as_u64());
         assert!(
             matches!((elements, texels), (Some(e), Some(t)) if e > 0 && e == t),
-            "paired triangles' charts hold only texels on the surface: {row}"
+            "merged triangles' charts hold only texels on the surface: {row}"
         );
         assert!(row["shots"].as_u64().is_some_and(|s| s > 0), "{row}");
         let unshot = row["unshot_at_end"].as_f64().expect("unshot");
         assert!((0.0..1.0).contains(&unshot), "{row}");
     }
     assert!(text(&out.stdout).contains("| triangles | patches | .glb bytes | load s |"));
-    // --no-pairing: a patch per triangle, whose square chart holds texels
-    // above its diagonal that stand for no surface.
-    let (_, report) = lightwire_json(
-        &[
-            "bench",
-            "meshes",
-            "--triangles",
-            "24",
-            "--density-scale",
-            "0.25",
-            "--max-seconds",
-            "3",
-            "--no-pairing",
-            "--out",
-            dir.to_str().expect("utf-8"),
-        ],
-        &json,
-    );
-    let row = &report[0];
-    assert_eq!(row["patches"], 24, "{row}");
-    let (elements, texels) = (row["elements"].as_u64(), row["texels"].as_u64());
-    assert!(
-        matches!((elements, texels), (Some(e), Some(t)) if e > 0 && e < t),
-        "triangle charts hold texels that stand for no surface: {row}"
-    );
+    // --charts pairs: a quad patch per cell; --charts triangles: a patch
+    // per triangle, whose square chart holds texels above its diagonal
+    // that stand for no surface.
+    for (charts, triangles, patches) in [("pairs", 96, 48), ("triangles", 24, 24)] {
+        let (_, report) = lightwire_json(
+            &[
+                "bench",
+                "meshes",
+                "--triangles",
+                &triangles.to_string(),
+                "--density-scale",
+                "0.25",
+                "--max-seconds",
+                "3",
+                "--charts",
+                charts,
+                "--out",
+                dir.to_str().expect("utf-8"),
+            ],
+            &json,
+        );
+        let row = &report[0];
+        assert_eq!(row["patches"], patches, "{charts}: {row}");
+        let (elements, texels) = (row["elements"].as_u64(), row["texels"].as_u64());
+        let dead = charts == "triangles";
+        assert!(
+            matches!((elements, texels), (Some(e), Some(t)) if e > 0 && (e < t) == dead),
+            "{charts}: texels that stand for no surface only on triangle charts: {row}"
+        );
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -20,7 +20,7 @@ use lightwire_server::atlas::Atlas;
 use lightwire_server::gpu::{Correction, Device, GatherOptions, GatherSolver, ProgressiveOptions};
 use lightwire_server::gpu::{ProgressiveSolver, StepReport};
 use lightwire_server::metrics::{self, Accuracy};
-use lightwire_server::scene::Scene;
+use lightwire_server::scene::{Charts, LoadOptions, Scene};
 use lightwire_server::solver::{self, SolverKind, SolverSettings};
 use lightwire_server::validity::Validity;
 
@@ -258,13 +258,14 @@ fn uv_sphere_furnace_every_texel_within_one_percent() {
 }
 
 /// Issue 18: texels on either side of every chart seam of the atrium agree
-/// within 2%. Every triangle has a chart of its own, so every edge two
-/// triangles share is a seam: the lightmap is read there from both sides
-/// as a client reads it (published: seams stitched and invalid texels
-/// filled, `Validity::fill`; each chart sampled bilinearly at the point's
-/// own parameters), at the quarter points of the edge. Without the
-/// stitching, 2,981 of 8,902 points differed by more than 2% (up to 58%
-/// on the floor, whose checker texture makes each side's edge texel
+/// within 2%. Every edge where two charts meet is a seam (a whole edge two
+/// patches share, or part of one where a large merged chart meets smaller
+/// ones): the lightmap is read there from both sides as a client reads it
+/// (published: seams stitched and invalid texels filled, `Validity::fill`;
+/// each chart sampled bilinearly at the point's own parameters), at the
+/// quarter points of every patch edge that lie on another patch's edge.
+/// Without the stitching (every triangle its own chart), 2,981 of 8,902
+/// points differed by more than 2% (up to 58% on the floor, whose checker texture makes each side's edge texel
 /// average its own side's squares; 3-7% on plain floor in the light's
 /// gradient; seams along a triangle's diagonal read the texels above it).
 /// One case is left, and counted apart (at most 0.1% of the points): along
@@ -283,9 +284,26 @@ fn uv_sphere_furnace_every_texel_within_one_percent() {
 /// solver's at 20% unshot (the panel and the brightest surfaces shot): a
 /// seam must agree at every stage, and the direct light's penumbrae of the
 /// columns and arches are on the floor by then.
+///
+/// Run with the default charts (a grid of cells one parallelogram: few
+/// seams, the floor one chart) and with pairs only (a chart per cell: every
+/// cell edge a seam, the floor's checker across them).
 #[test]
 fn atrium_chart_seams_agree_within_two_percent() {
-    let (scene, atlas) = common::load("meshes/atrium.glb", ATRIUM_DENSITY_SCALE);
+    // Not a vacuous pass: the atrium has 468 seams between patches that
+    // face the same way with the default charts, 1,984 with pairs alone.
+    atrium_seams(Charts::Parallelograms, 400);
+    atrium_seams(Charts::Pairs, 1500);
+}
+
+fn atrium_seams(charts: Charts, min_seams: usize) {
+    let options = LoadOptions {
+        density_scale: ATRIUM_DENSITY_SCALE,
+        charts,
+    };
+    let scene = Scene::load_with(&common::scene_path("meshes/atrium.glb"), options)
+        .unwrap_or_else(|e| panic!("atrium must load: {e}"));
+    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("atrium must fit: {e}"));
     let poses = scene.initial_poses();
     let mut solver =
         ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, ProgressiveOptions::default())
@@ -300,17 +318,19 @@ fn atrium_chart_seams_agree_within_two_percent() {
     lum.sort_by(f32::total_cmp);
     let floor = 0.02 * lum[lum.len() * 95 / 100];
 
-    // Edges by their corners, in object space (quantised to 0.1 mm).
-    let key = |p: Vec3| (p * 1e4).round().as_ivec3().to_array();
-    let mut edges: std::collections::HashMap<_, Vec<u32>> = std::collections::HashMap::new();
-    for (k, p) in scene.patches.iter().enumerate() {
-        let c = p.shape.corners();
-        for i in 0..c.len() {
-            let (a, b) = (key(c[i]), key(c[(i + 1) % c.len()]));
-            let edge = (p.object, a.min(b), a.max(b));
-            edges.entry(edge).or_default().push(k as u32);
-        }
-    }
+    // Points on patch edges: the quarter points of every edge, and which
+    // other patches of the object have the point on one of their edges
+    // (the whole edge shared, or part of it where a large chart meets
+    // smaller ones).
+    let on_segment = |x: Vec3, a: Vec3, e: Vec3| {
+        let d = e - a;
+        let t = ((x - a).dot(d) / d.length_squared()).clamp(0.0, 1.0);
+        (a + d * t - x).length() < 1e-4
+    };
+    let on_boundary = |q: usize, x: Vec3| {
+        let c = scene.patches[q].shape.corners();
+        (0..c.len()).any(|i| on_segment(x, c[i], c[(i + 1) % c.len()]))
+    };
     // The element whose region holds (s, t), and the lightmap there.
     let element = |patch: u32, [s, t]: [f32; 2]| {
         let chart = atlas.charts[patch as usize];
@@ -349,48 +369,54 @@ fn atrium_chart_seams_agree_within_two_percent() {
     let (mut seams, mut points, mut creases) = (0, 0, 0);
     let mut worst = (0.0f32, String::new());
     let mut failures = Vec::new();
-    for sides in edges.values() {
-        let [p, q] = sides[..] else { continue };
-        let (pa, pb) = (&scene.patches[p as usize], &scene.patches[q as usize]);
-        if pa.shape.normal().dot(pb.shape.normal()) < 1f32.to_radians().cos() {
-            creases += 1;
-            continue;
-        }
-        seams += 1;
+    let mut pairs = std::collections::HashSet::new();
+    let mut seen = std::collections::HashSet::new();
+    for (p, pa) in scene.patches.iter().enumerate() {
         let c = pa.shape.corners();
-        let (ends, _) =
-            c.iter()
-                .zip(c.iter().cycle().skip(1))
-                .fold((None, ()), |(found, _), (a, b)| {
-                    let on =
-                        |x: &Vec3| pb.shape.corners().iter().any(|y| (*x - *y).length() < 1e-4);
-                    (found.or((on(a) && on(b)).then_some((*a, *b))), ())
-                });
-        let Some((a, e)) = ends else { continue };
-        for k in 1..=3 {
-            let x = a + (e - a) * (k as f32 / 4.0);
-            let (sp, sq) = (params(p, x), params(q, x));
-            let (ip, iq) = (element(p, sp), element(q, sq));
-            if validity.is_invalid(ip) || validity.is_invalid(iq) {
-                continue;
-            }
-            points += 1;
-            let (vp, vq) = (atlas.sample(&b, p, sp), atlas.sample(&b, q, sq));
-            let scale = vp.max_element().max(vq.max_element()).max(floor);
-            let diff = (vp - vq).abs().max_element() / scale;
-            let (cp, cq) = (atlas.charts[p as usize], atlas.charts[q as usize]);
-            let what = format!(
-                "{} ({}x{} st {sp:?}) | {} ({}x{} st {sq:?}) at {x}: {vp} vs {vq}",
-                pa.name, cp.w, cp.h, pb.name, cq.w, cq.h
-            );
-            let negative = clamped(p, sp) || clamped(q, sq);
-            if diff > worst.0 && !negative {
-                worst = (diff, what.clone());
-            }
-            if diff > 0.02 && negative {
-                unrepresentable.push(format!("{:.1}%: {what}", diff * 100.0));
-            } else if diff > 0.02 {
-                failures.push(format!("{:.1}%: {what}", diff * 100.0));
+        for i in 0..c.len() {
+            let (a, e) = (c[i], c[(i + 1) % c.len()]);
+            for k in 1..=3 {
+                let x = a + (e - a) * (k as f32 / 4.0);
+                for (q, pb) in scene.patches.iter().enumerate() {
+                    if q == p || pb.object != pa.object || !on_boundary(q, x) {
+                        continue;
+                    }
+                    // Each point of a pair once (a whole shared edge has it
+                    // on both sides' edges).
+                    let at = (x * 1e4).round().as_ivec3().to_array();
+                    if !seen.insert((p.min(q), p.max(q), at)) {
+                        continue;
+                    }
+                    if pa.shape.normal().dot(pb.shape.normal()) < 1f32.to_radians().cos() {
+                        creases += usize::from(pairs.insert((p.min(q), p.max(q), false)));
+                        continue;
+                    }
+                    seams += usize::from(pairs.insert((p.min(q), p.max(q), true)));
+                    let (p, q) = (p as u32, q as u32);
+                    let (sp, sq) = (params(p, x), params(q, x));
+                    let (ip, iq) = (element(p, sp), element(q, sq));
+                    if validity.is_invalid(ip) || validity.is_invalid(iq) {
+                        continue;
+                    }
+                    points += 1;
+                    let (vp, vq) = (atlas.sample(&b, p, sp), atlas.sample(&b, q, sq));
+                    let scale = vp.max_element().max(vq.max_element()).max(floor);
+                    let diff = (vp - vq).abs().max_element() / scale;
+                    let (cp, cq) = (atlas.charts[p as usize], atlas.charts[q as usize]);
+                    let what = format!(
+                        "{} ({}x{} st {sp:?}) | {} ({}x{} st {sq:?}) at {x}: {vp} vs {vq}",
+                        pa.name, cp.w, cp.h, pb.name, cq.w, cq.h
+                    );
+                    let negative = clamped(p, sp) || clamped(q, sq);
+                    if diff > worst.0 && !negative {
+                        worst = (diff, what.clone());
+                    }
+                    if diff > 0.02 && negative {
+                        unrepresentable.push(format!("{:.1}%: {what}", diff * 100.0));
+                    } else if diff > 0.02 {
+                        failures.push(format!("{:.1}%: {what}", diff * 100.0));
+                    }
+                }
             }
         }
     }
@@ -404,23 +430,19 @@ fn atrium_chart_seams_agree_within_two_percent() {
         unrepresentable.len()
     );
     eprintln!(
-        "atrium: {} elements, {} shots; {seams} seams ({creases} creases left out), {points} points; worst {:.2}% ({})",
+        "atrium ({charts:?}): {} elements, {} shots; {seams} seams ({creases} creases left out), {points} points; worst {:.2}% ({})",
         atlas.elements.len(),
         report.shots,
         worst.0 * 100.0,
         worst.1
     );
-    // Not a vacuous pass: the atrium has 1,984 seams between patches that
-    // face the same way (more when every triangle has its own chart; a
-    // parallelogram's two triangles share one since `scene/pairs.rs`, and
-    // its diagonal is no seam).
     assert!(
-        seams > 1500 && points > 3 * 1500,
-        "{seams} seams, {points} points"
+        seams > min_seams && points > 2 * min_seams,
+        "{charts:?}: {seams} seams, {points} points"
     );
     assert!(
         failures.is_empty(),
-        "{} of {points} seam points differ by more than 2%, e.g.\n{}",
+        "{charts:?}: {} of {points} seam points differ by more than 2%, e.g.\n{}",
         failures.len(),
         failures[..failures.len().min(12)].join("\n")
     );

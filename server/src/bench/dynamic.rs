@@ -47,7 +47,7 @@ use crate::gpu::{
 use crate::load::load_scene;
 use crate::metrics::accuracy_where;
 use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
-use crate::scene::{LoadOptions, Pose};
+use crate::scene::{Charts, LoadOptions, Pose};
 use crate::solver::DEFAULT_CORRECTIONS;
 use crate::validity::Validity;
 use lightwire_protocol::lightmap::Encoder;
@@ -104,8 +104,8 @@ pub struct Settings {
     /// The methods to run.
     pub methods: Vec<Method>,
     pub density_scale: f32,
-    /// Triangles that form a parallelogram share a chart (`LoadOptions`).
-    pub pair_triangles: bool,
+    /// How a mesh's triangles get charts (`LoadOptions`).
+    pub charts: Charts,
     pub progressive: ProgressiveOptions,
     pub gather: GatherOptions,
     /// Gathered correction rounds of a cross session's first solve
@@ -337,7 +337,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         path,
         LoadOptions {
             density_scale: settings.density_scale,
-            pair_triangles: settings.pair_triangles,
+            charts: settings.charts,
         },
     )?;
     let object = scene.dynamic_objects().next().with_context(|| {

@@ -15,8 +15,8 @@ use serde::Serialize;
 
 use crate::gpu::{Device, ProgressiveOptions};
 use crate::load::load_scene;
-use crate::scene::LoadOptions;
 use crate::scene::gltf::content;
+use crate::scene::{Charts, LoadOptions};
 use crate::solver::{BatchSolver, Progressive};
 
 /// One mesh's results (`--json`).
@@ -55,8 +55,8 @@ pub struct Settings {
     /// A solve stops after this long.
     pub limit: Duration,
     pub progressive: ProgressiveOptions,
-    /// Triangles that form a parallelogram share a chart (`LoadOptions`).
-    pub pair_triangles: bool,
+    /// How a mesh's triangles get charts (`LoadOptions`).
+    pub charts: Charts,
 }
 
 /// The cells per quad side that give about `triangles` triangles (`24 k²`).
@@ -84,7 +84,7 @@ pub fn run_mesh(
         &file,
         LoadOptions {
             density_scale: settings.density_scale,
-            pair_triangles: settings.pair_triangles,
+            charts: settings.charts,
         },
     )?;
     let load_seconds = started.elapsed().as_secs_f64();

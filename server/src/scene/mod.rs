@@ -140,6 +140,13 @@ pub struct Patch {
     /// that form a parallelogram and share one chart (`pairs.rs`). Mesh
     /// patches may shoot in clusters (`gpu/progressive/clusters.rs`).
     pub mesh: bool,
+    /// A quad merged from a grid of equal cells of a mesh (`pairs.rs`):
+    /// how many along `u` and `v`; `[1, 1]` otherwise. Its chart puts a
+    /// whole number of texel spacings in every cell, as each cell's own
+    /// chart would (`atlas.rs`), so that where it meets a smaller merged
+    /// chart of the same tessellation (a T-junction) their edge texels
+    /// fall on the same points and are stitched as a seam.
+    pub cells: [u32; 2],
 }
 
 impl Patch {
@@ -314,16 +321,29 @@ impl PatchShape {
     }
 }
 
+/// How a mesh's triangles are given charts (`pairs.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Charts {
+    /// Every triangle its own patch and square chart, half of it dead
+    /// (tests of the triangle paths).
+    Triangles,
+    /// Two triangles that form a parallelogram share one quad chart.
+    Pairs,
+    /// Pairs, and then quads of one surface that extend each other into a
+    /// larger parallelogram merge, as long as any two do: a tessellated
+    /// wall is one chart, as a hand-written quad is.
+    #[default]
+    Parallelograms,
+}
+
 /// Options applied while loading, for tests and benchmarks that want a
 /// coarser or finer version of a scene file.
 #[derive(Debug, Clone, Copy)]
 pub struct LoadOptions {
     /// Multiplies every texel density (scene-wide and per-surface).
     pub density_scale: f32,
-    /// Two triangles of a mesh that form a parallelogram become one quad
-    /// patch with one chart (`pairs.rs`); off, every triangle keeps its
-    /// own (tests of the triangle paths, `--no-pairing`).
-    pub pair_triangles: bool,
+    /// How a mesh's triangles get charts (`--charts`).
+    pub charts: Charts,
 }
 
 impl LoadOptions {
@@ -337,11 +357,11 @@ impl LoadOptions {
 
     /// Another density scale, and every triangle of a mesh its own patch
     /// and chart, also where two form a parallelogram (tests of the
-    /// triangle paths, `--no-pairing`).
+    /// triangle paths, `--charts triangles`).
     pub fn unpaired(density_scale: f32) -> Self {
         Self {
             density_scale,
-            pair_triangles: false,
+            charts: Charts::Triangles,
         }
     }
 }
@@ -350,7 +370,7 @@ impl Default for LoadOptions {
     fn default() -> Self {
         Self {
             density_scale: 1.0,
-            pair_triangles: true,
+            charts: Charts::default(),
         }
     }
 }

@@ -10,9 +10,14 @@
 //! (the shared edge a diagonal of it), they become one quad patch: one
 //! chart over the parallelogram, every texel on the surface, the same
 //! geometry. Wallner's system packs per-triangle lightmaps into charts
-//! of many triangles (§2); this is its smallest case, the quad. Charts of
-//! more triangles (near-planar regions, an asset's own `TEXCOORD_1`)
-//! are not built.
+//! of many triangles (§2); this is its smallest case, the quad. Then
+//! [`merge_parallelograms`] joins such quads that extend each other into
+//! larger parallelograms, as long as any two do: a wall tessellated into
+//! a grid is one chart, as a hand-written quad is, without the texels
+//! every cell's own chart repeats along its edges and without a patch
+//! (and a shot, and triangles drawn into every hemicube) per cell. Charts
+//! of triangles that tile no parallelogram (near-planar regions in
+//! general, an asset's own `TEXCOORD_1`) are not built.
 //!
 //! Pairs through an edge that is the longest of both triangles (a quad
 //! cut along its diagonal) are taken first, so that a grid of cells
@@ -28,7 +33,7 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3};
 
 use super::texture::AlbedoMap;
-use super::{Patch, PatchShape};
+use super::{Charts, Patch, PatchShape};
 
 /// The fourth corner lies within this fraction of the shared edge's length
 /// of where the parallelogram puts it (or within the f32 rounding of the
@@ -263,6 +268,209 @@ pub fn pair_triangles(patches: Vec<Patch>) -> Vec<Patch> {
         .collect()
 }
 
+/// A quad's corners counter-clockwise from the front: `origin`,
+/// `origin + u`, `origin + u + v`, `origin + v`, at patch parameters
+/// (0, 0), (1, 0), (1, 1), (0, 1).
+const QUAD_ST: [(f32, f32); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+
+fn mergeable(p: &Patch) -> Option<[Vec3; 4]> {
+    match p.shape {
+        PatchShape::Quad { origin, u, v } if p.mesh => {
+            Some([origin, origin + u, origin + u + v, origin + v])
+        }
+        _ => None,
+    }
+}
+
+/// The parallelogram of mesh quads `a` and `b` if `b` holds `a`'s edge `ka`
+/// (corners `ka`, `ka + 1`) as a whole edge and the two extend each other
+/// across it (their sides through the edge's ends are collinear), with
+/// texture coordinates affine over the union. It keeps `a`'s name.
+fn extend(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
+    let ca = mergeable(a)?;
+    let cb = mergeable(b)?;
+    let (p, q) = (ca[ka], ca[(ka + 1) % 4]);
+    // `b` runs the edge the other way: q, p, then p + w_b, q + w_b.
+    let kb = (0..4).find(|&k| grid.same(cb[k], q) && grid.same(cb[(k + 1) % 4], p))?;
+    let w_a = ca[(ka + 3) % 4] - p;
+    let w_b = cb[(kb + 2) % 4] - p;
+    if w_a.dot(w_b) >= 0.0 {
+        return None;
+    }
+    // `w_b` on the line of `w_a` (then `b` lies in `a`'s plane, beyond the
+    // edge), within the tolerance of `join` at the sides' scale.
+    let magnitude = ca
+        .iter()
+        .chain(&cb)
+        .map(|c| c.abs().max_element())
+        .fold(0.0f32, f32::max);
+    let tolerance = (PARALLELOGRAM_TOLERANCE * w_b.length()).max(8.0 * f32::EPSILON * magnitude);
+    let along = w_a.normalize_or_zero();
+    if (w_b - along * w_b.dot(along)).length() > tolerance {
+        return None;
+    }
+    let albedo_map = match (&a.albedo_map, &b.albedo_map) {
+        (None, None) => None,
+        (Some(ma), Some(mb)) if Arc::ptr_eq(&ma.texture, &mb.texture) => {
+            let uv_a = |k: usize| {
+                let (s, t) = QUAD_ST[k % 4];
+                ma.uv_at(s, t)
+            };
+            let uv_b = |k: usize| {
+                let (s, t) = QUAD_ST[k % 4];
+                mb.uv_at(s, t)
+            };
+            // Agree on the edge, and change across it at one rate.
+            let c = w_b.length() / w_a.length();
+            let across_a = uv_a(ka + 3) - uv_a(ka);
+            let across_b = uv_b(kb + 2) - uv_b(kb + 1);
+            if !(close_uv(uv_a(ka), uv_b(kb + 1))
+                && close_uv(uv_a(ka + 1), uv_b(kb))
+                && close_uv(across_b + uv_a(ka), uv_a(ka) - across_a * c))
+            {
+                return None;
+            }
+            Some(AlbedoMap {
+                texture: Arc::clone(&ma.texture),
+                uv: [uv_b(kb + 2), uv_b(kb + 3), uv_a(ka + 2)],
+            })
+        }
+        _ => return None,
+    };
+    // Cells: `a`'s and `b`'s along the edge must match in number (then in
+    // size) and be as deep across it for the union to be a grid of equal
+    // cells; otherwise the union counts as one cell.
+    let (a_edge, a_across) = (a.cells[ka % 2], a.cells[1 - ka % 2]);
+    let (b_edge, b_across) = (b.cells[kb % 2], b.cells[1 - kb % 2]);
+    let (depth_a, depth_b) = (
+        w_a.length() / a_across.max(1) as f32,
+        w_b.length() / b_across.max(1) as f32,
+    );
+    let uniform = a_edge == b_edge && (depth_a - depth_b).abs() <= 1e-4 * depth_a.max(depth_b);
+    let cells = if uniform {
+        [a_edge, a_across.saturating_add(b_across)]
+    } else {
+        [1, 1]
+    };
+    Some(Patch {
+        cells,
+        // Corners p + w_b, q + w_b, q + w_a, p + w_a counter-clockwise, as
+        // `a`'s p, q, q + w_a, p + w_a are.
+        shape: PatchShape::Quad {
+            origin: p + w_b,
+            u: q - p,
+            v: w_a - w_b,
+        },
+        albedo_map,
+        ..a.clone()
+    })
+}
+
+/// Joins mesh quads (pairs from [`pair_triangles`]) of one surface that
+/// extend each other across a whole shared edge into one parallelogram, as
+/// long as any two do: a grid of cells on a wall becomes one chart, as a
+/// hand-written quad is. A quad grows across the edges parallel to the one
+/// it last grew across first (a row of cells becomes a strip, then strips
+/// of equal length join), so that a grid ends as one parallelogram in any
+/// order. The merged patch is named after its first triangle and how many
+/// it holds (`node/mesh/0/6:24`) and takes the place of the earlier of each
+/// two it joins; other patches are kept as they are.
+pub fn merge_parallelograms(patches: Vec<Patch>) -> Vec<Patch> {
+    let (lo, hi) = patches
+        .iter()
+        .filter_map(mergeable)
+        .flatten()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(c), hi.max(c))
+        });
+    if lo.x > hi.x {
+        return patches;
+    }
+    let quantum = ((hi - lo).max_element() * CORNER_QUANTUM).max(f32::MIN_POSITIVE);
+    let grid = Grid { lo, quantum };
+    type EdgeKey = (Group, Key, Key);
+    let edge_keys = |p: &Patch| -> Vec<EdgeKey> {
+        let Some(c) = mergeable(p) else {
+            return Vec::new();
+        };
+        let g = group(p);
+        (0..4)
+            .map(|k| (g.clone(), grid.key(c[k]), grid.key(c[(k + 1) % 4])))
+            .collect()
+    };
+    let mut edges: HashMap<EdgeKey, Vec<usize>> = HashMap::new();
+    let mut live: Vec<Option<Patch>> = patches.into_iter().map(Some).collect();
+    for (i, p) in live.iter().enumerate() {
+        for key in edge_keys(p.as_ref().expect("all live")) {
+            edges.entry(key).or_default().push(i);
+        }
+    }
+    let unlink = |edges: &mut HashMap<EdgeKey, Vec<usize>>, p: &Patch, i: usize| {
+        for key in edge_keys(p) {
+            if let Some(v) = edges.get_mut(&key) {
+                v.retain(|&j| j != i);
+            }
+        }
+    };
+    // Triangles per live patch (a mesh quad is a pair, `pair_triangles`).
+    let mut counts = vec![2usize; live.len()];
+    // The first quad that extends `live[cur]`, and their union. Edges 0
+    // and 2 first: after a merge they are the ones parallel to the edge just
+    // crossed (the merged frame's `u` runs along it).
+    let find = |live: &[Option<Patch>], edges: &HashMap<EdgeKey, Vec<usize>>, cur: usize| {
+        let a = live[cur].as_ref()?;
+        let c = mergeable(a)?;
+        let g = group(a);
+        [0, 2, 1, 3].into_iter().find_map(|ka| {
+            let (from, to) = (grid.keys(c[(ka + 1) % 4]), grid.keys(c[ka]));
+            from.iter()
+                .flat_map(|f| to.iter().map(move |t| (*f, *t)))
+                .filter_map(|(f, t)| edges.get(&(g.clone(), f, t)))
+                .flatten()
+                .find_map(|&j| {
+                    let b = live[j].as_ref()?;
+                    (j != cur).then(|| extend(a, ka, b, &grid).map(|m| (j, m)))?
+                })
+        })
+    };
+    for i in 0..live.len() {
+        let mut cur = i;
+        while let Some((j, mut merged)) = find(&live, &edges, cur) {
+            let (Some(a), Some(b)) = (live[cur].take(), live[j].take()) else {
+                break;
+            };
+            unlink(&mut edges, &a, cur);
+            unlink(&mut edges, &b, j);
+            let at = cur.min(j);
+            counts[at] = counts[cur] + counts[j];
+            let first = if at == cur { &a } else { &b };
+            let (dir, last) = first.name.rsplit_once('/').unwrap_or(("", &first.name));
+            let head = last.split(['+', ':']).next().unwrap_or(last);
+            merged.name = if dir.is_empty() {
+                format!("{head}:{}", counts[at])
+            } else {
+                format!("{dir}/{head}:{}", counts[at])
+            };
+            for key in edge_keys(&merged) {
+                edges.entry(key).or_default().push(at);
+            }
+            live[at] = Some(merged);
+            cur = at;
+        }
+    }
+    live.into_iter().flatten().collect()
+}
+
+/// The patches of a scene with its meshes' triangles given charts as
+/// `charts` asks.
+pub fn charts(patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
+    match charts {
+        Charts::Triangles => patches,
+        Charts::Pairs => pair_triangles(patches),
+        Charts::Parallelograms => merge_parallelograms(pair_triangles(patches)),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -278,6 +486,7 @@ mod tests {
             shape: PatchShape::triangle(a, b, c),
             albedo_map: None,
             mesh: true,
+            cells: [1, 1],
         }
     }
 
@@ -437,5 +646,163 @@ mod tests {
             m.uv[2] += Vec2::new(0.2, 0.0);
         }
         assert_eq!(pair_triangles(bent).len(), 5);
+    }
+
+    /// Patch parameters of `p` on the quad `q` (in its plane).
+    fn st(q: &Patch, p: Vec3) -> (f32, f32) {
+        let (o, u, v) = q.shape.frame();
+        let n = u.cross(v);
+        // Solve p - o = s u + t v in the plane.
+        let d = p - o;
+        let s = d.cross(v).dot(n) / n.length_squared();
+        let t = u.cross(d).dot(n) / n.length_squared();
+        (s, t)
+    }
+
+    fn covered_once(charts: &[Patch], triangles: &[Patch]) {
+        for t in triangles {
+            let c = t.shape.centre();
+            let on: Vec<&str> = charts
+                .iter()
+                .filter(|q| {
+                    let (s, w) = st(q, c);
+                    (q.shape.centre() - c).dot(q.shape.normal()).abs() < 1e-4
+                        && q.shape.contains(s, w)
+                })
+                .map(|q| q.name.as_str())
+                .collect();
+            assert_eq!(on.len(), 1, "{} lies on {on:?}", t.name);
+        }
+    }
+
+    #[test]
+    fn a_grid_of_cells_merges_into_one_parallelogram_facing_as_before() {
+        let triangles = grid(4);
+        let charts = super::charts(triangles.clone(), Charts::Parallelograms);
+        assert_eq!(
+            charts.len(),
+            1,
+            "{:?}",
+            charts.iter().map(|q| &q.name).collect::<Vec<_>>()
+        );
+        let q = &charts[0];
+        assert_eq!(q.name, "m/0:32");
+        assert!(q.mesh);
+        assert!((q.shape.area() - 16.0).abs() < 1e-4);
+        assert!(q.shape.normal().dot(Vec3::Y) > 0.999);
+        let (_, u, v) = q.shape.frame();
+        assert!((u.length() - 4.0).abs() < 1e-5 && (v.length() - 4.0).abs() < 1e-5);
+        covered_once(&charts, &triangles);
+        // `Charts::Pairs` stops at the cells, `Charts::Triangles` before.
+        assert_eq!(super::charts(triangles.clone(), Charts::Pairs).len(), 16);
+        assert_eq!(
+            super::charts(triangles.clone(), Charts::Triangles),
+            triangles
+        );
+    }
+
+    #[test]
+    fn an_l_shape_merges_into_parallelograms_that_cover_each_triangle_once() {
+        // A 3 x 3 grid without its last cell: no single parallelogram.
+        let mut triangles = grid(3);
+        triangles.truncate(16);
+        let charts = super::charts(triangles.clone(), Charts::Parallelograms);
+        assert!((2..=3).contains(&charts.len()), "{} charts", charts.len());
+        assert!((area(&charts) - 8.0).abs() < 1e-4);
+        covered_once(&charts, &triangles);
+    }
+
+    #[test]
+    fn quads_that_do_not_extend_each_other_stay_apart() {
+        let cells = pair_triangles(grid(2));
+        assert_eq!(cells.len(), 4);
+        // Another material on one cell: the other three make an L, which
+        // merges into two.
+        let mut two = cells.clone();
+        two[3].material = 1;
+        let merged = merge_parallelograms(two);
+        assert_eq!(merged.len(), 3);
+        assert!(
+            merged
+                .iter()
+                .any(|q| q.material == 1 && q.name == cells[3].name)
+        );
+        // A cell folded up along its shared edges: not in the plane.
+        let mut folded = cells.clone();
+        let (o, u, v) = folded[1].shape.frame();
+        folded[1].shape = PatchShape::Quad {
+            origin: o,
+            u: u + Vec3::Y * 0.5,
+            v,
+        };
+        let merged = merge_parallelograms(folded.clone());
+        assert!(merged.iter().any(|q| q.name == folded[1].name));
+        // A half-width cell beside a whole one shares part of an edge only.
+        let half = vec![
+            cells[0].clone(),
+            Patch {
+                name: "m/x".into(),
+                shape: PatchShape::Quad {
+                    origin: Vec3::new(1.0, 0.0, 0.0),
+                    u: Vec3::new(1.0, 0.0, 0.0),
+                    v: Vec3::new(0.0, 0.0, -0.5),
+                },
+                ..cells[0].clone()
+            },
+        ];
+        assert_eq!(merge_parallelograms(half).len(), 2);
+        // Hand-written quads (not of a mesh) never merge.
+        let mut hand = cells;
+        for q in &mut hand {
+            q.mesh = false;
+        }
+        assert_eq!(merge_parallelograms(hand.clone()), hand);
+    }
+
+    #[test]
+    fn a_texture_merges_only_when_affine_and_then_reads_the_same_everywhere() {
+        let texture = Arc::new(
+            Texture::from_linear(
+                "checker",
+                2,
+                2,
+                vec![Vec3::ZERO, Vec3::ONE, Vec3::ONE, Vec3::ZERO],
+                [Wrap::Repeat; 2],
+                Filter::Nearest,
+            )
+            .expect("texture"),
+        );
+        let at = |q: Vec3| Vec2::new(q.x, -q.z) * 0.3 + Vec2::new(0.1, 0.2);
+        let mut cells = grid(3);
+        for p in &mut cells {
+            let (o, u, v) = p.shape.frame();
+            p.albedo_map = Some(AlbedoMap {
+                texture: Arc::clone(&texture),
+                uv: [at(o), at(o + u), at(o + u + v)],
+            });
+        }
+        let charts = super::charts(cells.clone(), Charts::Parallelograms);
+        assert_eq!(charts.len(), 1);
+        let q = &charts[0];
+        let map = q.albedo_map.as_ref().expect("keeps its texture");
+        for tri in &cells {
+            let (to, tu, tv) = tri.shape.frame();
+            let p = to + tu * 0.6 + tv * 0.3;
+            let (s, w) = st(q, p);
+            let want = tri.albedo_map.as_ref().expect("textured").uv_at(0.6, 0.3);
+            assert!((map.uv_at(s, w) - want).length() < 1e-5, "{}", tri.name);
+        }
+        // The coordinates scaled on one cell (still affine on it, as a pair
+        // needs): it stays apart; the rest merge around it.
+        let mut bent = cells;
+        for tri in &mut bent[8..10] {
+            if let Some(m) = tri.albedo_map.as_mut() {
+                m.uv = m.uv.map(|c| c * 2.0);
+            }
+        }
+        let merged = super::charts(bent.clone(), Charts::Parallelograms);
+        assert!(merged.len() >= 3, "{} charts", merged.len());
+        assert!(merged.iter().any(|q| q.name == "m/8+9"));
+        covered_once(&merged, &bent);
     }
 }

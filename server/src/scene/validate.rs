@@ -284,6 +284,7 @@ pub fn validate(
                     shape,
                     albedo_map: None,
                     mesh: from_mesh,
+                    cells: [1, 1],
                 });
             }
         }
@@ -347,9 +348,7 @@ pub fn validate(
     if !c.issues.is_empty() {
         return Err(c.issues);
     }
-    if options.pair_triangles {
-        patches = super::pairs::pair_triangles(patches);
-    }
+    patches = super::pairs::charts(patches, options.charts);
     Ok(Scene {
         name: raw.name,
         description: raw.description,
@@ -706,6 +705,7 @@ fn merge_import(
                 shape: PatchShape::triangle(a, b, d),
                 albedo_map,
                 mesh: true,
+                cells: [1, 1],
             });
         }
     }
@@ -787,8 +787,6 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
     if !c.issues.is_empty() {
         return Err(c.issues);
     }
-    if options.pair_triangles {
-        scene.patches = super::pairs::pair_triangles(std::mem::take(&mut scene.patches));
-    }
+    scene.patches = super::pairs::charts(std::mem::take(&mut scene.patches), options.charts);
     Ok(scene)
 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use lightwire_server::bench;
 use lightwire_server::gpu;
-use lightwire_server::scene::{LoadOptions, Scene};
+use lightwire_server::scene::{Charts, LoadOptions, Scene};
 
 /// `lightwire bench codec`'s arguments.
 #[derive(clap::Args)]
@@ -265,7 +265,7 @@ pub(crate) fn bench_solve_command(
     adapter: Option<&str>,
     (hemicube_resolution, gather_resolution): (u32, u32),
     (shared_batch_ratio, cluster_triangles): (Option<f32>, bool),
-    pair_triangles: bool,
+    charts: Charts,
 ) -> Result<()> {
     if scenes.is_empty() {
         scenes = bench_scenes();
@@ -292,7 +292,7 @@ pub(crate) fn bench_solve_command(
     for path in &scenes {
         let load = LoadOptions {
             density_scale,
-            pair_triangles,
+            charts,
         };
         let result = bench::solve_scene(&gpu, path, load, options, gather_options)
             .with_context(|| format!("benchmarking {}", path.display()))?;

@@ -11,6 +11,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use lightwire_server::gpu;
+use lightwire_server::scene::Charts;
 
 use bake::{SolveSettings, SolverKind, bake_command};
 use bench::{
@@ -133,10 +134,11 @@ enum BenchCommand {
         /// in clusters of near-coplanar triangles.
         #[arg(long)]
         no_clusters: bool,
-        /// Give every triangle of a mesh its own chart, also where two form
-        /// a parallelogram (the import before pairing).
-        #[arg(long)]
-        no_pairing: bool,
+        /// How a mesh's triangles get charts: each its own (`triangles`),
+        /// two that form a parallelogram one (`pairs`), or pairs merged
+        /// into the largest parallelograms they tile (`parallelograms`).
+        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        charts: Charts,
     },
     /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
     /// rotates a few degrees per frame; milliseconds per frame of gather,
@@ -219,10 +221,11 @@ enum BenchCommand {
         /// first solve (0: none) [default: 2].
         #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
         corrections: Option<u32>,
-        /// Give every triangle of a mesh its own chart, also where two form
-        /// a parallelogram (the import before pairing).
-        #[arg(long)]
-        no_pairing: bool,
+        /// How a mesh's triangles get charts: each its own (`triangles`),
+        /// two that form a parallelogram one (`pairs`), or pairs merged
+        /// into the largest parallelograms they tile (`parallelograms`).
+        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        charts: Charts,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
     /// Cornell boxes of about the given triangle counts, written as .glb,
@@ -257,10 +260,11 @@ enum BenchCommand {
         /// near-coplanar triangles (the solver before clusters).
         #[arg(long)]
         no_clusters: bool,
-        /// Give every triangle its own chart, also where two form a
-        /// parallelogram (the import before pairing).
-        #[arg(long)]
-        no_pairing: bool,
+        /// How a mesh's triangles get charts: each its own (`triangles`),
+        /// two that form a parallelogram one (`pairs`), or pairs merged
+        /// into the largest parallelograms they tile (`parallelograms`).
+        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        charts: Charts,
     },
     /// Per scene and transform script: records the solver's lightmap at
     /// every version (the script sampled at --rate), then runs the stream
@@ -342,7 +346,7 @@ fn main() -> ExitCode {
                     gather_resolution,
                     shared_batch_ratio,
                     no_clusters,
-                    no_pairing,
+                    charts,
                 },
         } => bench_solve_command(
             scenes,
@@ -351,7 +355,7 @@ fn main() -> ExitCode {
             adapter.as_deref(),
             (hemicube_resolution, gather_resolution),
             (shared_batch_ratio, !no_clusters),
-            !no_pairing,
+            charts,
         ),
         Command::Bench {
             what:
@@ -375,7 +379,7 @@ fn main() -> ExitCode {
                     back_resolution,
                     back_samples,
                     corrections,
-                    no_pairing,
+                    charts,
                 },
         } => bench_dynamic_command(
             scenes,
@@ -385,7 +389,7 @@ fn main() -> ExitCode {
                 degrees_per_frame: degrees,
                 methods,
                 density_scale,
-                pair_triangles: !no_pairing,
+                charts,
                 progressive: {
                     let defaults = gpu::ProgressiveOptions::default();
                     gpu::ProgressiveOptions {
@@ -424,7 +428,7 @@ fn main() -> ExitCode {
                     adapter,
                     shared_batch_ratio,
                     no_clusters,
-                    no_pairing,
+                    charts,
                 },
         } => bench_meshes_command(
             &triangles,
@@ -437,7 +441,7 @@ fn main() -> ExitCode {
                     cluster_triangles: !no_clusters,
                     ..Default::default()
                 },
-                pair_triangles: !no_pairing,
+                charts,
             },
             &out,
             json,
