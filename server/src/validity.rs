@@ -386,14 +386,24 @@ fn encloses(
     let inward = (centre - x).normalize_or_zero();
     let origin = x + (n + inward) * (OFFSET * extent);
     let side = (RAYS as f64).sqrt() as usize;
-    let back = crate::raycast::cosine_grid(n, side)
-        .filter(|&d| {
+    let total = side * side;
+    // Invalid when more than `limit` rays see backs; decided as soon as the
+    // rays left cannot change the answer (about half of them for a texel
+    // in the open).
+    let limit = (BACK_FACE_LIMIT * total as f64).floor() as usize;
+    let (mut back, mut cast) = (0, 0);
+    for d in crate::raycast::cosine_grid(n, side) {
+        if back > limit || back + (total - cast) <= limit {
+            break;
+        }
+        cast += 1;
+        back += usize::from(
             caster
                 .closest_hit(origin, d, f64::INFINITY)
-                .is_some_and(|hit| !hit.front)
-        })
-        .count();
-    back as f64 > BACK_FACE_LIMIT * (side * side) as f64
+                .is_some_and(|hit| !hit.front),
+        );
+    }
+    back > limit
 }
 
 #[cfg(test)]

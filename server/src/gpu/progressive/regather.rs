@@ -120,6 +120,8 @@ impl ProgressiveSolver {
             Lookup::Bilinear,
         );
         let zero = std::iter::repeat_n(Vec3::ZERO, covered.len());
+        let (mut radiosity, mut unshot) = (radiosity, unshot);
+        let mut changed: Vec<usize> = Vec::with_capacity(elements.len() + covered.len());
         for (&i, b) in elements
             .iter()
             .chain(&covered)
@@ -127,18 +129,31 @@ impl ProgressiveSolver {
         {
             let (old, u) = (radiosity[i], unshot[i]);
             let delta = b - Vec3::new(old[0], old[1], old[2]);
-            let offset = i as u64 * 16;
             seen[i] = [b.x, b.y, b.z, 0.0];
-            self.queue.write_buffer(
-                &self.buffers.radiosity,
-                offset,
-                bytemuck::bytes_of(&[b.x, b.y, b.z, old[3]]),
-            );
-            self.queue.write_buffer(
-                &self.buffers.unshot,
-                offset,
-                bytemuck::bytes_of(&[u[0] + delta.x, u[1] + delta.y, u[2] + delta.z, u[3]]),
-            );
+            radiosity[i] = [b.x, b.y, b.z, old[3]];
+            unshot[i] = [u[0] + delta.x, u[1] + delta.y, u[2] + delta.z, u[3]];
+            changed.push(i);
+        }
+        // One write per run of consecutive elements (a chart's row along
+        // the moved object), not two per element.
+        changed.sort_unstable();
+        let mut k = 0;
+        while k < changed.len() {
+            let start = changed[k];
+            let mut end = start + 1;
+            while k + 1 < changed.len() && changed[k + 1] == end {
+                k += 1;
+                end += 1;
+            }
+            k += 1;
+            let offset = start as u64 * 16;
+            for (buffer, values) in [
+                (&self.buffers.radiosity, &radiosity),
+                (&self.buffers.unshot, &unshot),
+            ] {
+                self.queue
+                    .write_buffer(buffer, offset, bytemuck::cast_slice(&values[start..end]));
+            }
         }
         self.gather_contacts(&contacts, &seen);
         self.profile.stop(gathering, Stage::Regather);
