@@ -212,14 +212,19 @@ fn texels_along(length: f32, density: f32) -> u32 {
 /// A quad merged from `n` equal cells along an edge (`Patch::cells`) gets
 /// `n` times the spacings one cell's chart would have, plus one: its edge
 /// texels fall where the cells' would, also where it meets a smaller merged
-/// chart of the same tessellation.
+/// chart of the same tessellation. Not when a cell is shorter than a texel
+/// spacing at the density: a whole spacing per cell would then hold more
+/// texels than the density asks for (up to one per cell of a fine mesh), so
+/// such a chart is sampled at the density like any quad, and where it meets
+/// another along part of an edge their texels are not stitched.
 fn chart_size(patch: &Patch) -> (u32, u32) {
     let along = |length: f32, cells: u32| {
-        if cells <= 1 {
+        let cell = length / cells.max(1) as f32;
+        if cells <= 1 || cell * patch.texel_density < 1.0 {
             return texels_along(length, patch.texel_density);
         }
-        let cell = texels_along(length / cells as f32, patch.texel_density) - 1;
-        cells.saturating_mul(cell).saturating_add(1)
+        let spacings = texels_along(cell, patch.texel_density) - 1;
+        cells.saturating_mul(spacings).saturating_add(1)
     };
     match patch.shape {
         PatchShape::Quad { u, v, .. } => (
@@ -770,19 +775,13 @@ mod tests {
         );
     }
 
-    /// An L-shaped floor of 0.37 m cells (a 3 x 3 grid without a corner
-    /// cell), at a density that puts no whole number of texels in a cell:
-    /// its triangles merge into parallelograms that meet along part of an
-    /// edge (`scene/pairs.rs`), and every edge texel of one that lies on
-    /// the other's edge is a seam texel shared with it, as the cells' own
-    /// charts would have been.
-    #[test]
-    fn merged_charts_meeting_at_a_t_junction_share_their_edge_texels() {
-        let c = 0.37f32;
+    /// A floor of `n` x `n` square cells of side `c` cut along a diagonal
+    /// (without cell `skip`), at 6.7 texels per metre.
+    fn mesh_floor(c: f32, n: u32, skip: Option<(u32, u32)>) -> Scene {
         let (mut positions, mut indices) = (Vec::new(), Vec::new());
-        for j in 0..3u32 {
-            for i in 0..3u32 {
-                if (i, j) == (2, 2) {
+        for j in 0..n {
+            for i in 0..n {
+                if Some((i, j)) == skip {
                     continue;
                 }
                 let k = positions.len() as u32;
@@ -793,7 +792,7 @@ mod tests {
                 indices.extend([k, k + 1, k + 2, k, k + 2, k + 3]);
             }
         }
-        let text = format!(
+        scene(&format!(
             r#"{{
             "name": "t",
             "lightmap": {{ "texel_density": 6.7 }},
@@ -802,8 +801,31 @@ mod tests {
                 "positions": [{}], "indices": {indices:?} }} }} ]
         }}"#,
             positions.join(", ")
-        );
-        let scene = scene(&text);
+        ))
+    }
+
+    /// Cells shorter than a texel spacing: the merged chart is sampled at
+    /// the density, as a hand-written quad of its size (4 texels along
+    /// 0.4 m at 6.7 per metre), not a whole spacing per cell (5).
+    #[test]
+    fn a_merged_chart_of_cells_finer_than_a_texel_keeps_the_density() {
+        let scene = mesh_floor(0.1, 4, None);
+        assert_eq!(scene.patches.len(), 1);
+        assert_eq!(scene.patches[0].cells, [4, 4]);
+        let layout = plan(&scene).unwrap_or_else(|e| panic!("{e}"));
+        let chart = layout.charts[0];
+        assert_eq!((chart.w, chart.h), (4, 4));
+    }
+
+    /// An L-shaped floor of 0.37 m cells (a 3 x 3 grid without a corner
+    /// cell), at a density that puts no whole number of texels in a cell:
+    /// its triangles merge into parallelograms that meet along part of an
+    /// edge (`scene/pairs.rs`), and every edge texel of one that lies on
+    /// the other's edge is a seam texel shared with it, as the cells' own
+    /// charts would have been.
+    #[test]
+    fn merged_charts_meeting_at_a_t_junction_share_their_edge_texels() {
+        let scene = mesh_floor(0.37, 3, Some((2, 2)));
         assert!(
             (2..=3).contains(&scene.patches.len()),
             "{:?}",

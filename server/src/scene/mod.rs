@@ -145,7 +145,8 @@ pub struct Patch {
     /// whole number of texel spacings in every cell, as each cell's own
     /// chart would (`atlas.rs`), so that where it meets a smaller merged
     /// chart of the same tessellation (a T-junction) their edge texels
-    /// fall on the same points and are stitched as a seam.
+    /// fall on the same points and are stitched as a seam (unless a cell
+    /// is shorter than a texel spacing, `atlas::chart_size`).
     pub cells: [u32; 2],
 }
 
