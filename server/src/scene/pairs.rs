@@ -805,4 +805,79 @@ mod tests {
         assert!(merged.iter().any(|q| q.name == "m/8+9"));
         covered_once(&merged, &bent);
     }
+
+    mod random {
+        use super::*;
+        use proptest::prelude::*;
+
+        /// A grid of `n` x `m` cells of `sx` x `sz` metres, far from the
+        /// origin, each cut along a random diagonal, some left out, some
+        /// of another material, the triangles in a random order.
+        fn floor(n: u32, m: u32, (sx, sz): (f32, f32), seed: u64) -> Vec<Patch> {
+            let mut rng = fastrand::Rng::with_seed(seed);
+            let at = |i: u32, j: u32| Vec3::new(30.0 + i as f32 * sx, 2.0, -(j as f32) * sz);
+            let mut out = Vec::new();
+            for j in 0..m {
+                for i in 0..n {
+                    if rng.f32() < 0.15 {
+                        continue;
+                    }
+                    let material = u32::from(rng.f32() < 0.2);
+                    let c = [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)];
+                    let k = if rng.bool() { 0 } else { 1 };
+                    for t in [[c[k], c[k + 1], c[k + 2]], [c[k], c[k + 2], c[(k + 3) % 4]]] {
+                        let name = format!("m/{}", out.len());
+                        out.push(Patch {
+                            material,
+                            ..triangle(&name, t[0], t[1], t[2])
+                        });
+                    }
+                }
+            }
+            rng.shuffle(&mut out);
+            out
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(64))]
+            /// Whatever the grid's holes, materials and order: every
+            /// triangle lies on exactly one chart of its material, the
+            /// charts cover the same area, hold every triangle once, and a
+            /// chart of equal cells is as large as its cells.
+            #[test]
+            fn merged_charts_cover_every_triangle_once(
+                n in 1u32..7, m in 1u32..7, sx in 0.05f32..2.0, sz in 0.05f32..2.0, seed in any::<u64>()
+            ) {
+                let triangles = floor(n, m, (sx, sz), seed);
+                let charts = super::super::charts(triangles.clone(), Charts::Parallelograms);
+                let total: f32 = area(&triangles);
+                prop_assert!((area(&charts) - total).abs() <= 1e-4 * total.max(1e-3));
+                for t in &triangles {
+                    let c = t.shape.centre();
+                    let on: Vec<&Patch> = charts
+                        .iter()
+                        .filter(|q| {
+                            let (s, w) = st(q, c);
+                            q.shape.contains(s, w)
+                        })
+                        .collect();
+                    prop_assert_eq!(on.len(), 1, "{} on {} charts", t.name, on.len());
+                    prop_assert_eq!(on[0].material, t.material);
+                }
+                let held: usize = charts
+                    .iter()
+                    .map(|q| match (q.shape.is_triangle(), q.name.rsplit_once(':')) {
+                        (true, _) => 1,
+                        (false, Some((_, k))) => k.parse().unwrap_or(0),
+                        (false, None) => 2,
+                    })
+                    .sum();
+                prop_assert_eq!(held, triangles.len());
+                for q in &charts {
+                    let cells = (q.cells[0] * q.cells[1]) as f32;
+                    prop_assert!((q.shape.area() - cells * sx * sz).abs() <= 1e-3 * q.shape.area());
+                }
+            }
+        }
+    }
 }
