@@ -419,6 +419,50 @@ fn bench_meshes_reports_each_mesh() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `bake --charts` chooses a mesh's charts: the triangulated Cornell box's
+/// twelve faces are two triangles each, one chart per face by default and
+/// one per triangle with `--charts triangles`.
+#[test]
+fn bake_charts_choose_a_meshs_charts() {
+    let scene = repo().join("scenes/meshes/cornell-large.glb");
+    for (charts, surfaces) in [("parallelograms", 12), ("triangles", 24)] {
+        let out_dir = std::env::temp_dir().join(format!(
+            "lightwire-bake-charts-{charts}-{}",
+            std::process::id()
+        ));
+        let out = lightwire(&[
+            "bake",
+            "--scene",
+            scene.to_str().expect("utf-8"),
+            "--solver",
+            "progressive",
+            "--density-scale",
+            "0.1",
+            "--tolerance",
+            "0.05",
+            "--corrections",
+            "0",
+            "--charts",
+            charts,
+            "--out",
+            out_dir.to_str().expect("utf-8"),
+        ]);
+        assert!(out.status.success(), "{charts}: {}", text(&out.stderr));
+        let atlas: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out_dir.join("atlas.json")).expect("written"),
+        )
+        .expect("valid JSON");
+        let n = atlas["surfaces"].as_array().expect("list").len();
+        assert_eq!(n, surfaces, "{charts}");
+        std::fs::remove_dir_all(&out_dir).ok();
+    }
+    let bad = lightwire(&[
+        "bake", "--scene", "x.json", "--out", "x", "--charts", "quads",
+    ]);
+    assert!(!bad.status.success());
+    assert!(text(&bad.stderr).contains("quads"), "{}", text(&bad.stderr));
+}
+
 /// User errors on the command line are reported without a panic.
 #[test]
 fn command_line_errors_are_clear() {

@@ -323,7 +323,8 @@ impl PatchShape {
 }
 
 /// How a mesh's triangles are given charts (`pairs.rs`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Charts {
     /// Every triangle its own patch and square chart, half of it dead
     /// (tests of the triangle paths).

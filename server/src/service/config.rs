@@ -17,6 +17,7 @@
 //! epsilon = 0.015625                  # error budget of the stream (PROTOCOL.md §5)
 //! settle_ms = 500                     # idle time before waiting texels are sent
 //! density_scale = 1.0
+//! charts = "parallelograms"           # a mesh's charts: triangles | pairs | parallelograms
 //! dev_mode = false                    # no tokens: everyone is admin (loud)
 //! allowed_origins = ["https://dash.example"]
 //! max_message_bytes = 4096
@@ -134,6 +135,8 @@ pub struct Config {
     pub budget_ms: f64,
     /// Multiplies every texel density (coarser or finer lightmaps).
     pub density_scale: f32,
+    /// How a mesh's triangles get charts (`scene::Charts`).
+    pub charts: crate::scene::Charts,
     /// Serve without tokens; every client is an admin. Loud on purpose.
     pub dev_mode: bool,
     /// Browser origins allowed to open WebSockets, besides the server's
@@ -238,6 +241,7 @@ impl Default for Config {
             tick_hz: 60.0,
             budget_ms: 8.0,
             density_scale: 1.0,
+            charts: crate::scene::Charts::default(),
             dev_mode: false,
             allowed_origins: Vec::new(),
             max_message_bytes: 4096,
@@ -529,5 +533,21 @@ mod tests {
     fn config_files_reject_unknown_keys() {
         let err = toml::from_str::<Config>("listne = \"1.2.3.4:5\"").expect_err("typo");
         assert!(err.to_string().contains("listne"), "{err}");
+    }
+
+    #[test]
+    fn charts_are_parallelograms_by_default_and_set_by_name() {
+        use crate::scene::Charts;
+        assert_eq!(Config::default().charts, Charts::Parallelograms);
+        for (name, charts) in [
+            ("triangles", Charts::Triangles),
+            ("pairs", Charts::Pairs),
+            ("parallelograms", Charts::Parallelograms),
+        ] {
+            let c: Config = toml::from_str(&format!("charts = \"{name}\"")).expect(name);
+            assert_eq!(c.charts, charts);
+        }
+        let err = toml::from_str::<Config>("charts = \"quads\"").expect_err("unknown");
+        assert!(err.to_string().contains("quads"), "{err}");
     }
 }

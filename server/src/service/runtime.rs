@@ -108,7 +108,13 @@ impl SceneRuntime {
         metrics: Arc<Metrics>,
         shutdown: watch::Receiver<bool>,
     ) -> Result<Arc<Self>> {
-        let (scene, atlas) = load_scene(path, LoadOptions::scaled(config.density_scale))?;
+        let (scene, atlas) = load_scene(
+            path,
+            LoadOptions {
+                density_scale: config.density_scale,
+                charts: config.charts,
+            },
+        )?;
         // A keyframe must fit in one frame: bound it by its uncompressed
         // size plus per-tile overhead (zstd never grows data much).
         let texels = u64::from(atlas.width) * u64::from(atlas.height);

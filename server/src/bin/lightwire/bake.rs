@@ -11,7 +11,8 @@ use lightwire_server::bake::{self, BakeStats};
 pub(crate) use lightwire_server::solver::SolverKind;
 use lightwire_server::solver::{self, SolverSettings};
 
-use crate::validate::load;
+use lightwire_server::load::load_scene;
+use lightwire_server::scene::LoadOptions;
 
 /// Solver settings from the command line.
 pub(crate) struct SolveSettings {
@@ -77,7 +78,7 @@ pub(crate) fn bake_command(
     path: PathBuf,
     kind: SolverKind,
     out: PathBuf,
-    density_scale: f32,
+    load: LoadOptions,
     settings: SolveSettings,
 ) -> Result<()> {
     let tolerance = settings.tolerance;
@@ -95,7 +96,7 @@ pub(crate) fn bake_command(
         (Some(_), _) => anyhow::bail!("--spp needs --solver pathtrace"),
     }
     let started = Instant::now();
-    let (scene, atlas) = load(&path, density_scale)?;
+    let (scene, atlas) = load_scene(&path, load)?;
     let poses = scene.initial_poses();
     eprintln!(
         "baking {} ({} elements, atlas {}x{})",

@@ -49,6 +49,11 @@ enum Command {
         /// Multiply every texel density of the scene by this factor.
         #[arg(long, default_value_t = 1.0)]
         density_scale: f32,
+        /// How a mesh's triangles get charts: each its own (`triangles`),
+        /// two that form a parallelogram one (`pairs`), or pairs merged
+        /// into the largest parallelograms they tile (`parallelograms`).
+        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        charts: Charts,
         /// Reference: stop when one sweep adds less than this fraction of
         /// the emitted power. Progressive: stop when the unshot power is
         /// below this fraction of the emitted power. Gather: stop when one
@@ -311,6 +316,7 @@ fn main() -> ExitCode {
             solver,
             out,
             density_scale,
+            charts,
             tolerance,
             adapter,
             hemicube_resolution,
@@ -321,7 +327,10 @@ fn main() -> ExitCode {
             scene,
             solver,
             out,
-            density_scale,
+            lightwire_server::scene::LoadOptions {
+                density_scale,
+                charts,
+            },
             SolveSettings {
                 tolerance,
                 adapter,

@@ -35,6 +35,11 @@ pub(crate) struct ServeFlags {
     /// Multiply every texel density [default: 1].
     #[arg(long)]
     density_scale: Option<f32>,
+    /// How a mesh's triangles get charts: each its own (`triangles`), two
+    /// that form a parallelogram one (`pairs`), or pairs merged into the
+    /// parallelograms they tile [default: parallelograms].
+    #[arg(long, value_enum)]
+    charts: Option<lightwire_server::scene::Charts>,
     /// Solver per scene [default: progressive].
     #[arg(long, value_enum)]
     solver: Option<lightwire_server::service::config::SolverChoice>,
@@ -60,6 +65,9 @@ pub(crate) fn serve_command(flags: ServeFlags) -> Result<()> {
     }
     if let Some(v) = flags.density_scale {
         config.density_scale = v;
+    }
+    if let Some(v) = flags.charts {
+        config.charts = v;
     }
     if let Some(v) = flags.solver {
         config.solver = v;
