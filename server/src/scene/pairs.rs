@@ -399,12 +399,12 @@ pub fn merge_parallelograms(patches: Vec<Patch>) -> Vec<Patch> {
             .collect()
     };
     let mut edges: HashMap<EdgeKey, Vec<usize>> = HashMap::new();
-    let mut live: Vec<Option<Patch>> = patches.into_iter().map(Some).collect();
-    for (i, p) in live.iter().enumerate() {
-        for key in edge_keys(p.as_ref().expect("all live")) {
+    for (i, p) in patches.iter().enumerate() {
+        for key in edge_keys(p) {
             edges.entry(key).or_default().push(i);
         }
     }
+    let mut live: Vec<Option<Patch>> = patches.into_iter().map(Some).collect();
     let unlink = |edges: &mut HashMap<EdgeKey, Vec<usize>>, p: &Patch, i: usize| {
         for key in edge_keys(p) {
             if let Some(v) = edges.get_mut(&key) {
@@ -515,6 +515,21 @@ mod tests {
         out
     }
 
+    /// A 2 x 2 black-and-white checker, repeating, sampled nearest.
+    fn checker() -> Arc<Texture> {
+        Arc::new(
+            Texture::from_linear(
+                "checker",
+                2,
+                2,
+                vec![Vec3::ZERO, Vec3::ONE, Vec3::ONE, Vec3::ZERO],
+                [Wrap::Repeat; 2],
+                Filter::Nearest,
+            )
+            .expect("a valid 2 x 2 texture"),
+        )
+    }
+
     fn area(patches: &[Patch]) -> f32 {
         patches.iter().map(|p| p.shape.area()).sum()
     }
@@ -604,17 +619,7 @@ mod tests {
 
     #[test]
     fn a_texture_pairs_only_when_affine_and_then_reads_the_same_everywhere() {
-        let texture = Arc::new(
-            Texture::from_linear(
-                "checker",
-                2,
-                2,
-                vec![Vec3::ZERO, Vec3::ONE, Vec3::ONE, Vec3::ZERO],
-                [Wrap::Repeat; 2],
-                Filter::Nearest,
-            )
-            .expect("texture"),
-        );
+        let texture = checker();
         // Texture coordinates = 0.3 * (x, -z) at every corner: affine.
         let mut cells = grid(2);
         for p in &mut cells {
@@ -761,17 +766,7 @@ mod tests {
 
     #[test]
     fn a_texture_merges_only_when_affine_and_then_reads_the_same_everywhere() {
-        let texture = Arc::new(
-            Texture::from_linear(
-                "checker",
-                2,
-                2,
-                vec![Vec3::ZERO, Vec3::ONE, Vec3::ONE, Vec3::ZERO],
-                [Wrap::Repeat; 2],
-                Filter::Nearest,
-            )
-            .expect("texture"),
-        );
+        let texture = checker();
         let at = |q: Vec3| Vec2::new(q.x, -q.z) * 0.3 + Vec2::new(0.1, 0.2);
         let mut cells = grid(3);
         for p in &mut cells {
