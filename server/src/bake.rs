@@ -7,6 +7,9 @@
 //! - `atlas.json`: the atlas size and, per surface, its name, object, texel
 //!   rectangle and world-space corners;
 //! - `stats.json`: element counts, iterations, residual, timings, solver;
+//! - `uv-lightmaps/NN-node_mesh.exr` and `.png`: for every glTF mesh
+//!   instance that brought its own lightmap UVs (`TEXCOORD_1`), the light
+//!   resampled into them (`crate::uvmap`), listed in `atlas.json`;
 //! - `scene.glb`: the scene as glTF 2.0 with the lightmap on it
 //!   ([`scene_glb`]), which any glTF viewer shows lit and an engine loads
 //!   with its lightmap UVs (`TEXCOORD_1`).
@@ -51,7 +54,32 @@ pub struct AtlasFile {
     pub height: u32,
     pub padding: u32,
     pub surfaces: Vec<AtlasSurface>,
+    /// The lightmaps in the asset's own UVs (`uvmap`), one per glTF mesh
+    /// instance with `TEXCOORD_1`; absent when there are none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub uv_lightmaps: Vec<UvLightmapEntry>,
 }
+
+/// Per glTF mesh instance with its own lightmap UVs, in `atlas.json`.
+#[derive(Debug, Serialize)]
+pub struct UvLightmapEntry {
+    /// `node/mesh` (`scene::UvMesh::name`).
+    pub mesh: String,
+    pub object: String,
+    /// The linear lightmap and its tone-mapped view, relative to the bake's
+    /// directory.
+    pub exr: String,
+    pub png: String,
+    pub width: u32,
+    pub height: u32,
+    /// Pixels whose centre lies on a UV triangle, and those filled around
+    /// them (`uvmap::PADDING`).
+    pub covered: usize,
+    pub padded: usize,
+}
+
+/// The directory of a bake's lightmaps in the assets' own UVs.
+pub const UV_LIGHTMAPS: &str = "uv-lightmaps";
 
 /// `stats.json`.
 #[derive(Debug, Serialize)]
@@ -123,7 +151,69 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
                     .map(|c| c.to_array()),
             })
             .collect(),
+        uv_lightmaps: Vec::new(),
     }
+}
+
+/// A file name for mesh `k` called `name`: its index, then the name with
+/// anything but letters, digits, `-` and `_` made `_`.
+fn uv_lightmap_stem(k: usize, name: &str) -> String {
+    let clean: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("{k:02}-{clean}")
+}
+
+/// Writes every glTF mesh instance's lightmap in its own UVs
+/// (`uvmap::resample_all`) into `dir/uv-lightmaps/` as EXR and PNG, and
+/// returns their `atlas.json` entries.
+fn write_uv_lightmaps(
+    dir: &Path,
+    scene: &Scene,
+    atlas: &Atlas,
+    image: &[[f32; 3]],
+) -> Result<Vec<UvLightmapEntry>> {
+    if scene.uv_meshes.is_empty() {
+        return Ok(Vec::new());
+    }
+    let sub = dir.join(UV_LIGHTMAPS);
+    std::fs::create_dir_all(&sub).with_context(|| format!("creating {}", sub.display()))?;
+    let maps = crate::uvmap::resample_all(scene, atlas, image, None);
+    let mut entries = Vec::with_capacity(maps.len());
+    for (k, (mesh, map)) in scene.uv_meshes.iter().zip(&maps).enumerate() {
+        if map.unplaced > 0 {
+            bail!(
+                "{}: {} of its triangles lie on no patch of the scene; its lightmap would miss them",
+                mesh.name,
+                map.unplaced
+            );
+        }
+        let stem = uv_lightmap_stem(k, &mesh.name);
+        let (exr, png) = (
+            format!("{UV_LIGHTMAPS}/{stem}.exr"),
+            format!("{UV_LIGHTMAPS}/{stem}.png"),
+        );
+        write_exr(&dir.join(&exr), map.width, map.height, &map.pixels)?;
+        write_png(&dir.join(&png), map.width, map.height, &map.pixels)?;
+        entries.push(UvLightmapEntry {
+            mesh: mesh.name.clone(),
+            object: scene.objects[mesh.object as usize].name.clone(),
+            exr,
+            png,
+            width: map.width,
+            height: map.height,
+            covered: map.covered,
+            padded: map.padded,
+        });
+    }
+    Ok(entries)
 }
 
 /// Writes a row-major RGB f32 image as an OpenEXR file.
@@ -178,8 +268,9 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 }
 
 /// Writes all bake outputs for per-element radiosity `values`.
-/// Writes `lightmap.exr`, `lightmap.png`, `atlas.json`, `stats.json` and
-/// `scene.glb`; seams are stitched and invalid texels ([`crate::validity`])
+/// Writes `lightmap.exr`, `lightmap.png`, `atlas.json`, `stats.json`,
+/// `scene.glb` and, for glTF meshes with their own lightmap UVs, their
+/// lightmaps in `uv-lightmaps/`; seams are stitched and invalid texels ([`crate::validity`])
 /// filled from their neighbours first (`Validity::fill`).
 pub fn write_outputs(
     dir: &Path,
@@ -199,7 +290,9 @@ pub fn write_outputs(
     let image = atlas.to_image(&values);
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;
-    write_json(&dir.join("atlas.json"), &atlas_file(scene, atlas, poses))?;
+    let mut atlas_json = atlas_file(scene, atlas, poses);
+    atlas_json.uv_lightmaps = write_uv_lightmaps(dir, scene, atlas, &image)?;
+    write_json(&dir.join("atlas.json"), &atlas_json)?;
     write_json(&dir.join("stats.json"), stats)?;
     let glb = scene_glb(&describe(scene, atlas, poses), &image, None)?;
     let path = dir.join(SCENE_GLB);

@@ -27,4 +27,5 @@ pub mod relay;
 pub mod scene;
 pub mod service;
 pub mod solver;
+pub mod uvmap;
 pub mod validity;

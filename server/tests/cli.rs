@@ -454,6 +454,22 @@ fn bake_charts_choose_a_meshs_charts() {
         .expect("valid JSON");
         let n = atlas["surfaces"].as_array().expect("list").len();
         assert_eq!(n, surfaces, "{charts}");
+        // The asset's seven meshes have TEXCOORD_1: each gets its lightmap
+        // in those UVs, whichever charts Lightwire solved on.
+        let uv = atlas["uv_lightmaps"]
+            .as_array()
+            .expect("uv_lightmaps listed");
+        assert_eq!(uv.len(), 7, "{charts}: {uv:?}");
+        for entry in uv {
+            let size = (entry["width"].as_u64(), entry["height"].as_u64());
+            let png = out_dir.join(entry["png"].as_str().expect("png named"));
+            let (w, h) = image::image_dimensions(&png)
+                .unwrap_or_else(|e| panic!("{charts}: {}: {e}", png.display()));
+            assert_eq!(size, (Some(u64::from(w)), Some(u64::from(h))), "{entry}");
+            let exr = out_dir.join(entry["exr"].as_str().expect("exr named"));
+            assert!(exr.is_file(), "{}", exr.display());
+            assert!(entry["covered"].as_u64().unwrap_or(0) > 0, "{entry}");
+        }
         std::fs::remove_dir_all(&out_dir).ok();
     }
     let bad = lightwire(&[

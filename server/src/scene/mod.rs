@@ -24,7 +24,7 @@ mod validate;
 
 use std::path::Path;
 
-use glam::{Quat, Vec3};
+use glam::{Quat, Vec2, Vec3};
 
 pub use error::{SceneError, SceneIssue};
 
@@ -48,6 +48,33 @@ pub struct Scene {
     pub objects: Vec<Object>,
     /// Surfaces after expansion (a box becomes six patches).
     pub patches: Vec<Patch>,
+    /// The imported glTF meshes that brought their own lightmap UVs
+    /// (`TEXCOORD_1`); the solved light is resampled into them
+    /// (`crate::uvmap`, `lightwire bake`).
+    pub uv_meshes: Vec<UvMesh>,
+}
+
+/// One node's instance of a glTF mesh with its own lightmap UVs
+/// (`TEXCOORD_1`): the triangles of all its primitives that have them,
+/// which share one lightmap space [0, 1]² (`gltf` module doc). The solvers
+/// do not read it: they light charts of their own (`atlas.rs`), and
+/// `lightwire bake` resamples that light into this layout
+/// (`crate::uvmap`), which is where an engine that brought the mesh
+/// expects its lightmap.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UvMesh {
+    /// `node/mesh`, as its patches' names begin (`node#i`, `mesh#j` when
+    /// unnamed).
+    pub name: String,
+    /// Index into [`Scene::objects`].
+    pub object: u32,
+    /// [`Patch::surface_index`] of the patches its triangles became.
+    pub surface_index: usize,
+    /// Triangles in the object's space, counter-clockwise seen from the
+    /// front (as its patches).
+    pub triangles: Vec<[Vec3; 3]>,
+    /// Their lightmap UVs, corner by corner.
+    pub uvs: Vec<[Vec2; 3]>,
 }
 
 /// A Lambertian material.

@@ -13,7 +13,7 @@ use glam::{Quat, Vec3};
 use super::file::{BoxJson, Facing, ImportJson, MeshJson, PoseJson, QuadJson, SceneFile, Vec3Json};
 use super::gltf::{ImportOptions, ImportedScene};
 use super::texture::AlbedoMap;
-use super::{LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue};
+use super::{LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue, UvMesh};
 
 /// Largest atlas edge a scene may ask for.
 pub const MAX_ATLAS_LIMIT: u32 = 16384;
@@ -220,6 +220,7 @@ pub fn validate(
     // Surfaces.
     c.unique("surface", raw.surfaces.iter().map(|s| s.name.as_str()));
     let mut patches = Vec::new();
+    let mut uv_meshes = Vec::new();
     for (i, s) in raw.surfaces.iter().enumerate() {
         let loc = format!("surface #{i} \"{}\"", s.name);
         let material = raw.materials.iter().position(|m| m.name == s.material);
@@ -321,6 +322,7 @@ pub fn validate(
             materials: &mut materials,
             objects: &mut objects,
             patches: &mut patches,
+            uv_meshes: &mut uv_meshes,
         };
         merge_import(
             &mut c,
@@ -357,6 +359,7 @@ pub fn validate(
         materials,
         objects,
         patches,
+        uv_meshes,
     })
 }
 
@@ -583,6 +586,7 @@ struct Parts<'a> {
     materials: &'a mut Vec<Material>,
     objects: &'a mut Vec<Object>,
     patches: &'a mut Vec<Patch>,
+    uv_meshes: &'a mut Vec<UvMesh>,
 }
 
 /// Adds an imported glTF to the scene being built: its materials (a name
@@ -649,6 +653,7 @@ fn merge_import(
         });
         object_ids.push((into.objects.len() - 1) as u32);
     }
+    let mut uv_mesh_of: HashMap<(usize, usize), usize> = HashMap::new();
     for inst in &imported.instances {
         let node = inst
             .node_name
@@ -708,6 +713,30 @@ fn merge_import(
                 cells: [1, 1],
             });
         }
+        // The primitives of one node's mesh share its lightmap space.
+        if let Some(uvs) = &inst.lightmap_uvs {
+            let k = *uv_mesh_of.entry((inst.node, inst.mesh)).or_insert_with(|| {
+                into.uv_meshes.push(UvMesh {
+                    name: format!("{node}/{mesh}"),
+                    object,
+                    surface_index,
+                    triangles: Vec::new(),
+                    uvs: Vec::new(),
+                });
+                into.uv_meshes.len() - 1
+            });
+            let m = &mut into.uv_meshes[k];
+            for tri in &inst.indices {
+                let corner = |j: usize| {
+                    let i = tri[j] as usize;
+                    Some((*inst.positions.get(i)?, *uvs.get(i)?))
+                };
+                if let (Some(a), Some(b), Some(d)) = (corner(0), corner(1), corner(2)) {
+                    m.triangles.push([a.0, b.0, d.0]);
+                    m.uvs.push([a.1, b.1, d.1]);
+                }
+            }
+        }
     }
 }
 
@@ -765,11 +794,13 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
             initial_pose: Pose::IDENTITY,
         }],
         patches: Vec::new(),
+        uv_meshes: Vec::new(),
     };
     let into = Parts {
         materials: &mut scene.materials,
         objects: &mut scene.objects,
         patches: &mut scene.patches,
+        uv_meshes: &mut scene.uv_meshes,
     };
     merge_import(&mut c, &loc, &imported, into, density, 0);
     if scene.patches.is_empty() {

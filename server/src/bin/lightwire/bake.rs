@@ -174,5 +174,14 @@ pub(crate) fn bake_command(
         out.display(),
         stats.seconds
     );
+    if !scene.uv_meshes.is_empty() {
+        eprintln!(
+            "  and {}/{}/: the light in the asset's own TEXCOORD_1 of {} mesh{} (listed in atlas.json)",
+            out.display(),
+            bake::UV_LIGHTMAPS,
+            scene.uv_meshes.len(),
+            if scene.uv_meshes.len() == 1 { "" } else { "es" }
+        );
+    }
     Ok(())
 }

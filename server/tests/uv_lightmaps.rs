@@ -1,0 +1,226 @@
+//! The light in an asset's own lightmap UVs (`uvmap::resample_all`, the
+//! `uv-lightmaps/` of `lightwire bake`).
+//!
+//! The contract: a pixel of a mesh's lightmap whose centre lies on one of
+//! the mesh's `TEXCOORD_1` triangles holds the light an engine shows at the
+//! surface point that centre stands for when it draws Lightwire's own
+//! `scene.glb` (the atlas on Lightwire's charts); pixels within a pixel of
+//! a triangle are filled; pixels far from every triangle stay black.
+//!
+//! The expected values take the other road, independently of `uvmap`: the
+//! exported `scene.glb` is imported again, the point is found on one of its
+//! triangles, and the atlas is read bilinearly at that triangle's
+//! interpolated `TEXCOORD_1`. The atlas holds a different value in every
+//! texel, so a pixel mapped to the wrong patch, chart, orientation or row
+//! shows. Checked on the triangulated Cornell box (one chart per face in
+//! the asset, one patch per face or per triangle here), the dynamic Cornell
+//! box (its box in object space) and the atrium (columns whose unrolled
+//! side is one chart over many patches).
+
+use glam::{Vec2, Vec3};
+use lightwire_server::atlas::Atlas;
+use lightwire_server::bake::{describe, scene_glb};
+use lightwire_server::scene::gltf::{ImportOptions, import_slice};
+use lightwire_server::scene::{Charts, LoadOptions, Scene};
+use lightwire_server::uvmap::{self, PADDING};
+use lightwire_testkit::scene_path;
+
+/// A different value in every atlas texel, nowhere black.
+fn gradient(atlas: &Atlas) -> Vec<[f32; 3]> {
+    (0..atlas.width * atlas.height)
+        .map(|i| {
+            let (x, y) = (i % atlas.width, i / atlas.width);
+            [x as f32 * 0.01, y as f32 * 0.02, 0.5]
+        })
+        .collect()
+}
+
+/// Barycentric coordinates of `p` in the 2D triangle `q`.
+fn barycentric(q: &[Vec2; 3], p: Vec2) -> Vec3 {
+    let m = glam::Mat2::from_cols(q[1] - q[0], q[2] - q[0]);
+    let b = m.inverse() * (p - q[0]);
+    Vec3::new(1.0 - b.x - b.y, b.x, b.y)
+}
+
+/// The atlas read as a client's bilinear filter reads it at `uv`.
+fn filtered(image: &[[f32; 3]], atlas: &Atlas, uv: Vec2) -> Vec3 {
+    let (w, h) = (atlas.width as i64, atlas.height as i64);
+    let f = uv * Vec2::new(w as f32, h as f32) - Vec2::splat(0.5);
+    let (x, y) = (f.x.floor(), f.y.floor());
+    let (fx, fy) = (f.x - x, f.y - y);
+    let texel = |dx: i64, dy: i64| {
+        let xx = (x as i64 + dx).clamp(0, w - 1);
+        let yy = (y as i64 + dy).clamp(0, h - 1);
+        Vec3::from(image[(yy * w + xx) as usize])
+    };
+    (texel(0, 0) * (1.0 - fx) + texel(1, 0) * fx) * (1.0 - fy)
+        + (texel(0, 1) * (1.0 - fx) + texel(1, 1) * fx) * fy
+}
+
+/// A triangle of the re-imported `scene.glb`: object-space corners and
+/// their `TEXCOORD_1`.
+struct Drawn {
+    object: String,
+    corners: [Vec3; 3],
+    uv1: [Vec2; 3],
+}
+
+/// The light at object-space point `p` of `object` as a client draws
+/// `scene.glb`: on the drawn triangle that holds `p`, if one does.
+fn drawn_light(
+    drawn: &[Drawn],
+    object: &str,
+    p: Vec3,
+    normal: Vec3,
+    image: &[[f32; 3]],
+    atlas: &Atlas,
+) -> Option<Vec3> {
+    for d in drawn.iter().filter(|d| d.object == object) {
+        let [a, b, c] = d.corners;
+        let n = (b - a).cross(c - a);
+        if n.normalize().dot(normal) < 0.999 || (p - a).dot(n.normalize()).abs() > 1e-4 {
+            continue;
+        }
+        // Barycentric coordinates in the triangle's plane.
+        let (e1, e2, q) = (b - a, c - a, p - a);
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (q1, q2) = (q.dot(e1), q.dot(e2));
+        let det = d11 * d22 - d12 * d12;
+        let s = (d22 * q1 - d12 * q2) / det;
+        let t = (d11 * q2 - d12 * q1) / det;
+        if s < -1e-4 || t < -1e-4 || s + t > 1.0 + 1e-4 {
+            continue;
+        }
+        let uv = d.uv1[0] * (1.0 - s - t) + d.uv1[1] * s + d.uv1[2] * t;
+        return Some(filtered(image, atlas, uv));
+    }
+    None
+}
+
+fn check(name: &str, charts: Charts) {
+    let options = LoadOptions {
+        charts,
+        ..LoadOptions::scaled(1.0)
+    };
+    let scene = Scene::load_with(&scene_path(name), options)
+        .unwrap_or_else(|e| panic!("{name} must load: {e}"));
+    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{name} must fit: {e}"));
+    assert!(
+        !scene.uv_meshes.is_empty(),
+        "{name} has meshes with TEXCOORD_1"
+    );
+    let image = gradient(&atlas);
+    let glb = scene_glb(
+        &describe(&scene, &atlas, &scene.initial_poses()),
+        &image,
+        None,
+    )
+    .expect("scene.glb");
+    let exported = import_slice(&glb, None, "scene.glb", &ImportOptions::default())
+        .expect("the exported scene.glb imports");
+    let drawn: Vec<Drawn> = exported
+        .instances
+        .iter()
+        .flat_map(|inst| {
+            let object = exported.objects[inst.object as usize].name.clone();
+            let uv1 = inst.lightmap_uvs.clone().expect("exported with TEXCOORD_1");
+            inst.indices
+                .iter()
+                .map(|t| Drawn {
+                    object: object.clone(),
+                    corners: t.map(|i| inst.positions[i as usize]),
+                    uv1: t.map(|i| uv1[i as usize]),
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let maps = uvmap::resample_all(&scene, &atlas, &image, None);
+    assert_eq!(maps.len(), scene.uv_meshes.len());
+    for (mesh, map) in scene.uv_meshes.iter().zip(&maps) {
+        let at = format!("{name} ({charts:?}) {}", mesh.name);
+        assert_eq!(map.unplaced, 0, "{at}: every triangle lies on a patch");
+        let object = &scene.objects[mesh.object as usize].name;
+        let size = Vec2::new(map.width as f32, map.height as f32);
+        let uv_tris: Vec<[Vec2; 3]> = mesh.uvs.iter().map(|t| t.map(|c| c * size)).collect();
+        // At most about 1,500 pixels per mesh (debug builds are slow).
+        let stride = ((map.width as usize * map.height as usize) / 1500).max(1);
+        let (mut on, mut near, mut far) = (0, 0, 0);
+        for i in (0..map.pixels.len()).step_by(stride) {
+            let (x, y) = (i as u32 % map.width, i as u32 / map.width);
+            let c = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            let got = Vec3::from(map.pixels[i]);
+            let inside = uv_tris.iter().zip(&mesh.triangles).find_map(|(q, tri)| {
+                let b = barycentric(q, c);
+                (b.min_element() > 1e-3).then_some((b, tri))
+            });
+            if let Some((b, tri)) = inside {
+                let p = tri[0] * b.x + tri[1] * b.y + tri[2] * b.z;
+                let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize();
+                let expected = drawn_light(&drawn, object, p, normal, &image, &atlas)
+                    .unwrap_or_else(|| {
+                        panic!("{at}: pixel ({x}, {y}) stands for {p}, on no drawn triangle")
+                    });
+                assert!(
+                    (got - expected).abs().max_element() <= 2e-3 * expected.max_element().max(1.0),
+                    "{at}: pixel ({x}, {y}) at {p}: {got} vs {expected} drawn"
+                );
+                on += 1;
+                continue;
+            }
+            // Outside every triangle: filled within a pixel of one,
+            // black beyond the padding.
+            let distance = uv_tris
+                .iter()
+                .map(|q| {
+                    let b = barycentric(q, c);
+                    if b.min_element() >= 0.0 {
+                        return 0.0;
+                    }
+                    [(0, 1), (1, 2), (2, 0)]
+                        .iter()
+                        .map(|&(i, j)| {
+                            let e = q[j] - q[i];
+                            let s = ((c - q[i]).dot(e) / e.length_squared()).clamp(0.0, 1.0);
+                            (q[i] + e * s).distance(c)
+                        })
+                        .fold(f32::INFINITY, f32::min)
+                })
+                .fold(f32::INFINITY, f32::min);
+            if distance <= 1.0 {
+                assert!(
+                    got.max_element() > 0.0,
+                    "{at}: pixel ({x}, {y}), {distance} px from a triangle, is black"
+                );
+                near += 1;
+            } else if distance > PADDING + 0.01 {
+                assert_eq!(
+                    got,
+                    Vec3::ZERO,
+                    "{at}: pixel ({x}, {y}) is {distance} px from every triangle"
+                );
+                far += 1;
+            }
+        }
+        assert!(on >= 100, "{at}: only {on} pixels checked on triangles");
+        eprintln!(
+            "{at}: {}x{} px, {on} on triangles, {near} padding, {far} empty checked",
+            map.width, map.height
+        );
+    }
+}
+
+#[test]
+fn the_triangulated_cornell_box_reads_its_light_in_its_own_uvs() {
+    check("meshes/cornell-large.glb", Charts::Parallelograms);
+    check("meshes/cornell-large.glb", Charts::Triangles);
+}
+
+#[test]
+fn a_dynamic_mesh_reads_its_light_in_its_own_uvs() {
+    check("meshes/cornell-dynamic.glb", Charts::Parallelograms);
+}
+
+#[test]
+fn the_atrium_reads_its_light_in_its_own_uvs() {
+    check("meshes/atrium.glb", Charts::Parallelograms);
+}
