@@ -23,7 +23,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use lightwire_protocol::lightmap::{ApplyError, Lightmap};
-use lightwire_protocol::{Delta, Keyframe, ObjectSeq, SceneInfo};
+use lightwire_protocol::{Delta, Keyframe, ObjectPose, ObjectSeq, Pose, SceneInfo};
 
 /// One complete lightmap version: what a renderer draws.
 #[derive(Clone, Debug)]
@@ -34,6 +34,10 @@ pub struct Frame {
     pub lightmap: Lightmap,
     /// Latest transform seq per object that this version reflects.
     pub reflected: BTreeMap<u32, u64>,
+    /// The dynamic objects' poses this version was lit for, as the
+    /// server's `Poses` last gave them (empty from a server that sends
+    /// none; PROTOCOL.md §3).
+    pub poses: BTreeMap<u32, Pose>,
     /// When this version was completed locally.
     pub applied_at: Instant,
 }
@@ -81,6 +85,8 @@ pub struct DoubleBuffer {
     back: Lightmap,
     /// The reflected seqs of `back`.
     back_reflected: BTreeMap<u32, u64>,
+    /// The poses of the next version (`Poses` comes just before it).
+    poses: BTreeMap<u32, Pose>,
     front: Option<Arc<Frame>>,
     /// A retired front whose allocation the next swap can reuse.
     spare: Option<Lightmap>,
@@ -96,6 +102,7 @@ impl DoubleBuffer {
             scene,
             back,
             back_reflected: BTreeMap::new(),
+            poses: BTreeMap::new(),
             front: None,
             spare: None,
         })
@@ -114,6 +121,22 @@ impl DoubleBuffer {
     /// The version deltas must be based on (`None` before the first keyframe).
     pub fn version(&self) -> Option<u64> {
         self.front.as_ref().map(|f| f.version())
+    }
+
+    /// Takes a `Poses` message: the poses of the version that follows
+    /// (and of those after it, until the next `Poses`). Objects not
+    /// dynamic in the scene, and invalid poses, are left out.
+    pub fn set_poses(&mut self, poses: &[ObjectPose]) {
+        for p in poses {
+            let dynamic = self
+                .scene
+                .objects
+                .get(p.object as usize)
+                .is_some_and(|o| o.dynamic);
+            if dynamic && p.pose.validate().is_ok() {
+                self.poses.insert(p.object, p.pose);
+            }
+        }
     }
 
     /// Replaces everything with a keyframe and swaps it to the front.
@@ -176,6 +199,7 @@ impl DoubleBuffer {
             scene: self.scene.clone(),
             lightmap: next_back,
             reflected: self.back_reflected.clone(),
+            poses: self.poses.clone(),
             applied_at: Instant::now(),
         });
         if let Some(old) = self.front.replace(frame.clone()) {
@@ -218,6 +242,48 @@ mod tests {
 
     fn image(value: f32) -> Vec<[f32; 3]> {
         (0..90).map(|i| [value + i as f32, value, 1.0]).collect()
+    }
+
+    #[test]
+    fn frames_carry_the_poses_sent_before_them_for_dynamic_objects_only() {
+        use lightwire_protocol::{ObjectInfo, Pose};
+        let mut info = (*scene()).clone();
+        for (name, dynamic) in [("static", false), ("box", true)] {
+            info.objects.push(ObjectInfo {
+                name: name.into(),
+                dynamic,
+                pose: Pose::IDENTITY,
+            });
+        }
+        let mut enc = Encoder::new(10, 9, 4, PixelFormat::Rgb9e5, 0.0);
+        let _ = enc.publish(&image(1.0), vec![]);
+        let mut buf = DoubleBuffer::new(Arc::new(info)).expect("layout");
+        let moved = Pose {
+            translation: [1.0, 2.0, 3.0],
+            ..Pose::IDENTITY
+        };
+        let bad = Pose {
+            scale: 0.0,
+            ..Pose::IDENTITY
+        };
+        let entry = |object, pose| ObjectPose {
+            object,
+            seq: 4,
+            pose,
+        };
+        // The static world, an object past the list and an invalid pose
+        // are left out; the box's pose is kept.
+        buf.set_poses(&[entry(0, moved), entry(1, moved), entry(9, moved)]);
+        let first = buf.apply_keyframe(&enc.keyframe()).expect("applies").frame;
+        assert_eq!(first.poses, BTreeMap::from([(1, moved)]));
+        buf.set_poses(&[entry(1, bad)]);
+        let d = enc.publish(&image(2.0), vec![]);
+        let second = buf.apply_delta(&d).expect("applies").frame;
+        assert_eq!(
+            second.poses,
+            BTreeMap::from([(1, moved)]),
+            "until the next valid Poses"
+        );
     }
 
     #[test]

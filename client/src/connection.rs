@@ -106,7 +106,9 @@ pub(crate) async fn open(url: &str, options: &Options) -> Result<Opened, ClientE
         protocol_version: PROTOCOL_VERSION,
         client: options.client_name.clone(),
         token: options.token.clone(),
-        capabilities: 0,
+        // The dynamic objects' poses with the versions lit for them, so a
+        // viewer draws them where their light is (`Frame::poses`).
+        capabilities: lightwire_protocol::HELLO_POSES,
     };
     let handshake = |reason: String| ClientError::Handshake {
         url: url.to_string(),
@@ -568,6 +570,7 @@ impl Session<'_> {
                 }
             }
             ServerMessage::Pong { .. } => {}
+            ServerMessage::Poses { poses, .. } => self.task.buffer.set_poses(&poses),
             ServerMessage::Welcome { .. } => {
                 return Some(End::Lost(ClientError::Protocol {
                     url: self.url.to_string(),

@@ -12,16 +12,18 @@
 //! whatever version is in front then; the exposure stays the first frame's,
 //! so that brightness changes between frames are changes of light.
 //!
-//! Poses: the protocol sends viewers lightmaps and the seqs they reflect,
-//! not the poses of moved objects. `view` draws every object at the pose of
-//! the `Welcome` (the scene file's) unless `--pose` gives another. A box a
-//! driver has moved is therefore lit where it is but drawn where `view`
-//! believes it is; give its pose with `--pose` when it matters.
+//! Poses: the client asks for `Poses` (PROTOCOL.md §3), so each frame
+//! carries the dynamic objects' poses its lightmap was lit for
+//! ([`Frame::poses`]); `view` draws them there, the rest at the pose of
+//! the `Welcome` (the scene file's), and `--pose` overrides either. From a
+//! server that sends no poses, a box a driver has moved is lit where it is
+//! but drawn at the scene file's pose; give it with `--pose` then.
 //!
 //! Every line of output is on stdout: one line describing the view (camera
 //! in `--camera` syntax, exposure, adapter), then one per written frame
 //! (`wrote PATH: version V, ...`).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -184,10 +186,20 @@ pub fn parse_pose(text: &str) -> Result<PoseArg, String> {
     Ok(pose)
 }
 
-/// The scene's poses with the `--pose` overrides applied; unknown object
-/// names and invalid poses are errors naming the object.
-pub fn resolve_poses(scene: &SceneInfo, overrides: &[PoseArg]) -> Result<Vec<Pose>> {
+/// The scene's poses, with those the server sent for the frame (`served`,
+/// [`Frame::poses`]) and then the `--pose` overrides applied; unknown
+/// object names and invalid poses are errors naming the object.
+pub fn resolve_poses(
+    scene: &SceneInfo,
+    served: &BTreeMap<u32, Pose>,
+    overrides: &[PoseArg],
+) -> Result<Vec<Pose>> {
     let mut poses = geometry::initial_poses(scene);
+    for (&object, pose) in served {
+        if let Some(p) = poses.get_mut(object as usize) {
+            *p = *pose;
+        }
+    }
     for o in overrides {
         let Some(index) = scene.objects.iter().position(|x| x.name == o.object) else {
             let names: Vec<&str> = scene.objects.iter().map(|x| x.name.as_str()).collect();
@@ -298,7 +310,7 @@ fn render_frames(
     first: Arc<Frame>,
 ) -> Result<()> {
     let scene = first.scene.clone();
-    let poses = resolve_poses(&scene, &args.poses)?;
+    let poses = resolve_poses(&scene, &first.poses, &args.poses)?;
     let spec = args.camera.unwrap_or_default().overridden_by(CameraSpec {
         eye: args.eye,
         target: args.target,
@@ -340,6 +352,7 @@ fn render_frames(
                 scene.id
             );
         }
+        let poses = resolve_poses(&scene, &frame.poses, &args.poses)?;
         let image = renderer.render(
             &frame.scene,
             &poses,
@@ -393,17 +406,21 @@ mod tests {
             materials: vec![],
             surfaces: vec![],
         };
-        let poses = resolve_poses(&scene, &[p]).unwrap();
+        let poses = resolve_poses(&scene, &BTreeMap::new(), &[p]).unwrap();
         assert_eq!(poses[0].translation, [1.0, 2.0, 3.0]);
         assert_eq!(poses[0].scale, 2.0, "keys not given keep the scene's value");
         let missing = parse_pose("ball:scale=2").unwrap();
-        let err = resolve_poses(&scene, &[missing]).unwrap_err().to_string();
+        let err = resolve_poses(&scene, &BTreeMap::new(), &[missing])
+            .unwrap_err()
+            .to_string();
         assert!(
             err.contains("has no object \"ball\"; its objects: box"),
             "{err}"
         );
         let flat = parse_pose("box:scale=0").unwrap();
-        let err = resolve_poses(&scene, &[flat]).unwrap_err().to_string();
+        let err = resolve_poses(&scene, &BTreeMap::new(), &[flat])
+            .unwrap_err()
+            .to_string();
         assert!(
             err.contains("--pose for \"box\": scale is not positive"),
             "{err}"

@@ -49,8 +49,8 @@ pub mod tone;
 pub use codec::{DecodeError, decode_client, decode_server, encode_client, encode_server};
 pub use error_code::ErrorCode;
 pub use messages::{
-    ClientMessage, Delta, Keyframe, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, Pose, Role,
-    SceneInfo, ServerMessage, Stats, SurfaceInfo, Tile, unix_micros,
+    ClientMessage, Delta, Keyframe, MaterialInfo, ObjectInfo, ObjectPose, ObjectSeq, PixelFormat,
+    Pose, Role, SceneInfo, ServerMessage, Stats, SurfaceInfo, Tile, unix_micros,
 };
 
 /// The protocol version a peer announces in its handshake. Bumped on any
@@ -69,6 +69,18 @@ pub const PROTOCOL_VERSION: u16 = 2;
 /// Receivers ignore bits they do not know, so older clients are
 /// unaffected.
 pub const CAP_SCENE_GLB: u32 = 1;
+
+/// `Welcome.capabilities` bit: the server sends [`ServerMessage::Poses`]
+/// to a client whose `Hello` set [`HELLO_POSES`] (PROTOCOL.md §3,
+/// "Capabilities").
+pub const CAP_POSES: u32 = 2;
+
+/// `Hello.capabilities` bit: send me [`ServerMessage::Poses`], the poses of
+/// the dynamic objects each lightmap version was lit for, so that a
+/// viewer that does not drive draws them where their light is. A server
+/// without [`CAP_POSES`] ignores it; one with it never sends `Poses` to a
+/// client that did not ask, so older clients never see the variant.
+pub const HELLO_POSES: u32 = 1;
 
 /// The path of the scene's glTF binary ([`CAP_SCENE_GLB`]), relative to
 /// the server's origin: `/api/scenes/{id}/scene.glb` with `id`

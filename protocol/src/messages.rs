@@ -118,6 +118,19 @@ pub struct ObjectSeq {
     pub seq: u64,
 }
 
+/// A dynamic object's pose in a published version
+/// ([`ServerMessage::Poses`]).
+#[derive(Clone, Copy, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct ObjectPose {
+    /// Index into [`SceneInfo::objects`].
+    pub object: u32,
+    /// The transform sequence number that set this pose (0: the scene
+    /// file's pose, no transform yet).
+    pub seq: u64,
+    /// The pose the version's lightmap was lit for.
+    pub pose: Pose,
+}
+
 /// Messages a client sends. Wire discriminants: Hello 0, Transform 1, Resync 2, Ping 3.
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub enum ClientMessage {
@@ -158,7 +171,7 @@ pub enum ClientMessage {
 }
 
 /// Messages the server sends. Wire discriminants: Welcome 0, Keyframe 1,
-/// Delta 2, Stats 3, Error 4, Pong 5.
+/// Delta 2, Stats 3, Error 4, Pong 5, Poses 6.
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub enum ServerMessage {
     /// Answer to a successful Hello; always followed by a Keyframe.
@@ -193,6 +206,18 @@ pub enum ServerMessage {
         /// The ping's nonce.
         nonce: u64,
     },
+    /// Where the dynamic objects are in lightmap version `version`: sent
+    /// only to a client whose `Hello` set
+    /// [`HELLO_POSES`](crate::HELLO_POSES), immediately before the
+    /// `Keyframe` or `Delta` of `version`, whenever a pose differs from
+    /// those last sent on the connection (so always before the first
+    /// lightmap). Every dynamic object, in object order.
+    Poses {
+        /// The version these poses were lit for.
+        version: u64,
+        /// One per dynamic object.
+        poses: Vec<ObjectPose>,
+    },
 }
 
 impl ServerMessage {
@@ -205,6 +230,7 @@ impl ServerMessage {
             ServerMessage::Stats(_) => "Stats",
             ServerMessage::Error { .. } => "Error",
             ServerMessage::Pong { .. } => "Pong",
+            ServerMessage::Poses { .. } => "Poses",
         }
     }
 }

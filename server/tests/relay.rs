@@ -32,7 +32,7 @@ use lightwire_protocol::{
 use tokio_tungstenite::tungstenite::Message;
 
 use lightwire_testkit::fake::FakeServer;
-use lightwire_testkit::peer::hello;
+use lightwire_testkit::peer::{Peer, hello};
 use lightwire_testkit::pose::{box_turned, transform};
 use lightwire_testkit::process::Proc;
 use lightwire_testkit::{DRIVER_TOKEN, SCENE, VIEWER_TOKEN, http, lightwire};
@@ -842,4 +842,45 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
     }
     // Metrics are open by default on the relay too.
     assert_eq!(http::get(addr, "/metrics", None).await.status, 200);
+}
+
+/// PROTOCOL.md §3, `Poses`, through a relay: it asks its upstream for the
+/// poses and passes them on with its own versions to the viewers that ask,
+/// never to those that do not (the kit's `Peer` panics on one it did not
+/// ask for).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_relay_passes_the_poses_on_to_viewers_that_ask() {
+    let solver = lightwire!().solver("127.0.0.1:0");
+    solver.ready().await;
+    let relay = lightwire!().relay(&solver.addr);
+    relay.ready().await;
+    let url = relay.ws_url();
+    let mut viewer = Peer::connect_asking_poses(&url, VIEWER_TOKEN).await;
+    let mut old = Peer::connect(&url, VIEWER_TOKEN).await;
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
+    driver.transform(1, 7, pose_at(2)).await;
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while viewer.reflected.get(&1) != Some(&7) {
+        assert!(
+            Instant::now() < deadline,
+            "seq 7 never reached the relay's viewer"
+        );
+        assert!(viewer.read_one(Duration::from_secs(10)).await);
+    }
+    let (version, poses) = viewer
+        .poses
+        .last()
+        .cloned()
+        .expect("Poses through the relay");
+    assert_eq!(version, viewer.version(), "the relay's own version");
+    assert_eq!((poses[0].object, poses[0].seq), (1, 7), "{poses:?}");
+    let want = pose_at(2);
+    assert_eq!(poses[0].pose.translation, want.translation);
+    for (got, want) in poses[0].pose.rotation.iter().zip(want.rotation) {
+        assert!((got - want).abs() < 1e-6, "{:?}", poses[0].pose);
+    }
+    old.read_until_version(viewer.version(), Duration::from_secs(60))
+        .await;
+    assert_eq!(old.texels(), viewer.texels());
+    assert!(driver.errors.is_empty(), "{:?}", driver.errors);
 }

@@ -515,6 +515,70 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
     assert!(second.errors.is_empty(), "{:?}", second.errors);
 }
 
+/// PROTOCOL.md §3, `Poses`: a client whose `Hello` set `HELLO_POSES`
+/// gets, just before a version's lightmap, the dynamic objects' poses it
+/// was lit for, only when they changed; a client that did not ask never
+/// gets one (the kit's `Peer` panics on it), and both hold the same light.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_viewer_that_asks_gets_the_poses_each_version_was_lit_for() {
+    let server = lightwire!().solver_with("127.0.0.1:0", "reference", &[]);
+    let url = server.ws_url();
+    server.ready().await;
+    let mut viewer = Peer::connect_asking_poses(&url, VIEWER_TOKEN).await;
+    let mut old = Peer::connect(&url, VIEWER_TOKEN).await;
+    while viewer.keyframes == 0 {
+        assert!(viewer.read_one(Duration::from_secs(10)).await);
+    }
+    let (first_version, first) = viewer
+        .poses
+        .first()
+        .cloned()
+        .expect("Poses before the keyframe");
+    assert_eq!(first_version, viewer.applied[0].0, "the keyframe's version");
+    assert_eq!(first.len(), 1, "one dynamic object: {first:?}");
+    assert_eq!(
+        (first[0].object, first[0].seq),
+        (1, 0),
+        "the box, no transform yet"
+    );
+    let scene = http_get(&server, "/api/scenes/cornell-low").await.json();
+    let file_pose = &scene["objects"][1]["pose"]["translation"];
+    for (axis, value) in first[0].pose.translation.iter().enumerate() {
+        let expected = file_pose[axis].as_f64().expect("a number") as f32;
+        assert_eq!(*value, expected, "the scene file's pose, axis {axis}");
+    }
+
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
+    driver.transform(1, 5, pose_at(3)).await;
+    let version = settled_version(&server, 5, &mut driver).await;
+    viewer
+        .read_until_version(version, Duration::from_secs(60))
+        .await;
+    old.read_until_version(version, Duration::from_secs(60))
+        .await;
+    assert_eq!(
+        viewer.poses.len(),
+        2,
+        "sent at first and once after the move, not with every version: {:?}",
+        viewer.poses
+    );
+    let (moved_version, moved) = &viewer.poses[1];
+    let lit = viewer
+        .applied
+        .iter()
+        .position(|(v, _)| v == moved_version)
+        .expect("the Poses' version was applied");
+    assert!(lit > 0, "after the first version");
+    assert_eq!((moved[0].object, moved[0].seq), (1, 5));
+    let want = pose_at(3);
+    for (got, want) in moved[0].pose.rotation.iter().zip(want.rotation) {
+        assert!((got - want).abs() < 1e-6, "{:?} vs {want:?}", moved[0].pose);
+    }
+    assert_eq!(moved[0].pose.translation, want.translation);
+    assert_eq!(viewer.reflected.get(&1), Some(&5));
+    assert_eq!(viewer.texels(), old.texels(), "the same light either way");
+}
+
 /// PROTOCOL.md §7: a client frame over `max_message_bytes` (4096 by
 /// default) gets `Error TooLarge` (2) and close 1009, before and after
 /// `Hello`; other clients are undisturbed.

@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, PROTOCOL_VERSION, Pose, Role, ServerMessage, decode_server,
-    encode_client,
+    ClientMessage, ErrorCode, ObjectPose, PROTOCOL_VERSION, Pose, Role, ServerMessage,
+    decode_server, encode_client,
 };
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
@@ -34,11 +34,15 @@ pub async fn hello(url: &str, token: &str) -> Option<Ws> {
 }
 
 fn hello_message(token: &str) -> ClientMessage {
+    hello_with(token, 0)
+}
+
+fn hello_with(token: &str, capabilities: u32) -> ClientMessage {
     ClientMessage::Hello {
         protocol_version: PROTOCOL_VERSION,
         client: CLIENT.into(),
         token: Some(token.into()),
-        capabilities: 0,
+        capabilities,
     }
 }
 
@@ -61,6 +65,14 @@ pub struct Peer {
     pub errors: Vec<(ErrorCode, String)>,
     /// Latest transform seq per object reflected by the held version.
     pub reflected: HashMap<u32, u64>,
+    /// Whether the `Hello` asked for `Poses` (`HELLO_POSES`); a peer that
+    /// did not panics on one (an older client must never see it).
+    pub asked_poses: bool,
+    /// Every `Poses` received: (version, poses).
+    pub poses: Vec<(u64, Vec<ObjectPose>)>,
+    /// The version of a `Poses` whose lightmap has not come yet: the very
+    /// next frame must be it (PROTOCOL.md §3).
+    poses_pending: Option<u64>,
 }
 
 impl Peer {
@@ -82,7 +94,26 @@ impl Peer {
             applied: Vec::new(),
             errors: Vec::new(),
             reflected: Default::default(),
+            asked_poses: false,
+            poses: Vec::new(),
+            poses_pending: None,
         }
+    }
+
+    /// [`Peer::connect`] with `HELLO_POSES` set: the server sends `Poses`.
+    pub async fn connect_asking_poses(url: &str, token: &str) -> Peer {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url)
+            .await
+            .expect("websocket connects");
+        let hello = hello_with(token, lightwire_protocol::HELLO_POSES);
+        ws.send(Message::Binary(encode_client(&hello).into()))
+            .await
+            .expect("send hello");
+        let mut peer = Peer::unhandshaken(ws);
+        peer.asked_poses = true;
+        peer.read_one(Duration::from_secs(10)).await;
+        assert!(peer.role.is_some(), "Welcome is the first frame");
+        peer
     }
 
     /// Says `Hello` on an open socket and reads the `Welcome`.
@@ -123,7 +154,21 @@ impl Peer {
             Ok(Some(Ok(_))) => return Read::Frame,
             Ok(Some(Err(e))) => panic!("websocket error: {e}"),
         };
-        match decode_server(&frame).expect("server frames decode") {
+        let message = decode_server(&frame).expect("server frames decode");
+        if let Some(v) = self.poses_pending.take() {
+            let lightmap = match &message {
+                ServerMessage::Keyframe(k) => Some(k.version),
+                ServerMessage::Delta(d) => Some(d.version),
+                _ => None,
+            };
+            assert_eq!(
+                lightmap,
+                Some(v),
+                "Poses of version {v} is followed by its lightmap, not {}",
+                message.name()
+            );
+        }
+        match message {
             ServerMessage::Welcome {
                 role,
                 scene,
@@ -160,6 +205,14 @@ impl Peer {
             }
             ServerMessage::Error { code, message } => self.errors.push((code, message)),
             ServerMessage::Stats(_) | ServerMessage::Pong { .. } => {}
+            ServerMessage::Poses { version, poses } => {
+                assert!(
+                    self.asked_poses,
+                    "Poses sent to a client whose Hello did not ask for them"
+                );
+                self.poses_pending = Some(version);
+                self.poses.push((version, poses));
+            }
         }
         Read::Frame
     }

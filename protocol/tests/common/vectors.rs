@@ -284,6 +284,43 @@ pub fn all() -> Vec<Vector> {
             }),
         },
         Vector {
+            name: "client_hello_poses",
+            description: "Hello as client_hello with capability bit 0 (HELLO_POSES): send me Poses",
+            msg: Msg::Client(C::Hello {
+                protocol_version: PROTOCOL_VERSION,
+                client: "lw/1".into(),
+                token: Some("t0k".into()),
+                capabilities: lightwire_protocol::HELLO_POSES,
+            }),
+        },
+        Vector {
+            name: "server_welcome_poses",
+            description: "Welcome as server_welcome, with capability bits 0 and 1 (CAP_SCENE_GLB | CAP_POSES): the server sends Poses to clients that ask",
+            msg: Msg::Server(S::Welcome {
+                protocol_version: PROTOCOL_VERSION,
+                server: "lightwire/0.1".into(),
+                role: Role::Driver,
+                capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
+                scene: scene(),
+            }),
+        },
+        Vector {
+            name: "server_poses",
+            description: "Poses for version 2 (sent before server_delta): object 0 at seq 300, translated (1, -0.5, 2.25) and turned a quarter about +y, scale 1",
+            msg: Msg::Server(S::Poses {
+                version: 2,
+                poses: vec![ObjectPose {
+                    object: 0,
+                    seq: 300,
+                    pose: Pose {
+                        translation: [1.0, -0.5, 2.25],
+                        rotation: QUARTER_TURN_Y,
+                        scale: 1.0,
+                    },
+                }],
+            }),
+        },
+        Vector {
             name: "server_pong",
             description: "Pong echoing nonce 0xDEADBEEF",
             msg: Msg::Server(S::Pong { nonce: 0xDEAD_BEEF }),

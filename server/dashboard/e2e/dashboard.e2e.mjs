@@ -210,6 +210,43 @@ try {
     reflected && snap.version > versionBefore,
     `version ${versionBefore} -> ${snap.version}, reflected seq ${snap.reflected[box]}, move -> light ${snap.latencyMs?.toFixed(0)} ms`,
   );
+  // A second page that moved nothing draws the box where the first moved
+  // it: the server's Poses (asked for in Hello), not the scene file's pose.
+  const watcher = await context.newPage();
+  watcher.on('pageerror', (e) => problems.push(`watcher page error: ${e.message}`));
+  await watcher.goto(args.url, { waitUntil: 'load' });
+  let watched = false;
+  try {
+    await watcher.waitForFunction(
+      ([object, s]) => (window.lightwire?.snapshot().poses?.poses ?? []).some((p) => p.object === object && p.seq >= s),
+      [box, seq],
+      { timeout: TIMEOUT_MS, polling: 100 },
+    );
+    watched = true;
+  } catch {
+    console.log(`timed out waiting for the watcher's Poses: ${JSON.stringify(await watcher.evaluate(() => window.lightwire?.snapshot()))}`);
+  }
+  await watcher.waitForTimeout(300); // let its frame loop draw
+  // Relative to each page's 3D view (the pages' layouts above it may differ).
+  const inView = (i) => {
+    const p = window.lightwire.objectScreenPoint(i);
+    const r = document.getElementById('view').getBoundingClientRect();
+    return { x: p.x - r.left, y: p.y - r.top };
+  };
+  const seen = await watcher.evaluate(inView, box);
+  const here = await page.evaluate(inView, box);
+  const origin = await page.evaluate(() => {
+    const r = document.getElementById('view').getBoundingClientRect();
+    return { x: r.left, y: r.top };
+  });
+  const start = { x: from.x - origin.x, y: from.y - origin.y };
+  check(
+    'a page that did not drive draws the box where the driver moved it (Poses)',
+    watched && Math.hypot(seen.x - here.x, seen.y - here.y) < 3 && Math.hypot(seen.x - start.x, seen.y - start.y) > 50,
+    `in the view: watcher (${seen.x.toFixed(0)}, ${seen.y.toFixed(0)}), driver (${here.x.toFixed(0)}, ${here.y.toFixed(0)}), scene file (${start.x.toFixed(0)}, ${start.y.toFixed(0)})`,
+  );
+  await watcher.close();
+
   const diff = await page.evaluate(() => {
     const c = document.getElementById('atlas');
     const now = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;

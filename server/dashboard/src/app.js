@@ -9,11 +9,14 @@
 // callbacks here; each animation frame then redraws whatever changed. A
 // driver's drags become Transform frames, at most one per object every
 // TRANSFORM_PERIOD_MS (the server allows 120/s), each with a fresh seq.
+// Poses (asked for in Hello) move the dynamic objects to where each
+// version's light was computed for them, except the user's own moves that
+// the server has not reflected yet (`posesToApply`).
 //
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
 import { Chart } from './chart.js';
-import { Backoff, DASHBOARD_BACKOFF, Reconnector, sceneUrl } from './connection.js';
+import { Backoff, DASHBOARD_BACKOFF, Reconnector, posesToApply, sceneUrl } from './connection.js';
 import { poseProblem } from './protocol.js';
 import { ToneTable, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
@@ -148,6 +151,9 @@ const events = {
     view?.setScene(w.scene);
     driver.setScene(w.scene, w.role);
   },
+  poses(_conn, p) {
+    driver.posesArrived(p.poses);
+  },
   applied(c, frame, keyframe) {
     const now = performance.now();
     for (const { object, seq } of frame.reflected) driver.reflected(object, seq, now);
@@ -182,6 +188,7 @@ const driver = {
   seq: 0,
   sentAt: new Map(), // seq -> time ms
   lastSentSeq: 0,
+  sentSeq: new Map(), // object -> last seq sent on this connection
   latencyMs: null,
 
   setScene(scene, role) {
@@ -189,6 +196,7 @@ const driver = {
     this.canDrive = role === 'Driver' || role === 'Admin';
     this.initial = scene.objects.map((o) => structuredClone(o.pose));
     this.pending.clear();
+    this.sentSeq.clear();
     ui.object.replaceChildren();
     scene.objects.forEach((o, i) => {
       if (o.dynamic) ui.object.append(new Option(o.name, String(i)));
@@ -272,8 +280,20 @@ const driver = {
       this.sentAt.set(this.seq, now);
       if (this.sentAt.size > 256) this.sentAt.delete(this.sentAt.keys().next().value);
       this.lastSentSeq = this.seq;
+      this.sentSeq.set(object, this.seq);
       conn()?.send({ type: 'Transform', object, seq: this.seq, pose, client_time_us: Date.now() * 1000 });
     }
+  },
+
+  /** Draws a Poses message's objects where the server has them, but for
+   * the user's own moves not yet reflected (`posesToApply`). */
+  posesArrived(poses) {
+    if (!view) return;
+    const held = new Set(this.pending.keys());
+    if (view.drag?.object !== undefined) held.add(view.drag.object);
+    const apply = posesToApply(poses, this.sentSeq, held);
+    for (const { object, pose } of apply) view.setPose(object, pose);
+    if (apply.some(({ object }) => object === this.selected())) this.syncSliders();
   },
 
   /** A published version reflects `seq`: measure transform-to-light latency. */
@@ -421,6 +441,7 @@ window.lightwire = {
       errors: c ? [...c.errors] : [],
       chartPoints: convergence.points.length,
       reflected: c ? { ...c.reflected } : {},
+      poses: c?.poses ? structuredClone(c.poses) : null,
       lastSentSeq: driver.lastSentSeq,
       latencyMs: driver.latencyMs,
       renderer: view?.renderer ?? null,

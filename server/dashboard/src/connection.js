@@ -7,7 +7,8 @@
 //   takes the Welcome (role, scene, an all-zero Lightmap of its layout),
 //   applies keyframes and deltas (a delta only onto its exact base; on any
 //   refused frame it asks for a keyframe with Resync and ignores deltas
-//   until one arrives), keeps Stats, server errors and counters.
+//   until one arrives), keeps Stats, the last Poses (its Hello asks for
+//   them with HELLO_POSES), server errors and counters.
 // - `Reconnector` keeps one Connection to a scene: when the socket closes
 //   without the page asking, it dials again after a `Backoff` delay; it
 //   gives up when the server refused this client for good (error
@@ -15,11 +16,13 @@
 //
 // What the page shows is its business: each step reports through the `on`
 // callbacks (all optional): `log(text, level)`, `state(conn)`,
-// `welcome(conn, welcome)`, `applied(conn, frame, keyframe)`,
-// `stats(conn, stats)`, `gaveUp(conn, closeEvent)`.
+// `welcome(conn, welcome)`, `poses(conn, poses)`,
+// `applied(conn, frame, keyframe)`, `stats(conn, stats)`,
+// `gaveUp(conn, closeEvent)`. `posesToApply` is the page's rule for which
+// of a Poses message's entries to draw.
 
 import { ApplyError, Lightmap } from './lightmap.js';
-import { DecodeError, PROTOCOL_VERSION, decodeServer, encodeClient, errorName } from './protocol.js';
+import { DecodeError, HELLO_POSES, PROTOCOL_VERSION, decodeServer, encodeClient, errorName } from './protocol.js';
 
 export const CLIENT_NAME = 'lightwire-dashboard/0.1';
 /** Window of the versions/s and bytes/s rates. */
@@ -61,6 +64,21 @@ export class Backoff {
   }
 }
 
+/**
+ * The entries of a `Poses` message (`{ object, seq, pose }`) the page should
+ * draw: all but those of an object the user holds (`held`: dragging it, or a
+ * move queued and not yet sent) and those older than the last Transform
+ * this page sent for the object (`lastSentSeq`: object -> seq), so that the
+ * user's own move, not yet reflected, does not jump back.
+ * @param {Array<{object: number, seq: number, pose: object}>} poses
+ * @param {Map<number, number>} lastSentSeq
+ * @param {Set<number>} [held]
+ * @returns {Array<{object: number, seq: number, pose: object}>}
+ */
+export function posesToApply(poses, lastSentSeq, held = new Set()) {
+  return poses.filter(({ object, seq }) => !held.has(object) && seq >= (lastSentSeq.get(object) ?? 0));
+}
+
 /** The browser's clock and timers (node has the same globals). */
 export const systemClock = Object.freeze({
   now: () => performance.now(),
@@ -93,15 +111,17 @@ export class Connection {
     this.awaitingKeyframe = true;
     this.closedByUs = false;
     this.fatal = false;
-    this.counters = { frames: 0, keyframes: 0, deltas: 0, resyncs: 0, stats: 0, decodeErrors: 0, errors: 0 };
+    this.counters = { frames: 0, keyframes: 0, deltas: 0, resyncs: 0, stats: 0, poses: 0, decodeErrors: 0, errors: 0 };
     this.errors = [];
     this.received = []; // [time ms, bytes]
     this.versions = []; // [time ms, server version] from Stats
     this.reflected = {};
+    /** The last Poses, `{ version, poses }`, or null. */
+    this.poses = null;
     this.lastStats = null;
     this.ws = new WebSocket(url);
     this.ws.binaryType = 'arraybuffer';
-    this.ws.onopen = () => this.send({ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: this.token, capabilities: 0 });
+    this.ws.onopen = () => this.send({ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: this.token, capabilities: HELLO_POSES });
     this.ws.onmessage = (e) => this.receive(e.data);
     this.ws.onclose = (e) => this.closed(e);
   }
@@ -147,6 +167,9 @@ export class Connection {
         break;
       case 'Stats':
         this.stats(message);
+        break;
+      case 'Poses':
+        this.takePoses(message);
         break;
       case 'Error': {
         const name = errorName(message.code);
@@ -208,6 +231,17 @@ export class Connection {
     }
     for (const { object, seq } of frame.reflected) this.reflected[object] = seq;
     this.on.applied?.(this, frame, keyframe);
+  }
+
+  /** Where the dynamic objects are in the version that follows. */
+  takePoses(p) {
+    if (!this.scene) {
+      this.log('Poses before Welcome; ignored', 'warn');
+      return;
+    }
+    this.counters.poses++;
+    this.poses = { version: p.version, poses: p.poses };
+    this.on.poses?.(this, p);
   }
 
   stats(s) {

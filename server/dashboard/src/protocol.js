@@ -29,6 +29,20 @@ export const PROTOCOL_VERSION = 2;
 export const CAP_SCENE_GLB = 1;
 
 /**
+ * `Welcome.capabilities` bit: the server sends `Poses` to a client whose
+ * Hello set `HELLO_POSES` (PROTOCOL.md §3, "Capabilities"). Twin of
+ * `lightwire_protocol::CAP_POSES`.
+ */
+export const CAP_POSES = 2;
+
+/**
+ * `Hello.capabilities` bit: send me `Poses`, the poses of the dynamic
+ * objects each lightmap version was lit for. A server without `CAP_POSES`
+ * ignores it. Twin of `lightwire_protocol::HELLO_POSES`.
+ */
+export const HELLO_POSES = 1;
+
+/**
  * `/api/scenes/{id}/scene.glb` with the id percent-encoded as one path
  * segment (every UTF-8 byte but A-Z a-z 0-9 - . _ ~), as the Rust
  * `scene_glb_path` writes it.
@@ -367,6 +381,13 @@ const ObjectSeq = struct([
   ['object', T.u32],
   ['seq', T.u64],
 ]);
+/** A dynamic object's pose in a published version (`Poses`); `seq` is the
+ * transform seq that set it (0: the scene file's pose). */
+const ObjectPose = struct([
+  ['object', T.u32],
+  ['seq', T.u64],
+  ['pose', Pose],
+]);
 const ObjectInfo = struct([
   ['name', T.string],
   ['dynamic', T.bool],
@@ -466,6 +487,16 @@ const ServerMessage = dataEnum('ServerMessage', [
     ]),
   ],
   ['Pong', struct([['nonce', T.u64]])],
+  /** Sent only after a Hello with `HELLO_POSES`, immediately before the
+   * Keyframe or Delta of `version`, whenever a pose changed: every dynamic
+   * object, in object order. */
+  [
+    'Poses',
+    struct([
+      ['version', T.u64],
+      ['poses', vec(ObjectPose)],
+    ]),
+  ],
 ]);
 
 function decode(type, what, frame) {

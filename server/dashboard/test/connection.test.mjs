@@ -1,8 +1,9 @@
 // The dashboard's connection logic (src/connection.js) without a browser: a
 // fake WebSocket and a fake clock drive it through the handshake, the
 // golden keyframe and delta of protocol/tests/vectors/, a delta onto a wrong
-// base (-> Resync), recorded zstd streams, server errors and closes (->
-// reconnect after the backoff delay, or give up).
+// base (-> Resync), recorded zstd streams, the golden Poses, server errors
+// and closes (-> reconnect after the backoff delay, or give up); and the
+// page's rule for which poses to draw (`posesToApply`).
 
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -10,8 +11,8 @@ import path from 'node:path';
 import test from 'node:test';
 import { fileURLToPath } from 'node:url';
 
-import { Backoff, CLIENT_NAME, Connection, DASHBOARD_BACKOFF, Reconnector, sceneUrl } from '../src/connection.js';
-import { PROTOCOL_VERSION, decodeClient, decodeServer, encodeServer } from '../src/protocol.js';
+import { Backoff, CLIENT_NAME, Connection, DASHBOARD_BACKOFF, Reconnector, posesToApply, sceneUrl } from '../src/connection.js';
+import { HELLO_POSES, PROTOCOL_VERSION, decodeClient, decodeServer, encodeServer } from '../src/protocol.js';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const vectors = path.resolve(here, '../../../protocol/tests/vectors');
@@ -114,6 +115,7 @@ function harness({ backoff = new Backoff(DASHBOARD_BACKOFF), token = 'secret' } 
     welcome: (c, w) => calls.push(['welcome', w.scene.id]),
     applied: (c, frame, keyframe) => calls.push(['applied', keyframe ? 'keyframe' : 'delta', frame.version]),
     stats: (c, s) => calls.push(['stats', s.version]),
+    poses: (c, p) => calls.push(['poses', p.version]),
     gaveUp: (c, e) => calls.push(['gaveUp', e.code]),
   };
   const link = new Reconnector({ url: sceneUrl({ protocol: 'http:', host: 'example:8080' }, 'cornell box'), token, WebSocket, clock, backoff, on });
@@ -129,14 +131,14 @@ const golden = () => ({
   delta: bin('server_delta'),
 });
 
-test('the handshake: the scene URL, then Hello with the protocol version, the client and the token', () => {
+test('the handshake: the scene URL, then Hello with the protocol version, the client, the token and HELLO_POSES', () => {
   const { socket, link, calls } = harness();
   assert.equal(socket().url, 'ws://example:8080/ws/scenes/cornell%20box');
   assert.equal(socket().binaryType, 'arraybuffer');
   assert.equal(link.current.state, 'connecting');
   assert.deepEqual(calls, [['state', 'connecting']]);
   socket().open();
-  assert.deepEqual(socket().sent, [{ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: 'secret', capabilities: 0 }]);
+  assert.deepEqual(socket().sent, [{ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: 'secret', capabilities: HELLO_POSES }]);
   assert.equal(sceneUrl({ protocol: 'https:', host: 'h' }, 'a/b'), 'wss://h/ws/scenes/a%2Fb');
 });
 
@@ -167,7 +169,7 @@ test('Welcome, the golden keyframe, and a delta onto its exact base are applied'
   assert.equal(conn.map.version, 2);
   assert.deepEqual(conn.map.texel(2, 0), [1, 1, 1]);
   assert.deepEqual(conn.map.texel(2, 1), [0, 0, 0]);
-  assert.deepEqual(conn.counters, { frames: 4, keyframes: 1, deltas: 1, resyncs: 0, stats: 0, decodeErrors: 0, errors: 0 });
+  assert.deepEqual(conn.counters, { frames: 4, keyframes: 1, deltas: 1, resyncs: 0, stats: 0, poses: 0, decodeErrors: 0, errors: 0 });
   // Only Hello went out: no Resync.
   assert.deepEqual(socket().sent.map((m) => m.type), ['Hello']);
   const welcomeId = decodeServer(welcome).scene.id;
@@ -180,6 +182,57 @@ test('Welcome, the golden keyframe, and a delta onto its exact base are applied'
   ]);
   // Objects whose transforms a version reflects are remembered.
   for (const { object, seq } of decodeServer(delta).reflected) assert.equal(conn.reflected[object], seq);
+});
+
+test('Poses are kept and reported, before the lightmap of their version; before Welcome they are ignored', () => {
+  const { socket, link, calls, logs } = harness();
+  const { welcome, keyframe, delta } = golden();
+  const poses = decodeServer(bin('server_poses'));
+  socket().open();
+  socket().deliver(bin('server_poses'));
+  const conn = link.current;
+  assert.equal(conn.poses, null);
+  assert.equal(conn.counters.poses, 0);
+  assert.equal(logs.at(-1)[1], 'Poses before Welcome; ignored');
+  socket().deliver(welcome);
+  socket().deliver(keyframe);
+  socket().deliver(bin('server_poses'));
+  socket().deliver(delta);
+  assert.deepEqual(conn.poses, { version: 2, poses: poses.poses });
+  assert.equal(conn.counters.poses, 1);
+  assert.deepEqual(calls.slice(-2), [
+    ['poses', 2],
+    ['applied', 'delta', 2],
+  ]);
+  assert.equal(conn.map.version, 2);
+  assert.deepEqual(socket().sent.map((m) => m.type), ['Hello']);
+});
+
+test('posesToApply: all but held objects and those behind the last seq this page sent', () => {
+  const pose = (x) => ({ translation: [x, 0, 0], rotation: [0, 0, 0, 1], scale: 1 });
+  const poses = [
+    { object: 0, seq: 0, pose: pose(0) }, // never moved by this page
+    { object: 1, seq: 5, pose: pose(1) }, // behind this page's seq 9: skipped
+    { object: 2, seq: 9, pose: pose(2) }, // reflects this page's seq 9
+    { object: 3, seq: 12, pose: pose(3) }, // another driver's later move
+    { object: 4, seq: 20, pose: pose(4) }, // held (dragging or queued): skipped
+  ];
+  const lastSentSeq = new Map([
+    [1, 9],
+    [2, 9],
+    [3, 10],
+    [4, 1],
+  ]);
+  assert.deepEqual(
+    posesToApply(poses, lastSentSeq, new Set([4])).map((p) => p.object),
+    [0, 2, 3],
+  );
+  assert.deepEqual(posesToApply(poses, new Map()), poses, 'nothing sent, nothing held: all of them');
+  assert.deepEqual(posesToApply([], lastSentSeq), []);
+  // The golden Poses (object 0 at seq 300) against a pending seq 301 and a reflected 300.
+  const golden = decodeServer(bin('server_poses')).poses;
+  assert.deepEqual(posesToApply(golden, new Map([[0, 301]])), []);
+  assert.deepEqual(posesToApply(golden, new Map([[0, 300]])), golden);
 });
 
 test('a delta onto a wrong base asks for a keyframe with Resync, and deltas wait for it', () => {

@@ -14,8 +14,10 @@ import test from 'node:test';
 import { fileURLToPath } from 'node:url';
 
 import {
+  CAP_POSES,
   CAP_SCENE_GLB,
   DecodeError,
+  HELLO_POSES,
   MAX_FRAME_BYTES,
   PROTOCOL_VERSION,
   decodeClient,
@@ -159,6 +161,33 @@ test('a Welcome with CAP_SCENE_GLB says where the scene glTF is, as the Rust cra
   assert.equal(sceneGlbPath('é'), '/api/scenes/%C3%A9/scene.glb');
 });
 
+test('Poses: the capability bits of Hello and Welcome, and the golden Poses before the golden delta', () => {
+  assert.equal(CAP_SCENE_GLB, 1);
+  assert.equal(CAP_POSES, 2);
+  assert.equal(HELLO_POSES, 1);
+  assert.equal(decodeClient(bin('client_hello')).capabilities & HELLO_POSES, 0);
+  assert.equal(decodeClient(bin('client_hello_poses')).capabilities, HELLO_POSES);
+  assert.equal(decodeServer(bin('server_welcome_scene_glb')).capabilities & CAP_POSES, 0);
+  assert.equal(decodeServer(bin('server_welcome_poses')).capabilities, CAP_SCENE_GLB | CAP_POSES);
+  const poses = decodeServer(bin('server_poses'));
+  const delta = decodeServer(bin('server_delta'));
+  assert.equal(poses.type, 'Poses');
+  assert.equal(poses.version, delta.version, 'the poses of the version that follows');
+  assert.deepEqual(
+    poses.poses.map(({ object, seq }) => ({ object, seq })),
+    delta.reflected,
+    'each pose carries the seq the delta reflects',
+  );
+  // The same pose as the golden Transform's.
+  assert.deepEqual(poses.poses[0].pose, decodeClient(bin('client_transform')).pose);
+  assert.equal(poseProblem(poses.poses[0].pose), null);
+  // No poses: tag, version, empty Vec.
+  assert.equal(toHex(encodeServer({ type: 'Poses', version: 300, poses: [] })), '06fb2c0100');
+  // Truncated anywhere: refused.
+  const bytes = bin('server_poses');
+  for (let n = 1; n < bytes.length; n++) assert.throws(() => decodeServer(bytes.subarray(0, n)), DecodeError, `prefix of ${n} bytes`);
+});
+
 test('varints use the shortest form and all four lengths (PROTOCOL.md §2 examples)', () => {
   const ping = (nonce) => Buffer.from(encodeClient({ type: 'Ping', nonce })).toString('hex');
   assert.equal(ping(5), '0305');
@@ -184,7 +213,7 @@ test('trailing bytes, bad tags, bad bools, invalid UTF-8 and unknown variants ar
   assert.throws(() => decodeClient(Uint8Array.from([3, 0xfe])), /invalid varint tag 0xfe/);
   assert.throws(() => decodeClient(Uint8Array.from([3, 0xff])), /invalid varint tag 0xff/);
   assert.throws(() => decodeClient(Uint8Array.from([9])), /unknown ClientMessage variant 9/);
-  assert.throws(() => decodeServer(Uint8Array.from([6])), /unknown ServerMessage variant 6/);
+  assert.throws(() => decodeServer(Uint8Array.from([7])), /unknown ServerMessage variant 7/);
   // Hello with protocol_version 0x10000: does not fit a u16.
   assert.throws(() => decodeClient(Uint8Array.from([0, 0xfc, 0, 0, 1, 0])), /does not fit a u16/);
   // Hello whose client name is invalid UTF-8.

@@ -28,7 +28,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use lightwire_protocol::lightmap::{ApplyError, Lightmap};
-use lightwire_protocol::{Delta, Keyframe, ObjectSeq, SceneInfo, Tile};
+use lightwire_protocol::{Delta, Keyframe, ObjectPose, ObjectSeq, SceneInfo, Tile};
 
 /// Why an upstream frame was not taken.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -70,6 +70,10 @@ pub struct Mirror {
     upstream: Option<u64>,
     /// Nothing published with this description yet.
     fresh: bool,
+    /// The dynamic objects' poses of the upstream's newest version, as its
+    /// `Poses` gave them (empty until it sends any), published with the
+    /// next relay version.
+    pub poses: Arc<[ObjectPose]>,
 }
 
 impl Mirror {
@@ -86,7 +90,31 @@ impl Mirror {
             reflected: BTreeMap::new(),
             upstream: None,
             fresh: true,
+            poses: Arc::default(),
         })
+    }
+
+    /// Takes the upstream's `Poses`: every entry must name a dynamic object
+    /// of the description, with a valid pose (else nothing changes).
+    pub fn on_poses(&mut self, poses: Vec<ObjectPose>) -> Result<(), String> {
+        for p in &poses {
+            if !self
+                .info
+                .objects
+                .get(p.object as usize)
+                .is_some_and(|o| o.dynamic)
+            {
+                return Err(format!(
+                    "Poses names object {}, not a dynamic object",
+                    p.object
+                ));
+            }
+            p.pose
+                .validate()
+                .map_err(|why| format!("Poses: object {}: {why}", p.object))?;
+        }
+        self.poses = poses.into();
+        Ok(())
     }
 
     /// The relay version of the state.
@@ -254,6 +282,45 @@ mod tests {
             materials: vec![],
             surfaces: vec![],
         })
+    }
+
+    #[test]
+    fn upstream_poses_are_kept_only_when_they_name_dynamic_objects_with_valid_poses() {
+        use lightwire_protocol::{ObjectInfo, Pose};
+        let mut scene = (*info()).clone();
+        for (name, dynamic) in [("static", false), ("box", true)] {
+            scene.objects.push(ObjectInfo {
+                name: name.into(),
+                dynamic,
+                pose: Pose::IDENTITY,
+            });
+        }
+        let mut mirror = Mirror::new(Arc::new(scene), 0).expect("layout");
+        let at = |object, pose| ObjectPose {
+            object,
+            seq: 3,
+            pose,
+        };
+        let moved = Pose {
+            translation: [1.0, 0.0, 0.0],
+            ..Pose::IDENTITY
+        };
+        mirror.on_poses(vec![at(1, moved)]).expect("the box");
+        assert_eq!(&*mirror.poses, &[at(1, moved)]);
+        for bad in [
+            vec![at(0, moved)],
+            vec![at(7, moved)],
+            vec![at(
+                1,
+                Pose {
+                    translation: [f32::NAN, 0.0, 0.0],
+                    ..moved
+                },
+            )],
+        ] {
+            assert!(mirror.on_poses(bad.clone()).is_err(), "{bad:?}");
+            assert_eq!(&*mirror.poses, &[at(1, moved)], "unchanged after {bad:?}");
+        }
     }
 
     /// A solver run: an encoder whose versions start at 1.

@@ -30,8 +30,8 @@ use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::backoff::{Backoff, BackoffPolicy};
 use lightwire_protocol::unix_micros;
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, MAX_FRAME_BYTES, PROTOCOL_VERSION, SceneInfo, ServerMessage, Stats,
-    decode_server, encode_client,
+    ClientMessage, ErrorCode, HELLO_POSES, MAX_FRAME_BYTES, PROTOCOL_VERSION, SceneInfo,
+    ServerMessage, Stats, decode_server, encode_client,
 };
 use tokio::net::TcpStream;
 use tokio::sync::watch;
@@ -209,7 +209,8 @@ impl Upstream {
             protocol_version: PROTOCOL_VERSION,
             client: concat!("lightwire-relay/", env!("CARGO_PKG_VERSION")).to_string(),
             token: self.token.clone(),
-            capabilities: 0,
+            // The dynamic objects' poses, for the relay's viewers that ask.
+            capabilities: HELLO_POSES,
         };
         ws.send(Message::Binary(encode_client(&hello).into()))
             .await
@@ -358,6 +359,17 @@ impl Upstream {
                             None
                         }
                         ServerMessage::Pong { .. } => None,
+                        ServerMessage::Poses { poses, .. } => {
+                            if let Err(e) = mirror.on_poses(poses) {
+                                tracing::warn!(upstream = %self.url.url, "upstream Poses refused: {e}");
+                                self.relay_metrics.upstream_bad_frames.inc();
+                                bad += 1;
+                                if bad >= MAX_BAD_FRAMES {
+                                    return lost(format!("{bad} bad frames from upstream (last: {e})"), synced);
+                                }
+                            }
+                            None
+                        }
                         ServerMessage::Welcome { .. } => {
                             return lost("a second Welcome from upstream".into(), synced);
                         }
@@ -422,8 +434,12 @@ impl Upstream {
             self.feed.inbox.reset(mirror.info.objects.len());
             self.feed.info.send_replace(Some(mirror.info.clone()));
         }
-        self.publisher
-            .publish(mirror.info.clone(), p.keyframe, p.delta);
+        self.publisher.publish(
+            mirror.info.clone(),
+            p.keyframe,
+            p.delta,
+            mirror.poses.clone(),
+        );
         self.metrics.versions_published.inc();
         self.feed.ready.store(true, Ordering::Release);
     }

@@ -23,7 +23,7 @@ use std::sync::{Arc, OnceLock};
 
 use bytes::Bytes;
 use lightwire_protocol::lightmap::{Layout, merge};
-use lightwire_protocol::{Delta, Keyframe, SceneInfo, ServerMessage, encode_server};
+use lightwire_protocol::{Delta, Keyframe, ObjectPose, SceneInfo, ServerMessage, encode_server};
 use tokio::sync::watch;
 
 /// How many versions behind a client may be and still get a merged delta.
@@ -54,6 +54,11 @@ pub struct Publication {
     /// to `version` (`None` once computed: a keyframe is smaller).
     catch_up: Vec<OnceLock<Option<Bytes>>>,
     keyframe_frame: OnceLock<Bytes>,
+    /// The poses of the dynamic objects this version was lit for (empty
+    /// when unknown: a relay whose upstream does not send them), and
+    /// their encoded `Poses` frame, for the sessions whose clients asked.
+    pub poses: Arc<[ObjectPose]>,
+    poses_frame: OnceLock<Bytes>,
     /// Total payload of the keyframe's tiles, the bar a merge must beat.
     keyframe_bytes: usize,
 }
@@ -70,6 +75,18 @@ impl Publication {
                 Bytes::from(encode_server(&ServerMessage::Keyframe(
                     self.keyframe.clone(),
                 )))
+            })
+            .clone()
+    }
+
+    /// The encoded `Poses` frame of this version ([`Publication::poses`]).
+    pub fn poses_frame(&self) -> Bytes {
+        self.poses_frame
+            .get_or_init(|| {
+                Bytes::from(encode_server(&ServerMessage::Poses {
+                    version: self.version,
+                    poses: self.poses.to_vec(),
+                }))
             })
             .clone()
     }
@@ -120,12 +137,15 @@ impl Publisher {
     /// brings the previous version to it (`None` for a keyframe-only
     /// version, which also starts a new chain of deltas). A delta whose
     /// base is not the previous version also starts a new chain, so merged
-    /// deltas are only ever built from consecutive versions.
+    /// deltas are only ever built from consecutive versions. `poses`: the
+    /// dynamic objects' poses the version was lit for
+    /// ([`Publication::poses`]).
     pub fn publish(
         &self,
         scene: Arc<SceneInfo>,
         keyframe: Keyframe,
         delta: Option<Delta>,
+        poses: Arc<[ObjectPose]>,
     ) -> Arc<Publication> {
         let previous = self.tx.borrow().clone();
         let mut recent: Vec<Arc<Delta>> = Vec::new();
@@ -147,6 +167,8 @@ impl Publisher {
             catch_up: recent.iter().map(|_| OnceLock::new()).collect(),
             recent,
             keyframe_frame: OnceLock::new(),
+            poses,
+            poses_frame: OnceLock::new(),
         });
         self.tx.send_replace(Some(publication.clone()));
         publication
@@ -209,7 +231,12 @@ mod tests {
             // Version 1 sends every tile (onto the empty state); after
             // that only the first two tile columns change.
             let delta = encoder.publish(&image(w, h, step, 2), vec![]);
-            publisher.publish(info.clone(), encoder.keyframe(), Some(delta));
+            publisher.publish(
+                info.clone(),
+                encoder.keyframe(),
+                Some(delta),
+                Arc::default(),
+            );
             states.push(encoder.state().clone());
         }
         let newest = rx.borrow().clone().expect("published");
@@ -277,7 +304,12 @@ mod tests {
         let flat = vec![[0.5f32, 0.25, 0.125]; (w * h) as usize];
         for image in [noise(), noise(), flat] {
             let delta = encoder.publish(&image, vec![]);
-            publisher.publish(info.clone(), encoder.keyframe(), Some(delta));
+            publisher.publish(
+                info.clone(),
+                encoder.keyframe(),
+                Some(delta),
+                Arc::default(),
+            );
         }
         let newest = publisher.latest().expect("published");
         assert!(
@@ -295,13 +327,23 @@ mod tests {
         let (publisher, _rx) = Publisher::new();
         for step in 1..=2 {
             let delta = encoder.publish(&image(w, h, step, 1), vec![]);
-            publisher.publish(info.clone(), encoder.keyframe(), Some(delta));
+            publisher.publish(
+                info.clone(),
+                encoder.keyframe(),
+                Some(delta),
+                Arc::default(),
+            );
         }
         // A keyframe-only version, then a delta on it.
         let _ = encoder.publish(&image(w, h, 3, 1), vec![]);
-        publisher.publish(info.clone(), encoder.keyframe(), None);
+        publisher.publish(info.clone(), encoder.keyframe(), None, Arc::default());
         let delta = encoder.publish(&image(w, h, 4, 1), vec![]);
-        publisher.publish(info.clone(), encoder.keyframe(), Some(delta));
+        publisher.publish(
+            info.clone(),
+            encoder.keyframe(),
+            Some(delta),
+            Arc::default(),
+        );
         let newest = publisher.latest().expect("published");
         assert!(newest.frame_for(3).is_some());
         assert!(
@@ -311,7 +353,7 @@ mod tests {
         // Another scene description: no delta reaches across it either.
         let other = scene(w, h);
         let delta = encoder.publish(&image(w, h, 5, 1), vec![]);
-        publisher.publish(other, encoder.keyframe(), Some(delta));
+        publisher.publish(other, encoder.keyframe(), Some(delta), Arc::default());
         let newest = publisher.latest().expect("published");
         assert!(newest.frame_for(4).is_some(), "its own delta");
         assert!(newest.frame_for(3).is_none());

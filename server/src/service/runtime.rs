@@ -7,14 +7,17 @@
 //! 1. drain the scene's [`super::inbox::Inbox`]: the newest pose per
 //!    object;
 //! 2. if any pose changed, hand all poses to the solver, tagged with the
-//!    seq per object they carry ([`Seqs`]: the solver keeps the tag without
+//!    seq per object they carry and the poses themselves ([`Tag`]: the
+//!    solver keeps the tag without
 //!    looking inside and hands it back with the state that reflects those
 //!    poses);
 //! 3. run solver work for the tick budget;
 //! 4. if the solver completed a state, scatter it into the atlas, encode it
 //!    once and publish it through a [`Publisher`] (the newest publication
 //!    replaces the previous one in a `watch` channel, echoing the seqs
-//!    that state reflects);
+//!    that state reflects, with the dynamic objects' poses it was lit
+//!    for, which the sessions send to clients that ask, PROTOCOL.md §3
+//!    `Poses`);
 //! 5. update stats and metrics, sleep to the next tick (ticks missed while
 //!    the solver ran long are skipped, not caught up); a transform that
 //!    arrives meanwhile starts the next tick at once (at most four ticks
@@ -43,7 +46,9 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::unix_micros;
-use lightwire_protocol::{DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, PixelFormat, SceneInfo, Stats};
+use lightwire_protocol::{
+    DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, ObjectPose, PixelFormat, SceneInfo, Stats,
+};
 use tokio::sync::watch;
 
 use super::config::{Config, SolverChoice};
@@ -51,7 +56,7 @@ use super::feed::{Failure, Feed};
 use super::live::{GpuLive, LiveSolver, ReferenceLive, SolverFailure, StepReport};
 use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
-use super::wire::{from_wire, newly_reflected, scene_info};
+use super::wire::{from_wire, newly_reflected, scene_info, to_wire};
 use crate::atlas::Atlas;
 use crate::load::load_scene;
 use crate::reference::MAX_ELEMENTS;
@@ -72,20 +77,54 @@ pub struct SceneRuntime {
 /// The tag the tick loop gives each set of poses it hands its solver: the
 /// seq per object of the transforms they carry (0: none yet). The solver
 /// hands it back with the state that reflects those poses, whose version
-/// then echoes the seqs (PROTOCOL.md §3, `reflected`).
-pub type Seqs = Arc<[u64]>;
+/// then echoes the seqs (PROTOCOL.md §3, `reflected`) and sends the poses
+/// (`Poses`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tag {
+    /// Per object, the seq of the transform that set its pose (0: none).
+    pub seqs: Arc<[u64]>,
+    /// Per object, its pose.
+    pub poses: Arc<[Pose]>,
+}
 
-/// Seqs of poses that carry no transform.
-fn no_seqs(objects: usize) -> Seqs {
-    vec![0; objects].into()
+impl Tag {
+    /// `poses` with the seqs `seqs`.
+    fn new(seqs: &[u64], poses: &[Pose]) -> Self {
+        Tag {
+            seqs: seqs.into(),
+            poses: poses.into(),
+        }
+    }
+
+    /// `poses` carrying no transform.
+    fn untransformed(poses: &[Pose]) -> Self {
+        Tag::new(&vec![0; poses.len()], poses)
+    }
+}
+
+/// The poses of `info`'s dynamic objects that `tag` holds, as the wire's
+/// `Poses` lists them.
+fn dynamic_poses(info: &SceneInfo, tag: &Tag) -> Arc<[ObjectPose]> {
+    info.objects
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.dynamic)
+        .filter_map(|(k, _)| {
+            Some(ObjectPose {
+                object: k as u32,
+                seq: *tag.seqs.get(k)?,
+                pose: to_wire(tag.poses.get(k)?),
+            })
+        })
+        .collect()
 }
 
 /// A scene's solver as the tick loop owns it.
-type Solver = Box<dyn LiveSolver<Seqs>>;
+type Solver = Box<dyn LiveSolver<Tag>>;
 
 /// Builds a scene's solver starting from given poses with their tag: once
 /// at start, and again after each failure.
-type Build = Box<dyn FnMut(&[Pose], Seqs) -> Result<Solver> + Send>;
+type Build = Box<dyn FnMut(&[Pose], Tag) -> Result<Solver> + Send>;
 
 /// The wait before the first rebuild of a failed solver.
 pub const REBUILD_FIRST: Duration = Duration::from_millis(500);
@@ -139,7 +178,7 @@ impl SceneRuntime {
                     );
                 }
                 let (scene, atlas) = (scene.clone(), atlas.clone());
-                Box::new(move |poses: &[Pose], tag: Seqs| {
+                Box::new(move |poses: &[Pose], tag: Tag| {
                     let solver = ReferenceLive::new(scene.clone(), atlas.clone(), poses, tag);
                     Ok(Box::new(solver) as Solver)
                 })
@@ -153,7 +192,7 @@ impl SceneRuntime {
                 tracing::info!(scene = %scene.name, %method, "redistribution");
                 let adapter = config.adapter.clone();
                 let (scene, atlas) = (scene.clone(), atlas.clone());
-                Box::new(move |poses: &[Pose], tag: Seqs| {
+                Box::new(move |poses: &[Pose], tag: Tag| {
                     let device = crate::gpu::Device::new(adapter.as_deref())?;
                     tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
                     let solver = GpuLive::new(device, &scene, atlas.clone(), poses, tag, method)?;
@@ -161,7 +200,8 @@ impl SceneRuntime {
                 })
             }
         };
-        let solver = build(&scene.initial_poses(), no_seqs(scene.objects.len()))?;
+        let initial = scene.initial_poses();
+        let solver = build(&initial, Tag::untransformed(&initial))?;
         let (publisher, pub_rx) = Publisher::new();
         let (stats_tx, stats_rx) = watch::channel(Stats::initial());
         let feed = Arc::new(Feed::new(
@@ -386,7 +426,9 @@ impl TickLoop {
         let build = &mut self.build;
         // The new solver's state reflects no transform until it takes up
         // the tagged poses handed to it below.
-        let built = match catch_unwind(AssertUnwindSafe(|| build(&poses, no_seqs(poses.len())))) {
+        let built = match catch_unwind(AssertUnwindSafe(|| {
+            build(&poses, Tag::untransformed(&poses))
+        })) {
             Ok(Ok(_)) if self.rebuild_fails > 0 => {
                 self.rebuild_fails -= 1;
                 Err("test-injected rebuild failure (LIGHTWIRE_TEST_FAIL_SOLVER)".into())
@@ -397,7 +439,7 @@ impl TickLoop {
         };
         match built {
             Ok(mut solver) => {
-                solver.set_poses(&self.poses, self.seqs.as_slice().into());
+                solver.set_poses(&self.poses, Tag::new(&self.seqs, &self.poses));
                 tracing::info!(scene = %id, attempt, "solver rebuilt; ready again at its first version");
                 self.solver = Some(solver);
                 self.has_state = false;
@@ -416,7 +458,7 @@ impl TickLoop {
         let id = self.runtime.info.id.clone();
         tracing::info!(scene = %id, solver = self.name, elements = self.runtime.atlas.elements.len(), "tick loop started");
         let mut next = Instant::now();
-        let mut published_seqs = no_seqs(self.seqs.len());
+        let mut published = Tag::untransformed(&self.poses);
         // Since when the solver has had nothing to do (and no transform came).
         let mut idle_since: Option<Instant> = None;
         let mut last = StepReport {
@@ -444,7 +486,7 @@ impl TickLoop {
                 continue;
             };
             if moved {
-                solver.set_poses(&self.poses, self.seqs.as_slice().into());
+                solver.set_poses(&self.poses, Tag::new(&self.seqs, &self.poses));
             }
             if inject {
                 self.fail_at_seq = None;
@@ -467,7 +509,7 @@ impl TickLoop {
             // version, with no tiles, so that every accepted seq is echoed
             // (PROTOCOL.md §3, `reflected`).
             let solved = solver.reflected().clone();
-            let reflected = newly_reflected(&solved, &published_seqs);
+            let reflected = newly_reflected(&solved.seqs, &published.seqs);
             // A new (or rebuilt) solver's `radiosity` means nothing before
             // its first complete state: no echo-only version until then.
             // Once the solver has been idle for `settle` (no transform in
@@ -487,13 +529,14 @@ impl TickLoop {
                 && self.encoder.pending_texels() > 0;
             if report.completed || settle || (self.has_state && !reflected.is_empty()) {
                 self.has_state = true;
-                published_seqs = solved;
+                let poses = dynamic_poses(&self.runtime.info, &solved);
+                published = solved;
                 let image = self.runtime.atlas.to_image(solver.radiosity());
                 let delta = self.encoder.publish(&image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();
                 self.publisher
-                    .publish(self.runtime.info.clone(), keyframe, Some(delta));
+                    .publish(self.runtime.info.clone(), keyframe, Some(delta), poses);
                 if let Some(episode) = self.episode.take() {
                     self.runtime.feed.set_failure(None);
                     tracing::info!(

@@ -17,7 +17,9 @@
 //! - the **writer** owns the socket's sink. It waits for the newest
 //!   publication and sends the delta if the client holds exactly its base,
 //!   a merged delta if it holds one of the few versions before that, else
-//!   a keyframe ([`Publication::frame_for`]). While a send is blocked on a
+//!   a keyframe ([`Publication::frame_for`]), preceded by the version's
+//!   `Poses` when the client's `Hello` asked for them and they differ from
+//!   those it last got. While a send is blocked on a
 //!   slow client, newer publications simply replace older ones in the
 //!   watch channel, so nothing queues. Control frames from the reader
 //!   (errors, pongs) go through a small bounded channel; when it is full
@@ -37,8 +39,8 @@ use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, PROTOCOL_VERSION, Role, SceneInfo, ServerMessage, decode_client,
-    encode_server,
+    ClientMessage, ErrorCode, HELLO_POSES, ObjectPose, PROTOCOL_VERSION, Role, SceneInfo,
+    ServerMessage, decode_client, encode_server,
 };
 use tokio::sync::{mpsc, watch};
 
@@ -150,13 +152,13 @@ pub async fn run(
     // Handshake: the first frame must be a Hello with our version.
     let hello_timeout = Duration::from_secs_f64(state.config.hello_timeout_secs);
     let first = tokio::time::timeout(hello_timeout, stream.next()).await;
-    let (token, client_name) = match first {
+    let (token, client_name, wants_poses) = match first {
         Ok(Some(Ok(Message::Binary(bytes)))) => match decode_client(&bytes) {
             Ok(ClientMessage::Hello {
                 protocol_version,
                 client,
                 token,
-                ..
+                capabilities,
             }) => {
                 if protocol_version != PROTOCOL_VERSION {
                     metrics.bad_frame("unsupported_version");
@@ -168,7 +170,11 @@ pub async fn run(
                     close(&mut sink, CLOSE_PROTOCOL, "unsupported protocol version").await;
                     return;
                 }
-                (token.or(header_token), client)
+                (
+                    token.or(header_token),
+                    client,
+                    capabilities & HELLO_POSES != 0,
+                )
             }
             Ok(_) => {
                 metrics.bad_frame("no_hello");
@@ -237,8 +243,10 @@ pub async fn run(
             SERVER_NAME.to_string()
         },
         role,
-        // `http.rs` serves `scene.glb` on every router, solver and relay.
-        capabilities: lightwire_protocol::CAP_SCENE_GLB,
+        // `http.rs` serves `scene.glb` on every router, solver and relay;
+        // the writer sends `Poses` to a client that asked (a relay's as
+        // its upstream gives them).
+        capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
         scene: (*info).clone(),
     });
     if sink
@@ -269,6 +277,7 @@ pub async fn run(
         state.clone(),
         feed.clone(),
         info,
+        wants_poses,
         control_rx,
         close_rx,
     )
@@ -493,6 +502,7 @@ async fn write_loop(
     state: Arc<Shared>,
     feed: Arc<Feed>,
     info: Arc<SceneInfo>,
+    wants_poses: bool,
     mut control: mpsc::Receiver<Control>,
     mut close_rx: watch::Receiver<Option<(u16, String)>>,
 ) {
@@ -503,6 +513,10 @@ async fn write_loop(
     // ever increase on one connection (a relay renumbers across upstream
     // restarts to keep it so), so "holds v" identifies one exact state.
     let mut held: Option<u64> = None;
+    // The poses last sent to a client that asked for them
+    // (`HELLO_POSES`): a `Poses` frame goes before a version's lightmap
+    // only when they differ.
+    let mut sent_poses: Option<Arc<[ObjectPose]>> = None;
     // Start from whatever is already published.
     publications.mark_changed();
     let mut stats_timer = tokio::time::interval(STATS_PERIOD);
@@ -566,6 +580,13 @@ async fn write_loop(
                     return;
                 }
                 let Some(frame) = frame_for(&state, held, &p) else { continue };
+                if wants_poses
+                    && !p.poses.is_empty()
+                    && sent_poses.as_deref() != Some(&*p.poses)
+                {
+                    if !send(&mut sink, &state, p.poses_frame()).await { return; }
+                    sent_poses = Some(p.poses.clone());
+                }
                 if !send(&mut sink, &state, frame).await { return; }
                 held = Some(p.version);
             }
