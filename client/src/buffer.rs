@@ -139,6 +139,12 @@ impl DoubleBuffer {
         }
     }
 
+    /// Forgets the poses a previous connection sent (frames from now on
+    /// carry only those of the new one).
+    pub fn clear_poses(&mut self) {
+        self.poses.clear();
+    }
+
     /// Replaces everything with a keyframe and swaps it to the front.
     pub fn apply_keyframe(&mut self, k: &Keyframe) -> Result<Applied, ApplyError> {
         self.back.apply_keyframe(k)?;

@@ -333,6 +333,9 @@ impl Task {
             })?;
             self.shared.scene.send_replace(scene);
         }
+        // Poses are per connection: the new server sends its own before
+        // its first lightmap (or none, if it does not offer them).
+        self.buffer.clear_poses();
         self.emit(Event::Connected {
             role: opened.role,
             server: opened.server.clone(),

@@ -174,7 +174,8 @@ pub enum ClientMessage {
 /// Delta 2, Stats 3, Error 4, Pong 5, Poses 6.
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub enum ServerMessage {
-    /// Answer to a successful Hello; always followed by a Keyframe.
+    /// Answer to a successful Hello; followed by a Keyframe (preceded by
+    /// `Poses` for a client that asked for them).
     Welcome {
         /// The server's [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION).
         protocol_version: u16,
@@ -210,8 +211,9 @@ pub enum ServerMessage {
     /// only to a client whose `Hello` set
     /// [`HELLO_POSES`](crate::HELLO_POSES), immediately before the
     /// `Keyframe` or `Delta` of `version`, whenever a pose differs from
-    /// those last sent on the connection (so always before the first
-    /// lightmap). Every dynamic object, in object order.
+    /// those last sent on the connection (so before the first lightmap,
+    /// when the poses are known and the scene has dynamic objects). Every
+    /// dynamic object, in object order.
     Poses {
         /// The version these poses were lit for.
         version: u64,

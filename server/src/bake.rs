@@ -172,8 +172,12 @@ fn uv_lightmap_stem(k: usize, name: &str) -> String {
 }
 
 /// Writes every glTF mesh instance's lightmap in its own UVs
-/// (`uvmap::resample_all`) into `dir/uv-lightmaps/` as EXR and PNG, and
-/// returns their `atlas.json` entries.
+/// (`uvmap::resample`, one mesh at a time) into `dir/uv-lightmaps/` as EXR
+/// and PNG (tone-mapped with the atlas's white point, as `lightmap.png`,
+/// so that meshes side by side match), and returns their `atlas.json`
+/// entries. A mesh some of whose triangles lie on no patch (which a scene
+/// Lightwire loaded does not have) is left out with a warning rather than
+/// written with holes.
 fn write_uv_lightmaps(
     dir: &Path,
     scene: &Scene,
@@ -185,15 +189,18 @@ fn write_uv_lightmaps(
     }
     let sub = dir.join(UV_LIGHTMAPS);
     std::fs::create_dir_all(&sub).with_context(|| format!("creating {}", sub.display()))?;
-    let maps = crate::uvmap::resample_all(scene, atlas, image, None);
-    let mut entries = Vec::with_capacity(maps.len());
-    for (k, (mesh, map)) in scene.uv_meshes.iter().zip(&maps).enumerate() {
+    let locator = crate::uvmap::Locator::new(&scene.patches);
+    let white = white_point(image);
+    let mut entries = Vec::with_capacity(scene.uv_meshes.len());
+    for (k, mesh) in scene.uv_meshes.iter().enumerate() {
+        let size = crate::uvmap::default_size(scene, mesh);
+        let map = crate::uvmap::resample(&locator, atlas, image, mesh, size);
         if map.unplaced > 0 {
-            bail!(
-                "{}: {} of its triangles lie on no patch of the scene; its lightmap would miss them",
-                mesh.name,
-                map.unplaced
+            eprintln!(
+                "warning: {}: {} of its triangles lie on no patch of the scene; its lightmap in its own UVs is not written",
+                mesh.name, map.unplaced
             );
+            continue;
         }
         let stem = uv_lightmap_stem(k, &mesh.name);
         let (exr, png) = (
@@ -201,7 +208,7 @@ fn write_uv_lightmaps(
             format!("{UV_LIGHTMAPS}/{stem}.png"),
         );
         write_exr(&dir.join(&exr), map.width, map.height, &map.pixels)?;
-        write_png(&dir.join(&png), map.width, map.height, &map.pixels)?;
+        write_png_with(&dir.join(&png), map.width, map.height, &map.pixels, white)?;
         entries.push(UvLightmapEntry {
             mesh: mesh.name.clone(),
             object: scene.objects[mesh.object as usize].name.clone(),
@@ -290,13 +297,13 @@ pub fn write_outputs(
     let image = atlas.to_image(&values);
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;
-    let mut atlas_json = atlas_file(scene, atlas, poses);
-    atlas_json.uv_lightmaps = write_uv_lightmaps(dir, scene, atlas, &image)?;
-    write_json(&dir.join("atlas.json"), &atlas_json)?;
     write_json(&dir.join("stats.json"), stats)?;
     let glb = scene_glb(&describe(scene, atlas, poses), &image, None)?;
     let path = dir.join(SCENE_GLB);
     std::fs::write(&path, glb).with_context(|| format!("writing {}", path.display()))?;
+    let mut atlas_json = atlas_file(scene, atlas, poses);
+    atlas_json.uv_lightmaps = write_uv_lightmaps(dir, scene, atlas, &image)?;
+    write_json(&dir.join("atlas.json"), &atlas_json)?;
     Ok(())
 }
 

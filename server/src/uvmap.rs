@@ -81,10 +81,12 @@ fn uv_area([a, b, c]: &[Vec2; 3]) -> f32 {
 }
 
 /// Patches by object, surface and a coarse grid of object space, to find
-/// the patch a triangle became.
-struct Locator<'a> {
+/// the patch a triangle became. Each (object, surface) group has its own
+/// cell size, twice the square root of its patches' mean area, so a large
+/// quad elsewhere in the scene does not pile a fine mesh into one cell.
+pub struct Locator<'a> {
     patches: &'a [Patch],
-    cell: f32,
+    cell: HashMap<(u32, usize), f32>,
     cells: HashMap<(u32, usize, [i64; 3]), Vec<usize>>,
     /// Patches spanning more than [`Locator::MAX_CELLS`] cells, per object
     /// and surface: tried for every point.
@@ -94,10 +96,18 @@ struct Locator<'a> {
 impl<'a> Locator<'a> {
     const MAX_CELLS: i64 = 64;
 
-    fn new(patches: &'a [Patch]) -> Self {
-        let mean_area =
-            patches.iter().map(|p| p.shape.area()).sum::<f32>() / patches.len().max(1) as f32;
-        let cell = (2.0 * mean_area.sqrt()).max(1e-6);
+    /// The index of `patches` (a scene's).
+    pub fn new(patches: &'a [Patch]) -> Self {
+        let mut area: HashMap<(u32, usize), (f32, usize)> = HashMap::new();
+        for p in patches {
+            let e = area.entry((p.object, p.surface_index)).or_default();
+            e.0 += p.shape.area();
+            e.1 += 1;
+        }
+        let cell = area
+            .into_iter()
+            .map(|(g, (a, n))| (g, (2.0 * (a / n.max(1) as f32).sqrt()).max(1e-6)))
+            .collect();
         let mut locator = Locator {
             patches,
             cell,
@@ -105,6 +115,7 @@ impl<'a> Locator<'a> {
             large: HashMap::new(),
         };
         for (k, p) in patches.iter().enumerate() {
+            let group = (p.object, p.surface_index);
             let corners = p.shape.corners();
             let lo = corners
                 .iter()
@@ -112,14 +123,10 @@ impl<'a> Locator<'a> {
             let hi = corners
                 .iter()
                 .fold(Vec3::splat(f32::NEG_INFINITY), |m, c| m.max(*c));
-            let (a, b) = (locator.key(lo), locator.key(hi));
-            let span: i64 = (0..3).map(|i| b[i] - a[i] + 1).product();
+            let (a, b) = (locator.key(group, lo), locator.key(group, hi));
+            let span: i64 = (0..3).map(|i| (b[i] - a[i] + 1).max(1)).product();
             if span > Self::MAX_CELLS {
-                locator
-                    .large
-                    .entry((p.object, p.surface_index))
-                    .or_default()
-                    .push(k);
+                locator.large.entry(group).or_default().push(k);
                 continue;
             }
             for x in a[0]..=b[0] {
@@ -127,7 +134,7 @@ impl<'a> Locator<'a> {
                     for z in a[2]..=b[2] {
                         locator
                             .cells
-                            .entry((p.object, p.surface_index, [x, y, z]))
+                            .entry((group.0, group.1, [x, y, z]))
                             .or_default()
                             .push(k);
                     }
@@ -137,26 +144,32 @@ impl<'a> Locator<'a> {
         locator
     }
 
-    fn key(&self, p: Vec3) -> [i64; 3] {
-        (p / self.cell).floor().as_i64vec3().to_array()
+    fn key(&self, group: (u32, usize), p: Vec3) -> [i64; 3] {
+        let cell = self.cell.get(&group).copied().unwrap_or(1.0);
+        (p / cell).floor().as_i64vec3().to_array()
     }
 
     /// The patch of `object` and `surface` that holds the triangle `t`
     /// (facing as it does, its centroid on the patch), and the patch
     /// parameters of its corners.
     fn place(&self, object: u32, surface: usize, t: &[Vec3; 3]) -> Option<(usize, [Vec2; 3])> {
+        let group = (object, surface);
         let centroid = (t[0] + t[1] + t[2]) / 3.0;
         let normal = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
         let size = (t[1] - t[0])
             .length()
             .max((t[2] - t[0]).length())
             .max(1e-12);
+        // Off the plane by more than f32 rounding of the coordinates allows
+        // (corners far from the origin), or by more than a thousandth of the
+        // triangle, is another surface.
+        let slack = (1e-3 * size).max(8.0 * f32::EPSILON * centroid.abs().max_element());
         let none = Vec::new();
         let near = self
             .cells
-            .get(&(object, surface, self.key(centroid)))
+            .get(&(object, surface, self.key(group, centroid)))
             .unwrap_or(&none);
-        let large = self.large.get(&(object, surface)).unwrap_or(&none);
+        let large = self.large.get(&group).unwrap_or(&none);
         let mut best: Option<(f32, usize)> = None;
         for &k in near.iter().chain(large) {
             let shape = &self.patches[k].shape;
@@ -164,11 +177,14 @@ impl<'a> Locator<'a> {
                 continue;
             }
             let (o, _, _) = shape.frame();
-            let off_plane = (centroid - o).dot(shape.normal()).abs() / size;
+            let off_plane = (centroid - o).dot(shape.normal()).abs();
             let st = parameters(&self.patches[k], centroid);
             let outside = outside(&self.patches[k], st);
-            let miss = off_plane.max(outside);
-            if miss < 1e-3 && best.is_none_or(|(m, _)| miss < m) {
+            if off_plane > slack || outside > 1e-3 {
+                continue;
+            }
+            let miss = (off_plane / slack).max(outside);
+            if best.is_none_or(|(m, _)| miss < m) {
                 best = Some((miss, k));
             }
         }
@@ -244,7 +260,8 @@ fn nearest(q: &[Vec2; 3], p: Vec2) -> (Vec3, f32) {
 /// Every [`Scene::uv_meshes`] entry's lightmap from the atlas light
 /// `image` (linear, one pixel per atlas texel, invalid texels already
 /// filled, as `bake::write_outputs` makes it), `size × size` pixels each
-/// ([`default_size`] when `None`).
+/// ([`default_size`] when `None`). Holds them all at once: for many large
+/// meshes, [`resample`] one at a time with one [`Locator`].
 pub fn resample_all(
     scene: &Scene,
     atlas: &Atlas,
@@ -262,8 +279,10 @@ pub fn resample_all(
         .collect()
 }
 
-/// `mesh`'s lightmap of `size × size` pixels ([`resample_all`]).
-fn resample(
+/// `mesh`'s lightmap of `size × size` pixels from the atlas light `image`
+/// ([`resample_all`]), its triangles found through `locator` (the
+/// scene's).
+pub fn resample(
     locator: &Locator<'_>,
     atlas: &Atlas,
     image: &[[f32; 3]],

@@ -577,6 +577,33 @@ async fn a_viewer_that_asks_gets_the_poses_each_version_was_lit_for() {
     assert_eq!(moved[0].pose.translation, want.translation);
     assert_eq!(viewer.reflected.get(&1), Some(&5));
     assert_eq!(viewer.texels(), old.texels(), "the same light either way");
+
+    // The served scene.glb draws the box where this version lit it.
+    let glb = http_get(&server, "/api/scenes/cornell-low/scene.glb").await;
+    assert_eq!(glb.status, 200);
+    let imported = lightwire_server::scene::gltf::import_slice(
+        &glb.body,
+        None,
+        "scene.glb",
+        &Default::default(),
+    )
+    .expect("scene.glb imports");
+    let placed = imported
+        .objects
+        .iter()
+        .find(|o| o.name == "box")
+        .expect("the box is a dynamic node");
+    assert!(
+        (placed.pose.translation - glam::Vec3::from(want.translation)).length() < 1e-5
+            && placed
+                .pose
+                .rotation
+                .dot(glam::Quat::from_array(want.rotation))
+                .abs()
+                > 1.0 - 1e-6,
+        "scene.glb's box at {:?}, lit at {want:?}",
+        placed.pose
+    );
 }
 
 /// PROTOCOL.md §7: a client frame over `max_message_bytes` (4096 by

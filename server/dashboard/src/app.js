@@ -10,8 +10,9 @@
 // driver's drags become Transform frames, at most one per object every
 // TRANSFORM_PERIOD_MS (the server allows 120/s), each with a fresh seq.
 // Poses (asked for in Hello) move the dynamic objects to where each
-// version's light was computed for them, except the user's own moves that
-// the server has not reflected yet (`posesToApply`).
+// version's light was computed for them, once that version's lightmap is
+// applied, except the user's own moves that the server has not reflected
+// yet (`posesToApply`).
 //
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
@@ -152,11 +153,17 @@ const events = {
     driver.setScene(w.scene, w.role);
   },
   poses(_conn, p) {
-    driver.posesArrived(p.poses);
+    // Drawn with the lightmap they were lit for, once it is applied.
+    driver.pendingPoses = p;
   },
   applied(c, frame, keyframe) {
     const now = performance.now();
     for (const { object, seq } of frame.reflected) driver.reflected(object, seq, now);
+    const poses = driver.pendingPoses;
+    if (poses && poses.version <= c.map.version) {
+      driver.pendingPoses = null;
+      driver.posesArrived(poses.poses);
+    }
     if (keyframe || ui.autoExposure.checked) {
       if (ui.autoExposure.checked || autoWhite === 1) autoWhite = whitePoint(c.map.rgb);
       view?.setExposure(exposure());
@@ -189,6 +196,7 @@ const driver = {
   sentAt: new Map(), // seq -> time ms
   lastSentSeq: 0,
   sentSeq: new Map(), // object -> last seq sent on this connection
+  pendingPoses: null, // the last Poses, until the lightmap of its version is applied
   latencyMs: null,
 
   setScene(scene, role) {
@@ -197,6 +205,7 @@ const driver = {
     this.initial = scene.objects.map((o) => structuredClone(o.pose));
     this.pending.clear();
     this.sentSeq.clear();
+    this.pendingPoses = null;
     ui.object.replaceChildren();
     scene.objects.forEach((o, i) => {
       if (o.dynamic) ui.object.append(new Option(o.name, String(i)));

@@ -248,6 +248,10 @@ impl Upstream {
         let mirror = mirror
             .as_mut()
             .ok_or_else(|| anyhow!("no mirror for the upstream scene"))?;
+        // Poses are per connection: this upstream sends its own before its
+        // first lightmap, or none (one without CAP_POSES); never publish
+        // the previous connection's with its versions.
+        mirror.poses = Arc::default();
         self.status.connected.store(true, Ordering::Relaxed);
         self.relay_metrics.upstreams_connected.inc();
         self.status.connects.fetch_add(1, Ordering::Relaxed);

@@ -326,6 +326,9 @@ async fn scene_info<S: Scenes>(State(scenes): State<Arc<S>>, Path(id): Path<Stri
 struct Snapshot {
     /// The description the lightmap was decoded for.
     info: Arc<lightwire_protocol::SceneInfo>,
+    /// The dynamic objects' poses the version was lit for (empty when
+    /// unknown: a relay whose upstream sends none).
+    poses: Arc<[lightwire_protocol::ObjectPose]>,
     width: u32,
     height: u32,
     version: u64,
@@ -350,6 +353,7 @@ fn current_rgb(feed: &Feed) -> Result<Snapshot, String> {
     })?;
     Ok(Snapshot {
         info,
+        poses: p.poses.clone(),
         width: map.width,
         height: map.height,
         version: p.version,
@@ -380,14 +384,23 @@ async fn lightmap_file<S: Scenes>(
     let encoded = tokio::task::spawn_blocking(move || -> Result<(u64, Vec<u8>), String> {
         let Snapshot {
             info,
+            poses,
             width: w,
             height: h,
             version,
             rgb,
         } = current_rgb(&feed)?;
         let Some(format) = format else {
-            let glb =
-                crate::bake::scene_glb(&info, &rgb, Some(version)).map_err(|e| format!("{e:#}"))?;
+            // The dynamic objects where this version's light has them,
+            // not at the scene file's poses.
+            let mut posed = (*info).clone();
+            for p in poses.iter() {
+                if let Some(o) = posed.objects.get_mut(p.object as usize) {
+                    o.pose = p.pose;
+                }
+            }
+            let glb = crate::bake::scene_glb(&posed, &rgb, Some(version))
+                .map_err(|e| format!("{e:#}"))?;
             return Ok((version, glb));
         };
         let mut out = Cursor::new(Vec::new());
