@@ -157,7 +157,7 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
 
 /// A file name for mesh `k` called `name`: its index, then the name with
 /// anything but letters, digits, `-` and `_` made `_`.
-fn uv_lightmap_stem(k: usize, name: &str) -> String {
+pub fn uv_lightmap_stem(k: usize, name: &str) -> String {
     let clean: String = name
         .chars()
         .map(|c| {

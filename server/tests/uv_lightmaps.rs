@@ -252,3 +252,95 @@ fn a_dynamic_mesh_reads_its_light_in_its_own_uvs() {
 fn the_atrium_reads_its_light_in_its_own_uvs() {
     check("meshes/atrium.glb", Charts::Parallelograms);
 }
+
+/// `lightwire serve` serves the same lightmaps for its newest version:
+/// `GET /api/scenes/{id}/uv-lightmaps` lists them as `bake` does, and each
+/// file is `uvmap::resample` of the lightmap snapshot of the same version,
+/// bit for bit; names that are not listed are 404.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
+    use lightwire_testkit::{http, lightwire};
+    let path = scene_path("meshes/cornell-large.glb");
+    let server = lightwire!().serve_dev(&[
+        "--solver",
+        "reference",
+        "--density-scale",
+        "0.3",
+        "--scene",
+        path.to_str().expect("utf-8"),
+    ]);
+    server.ready().await;
+    let list = http::get(&server.addr, "/api/scenes/cornell-large/uv-lightmaps", None).await;
+    assert_eq!(list.status, 200, "{}", list.text());
+    let list = list.json();
+    let entries = list["uv_lightmaps"].as_array().expect("a list");
+    assert_eq!(entries.len(), 7, "{list}");
+    let box_entry = entries
+        .iter()
+        .find(|e| e["mesh"] == "box/box")
+        .expect("the box's mesh");
+    let exr_path = box_entry["exr"].as_str().expect("exr");
+    // A version that holds still: the reference solver publishes once.
+    let (version, atlas_rgb, served) = loop {
+        let snapshot =
+            http::get(&server.addr, "/api/scenes/cornell-large/lightmap.exr", None).await;
+        let uv = http::get(
+            &server.addr,
+            &format!("/api/scenes/cornell-large/{exr_path}"),
+            None,
+        )
+        .await;
+        assert_eq!(uv.status, 200, "{}", uv.text());
+        assert_eq!(uv.header("content-type"), Some("image/x-exr"));
+        let v = snapshot.header("x-lightwire-version").map(str::to_owned);
+        if v.is_some() && v.as_deref() == uv.header("x-lightwire-version") {
+            let decode = |bytes: &[u8]| -> Vec<[f32; 3]> {
+                image::load_from_memory_with_format(bytes, image::ImageFormat::OpenExr)
+                    .expect("valid EXR")
+                    .into_rgb32f()
+                    .pixels()
+                    .map(|p| p.0)
+                    .collect()
+            };
+            break (v, decode(&snapshot.body), decode(&uv.body));
+        }
+    };
+    assert!(version.is_some());
+    let options = LoadOptions::scaled(0.3);
+    let scene = Scene::load_with(&path, options).expect("loads");
+    let atlas = Atlas::build(&scene).expect("fits");
+    let k = scene
+        .uv_meshes
+        .iter()
+        .position(|m| m.name == "box/box")
+        .expect("the box");
+    let locator = uvmap::Locator::new(&scene.patches);
+    let size = uvmap::default_size(&scene, &scene.uv_meshes[k]);
+    let expected = uvmap::resample(&locator, &atlas, &atlas_rgb, &scene.uv_meshes[k], size);
+    assert_eq!(
+        (
+            Some(u64::from(expected.width)),
+            Some(u64::from(expected.height))
+        ),
+        (box_entry["width"].as_u64(), box_entry["height"].as_u64())
+    );
+    assert!(
+        served == expected.pixels,
+        "the served EXR is the resampled snapshot"
+    );
+    assert!(served.iter().any(|p| p[0] > 0.0), "lit");
+    for bad in [
+        "uv-lightmaps/06-box_box.jpg",
+        "uv-lightmaps/07-box_box.exr",
+        "uv-lightmaps/06-nope.exr",
+        "uv-lightmaps/x.exr",
+    ] {
+        let r = http::get(
+            &server.addr,
+            &format!("/api/scenes/cornell-large/{bad}"),
+            None,
+        )
+        .await;
+        assert_eq!(r.status, 404, "{bad}: {}", r.text());
+    }
+}

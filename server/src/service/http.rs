@@ -50,6 +50,12 @@ pub trait Scenes: Send + Sync + 'static {
     fn unknown(&self, id: &str) -> String {
         format!("no scene \"{id}\"; GET /api/scenes lists them")
     }
+    /// The scene and atlas of `id`, for what needs its geometry (the
+    /// lightmaps in an asset's own UVs); `None` on a relay, which holds
+    /// only the description clients get.
+    fn geometry(&self, _id: &str) -> Option<Arc<super::runtime::SceneRuntime>> {
+        None
+    }
 }
 
 impl Scenes for AppState {
@@ -59,6 +65,10 @@ impl Scenes for AppState {
 
     fn feed(&self, id: &str) -> Option<&Arc<Feed>> {
         self.scenes.get(id).map(|s| &s.feed)
+    }
+
+    fn geometry(&self, id: &str) -> Option<Arc<super::runtime::SceneRuntime>> {
+        self.scenes.get(id).cloned()
     }
 
     fn list(&self) -> Vec<Value> {
@@ -119,6 +129,10 @@ pub fn routes<S: Scenes>(scenes: Arc<S>) -> Router {
         .route("/api/scenes", get(list_scenes::<S>))
         .route("/api/scenes/{id}", get(scene_info::<S>))
         .route("/api/scenes/{id}/{file}", get(lightmap_file::<S>))
+        .route(
+            "/api/scenes/{id}/uv-lightmaps/{file}",
+            get(uv_lightmap_file::<S>),
+        )
         .route_layer(middleware::from_fn_with_state(
             shared.clone(),
             require_viewer,
@@ -369,6 +383,9 @@ async fn lightmap_file<S: Scenes>(
         Ok(feed) => feed,
         Err(r) => return *r,
     };
+    if file == crate::bake::UV_LIGHTMAPS {
+        return uv_lightmap_list(&*scenes, &id);
+    }
     // The file and its media type.
     let (format, mime) = match file.as_str() {
         "lightmap.exr" => (Some(image::ImageFormat::OpenExr), "image/x-exr"),
@@ -377,7 +394,7 @@ async fn lightmap_file<S: Scenes>(
         crate::bake::SCENE_GLB => (None, "model/gltf-binary"),
         _ => {
             return not_found(format!(
-                "no file \"{file}\"; try lightmap.exr, lightmap.png or scene.glb"
+                "no file \"{file}\"; try lightmap.exr, lightmap.png, scene.glb or uv-lightmaps"
             ));
         }
     };
@@ -420,6 +437,133 @@ async fn lightmap_file<S: Scenes>(
             .write_to(&mut out, format)
             .map_err(|e| e.to_string())?;
         Ok((version, out.into_inner()))
+    })
+    .await;
+    match encoded {
+        Ok(Ok((version, bytes))) => (
+            [
+                (header::CONTENT_TYPE, mime.to_string()),
+                (
+                    header::HeaderName::from_static("x-lightwire-version"),
+                    version.to_string(),
+                ),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+            ],
+            bytes,
+        )
+            .into_response(),
+        Ok(Err(why)) => json_error(StatusCode::SERVICE_UNAVAILABLE, why),
+        Err(_) => (StatusCode::INTERNAL_SERVER_ERROR, "encoding failed").into_response(),
+    }
+}
+
+/// The scene's geometry for the lightmaps in an asset's own UVs, or the
+/// 404 a relay (or a scene without such meshes) answers.
+type Geometry = (Arc<Feed>, Arc<super::runtime::SceneRuntime>);
+
+fn uv_geometry<S: Scenes>(scenes: &S, id: &str) -> Result<Geometry, Box<Response>> {
+    let feed = feed_of(scenes, id)?;
+    let Some(runtime) = scenes.geometry(id) else {
+        return Err(Box::new(not_found(format!(
+            "this server holds no geometry of \"{id}\" (a relay): ask the solver for its uv-lightmaps"
+        ))));
+    };
+    Ok((feed, runtime))
+}
+
+/// `GET /api/scenes/{id}/uv-lightmaps`: the glTF meshes with their own
+/// lightmap UVs and where their lightmaps are (relative to the scene's
+/// URL), as `lightwire bake` lists them in `atlas.json`.
+fn uv_lightmap_list<S: Scenes>(scenes: &S, id: &str) -> Response {
+    let runtime = match uv_geometry(scenes, id) {
+        Ok((_, r)) => r,
+        Err(r) => return *r,
+    };
+    let scene = &runtime.scene;
+    let list: Vec<Value> = scene
+        .uv_meshes
+        .iter()
+        .enumerate()
+        .map(|(k, mesh)| {
+            let stem = crate::bake::uv_lightmap_stem(k, &mesh.name);
+            let size = crate::uvmap::default_size(scene, mesh);
+            json!({
+                "mesh": mesh.name,
+                "object": scene.objects[mesh.object as usize].name,
+                "exr": format!("{}/{stem}.exr", crate::bake::UV_LIGHTMAPS),
+                "png": format!("{}/{stem}.png", crate::bake::UV_LIGHTMAPS),
+                "width": size,
+                "height": size,
+            })
+        })
+        .collect();
+    axum::Json(json!({ "uv_lightmaps": list })).into_response()
+}
+
+/// `GET /api/scenes/{id}/uv-lightmaps/NN-node_mesh.exr|png`: mesh `NN`'s
+/// lightmap in its own UVs (`uvmap::resample`) from the newest version,
+/// as `lightwire bake` writes it; `x-lightwire-version` as the snapshots.
+async fn uv_lightmap_file<S: Scenes>(
+    State(scenes): State<Arc<S>>,
+    Path((id, file)): Path<(String, String)>,
+) -> Response {
+    let (feed, runtime) = match uv_geometry(&*scenes, &id) {
+        Ok(g) => g,
+        Err(r) => return *r,
+    };
+    let (stem, extension) = file.rsplit_once('.').unwrap_or((file.as_str(), ""));
+    let index = stem
+        .split_once('-')
+        .and_then(|(k, _)| k.parse::<usize>().ok())
+        .filter(|&k| {
+            runtime
+                .scene
+                .uv_meshes
+                .get(k)
+                .is_some_and(|m| crate::bake::uv_lightmap_stem(k, &m.name) == stem)
+        });
+    let (Some(k), Some((format, mime))) = (
+        index,
+        match extension {
+            "exr" => Some((image::ImageFormat::OpenExr, "image/x-exr")),
+            "png" => Some((image::ImageFormat::Png, "image/png")),
+            _ => None,
+        },
+    ) else {
+        return not_found(format!(
+            "no uv-lightmap \"{file}\"; GET /api/scenes/{id}/uv-lightmaps lists them"
+        ));
+    };
+    let encoded = tokio::task::spawn_blocking(move || -> Result<(u64, Vec<u8>), String> {
+        let snapshot = current_rgb(&feed)?;
+        let scene = &runtime.scene;
+        let mesh = &scene.uv_meshes[k];
+        let locator = crate::uvmap::Locator::new(&scene.patches);
+        let size = crate::uvmap::default_size(scene, mesh);
+        let map = crate::uvmap::resample(&locator, &runtime.atlas, &snapshot.rgb, mesh, size);
+        let image = match format {
+            image::ImageFormat::OpenExr => {
+                let flat: Vec<f32> = map.pixels.iter().flatten().copied().collect();
+                image::DynamicImage::ImageRgb32F(
+                    image::ImageBuffer::from_raw(map.width, map.height, flat)
+                        .ok_or("bad image size")?,
+                )
+            }
+            _ => {
+                // At the atlas's exposure, as `lightmap.png` and bake.
+                let white = crate::bake::white_point(&snapshot.rgb);
+                let bytes = lightwire_protocol::tone::tone_map_image(&map.pixels, white);
+                image::DynamicImage::ImageRgb8(
+                    image::ImageBuffer::from_raw(map.width, map.height, bytes)
+                        .ok_or("bad image size")?,
+                )
+            }
+        };
+        let mut out = Cursor::new(Vec::new());
+        image
+            .write_to(&mut out, format)
+            .map_err(|e| e.to_string())?;
+        Ok((snapshot.version, out.into_inner()))
     })
     .await;
     match encoded {
