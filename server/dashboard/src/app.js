@@ -177,6 +177,12 @@ const events = {
     timings.push(t, [s.tick_ms, s.solve_ms, s.redistribution_ms]);
     updateNumbers();
   },
+  serverError(c, _e) {
+    // A refused transform leaves the server at an older pose than the page
+    // shows: stop waiting for it to be reflected and draw the server's.
+    driver.sentSeq.clear();
+    if (c.poses) driver.posesArrived(c.poses.poses);
+  },
   gaveUp(_conn, e) {
     const why = e.reason ? `: ${e.reason}` : '';
     ui.driveHint.textContent = `Not connected (${e.code}${why}).`;

@@ -18,8 +18,8 @@
 // callbacks (all optional): `log(text, level)`, `state(conn)`,
 // `welcome(conn, welcome)`, `poses(conn, poses)`,
 // `applied(conn, frame, keyframe)`, `stats(conn, stats)`,
-// `gaveUp(conn, closeEvent)`. `posesToApply` is the page's rule for which
-// of a Poses message's entries to draw.
+// `gaveUp(conn, closeEvent)`, `serverError(conn, error)`. `posesToApply`
+// is the page's rule for which of a Poses message's entries to draw.
 
 import { ApplyError, Lightmap } from './lightmap.js';
 import { DecodeError, HELLO_POSES, PROTOCOL_VERSION, decodeServer, encodeClient, errorName } from './protocol.js';
@@ -177,6 +177,7 @@ export class Connection {
         this.errors.push(`${name}: ${message.message}`);
         this.log(`server error ${name} (${message.code}): ${message.message}`, 'warn');
         if (FATAL_ERRORS.has(message.code)) this.fatal = true;
+        this.on.serverError?.(this, message);
         break;
       }
       default:
