@@ -18,6 +18,8 @@
 //! The REST route `GET /api/scenes/{id}/scene.glb` is tested with the other
 //! snapshots in `rest_auth.rs`.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use glam::{Quat, Vec2, Vec3};
@@ -27,6 +29,8 @@ use lightwire_server::load::parse_scene;
 use lightwire_server::scene::gltf::write::pack_glb;
 use lightwire_server::scene::gltf::{ImportOptions, ImportedScene, import_slice};
 use lightwire_server::scene::{LoadOptions, Scene};
+
+use common::gradient;
 
 /// A small room: a floor, a light, a wall of two mesh triangles, and a
 /// dynamic crate turned 45° about y.
@@ -56,17 +60,6 @@ fn room() -> (Scene, Atlas) {
     // otherwise be one quad patch; here they show how triangles export.
     let options = LoadOptions::unpaired(1.0);
     parse_scene(ROOM, "export-room.json", options).expect("the room loads")
-}
-
-/// A lightmap with a different value in every texel, so that a texture
-/// placed wrong would show.
-fn gradient(atlas: &Atlas) -> Vec<[f32; 3]> {
-    (0..atlas.width * atlas.height)
-        .map(|i| {
-            let (x, y) = (i % atlas.width, i / atlas.width);
-            [x as f32 * 0.01, y as f32 * 0.02, 0.5]
-        })
-        .collect()
 }
 
 fn exported(scene: &Scene, atlas: &Atlas) -> Vec<u8> {

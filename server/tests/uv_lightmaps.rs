@@ -18,6 +18,8 @@
 //! box (its box in object space) and the atrium (columns whose unrolled
 //! side is one chart over many patches).
 
+mod common;
+
 use glam::{Vec2, Vec3};
 use lightwire_server::atlas::Atlas;
 use lightwire_server::bake::{describe, scene_glb};
@@ -26,15 +28,7 @@ use lightwire_server::scene::{Charts, LoadOptions, Scene};
 use lightwire_server::uvmap::{self, PADDING};
 use lightwire_testkit::scene_path;
 
-/// A different value in every atlas texel, nowhere black.
-fn gradient(atlas: &Atlas) -> Vec<[f32; 3]> {
-    (0..atlas.width * atlas.height)
-        .map(|i| {
-            let (x, y) = (i % atlas.width, i / atlas.width);
-            [x as f32 * 0.01, y as f32 * 0.02, 0.5]
-        })
-        .collect()
-}
+use common::gradient;
 
 /// Barycentric coordinates of `p` in the 2D triangle `q`.
 fn barycentric(q: &[Vec2; 3], p: Vec2) -> Vec3 {

@@ -420,25 +420,51 @@ async fn lightmap_file<S: Scenes>(
                 .map_err(|e| format!("{e:#}"))?;
             return Ok((version, glb));
         };
-        let mut out = Cursor::new(Vec::new());
-        let image = match format {
-            image::ImageFormat::OpenExr => {
-                let flat: Vec<f32> = rgb.iter().flatten().copied().collect();
-                image::DynamicImage::ImageRgb32F(
-                    image::ImageBuffer::from_raw(w, h, flat).ok_or("bad image size")?,
-                )
-            }
-            _ => image::DynamicImage::ImageRgb8(
-                image::ImageBuffer::from_raw(w, h, crate::bake::tone_map(&rgb))
-                    .ok_or("bad image size")?,
-            ),
-        };
-        image
-            .write_to(&mut out, format)
-            .map_err(|e| e.to_string())?;
-        Ok((version, out.into_inner()))
+        let white = crate::bake::white_point(&rgb);
+        Ok((version, encode_image(&rgb, w, h, format, white)?))
     })
     .await;
+    versioned(encoded, mime)
+}
+
+/// Linear RGB as OpenEXR (f32), or as a PNG tone-mapped with white point
+/// `white` (the one tone curve).
+fn encode_image(
+    rgb: &[[f32; 3]],
+    w: u32,
+    h: u32,
+    format: image::ImageFormat,
+    white: f32,
+) -> Result<Vec<u8>, String> {
+    let image = match format {
+        image::ImageFormat::OpenExr => {
+            let flat: Vec<f32> = rgb.iter().flatten().copied().collect();
+            image::DynamicImage::ImageRgb32F(
+                image::ImageBuffer::from_raw(w, h, flat).ok_or("bad image size")?,
+            )
+        }
+        _ => image::DynamicImage::ImageRgb8(
+            image::ImageBuffer::from_raw(
+                w,
+                h,
+                lightwire_protocol::tone::tone_map_image(rgb, white),
+            )
+            .ok_or("bad image size")?,
+        ),
+    };
+    let mut out = Cursor::new(Vec::new());
+    image
+        .write_to(&mut out, format)
+        .map_err(|e| e.to_string())?;
+    Ok(out.into_inner())
+}
+
+/// A snapshot's answer: the bytes with their media type and version, 503
+/// with the reason when there is none yet.
+fn versioned(
+    encoded: Result<Result<(u64, Vec<u8>), String>, tokio::task::JoinError>,
+    mime: &str,
+) -> Response {
     match encoded {
         Ok(Ok((version, bytes))) => (
             [
@@ -541,47 +567,13 @@ async fn uv_lightmap_file<S: Scenes>(
         let locator = crate::uvmap::Locator::new(&scene.patches);
         let size = crate::uvmap::default_size(scene, mesh);
         let map = crate::uvmap::resample(&locator, &runtime.atlas, &snapshot.rgb, mesh, size);
-        let image = match format {
-            image::ImageFormat::OpenExr => {
-                let flat: Vec<f32> = map.pixels.iter().flatten().copied().collect();
-                image::DynamicImage::ImageRgb32F(
-                    image::ImageBuffer::from_raw(map.width, map.height, flat)
-                        .ok_or("bad image size")?,
-                )
-            }
-            _ => {
-                // At the atlas's exposure, as `lightmap.png` and bake.
-                let white = crate::bake::white_point(&snapshot.rgb);
-                let bytes = lightwire_protocol::tone::tone_map_image(&map.pixels, white);
-                image::DynamicImage::ImageRgb8(
-                    image::ImageBuffer::from_raw(map.width, map.height, bytes)
-                        .ok_or("bad image size")?,
-                )
-            }
-        };
-        let mut out = Cursor::new(Vec::new());
-        image
-            .write_to(&mut out, format)
-            .map_err(|e| e.to_string())?;
-        Ok((snapshot.version, out.into_inner()))
+        // A PNG at the atlas's exposure, as `lightmap.png` and bake.
+        let white = crate::bake::white_point(&snapshot.rgb);
+        let bytes = encode_image(&map.pixels, map.width, map.height, format, white)?;
+        Ok((snapshot.version, bytes))
     })
     .await;
-    match encoded {
-        Ok(Ok((version, bytes))) => (
-            [
-                (header::CONTENT_TYPE, mime.to_string()),
-                (
-                    header::HeaderName::from_static("x-lightwire-version"),
-                    version.to_string(),
-                ),
-                (header::CACHE_CONTROL, "no-store".to_string()),
-            ],
-            bytes,
-        )
-            .into_response(),
-        Ok(Err(why)) => json_error(StatusCode::SERVICE_UNAVAILABLE, why),
-        Err(_) => (StatusCode::INTERNAL_SERVER_ERROR, "encoding failed").into_response(),
-    }
+    versioned(encoded, mime)
 }
 
 /// Whether a browser `Origin` may use this server (the WebSocket upgrade

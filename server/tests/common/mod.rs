@@ -12,6 +12,17 @@ use lightwire_server::scene::{LoadOptions, Scene};
 
 pub use lightwire_testkit::scene_path;
 
+/// A lightmap with a different value in every texel and nowhere black, so
+/// that a texel read from the wrong place shows.
+pub fn gradient(atlas: &Atlas) -> Vec<[f32; 3]> {
+    (0..atlas.width * atlas.height)
+        .map(|i| {
+            let (x, y) = (i % atlas.width, i / atlas.width);
+            [x as f32 * 0.01, y as f32 * 0.02, 0.5]
+        })
+        .collect()
+}
+
 /// Loads a scene from `scenes/` at a density scale, with its atlas.
 pub fn load(name: &str, density_scale: f32) -> (Scene, Atlas) {
     let scene = Scene::load_with(&scene_path(name), LoadOptions::scaled(density_scale))
