@@ -8,6 +8,13 @@
 // One shooter: a rectangle of elements of the shooting patch (thesis §4.3.3,
 // dynamic shooter subdivision). Mirrors `GpuShooter` in server/src/gpu/progressive/shooters.rs
 // (sizes checked by the tests of server/src/gpu/shaders.rs).
+// Most shooters a batch holds: the size of the uniform arrays that hold
+// them (`MAX_BATCH` in server/src/gpu/progressive/shooters.rs). A uniform
+// buffer, not a storage buffer, because every receiver reads every shooter:
+// uniform reads are what GPUs cache for that, and lavapipe turns each
+// storage-buffer read into a loop over the lanes.
+const MAX_BATCH: u32 = 128u;
+
 struct Shooter {
     // xyz: corner of the shooter's region (world), w: its area (m²).
     corner: vec4<f32>,

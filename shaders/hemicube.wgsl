@@ -27,7 +27,7 @@ struct Vertex {
 };
 
 @group(0) @binding(0) var<storage, read> vertices: array<Vertex>;
-@group(0) @binding(1) var<storage, read> shooters: array<Shooter>;
+@group(0) @binding(1) var<uniform> shooters: array<Shooter, MAX_BATCH>;
 @group(0) @binding(2) var<uniform> batch: Batch;
 @group(0) @binding(3) var<storage, read> poses: array<mat4x4<f32>>;
 @group(0) @binding(4) var<storage, read> radiosity: array<vec4<f32>>;

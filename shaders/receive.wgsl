@@ -5,7 +5,7 @@
 // buffers and the form factor. Shared by the reconstruction shaders of
 // progressive.wgsl and redistribute.wgsl.
 
-@group(0) @binding(7) var<storage, read> shooters: array<Shooter>;
+@group(0) @binding(7) var<uniform> shooters: array<Shooter, MAX_BATCH>;
 @group(0) @binding(8) var<storage, read_write> energy: array<vec4<f32>>;
 @group(0) @binding(9) var<uniform> batch: Batch;
 @group(0) @binding(10) var item: texture_2d<u32>;

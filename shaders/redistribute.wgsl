@@ -30,7 +30,7 @@
 @group(0) @binding(17) var front_rad: texture_2d<f32>;
 @group(0) @binding(18) var back_rad: texture_2d<f32>;
 @group(0) @binding(19) var back_sampler: sampler;
-@group(0) @binding(20) var<storage, read> back_shooters: array<Shooter>;
+@group(0) @binding(20) var<uniform> back_shooters: array<Shooter, MAX_BATCH>;
 @group(0) @binding(21) var<uniform> back: Batch;
 // Irradiance H each element of a moving tile gathered in this move (rgb;
 // the tile's value, the same for all its texels), w = 1 once gathered and
@@ -41,13 +41,6 @@
 // (rgb): taken out of the shot radiosity the next move takes back, which
 // then equals what the tile shot.
 @group(0) @binding(23) var<storage, read_write> smoothed: array<vec4<f32>>;
-// The cross projection's grid on each slot's shooter, CROSS_GRID² cells
-// per slot, row by row, then the (CROSS_GRID / 2)² of the coarse grid
-// (`projected_radiosity`): xyz the centroid of the cell's part on the
-// shooter's region (world), w that part's share of the cell (0 for a cell
-// wholly above a triangle's diagonal). The same for every receiver, so
-// placed once per batch (`cross_cells` in server/src/gpu/progressive/redistribute.rs).
-@group(0) @binding(24) var<storage, read> cross_cells: array<vec4<f32>>;
 // Irradiance H each element of a moving tile gathered again once every
 // batch of the move had run (`regather_moving`; the tile's value, w = 1
 // once gathered): the light the texels show, interpolated between tile
@@ -366,6 +359,24 @@ fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
     return textureSampleLevel(back_rad, back_sampler, uv, 0.0);
 }
 
+// Cell `c` (row by row) of a g x g grid on shooter `b`: in xyz the
+// centroid of the cell's part on the shooter's region (world), in w that
+// part's share of the cell (0 for a cell wholly above a triangle's
+// diagonal). Computed per receiver from the shooter, which lives in a
+// uniform buffer: on lavapipe a storage-buffer read is a per-lane loop,
+// and reading a precomputed grid cost more than placing it again.
+fn grid_cell(b: Shooter, c: u32, g: u32) -> vec4<f32> {
+    let ij = vec2<f32>(f32(c % g), f32(c / g));
+    let lo = ij / f32(g);
+    let hi = (ij + 1.0) / f32(g);
+    var part = vec3<f32>(1.0, (lo + hi) * 0.5);
+    let cut = shooter_cut(b);
+    if (is_cut(cut)) {
+        part = cut_cell(lo, hi, cut);
+    }
+    return vec4<f32>(b.corner.xyz + b.su.xyz * part.y + b.sv.xyz * part.z, part.x);
+}
+
 // P(C, j, i) of thesis eq. 3.3.2 by the non-incremental cross projection
 // (thesis §4.5.2, Alg. 4.5 PROJECTEDRADIOSITY and REPROJECT): rays from the
 // receiver `x` through a CROSS_GRID² grid on the shooter in `slot` sample
@@ -373,19 +384,16 @@ fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
 // for the hemicube's different origin with the depth found along a
 // parallel ray. A shooter cut by a triangle's diagonal casts rays through
 // the part of each grid cell on the triangle, weighted by its share
-// (`cross_cells`).
+// (`grid_cell`).
 // `coarse`: through the coarse grid instead (a receiver that sees the
 // tile small, `CROSS_COARSE_BELOW`).
 fn projected_radiosity(slot: u32, x: vec3<f32>, coarse: bool) -> vec3<f32> {
     let b = back_shooters[slot];
     var acc = vec3<f32>(0.0);
     var weight = 0.0;
-    let fine = CROSS_GRID * CROSS_GRID;
-    let cg = coarse_grid();
-    let count = select(fine, cg * cg, coarse);
-    let first = slot * (fine + cg * cg) + select(0u, fine, coarse);
-    for (var c = 0u; c < count; c++) {
-        let cell = cross_cells[first + c];
+    let g = select(CROSS_GRID, coarse_grid(), coarse);
+    for (var c = 0u; c < g * g; c++) {
+        let cell = grid_cell(b, c, g);
         if (cell.w <= 0.0) {
             continue;
         }

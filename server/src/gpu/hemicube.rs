@@ -33,7 +33,7 @@ pub(super) mod slot {
     use super::{Kind, Slot};
 
     pub(in crate::gpu) const VERTICES: Slot = Slot::new("vertices", 0, Kind::StorageRead);
-    pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 1, Kind::StorageRead);
+    pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 1, Kind::Uniform);
     pub(in crate::gpu) const BATCH: Slot = Slot::new("batch", 2, Kind::Uniform);
     pub(in crate::gpu) const POSES: Slot = Slot::new("poses", 3, Kind::StorageRead);
     pub(in crate::gpu) const RADIOSITY: Slot = Slot::new("radiosity", 4, Kind::StorageRead);

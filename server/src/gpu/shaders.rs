@@ -292,6 +292,42 @@ mod tests {
         }
     }
 
+    /// The uniform arrays of shooters hold as many as a batch may
+    /// (`MAX_BATCH` on both sides): a longer batch would be cut off
+    /// silently, a shorter array wastes no binding but reads past nothing.
+    #[test]
+    fn uniform_shooter_arrays_hold_a_full_batch() {
+        let mut seen = 0;
+        for (label, source) in modules() {
+            let (module, _) = parse(label, &source);
+            for (_, var) in module.global_variables.iter() {
+                if var.space != naga::AddressSpace::Uniform {
+                    continue;
+                }
+                let naga::TypeInner::Array { base, size, .. } = module.types[var.ty].inner else {
+                    continue;
+                };
+                if module.types[base].name.as_deref() != Some("Shooter") {
+                    continue;
+                }
+                let naga::ArraySize::Constant(n) = size else {
+                    panic!("{label}: {:?} is not a fixed-size array", var.name);
+                };
+                assert_eq!(
+                    n.get(),
+                    crate::gpu::progressive::MAX_BATCH,
+                    "{label}: {:?}",
+                    var.name
+                );
+                seen += 1;
+            }
+        }
+        assert!(
+            seen >= 2,
+            "shooters and back_shooters: {seen} uniform arrays found"
+        );
+    }
+
     /// Every pipeline's explicit bind group layout lists exactly the
     /// bindings its entry points use, at the indices and of the kinds the
     /// WGSL declares: a binding changed on one side only fails here.

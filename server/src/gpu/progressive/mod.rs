@@ -49,7 +49,7 @@ mod shooters;
 pub(in crate::gpu) use pipelines::{PROGRESSIVE_PASSES, REDISTRIBUTION_PASSES};
 pub use redistribute::{Move, Redistribution};
 pub(in crate::gpu) use shoot::{BatchUniform, Selection};
-pub(in crate::gpu) use shooters::GpuShooter;
+pub(in crate::gpu) use shooters::{GpuShooter, MAX_BATCH};
 
 use clusters::Clusters;
 use pipelines::Pipelines;
@@ -70,7 +70,8 @@ pub struct ProgressiveOptions {
     pub hemicube_resolution: u32,
     /// Most shooters one patch is split into (thesis §4.3.3); the count
     /// for a patch grows with the square root of its share of the emitted
-    /// power.
+    /// power. At most 128 (the shaders hold a batch's shooters in a
+    /// uniform buffer of that many; more is taken as 128).
     pub max_shooters: u32,
     /// Form-factor subdivision: a shooter of area `A` at distance `r` is
     /// split into `ceil(subdivision * sqrt(A) / r)²` sub-disks (thesis
@@ -336,10 +337,10 @@ impl ProgressiveSolver {
             )));
         }
         // Redistribution batches render two hemicubes per shooter, so the
-        // capacity is even.
+        // capacity is even; at most the shaders' uniform array of shooters.
         let batch_capacity = (options
             .max_shooters
-            .max(2)
+            .clamp(2, MAX_BATCH)
             .min(limits.max_texture_dimension_2d / res)
             / 2)
             * 2;

@@ -21,7 +21,7 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const PATCHES: Slot = Slot::new("patches", 4, Kind::StorageRead);
     pub(in crate::gpu) const PATCH_POWER: Slot = Slot::new("patch_power", 5, Kind::Storage);
     pub(in crate::gpu) const SELECTION: Slot = Slot::new("selection", 6, Kind::Storage);
-    pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 7, Kind::StorageRead);
+    pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 7, Kind::Uniform);
     pub(in crate::gpu) const ENERGY: Slot = Slot::new("energy", 8, Kind::Storage);
     pub(in crate::gpu) const BATCH: Slot = Slot::new("batch", 9, Kind::Uniform);
     pub(in crate::gpu) const ITEM: Slot = Slot::new("item", 10, Kind::UintTexture);
@@ -37,12 +37,10 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const BACK_RAD: Slot =
         Slot::new("back_rad", 18, Kind::FloatTexture { filterable: true });
     pub(in crate::gpu) const BACK_SAMPLER: Slot = Slot::new("back_sampler", 19, Kind::Sampler);
-    pub(in crate::gpu) const BACK_SHOOTERS: Slot =
-        Slot::new("back_shooters", 20, Kind::StorageRead);
+    pub(in crate::gpu) const BACK_SHOOTERS: Slot = Slot::new("back_shooters", 20, Kind::Uniform);
     pub(in crate::gpu) const BACK: Slot = Slot::new("back", 21, Kind::Uniform);
     pub(in crate::gpu) const GATHERED: Slot = Slot::new("gathered", 22, Kind::Storage);
     pub(in crate::gpu) const SMOOTHED: Slot = Slot::new("smoothed", 23, Kind::Storage);
-    pub(in crate::gpu) const CROSS_CELLS: Slot = Slot::new("cross_cells", 24, Kind::StorageRead);
     pub(in crate::gpu) const REGATHERED: Slot = Slot::new("regathered", 25, Kind::Storage);
     pub(in crate::gpu) const MOVING_DIRECT: Slot =
         Slot::new("moving_direct", 26, Kind::StorageRead);
@@ -180,7 +178,6 @@ pub(in crate::gpu) const RECONSTRUCT_DYN: Pass = Pass {
         BACK_SAMPLER,
         BACK_SHOOTERS,
         BACK,
-        CROSS_CELLS,
     ],
 };
 

@@ -64,7 +64,7 @@ use super::pipelines::{
     GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHOOTER_ENERGY_DYN,
     SMOOTH_MOVING, slot,
 };
-use super::shooters::{contact_limit, cut_cell};
+use super::shooters::contact_limit;
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::direct::element_direct_light;
 use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
@@ -223,9 +223,6 @@ pub(in crate::gpu) struct DynamicPasses {
     /// Direct light of M's elements at their new position (`moving_direct`
     /// in redistribute.wgsl), written per move.
     pub(super) moving_direct: wgpu::Buffer,
-    /// The cross projection's grid cells of every slot (`cross_cells` in
-    /// redistribute.wgsl).
-    cross_cells: wgpu::Buffer,
     front_view: wgpu::TextureView,
     /// Multisampled back hemicubes, resolved into `back_view` (none with
     /// one sample per pixel: drawn into `back_view` directly).
@@ -290,15 +287,10 @@ impl ProgressiveSolver {
         );
         let back_shooters = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("back shooters"),
-            size: u64::from(cap) * std::mem::size_of::<GpuShooter>() as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let grid = self.options.cross_grid.max(1);
-        let cross_cells = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("cross projection cells"),
-            size: u64::from(cap) * u64::from(cells_per_shooter(grid)) * 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            size: super::shooters::uniform_bytes(),
+            usage: wgpu::BufferUsages::UNIFORM
+                | wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let back_batch = device.create_buffer(&wgpu::BufferDescriptor {
@@ -349,7 +341,7 @@ impl ProgressiveSolver {
         });
         let hemicube_module = self.draws.module(device, "hemicube.wgsl (radiosity)");
         let grid = [
-            ("CROSS_GRID", f64::from(grid)),
+            ("CROSS_GRID", f64::from(self.options.cross_grid.max(1))),
             (
                 "CROSS_COARSE_BELOW",
                 f64::from(self.options.cross_coarse_below.max(0.0)),
@@ -369,8 +361,7 @@ impl ProgressiveSolver {
             .view(slot::BACK_RAD, &back_view)
             .sampler(slot::BACK_SAMPLER, &sampler)
             .buffer(slot::BACK_SHOOTERS, &back_shooters)
-            .buffer(slot::BACK, &back_batch)
-            .buffer(slot::CROSS_CELLS, &cross_cells);
+            .buffer(slot::BACK, &back_batch);
         let compute = |pass: crate::gpu::binding::Pass, constants: &[(&str, f64)]| {
             pass.compute(device, &module, constants, |s| resources.get(s))
         };
@@ -415,7 +406,6 @@ impl ProgressiveSolver {
             back_shooters,
             back_batch,
             moving_direct,
-            cross_cells,
             front_view,
             back_msaa_view,
             back_view,
@@ -809,9 +799,6 @@ impl ProgressiveSolver {
                 let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.queue
                     .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&through));
-                let cells = cross_cells(&list, self.options.cross_grid.max(1));
-                self.queue
-                    .write_buffer(&d.cross_cells, 0, bytemuck::cast_slice(&cells));
                 self.queue
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
                 self.profile.stop(setup, Stage::JobSetup);
@@ -1078,109 +1065,4 @@ fn front_shooters(
         .iter()
         .map(|t| tiling.shooter(t.patch, &placed[t.patch as usize], areas, t.texels))
         .collect()
-}
-
-/// Side of the coarse grid of the cross projection (`cross_coarse_below`):
-/// half the full grid's, at least 1.
-fn coarse_grid(grid: u32) -> u32 {
-    (grid / 2).max(1)
-}
-
-/// Cells per shooter in `cross_cells`: the full grid's, then the coarse
-/// grid's.
-fn cells_per_shooter(grid: u32) -> u32 {
-    grid * grid + coarse_grid(grid) * coarse_grid(grid)
-}
-
-/// The cross projection's sampling grid (thesis Alg. 4.5 PROJECTEDRADIOSITY,
-/// `gridSize` = `grid`) on every shooter of a cross batch: per shooter
-/// `grid`² cells, row by row, then the cells of the coarse grid
-/// ([`coarse_grid`]) the same way; each the centroid of the cell's part on
-/// the shooter's region (world) and that part's share of the cell in the
-/// fourth component (0 for a cell wholly above a triangle's diagonal).
-/// They are the same for every receiver, so they are placed once per batch
-/// rather than once per receiver and shooter in `projected_radiosity`.
-fn cross_cells(shooters: &[GpuShooter], grid: u32) -> Vec<[f32; 4]> {
-    let mut cells = Vec::with_capacity(shooters.len() * cells_per_shooter(grid) as usize);
-    for s in shooters {
-        let corner = Vec3::from_slice(&s.corner[..3]);
-        let su = Vec3::from_slice(&s.su[..3]);
-        let sv = Vec3::from_slice(&s.sv[..3]);
-        for side in [grid, coarse_grid(grid)] {
-            let g = side as f32;
-            for j in 0..side {
-                for i in 0..side {
-                    let lo = [i as f32 / g, j as f32 / g];
-                    let hi = [(i + 1) as f32 / g, (j + 1) as f32 / g];
-                    let (share, [x, y]) = cut_cell(s.cut(), lo, hi);
-                    cells.push(v4(corner + su * x + sv * y, share));
-                }
-            }
-        }
-    }
-    cells
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use bytemuck::Zeroable;
-
-    fn shooter(cut: [f32; 3]) -> GpuShooter {
-        GpuShooter {
-            corner: [1.0, 2.0, 3.0, 0.0],
-            su: [2.0, 0.0, 0.0, 0.0],
-            sv: [0.0, 0.0, 4.0, cut[0]],
-            t1: [1.0, 0.0, 0.0, cut[1]],
-            t2: [0.0, 0.0, 1.0, cut[2]],
-            ..GpuShooter::zeroed()
-        }
-    }
-
-    /// An uncut shooter's cells are its grid's cell centres, all whole; a
-    /// shooter cut by its diagonal keeps half of the grid's area, no cell
-    /// above the diagonal, every cell's point on its kept side.
-    #[test]
-    fn cross_cells_cover_the_shooter_region() {
-        let cells = cross_cells(&[shooter([0.0; 3])], 4);
-        assert_eq!(cells.len(), 16 + 4);
-        for (c, cell) in cells[16..].iter().enumerate() {
-            let (i, j) = ((c % 2) as f32, (c / 2) as f32);
-            let expected = [1.0 + (i + 0.5), 2.0, 3.0 + 2.0 * (j + 0.5), 1.0];
-            for k in 0..4 {
-                assert!(
-                    (cell[k] - expected[k]).abs() < 1e-6,
-                    "coarse cell {c}: {cell:?}"
-                );
-            }
-        }
-        for (c, cell) in cells[..16].iter().enumerate() {
-            let (i, j) = ((c % 4) as f32, (c / 4) as f32);
-            let expected = [
-                1.0 + 2.0 * (i + 0.5) / 4.0,
-                2.0,
-                3.0 + 4.0 * (j + 0.5) / 4.0,
-                1.0,
-            ];
-            for k in 0..4 {
-                assert!((cell[k] - expected[k]).abs() < 1e-6, "cell {c}: {cell:?}");
-            }
-        }
-        // Kept: x - y >= 0, the half below the diagonal from (0, 0) to (1, 1).
-        let cells = cross_cells(&[shooter([1.0, -1.0, 0.0])], 4);
-        let kept: f32 = cells[16..].iter().map(|c| c[3]).sum();
-        assert!((kept / 4.0 - 0.5).abs() < 1e-6, "coarse: {kept}");
-        let cells = &cells[..16];
-        let kept: f32 = cells.iter().map(|c| c[3]).sum();
-        assert!((kept / 16.0 - 0.5).abs() < 1e-6, "{kept}");
-        for (c, cell) in cells.iter().enumerate() {
-            let (i, j) = (c % 4, c / 4);
-            if j > i {
-                assert_eq!(cell[3], 0.0, "cell {c} lies above the diagonal");
-            } else {
-                let (x, y) = ((cell[0] - 1.0) / 2.0, (cell[2] - 3.0) / 4.0);
-                assert!(x - y >= -1e-6, "cell {c}: ({x}, {y}) off the triangle");
-            }
-        }
-    }
 }

@@ -6,7 +6,6 @@ use wgpu::util::DeviceExt;
 
 use super::pipelines::slot;
 use super::shoot::{BatchUniform, Selection};
-use super::shooters::GpuShooter;
 use crate::gpu::binding::Resources;
 use crate::gpu::buffers::texture;
 use crate::gpu::hemicube::{self, FACES, GpuVertex};
@@ -141,8 +140,8 @@ impl Buffers {
             ),
             shooters: empty(
                 "shooters",
-                u64::from(up.capacity) * std::mem::size_of::<GpuShooter>() as u64,
-                storage | copy_dst,
+                super::shooters::uniform_bytes(),
+                wgpu::BufferUsages::UNIFORM | storage | copy_dst,
             ),
             energy: empty("shooter energy", u64::from(up.capacity) * 2 * 16, storage),
             batch: empty(

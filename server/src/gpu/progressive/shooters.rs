@@ -38,6 +38,18 @@ pub(in crate::gpu) struct GpuShooter {
 }
 const _: () = assert!(std::mem::size_of::<GpuShooter>() == 128);
 
+/// Most shooters a batch holds (`MAX_BATCH` in common.wgsl, which must
+/// match): the shooters are a uniform buffer (`var<uniform>`, a fixed-size
+/// array), read by every receiver for every shooter. 128 of 128 bytes is
+/// 16 KiB, the smallest uniform binding any adapter allows.
+pub(in crate::gpu) const MAX_BATCH: u32 = 128;
+
+/// Size of a buffer holding a batch's shooters as the shaders' uniform
+/// array (`array<Shooter, MAX_BATCH>`) wants it: always the whole array.
+pub(in crate::gpu) fn uniform_bytes() -> u64 {
+    u64::from(MAX_BATCH) * std::mem::size_of::<GpuShooter>() as u64
+}
+
 impl GpuShooter {
     /// The coefficients `(a, b, c)` of the cut: the region keeps the points
     /// `x, y` with `a x + b y + c >= 0` (all zero: uncut).
