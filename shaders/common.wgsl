@@ -180,6 +180,16 @@ fn element_at(p: PatchRange, st: vec2<f32>) -> u32 {
     return p.first + b * p.w + a;
 }
 
+// Texels per row of the textures of what the static set shows moving
+// tiles' hemicubes, one texel per element (`shade_static` in
+// redistribute.wgsl, read by `fs_rad` in hemicube.wgsl; `SHOWN_WIDTH` in
+// server/src/gpu/progressive/redistribute.rs).
+const SHOWN_WIDTH: u32 = 2048u;
+
+fn shown_texel(e: u32) -> vec2<i32> {
+    return vec2<i32>(i32(e % SHOWN_WIDTH), i32(e / SHOWN_WIDTH));
+}
+
 // An empty item-buffer pixel (`fs_clear_items` in hemicube.wgsl); no patch
 // selected.
 const NO_PATCH: u32 = 0xffffffffu;
@@ -228,10 +238,19 @@ fn face_of(s: Shooter, d: vec3<f32>) -> u32 {
     return select(4u, 3u, y > 0.0);
 }
 
-// Eye-space coordinates (right, up, forward) of world direction `d` in `face`.
+// Eye-space coordinates (right, up, forward) of world direction `d` in
+// `face`: `d`'s coordinates in the shooter's frame (t1, t2, n), ordered and
+// signed as `face_axes` orders the face's axes. Selects rather than a
+// matrix per face: neighbouring invocations look through different faces,
+// and a SIMD rasterizer (lavapipe) runs every case of a switch for them.
 fn face_local(s: Shooter, face: u32, d: vec3<f32>) -> vec3<f32> {
-    let m = face_axes(s, face);
-    return vec3<f32>(dot(d, m[0]), dot(d, m[1]), dot(d, m[2]));
+    let x = dot(d, s.t1.xyz);
+    let y = dot(d, s.t2.xyz);
+    let z = dot(d, s.n.xyz);
+    let right = select(select(select(x, -x, face == 3u), -y, face == 2u), y, face == 1u);
+    let up = select(z, y, face == 0u);
+    let forward = select(select(select(select(-y, y, face == 3u), -x, face == 2u), x, face == 1u), z, face == 0u);
+    return vec3<f32>(right, up, forward);
 }
 
 // One element (lightmap texel), written only by `place_elements`; its size

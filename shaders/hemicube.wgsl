@@ -15,7 +15,8 @@
 //   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
 //                    and the distance from the eye (Rgba16Float), for the
 //                    gathering and cross projection of thesis Alg. 4.4-4.5
-//                    (the gathering ones without the emission E).
+//                    (the gathering ones without the emission E), read
+//                    from the shown textures redistribute.wgsl fills.
 
 // One vertex of a patch's triangles (two for a quad, one for a triangle
 // patch): xyz in object space, w = bitcast
@@ -30,22 +31,19 @@ struct Vertex {
 @group(0) @binding(1) var<uniform> shooters: array<Shooter, MAX_BATCH>;
 @group(0) @binding(2) var<uniform> batch: Batch;
 @group(0) @binding(3) var<storage, read> poses: array<mat4x4<f32>>;
-@group(0) @binding(4) var<storage, read> radiosity: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read> unshot: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> patches: array<PatchRange>;
-@group(0) @binding(7) var<storage, read> object_flags: array<u32>;
-@group(0) @binding(8) var<storage, read> emission: array<vec4<f32>>;
-@group(0) @binding(9) var<storage, read> elements: array<Element>;
+// What each static element shows, one texel per element (`shown_texel`;
+// written by `shade_static` and `shade_total` in redistribute.wgsl, where
+// the values are defined): w = 0 marks an element of a moving object.
+@group(0) @binding(10) var shown_back: texture_2d<f32>;
+@group(0) @binding(11) var shown_front: texture_2d<f32>;
 
 // What fs_rad does with moving objects. Normally they occlude but carry no
 // shot radiosity (R_g(C, M) gathers from the static set only). With
 // Batch.mode == RAD_BACK they are left out altogether, so that a back
-// hemicube sees the static surfaces behind the moving object.
+// hemicube sees the static surfaces behind the moving object, and the
+// static ones show `shown_back`; otherwise `shown_front`.
 const RAD_BACK: u32 = 0x10000u;
-// With Batch.mode == RAD_TOTAL the static surfaces carry their total
-// radiosity B instead of B^s: cross redistribution's regathering
-// (`regather_moving` in redistribute.wgsl) sees the changes the move made.
-const RAD_TOTAL: u32 = 0x20000u;
 
 fn world_position(v: Vertex, slot: u32) -> vec3<f32> {
     let objects = arrayLength(&poses) / 2u;
@@ -90,10 +88,11 @@ fn fs_main(in: ItemFragment) -> @location(0) u32 {
     return in.id;
 }
 
+// `chart`: the vertex's patch's first element, chart width and height and
+// triangle flag (its `PatchRange`, read once per vertex, not per fragment).
 struct RadVertex {
     clip: vec4<f32>,
-    patch_id: u32,
-    object: u32,
+    chart: vec4<u32>,
     st: vec2<f32>,
     offset: vec3<f32>,
 };
@@ -103,18 +102,17 @@ fn rad_vertex(vi: u32, ii: u32) -> RadVertex {
     let s = shooters[slot];
     let v = vertices[vi];
     let p = world_position(v, slot);
+    let r = patches[bitcast<u32>(v.pos.w)];
     return RadVertex(
         project(s, ii % 5u, p),
-        bitcast<u32>(v.pos.w),
-        bitcast<u32>(v.st.z),
+        vec4<u32>(r.first, r.w, r.h, r.triangle),
         v.st.xy,
         p - s.eye.xyz,
     );
 }
 
 struct RadFragment {
-    @location(0) @interpolate(flat) patch_id: u32,
-    @location(1) @interpolate(flat) object: u32,
+    @location(0) @interpolate(flat) chart: vec4<u32>,
     @location(2) st: vec2<f32>,
     @location(3) offset: vec3<f32>,
 };
@@ -122,32 +120,17 @@ struct RadFragment {
 @fragment
 fn fs_rad(in: RadFragment) -> @location(0) vec4<f32> {
     let distance = length(in.offset);
-    if ((object_flags[in.object] & OBJECT_MOVING) != 0u) {
-        if (batch.mode == RAD_BACK) {
-            discard;
-        }
-        return vec4<f32>(0.0, 0.0, 0.0, distance);
-    }
     // The element nearest to the fragment on its patch's chart.
-    let e = element_at(patches[in.patch_id], in.st);
+    let e = element_at(PatchRange(in.chart.x, 0u, in.chart.y, in.chart.z, in.chart.w), in.st);
     if (batch.mode == RAD_BACK) {
         // The cross projection: everything the static set shot.
-        return vec4<f32>(radiosity[e].rgb - unshot[e].rgb, distance);
+        let shown = textureLoad(shown_back, shown_texel(e), 0);
+        if (shown.w == 0.0) {
+            discard;
+        }
+        return vec4<f32>(shown.rgb, distance);
     }
-    // A moving tile's gathering: reflected light only (the emitters' direct
-    // light reaches each of its texels on its own, `moving_direct` in
-    // redistribute.wgsl).
-    let reflected = radiosity[e].rgb - emission[e].rgb;
-    if (batch.mode == RAD_TOTAL && !is_invalid(elements[e])) {
-        // What the texels show. An invalid texel (under geometry, a
-        // fragment beside it may still be nearest to its sample) keeps
-        // what redistribution hands it and never shoots it, so its total
-        // holds 1,000 moves' worth of changes; it gives its shot radiosity
-        // as below. Negative light (what a move took back before it was
-        // given) is not light a surface reflects.
-        return vec4<f32>(max(reflected, vec3<f32>(0.0)), distance);
-    }
-    return vec4<f32>(reflected - unshot[e].rgb, distance);
+    return vec4<f32>(textureLoad(shown_front, shown_texel(e), 0).rgb, distance);
 }
 
 // Clearing the slots a pass draws (gpu/hemicube.rs `encode`): a render

@@ -17,8 +17,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
 
 struct RadOut {
     @builtin(position) clip: vec4<f32>,
-    @location(0) @interpolate(flat) patch_id: u32,
-    @location(1) @interpolate(flat) object: u32,
+    @location(0) @interpolate(flat) chart: vec4<u32>,
     @location(2) st: vec2<f32>,
     @location(3) offset: vec3<f32>,
 };
@@ -26,5 +25,5 @@ struct RadOut {
 @vertex
 fn vs_rad(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> RadOut {
     let v = rad_vertex(vi, ii);
-    return RadOut(v.clip, v.patch_id, v.object, v.st, v.offset);
+    return RadOut(v.clip, v.chart, v.st, v.offset);
 }

@@ -49,8 +49,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
 struct RadOut {
     @builtin(position) clip: vec4<f32>,
     @builtin(clip_distances) bounds: array<f32, 4>,
-    @location(0) @interpolate(flat) patch_id: u32,
-    @location(1) @interpolate(flat) object: u32,
+    @location(0) @interpolate(flat) chart: vec4<u32>,
     @location(2) st: vec2<f32>,
     @location(3) offset: vec3<f32>,
 };
@@ -58,5 +57,5 @@ struct RadOut {
 @vertex
 fn vs_rad(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> RadOut {
     let v = rad_vertex(vi, ii);
-    return RadOut(in_target(v.clip, ii), face_bounds(v.clip, ii), v.patch_id, v.object, v.st, v.offset);
+    return RadOut(in_target(v.clip, ii), face_bounds(v.clip, ii), v.chart, v.st, v.offset);
 }

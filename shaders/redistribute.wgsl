@@ -55,6 +55,17 @@
 // radiosity it gathered on its own (w = 1, regather.rs `gather_contacts`),
 // which the second `smooth_moving` shows where it is below the tiles'.
 @group(0) @binding(26) var<storage, read> moving_direct: array<vec4<f32>>;
+// What the static set shows the moving tiles' hemicubes, one texel per
+// element (`shown_texel`), in rgb, with w = 1 (0: an element of a moving
+// object, which shows nothing and hides what is behind it from no back
+// hemicube): written by `shade_static` / `shade_total` right before the
+// hemicubes are drawn, so that a fragment reads one texel (hemicube.wgsl
+// `fs_rad`) instead of three of an element's records.
+// shown_back_out: shot radiosity B - B^u (the cross projection's back
+// hemicubes). shown_front_out: reflected shot radiosity B - E - B^u (the
+// tiles' gathering), or with `shade_total` what the texels show.
+@group(0) @binding(28) var shown_back_out: texture_storage_2d<rgba32float, write>;
+@group(0) @binding(29) var shown_front_out: texture_storage_2d<rgba32float, write>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
 var<workgroup> partial: array<vec3<f32>, 64>;
@@ -127,6 +138,57 @@ fn next_marked(marked: ptr<function, u32>) -> u32 {
 
 fn is_moving(el: Element) -> bool {
     return (object_flags[bitcast<u32>(el.lookup.w)] & OBJECT_MOVING) != 0u;
+}
+
+// Fills the shown textures for a cross batch's hemicubes: the back
+// hemicubes' shot radiosity and the tiles' gathering's reflected shot
+// radiosity.
+@compute @workgroup_size(64)
+fn shade_static(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let e = gid.x;
+    if (e >= batch.element_count) {
+        return;
+    }
+    let at = shown_texel(e);
+    if (is_moving(elements[e])) {
+        textureStore(shown_back_out, at, vec4<f32>(0.0));
+        textureStore(shown_front_out, at, vec4<f32>(0.0));
+        return;
+    }
+    let b = radiosity[e].rgb;
+    let u = unshot[e].rgb;
+    textureStore(shown_back_out, at, vec4<f32>(b - u, 1.0));
+    // Without the emission: each texel of a tile takes its direct light on
+    // its own (`moving_direct`).
+    textureStore(shown_front_out, at, vec4<f32>(b - emission[e].rgb - u, 1.0));
+}
+
+// Fills the front texture for the regathering (`regather_moving`): what the
+// texels show, the static set's total reflected radiosity, which holds the
+// shadow and light the move cast. Negative light (what a move took back
+// before it was given) is not light a surface reflects. An invalid texel
+// (under geometry, a fragment beside it may still be nearest to its sample)
+// keeps what redistribution hands it and never shoots it, so its total
+// holds many moves' worth of changes; it gives its reflected shot
+// radiosity instead.
+@compute @workgroup_size(64)
+fn shade_total(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let e = gid.x;
+    if (e >= batch.element_count) {
+        return;
+    }
+    let el = elements[e];
+    let at = shown_texel(e);
+    if (is_moving(el)) {
+        textureStore(shown_front_out, at, vec4<f32>(0.0));
+        return;
+    }
+    let reflected = radiosity[e].rgb - emission[e].rgb;
+    var shown = max(reflected, vec3<f32>(0.0));
+    if (is_invalid(el)) {
+        shown = reflected - unshot[e].rgb;
+    }
+    textureStore(shown_front_out, at, vec4<f32>(shown, 1.0));
 }
 
 @compute @workgroup_size(64)
@@ -242,7 +304,7 @@ fn front_irradiance(k: u32, lid: u32, present: bool) -> vec3<f32> {
 
 // After the last batch of a move, one workgroup per tile of M at its new
 // position (slot k's shooter as in `gather_moving`): H seen in the front
-// hemicube of C's total radiosity (hemicube.wgsl, RAD_TOTAL), recorded for
+// hemicube of C's total radiosity (`shade_total`), recorded for
 // every texel of the tile. `gather_moving` gathered C's shot radiosity
 // B^s, which the cross projection must use (thesis §4.5.2) but which
 // lacks what M's new position changes on C: the shadow M casts on the

@@ -28,6 +28,8 @@ pub(super) enum Kind {
     FloatTexture { filterable: bool },
     /// `sampler` (filtering).
     Sampler,
+    /// `texture_storage_2d<rgba32float, write>`.
+    StorageTextureWrite,
 }
 
 /// One binding of group 0 of a shader module.
@@ -101,6 +103,11 @@ impl Pass {
                     Kind::Sampler => {
                         wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)
                     }
+                    Kind::StorageTextureWrite => wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: wgpu::TextureFormat::Rgba32Float,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
                 };
                 wgpu::BindGroupLayoutEntry {
                     binding: slot.index,
@@ -317,6 +324,14 @@ pub(super) mod check {
                     _ => Kind::FloatTexture { filterable: false },
                 },
                 naga::TypeInner::Sampler { .. } => Kind::Sampler,
+                naga::TypeInner::Image {
+                    class:
+                        naga::ImageClass::Storage {
+                            format: naga::StorageFormat::Rgba32Float,
+                            access,
+                        },
+                    ..
+                } if !access.contains(naga::StorageAccess::LOAD) => Kind::StorageTextureWrite,
                 other => panic!("unexpected handle type {other:?}"),
             },
             other => panic!("unexpected address space {other:?}"),

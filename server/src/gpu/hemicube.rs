@@ -36,12 +36,11 @@ pub(super) mod slot {
     pub(in crate::gpu) const SHOOTERS: Slot = Slot::new("shooters", 1, Kind::Uniform);
     pub(in crate::gpu) const BATCH: Slot = Slot::new("batch", 2, Kind::Uniform);
     pub(in crate::gpu) const POSES: Slot = Slot::new("poses", 3, Kind::StorageRead);
-    pub(in crate::gpu) const RADIOSITY: Slot = Slot::new("radiosity", 4, Kind::StorageRead);
-    pub(in crate::gpu) const UNSHOT: Slot = Slot::new("unshot", 5, Kind::StorageRead);
     pub(in crate::gpu) const PATCHES: Slot = Slot::new("patches", 6, Kind::StorageRead);
-    pub(in crate::gpu) const OBJECT_FLAGS: Slot = Slot::new("object_flags", 7, Kind::StorageRead);
-    pub(in crate::gpu) const EMISSION: Slot = Slot::new("emission", 8, Kind::StorageRead);
-    pub(in crate::gpu) const ELEMENTS: Slot = Slot::new("elements", 9, Kind::StorageRead);
+    pub(in crate::gpu) const SHOWN_BACK: Slot =
+        Slot::new("shown_back", 10, Kind::FloatTexture { filterable: false });
+    pub(in crate::gpu) const SHOWN_FRONT: Slot =
+        Slot::new("shown_front", 11, Kind::FloatTexture { filterable: false });
 }
 
 /// Clearing the slots an item-buffer pass draws to "no patch" (no
@@ -65,7 +64,9 @@ pub(super) const ITEM_BUFFERS: Pass = Pass {
 
 /// Shot radiosity `B - B^u` of the static surfaces and the distance from
 /// the eye (thesis Alg. 4.4-4.5); without the emission `E` for a moving
-/// tile's gathering, which takes its direct light per texel.
+/// tile's gathering, which takes its direct light per texel. What each
+/// element shows is read from the shown textures the redistribution fills
+/// first (`shade_static` in redistribute.wgsl).
 pub(super) const SHOT_RADIOSITY: Pass = Pass {
     entries: &["vs_rad", "fs_rad"],
     slots: &[
@@ -73,12 +74,9 @@ pub(super) const SHOT_RADIOSITY: Pass = Pass {
         slot::SHOOTERS,
         slot::BATCH,
         slot::POSES,
-        slot::RADIOSITY,
-        slot::UNSHOT,
         slot::PATCHES,
-        slot::OBJECT_FLAGS,
-        slot::EMISSION,
-        slot::ELEMENTS,
+        slot::SHOWN_BACK,
+        slot::SHOWN_FRONT,
     ],
 };
 

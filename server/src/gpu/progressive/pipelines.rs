@@ -10,7 +10,7 @@ use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
 /// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26.
+/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26, 28 and 29.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -45,6 +45,10 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const MOVING_DIRECT: Slot =
         Slot::new("moving_direct", 26, Kind::StorageRead);
     pub(in crate::gpu) const MEMBERS: Slot = Slot::new("members", 27, Kind::StorageRead);
+    pub(in crate::gpu) const SHOWN_BACK_OUT: Slot =
+        Slot::new("shown_back_out", 28, Kind::StorageTextureWrite);
+    pub(in crate::gpu) const SHOWN_FRONT_OUT: Slot =
+        Slot::new("shown_front_out", 29, Kind::StorageTextureWrite);
 }
 
 use slot::*;
@@ -143,6 +147,37 @@ pub(in crate::gpu) const REGATHER_MOVING: Pass = Pass {
     slots: &[SHOOTERS, FRONT_RAD, REGATHERED],
 };
 
+/// Cross redistribution: what the static set shows a batch's front and back
+/// hemicubes, one texel per element (hemicube.wgsl `fs_rad` reads them).
+pub(in crate::gpu) const SHADE_STATIC: Pass = Pass {
+    entries: &["shade_static"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        UNSHOT,
+        BATCH,
+        OBJECT_FLAGS,
+        EMISSION,
+        SHOWN_BACK_OUT,
+        SHOWN_FRONT_OUT,
+    ],
+};
+
+/// Cross redistribution: what the static set shows the regathering's front
+/// hemicubes (its total radiosity).
+pub(in crate::gpu) const SHADE_TOTAL: Pass = Pass {
+    entries: &["shade_total"],
+    slots: &[
+        ELEMENTS,
+        RADIOSITY,
+        UNSHOT,
+        BATCH,
+        OBJECT_FLAGS,
+        EMISSION,
+        SHOWN_FRONT_OUT,
+    ],
+};
+
 /// Cross redistribution: a moving face's light read between tile centres.
 pub(in crate::gpu) const SMOOTH_MOVING: Pass = Pass {
     entries: &["smooth_moving"],
@@ -194,9 +229,11 @@ pub(in crate::gpu) const PROGRESSIVE_PASSES: [Pass; 5] = [
 /// Every pass of the redistribution module, for the naga check in
 /// shaders.rs.
 #[cfg(test)]
-pub(in crate::gpu) const REDISTRIBUTION_PASSES: [Pass; 6] = [
+pub(in crate::gpu) const REDISTRIBUTION_PASSES: [Pass; 8] = [
     RESET_MOVING,
     SHOOTER_ENERGY_DYN,
+    SHADE_STATIC,
+    SHADE_TOTAL,
     GATHER_MOVING,
     REGATHER_MOVING,
     SMOOTH_MOVING,

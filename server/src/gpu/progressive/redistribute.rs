@@ -61,8 +61,8 @@ use std::str::FromStr;
 use glam::Vec3;
 
 use super::pipelines::{
-    GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHOOTER_ENERGY_DYN,
-    SMOOTH_MOVING, slot,
+    GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHADE_STATIC, SHADE_TOTAL,
+    SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
 };
 use super::shooters::contact_limit;
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
@@ -128,6 +128,9 @@ const HAS_OLD: u32 = 0x200;
 const RESET_UNSHOT: u32 = 0x400;
 /// Cross: the tiles have no back hemicubes (a closed object's).
 const ONE_SIDED: u32 = 0x800;
+/// Texels per row of the shown textures (`SHOWN_WIDTH` in common.wgsl).
+pub(in crate::gpu) const SHOWN_WIDTH: u32 = 2048;
+
 /// `Batch.mode` of a back hemicube pass (hemicube.wgsl `RAD_BACK`).
 const RAD_BACK: u32 = 0x10000;
 /// Samples per emitting patch of the moving elements' direct light,
@@ -139,8 +142,9 @@ const DIRECT_GRID: usize = 8;
 /// (no emitter), which varies slowly, so a quarter of the pixels of the
 /// default 64² does; on lavapipe the pass costs about what its pixels do.
 const GATHER_RESOLUTION: u32 = 32;
-/// `Batch.mode` of the regathering hemicubes: total radiosity of the
-/// static set (hemicube.wgsl `RAD_TOTAL`).
+/// `Batch.mode` of the regathering hemicubes, which show the static set's
+/// total radiosity (`shade_total` fills what they read); any mode but
+/// `RAD_BACK` draws the front texture.
 const RAD_TOTAL: u32 = 0x20000;
 
 /// One GPU batch of a move.
@@ -216,6 +220,10 @@ pub(in crate::gpu) struct DynamicPasses {
     regather: (wgpu::ComputePipeline, wgpu::BindGroup),
     smooth: (wgpu::ComputePipeline, wgpu::BindGroup),
     reconstruct: (wgpu::ComputePipeline, wgpu::BindGroup),
+    /// Fill the shown textures the hemicubes of a cross batch and of the
+    /// regathering read (`shade_static`, `shade_total`).
+    shade_static: (wgpu::ComputePipeline, wgpu::BindGroup),
+    shade_total: (wgpu::ComputePipeline, wgpu::BindGroup),
     rad_front: (hemicube::Pipelines, wgpu::BindGroup),
     rad_back: (hemicube::Pipelines, wgpu::BindGroup),
     back_shooters: wgpu::Buffer,
@@ -293,6 +301,27 @@ impl ProgressiveSolver {
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        // What the static set shows the hemicubes, a texel per element
+        // (`shade_static` in redistribute.wgsl).
+        let shown_size = (SHOWN_WIDTH, self.element_count.div_ceil(SHOWN_WIDTH).max(1));
+        let shown_usage =
+            wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING;
+        let shown_back = texture(
+            device,
+            "shown to back hemicubes",
+            shown_size,
+            wgpu::TextureFormat::Rgba32Float,
+            1,
+            shown_usage,
+        );
+        let shown_front = texture(
+            device,
+            "shown to front hemicubes",
+            shown_size,
+            wgpu::TextureFormat::Rgba32Float,
+            1,
+            shown_usage,
+        );
         let back_batch = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("back batch"),
             size: std::mem::size_of::<BatchUniform>() as u64,
@@ -361,7 +390,11 @@ impl ProgressiveSolver {
             .view(slot::BACK_RAD, &back_view)
             .sampler(slot::BACK_SAMPLER, &sampler)
             .buffer(slot::BACK_SHOOTERS, &back_shooters)
-            .buffer(slot::BACK, &back_batch);
+            .buffer(slot::BACK, &back_batch)
+            .view(slot::SHOWN_BACK_OUT, &shown_back)
+            .view(slot::SHOWN_FRONT_OUT, &shown_front)
+            .view(hemicube::slot::SHOWN_BACK, &shown_back)
+            .view(hemicube::slot::SHOWN_FRONT, &shown_front);
         let compute = |pass: crate::gpu::binding::Pass, constants: &[(&str, f64)]| {
             pass.compute(device, &module, constants, |s| resources.get(s))
         };
@@ -371,6 +404,8 @@ impl ProgressiveSolver {
         let regather = compute(REGATHER_MOVING, &gather_res);
         let smooth = compute(SMOOTH_MOVING, &tile);
         let reconstruct = compute(RECONSTRUCT_DYN, &grid);
+        let shade_static = compute(SHADE_STATIC, &[]);
+        let shade_total = compute(SHADE_TOTAL, &[]);
         // Shot radiosity hemicubes: the front ones at the batch's shooters,
         // the back ones (multisampled if asked) at their own shooters and
         // constants.
@@ -391,7 +426,9 @@ impl ProgressiveSolver {
             .buffers
             .resources()
             .buffer(hemicube::slot::SHOOTERS, &back_shooters)
-            .buffer(hemicube::slot::BATCH, &back_batch);
+            .buffer(hemicube::slot::BATCH, &back_batch)
+            .view(hemicube::slot::SHOWN_BACK, &shown_back)
+            .view(hemicube::slot::SHOWN_FRONT, &shown_front);
         let back_pipeline = rad_pipeline(back_samples);
         let back_group = rad.bind(device, &rad_layout, |s| back_resources.get(s));
         DynamicPasses {
@@ -401,6 +438,8 @@ impl ProgressiveSolver {
             regather,
             smooth,
             reconstruct,
+            shade_static,
+            shade_total,
             rad_front: (front_pipeline, front_group),
             rad_back: (back_pipeline, back_group),
             back_shooters,
@@ -805,6 +844,12 @@ impl ProgressiveSolver {
                 self.profile.open(&mut encoder);
                 self.encode_item_buffers(&mut encoder, total);
                 self.profile.mark(&mut encoder, Stage::ItemBuffers);
+                // Counted with the front hemicubes (or the back ones).
+                encode_compute(
+                    &mut encoder,
+                    &d.shade_static,
+                    self.element_count.div_ceil(WORKGROUP),
+                );
                 if has_new {
                     hemicube::encode(
                         &mut encoder,
@@ -976,7 +1021,7 @@ impl ProgressiveSolver {
         let capacity = self.batch_capacity.max(1) as usize;
         let d = self.dynamic.as_ref().expect("built in begin_move");
         self.profile.open(encoder);
-        for chunk in tiles.chunks(capacity) {
+        for (c, chunk) in tiles.chunks(capacity).enumerate() {
             let list = front_shooters(&tiling, chunk, &self.patches, &self.areas);
             let n = list.len() as u32;
             let uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, RAD_TOTAL);
@@ -988,6 +1033,14 @@ impl ProgressiveSolver {
             );
             self.queue.submit([done.finish()]);
             self.upload(&list, uniform);
+            if c == 0 {
+                // The radiosity does not change between the chunks.
+                encode_compute(
+                    encoder,
+                    &d.shade_total,
+                    self.element_count.div_ceil(WORKGROUP),
+                );
+            }
             hemicube::encode(
                 encoder,
                 (&d.rad_front.0, &d.rad_front.1),
