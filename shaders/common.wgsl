@@ -208,23 +208,8 @@ const OBJECT_ABSENT: u32 = 2u;
 const OBJECT_PASSIVE: u32 = 4u;
 
 
-// Right, up and forward axes of hemicube face `face` (0 = top, along the
-// normal; 1..4 = the four sides).
-fn face_axes(s: Shooter, face: u32) -> mat3x3<f32> {
-    let t1 = s.t1.xyz;
-    let t2 = s.t2.xyz;
-    let n = s.n.xyz;
-    switch face {
-        case 0u: { return mat3x3<f32>(t1, t2, n); }
-        case 1u: { return mat3x3<f32>(t2, n, t1); }
-        case 2u: { return mat3x3<f32>(-t2, n, -t1); }
-        case 3u: { return mat3x3<f32>(-t1, n, t2); }
-        default: { return mat3x3<f32>(t1, n, -t2); }
-    }
-}
-
 // The hemicube face of shooter `s` that world direction `d` from its eye
-// falls on (0 = top, 1..4 = sides; see `face_axes`).
+// falls on (0 = top, 1..4 = sides; see `face_local`).
 fn face_of(s: Shooter, d: vec3<f32>) -> u32 {
     let x = dot(d, s.t1.xyz);
     let y = dot(d, s.t2.xyz);
@@ -239,8 +224,10 @@ fn face_of(s: Shooter, d: vec3<f32>) -> u32 {
 }
 
 // Eye-space coordinates (right, up, forward) of world direction `d` in
-// `face`: `d`'s coordinates in the shooter's frame (t1, t2, n), ordered and
-// signed as `face_axes` orders the face's axes. Selects rather than a
+// `face`: `d`'s coordinates (x, y, z) in the shooter's frame (t1, t2, n),
+// ordered and signed by the face's axes (right, up, forward): face 0 (top)
+// (t1, t2, n), 1 (t2, n, t1), 2 (-t2, n, -t1), 3 (-t1, n, t2), 4 (t1, n,
+// -t2). Selects rather than a
 // matrix per face: neighbouring invocations look through different faces,
 // and a SIMD rasterizer (lavapipe) runs every case of a switch for them.
 fn face_local(s: Shooter, face: u32, d: vec3<f32>) -> vec3<f32> {

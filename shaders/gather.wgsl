@@ -95,7 +95,7 @@ struct HemicubeOut {
 };
 
 // Instance = slot * 5 + face (the element `params.first + slot`; face 0 is
-// the top, 1..4 the sides, as in `face_axes`). A 90° frustum per face with
+// the top, 1..4 the sides, as in `face_local`). A 90° frustum per face with
 // *reversed* depth: clip z = near, w = distance, so depth = near / distance
 // (1 at the near plane, towards 0 far away; compared with Greater). The eye
 // sits 1e-5 of the scene's extent from a neighbouring wall, so the near

@@ -346,11 +346,15 @@ impl ProgressiveSolver {
             * 2;
         let n = atlas.elements.len();
         let element_bytes = n as u64 * std::mem::size_of::<LocalElement>() as u64;
+        // Cross redistribution's shown textures hold a texel per element,
+        // SHOWN_WIDTH a row.
+        let shown_rows = n.div_ceil(redistribute::SHOWN_WIDTH as usize);
         if element_bytes > limits.max_storage_buffer_binding_size
             || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
+            || shown_rows > limits.max_texture_dimension_2d as usize
         {
             return Err(GpuError::TooLarge(format!(
-                "{n} elements do not fit the adapter's storage buffer or dispatch limits"
+                "{n} elements do not fit the adapter's storage buffer, dispatch or texture limits"
             )));
         }
         let absent: Vec<bool> = (0..poses.len())
