@@ -112,7 +112,7 @@ fn coarse_grid() -> u32 {
 
 // Side length (texels) of the tiles moving patches are cut into for cross
 // redistribution (`ProgressiveOptions::cross_tile`).
-override CROSS_TILE: u32 = 4u;
+override CROSS_TILE: u32 = 5u;
 
 // Top-face resolution of the front hemicubes a moving tile gathers from,
 // in the move and again after it (`gather_moving`, `regather_moving`):

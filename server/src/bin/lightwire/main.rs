@@ -191,7 +191,7 @@ enum BenchCommand {
         #[arg(long, value_enum, default_value = "gpu")]
         profile_clock: gpu::profile::Clock,
         /// Cross redistribution: moving patches are cut into tiles of at
-        /// most this many texels per side [default: 4].
+        /// most this many texels per side [default: 5].
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
         cross_tile: Option<u32>,
         /// Cross redistribution: rays per side of the grid through each

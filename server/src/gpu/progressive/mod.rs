@@ -115,7 +115,11 @@ pub struct ProgressiveOptions {
     /// and casts its shadow once. The thesis does the same by giving the
     /// rotating box far fewer elements under cross redistribution (§5.1:
     /// 918 → 90 on the large Cornell box, 270 → 24 on the low-quality
-    /// one); 4 gives about those counts on our scenes. 1 shoots per texel.
+    /// one). 5 gives 45 tiles on cornell-large's box (912 texels) and 20
+    /// on cornell-low's (294). 4 gave 57 on cornell-large: a cross frame
+    /// there cost 18% more at the same NRMSE, and cornell-small read
+    /// 1.46% against 1.13% with 5 (BENCHMARKS.md, "cross tiles of 5
+    /// texels"). 1 shoots per texel.
     pub cross_tile: u32,
     /// Top-face resolution of the back hemicubes of shot radiosity used by
     /// the cross projection (thesis §4.5.2 renders them as low as 16, with
@@ -178,7 +182,7 @@ impl Default for ProgressiveOptions {
             indirect_only: false,
             cross_grid: 4,
             cross_coarse_below: 0.005,
-            cross_tile: 4,
+            cross_tile: 5,
             back_resolution: 32,
             back_samples: 1,
             split_contacts: true,
