@@ -224,7 +224,7 @@ pub fn build<'a>(
                     .hemicube_resolution
                     .unwrap_or(defaults.hemicube_resolution),
                 indirect_only: settings.indirect_only,
-                ..defaults
+                ..defaults.with_hints(&scene.solver)
             };
             let mut solver = Progressive::new(&gpu, scene, atlas, poses, options)?;
             let rounds = settings.corrections.unwrap_or_else(|| {

@@ -53,6 +53,7 @@ fn fixtures_with_shape_errors_fail_the_schema() {
         "bad-scale.json",
         "bad-texel-density.json",
         "bad-max-atlas-size.json",
+        "bad-solver-settings.json",
         "non-finite-number.json",
         "mesh-non-finite.json",
     ] {
@@ -62,4 +63,47 @@ fn fixtures_with_shape_errors_fail_the_schema() {
             "{name} should fail the schema"
         );
     }
+}
+
+/// A scene file's `"solver"` settings reach the solver's options at the
+/// file's own density, not at another (they were measured at that one),
+/// and settings the command line states win over them.
+#[test]
+fn scene_solver_settings_apply_at_the_files_density_and_yield_to_the_command_line() {
+    use lightwire_server::gpu::ProgressiveOptions;
+    use lightwire_server::scene::{LoadOptions, Scene, SolverHints};
+
+    let path = scenes_dir().join("cornell-low.json");
+    let stated = read_json(&path)["solver"].clone();
+    let grid = stated["cross_grid"]
+        .as_u64()
+        .expect("cornell-low states cross_grid") as u32;
+    let back = stated["back_resolution"]
+        .as_u64()
+        .expect("cornell-low states back_resolution") as u32;
+    let defaults = ProgressiveOptions::default();
+    assert!(
+        grid != defaults.cross_grid && back != defaults.back_resolution,
+        "the test needs settings that differ from the defaults"
+    );
+
+    let scene = Scene::load(&path).expect("cornell-low loads");
+    let options = defaults.with_hints(&scene.solver);
+    assert_eq!((options.cross_grid, options.back_resolution), (grid, back));
+    // Everything else keeps the defaults.
+    assert_eq!(options.cross_tile, defaults.cross_tile);
+    assert_eq!(options.hemicube_resolution, defaults.hemicube_resolution);
+
+    let halved = Scene::load_with(&path, LoadOptions::scaled(0.5)).expect("loads at half density");
+    assert!(halved.solver.is_empty(), "{}", halved.solver);
+
+    let cli = SolverHints {
+        cross_grid: Some(defaults.cross_grid),
+        back_resolution: None,
+    };
+    let options = defaults.with_hints(&cli.or(scene.solver));
+    assert_eq!(
+        (options.cross_grid, options.back_resolution),
+        (defaults.cross_grid, back)
+    );
 }

@@ -47,7 +47,7 @@ use crate::gpu::{
 use crate::load::load_scene;
 use crate::metrics::accuracy_where;
 use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
-use crate::scene::{Charts, LoadOptions, Pose};
+use crate::scene::{Charts, LoadOptions, Pose, SolverHints};
 use crate::solver::DEFAULT_CORRECTIONS;
 use crate::validity::Validity;
 use lightwire_protocol::lightmap::Encoder;
@@ -106,7 +106,12 @@ pub struct Settings {
     pub density_scale: f32,
     /// How a mesh's triangles get charts (`LoadOptions`).
     pub charts: Charts,
+    /// The solver's options; a scene's measured settings (`Scene::solver`)
+    /// replace theirs unless `stated` states them too.
     pub progressive: ProgressiveOptions,
+    /// The settings the command line states (in `progressive` already):
+    /// they win over a scene's.
+    pub stated: SolverHints,
     pub gather: GatherOptions,
     /// Gathered correction rounds of a cross session's first solve
     /// (`DynamicOptions::corrections`).
@@ -131,6 +136,10 @@ pub struct SceneResult {
     /// hemicube resolution, with the bake's gathered corrections), for
     /// scenes too large for the reference.
     pub reference: String,
+    /// The scene file's solver settings this run used (those the command
+    /// line did not override), e.g. "cross_grid 3, back_resolution 16", or
+    /// "none".
+    pub scene_settings: String,
     pub methods: Vec<MethodResult>,
 }
 
@@ -347,6 +356,17 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         )
     })? as usize;
     let start = scene.initial_poses();
+    let used = SolverHints {
+        cross_grid: scene
+            .solver
+            .cross_grid
+            .filter(|_| settings.stated.cross_grid.is_none()),
+        back_resolution: scene
+            .solver
+            .back_resolution
+            .filter(|_| settings.stated.back_resolution.is_none()),
+    };
+    let progressive = settings.progressive.with_hints(&used);
     let pose_at = |frame: u32| -> Vec<Pose> {
         let mut poses = start.clone();
         let angle = (settings.degrees_per_frame * frame as f32).to_radians();
@@ -366,8 +386,8 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             ))
         } else {
             let options = ProgressiveOptions {
-                hemicube_resolution: settings.progressive.hemicube_resolution * 4,
-                ..settings.progressive
+                hemicube_resolution: progressive.hemicube_resolution * 4,
+                ..progressive
             };
             let mut solver = ProgressiveSolver::new(gpu, &scene, &atlas, poses, options)?;
             solver.solve(1e-5)?;
@@ -384,7 +404,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         }
     };
     eprintln!(
-        "{}: {} elements, reference solve at frame {frames}",
+        "{}: {} elements, reference solve at frame {frames}, the scene file's solver settings: {used}",
         scene.name,
         atlas.elements.len()
     );
@@ -490,7 +510,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         let name = which.name();
         let options = DynamicOptions {
             method,
-            progressive: settings.progressive,
+            progressive,
             corrections: settings.corrections,
             ..DynamicOptions::default()
         };
@@ -549,6 +569,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         elements: atlas.elements.len(),
         dynamic_elements: atlas.dynamic_element_count(&scene),
         reference: reference_name,
+        scene_settings: used.to_string(),
         methods,
     })
 }

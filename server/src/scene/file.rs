@@ -38,6 +38,23 @@ pub struct SceneFile {
     /// the scene.
     #[serde(default)]
     pub imports: Vec<ImportJson>,
+    /// Solver settings measured for this scene (see `SolverJson`).
+    #[serde(default)]
+    pub solver: SolverJson,
+}
+
+/// Settings of the GPU solver's cross redistribution chosen for this scene
+/// by measurement (`lightwire bench dynamic`), each optional: what is left
+/// out keeps the solver's default, and the command line overrides either.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverJson {
+    /// Rays per side of the cross projection's grid on a tile.
+    #[serde(default)]
+    pub cross_grid: Option<u32>,
+    /// Top-face resolution of the back hemicubes of shot radiosity.
+    #[serde(default)]
+    pub back_resolution: Option<u32>,
 }
 
 /// A glTF 2.0 file (`.glb` or `.gltf`) imported into the scene: every

@@ -52,6 +52,61 @@ pub struct Scene {
     /// (`TEXCOORD_1`); the solved light is resampled into them
     /// (`crate::uvmap`, `lightwire bake`).
     pub uv_meshes: Vec<UvMesh>,
+    /// Solver settings the scene file states (`"solver"`), measured for it
+    /// at its own texel density: empty when it states none or when the
+    /// scene was loaded at another density (`LoadOptions::density_scale`).
+    pub solver: SolverHints,
+}
+
+/// Solver settings measured for one scene (its file's `"solver"`; see
+/// scenes/README.md): `None` keeps the solver's default.
+/// `gpu::ProgressiveOptions::with_hints` applies them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SolverHints {
+    /// Rays per side of the cross projection's grid on a tile (thesis
+    /// Alg. 4.5 gridSize), 1 to [`SolverHints::MAX_CROSS_GRID`].
+    pub cross_grid: Option<u32>,
+    /// Top-face resolution of the cross projection's back hemicubes, in
+    /// pixels, [`SolverHints::MIN_BACK_RESOLUTION`] to
+    /// [`SolverHints::MAX_BACK_RESOLUTION`].
+    pub back_resolution: Option<u32>,
+}
+
+impl SolverHints {
+    pub const MAX_CROSS_GRID: u32 = 16;
+    pub const MIN_BACK_RESOLUTION: u32 = 2;
+    pub const MAX_BACK_RESOLUTION: u32 = 256;
+
+    /// Each setting of `self`, else of `other`.
+    pub fn or(self, other: SolverHints) -> SolverHints {
+        SolverHints {
+            cross_grid: self.cross_grid.or(other.cross_grid),
+            back_resolution: self.back_resolution.or(other.back_resolution),
+        }
+    }
+
+    /// Whether no setting is stated.
+    pub fn is_empty(&self) -> bool {
+        *self == SolverHints::default()
+    }
+}
+
+impl std::fmt::Display for SolverHints {
+    /// `cross_grid 3, back_resolution 16` (the stated ones), or `none`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut parts = Vec::new();
+        if let Some(g) = self.cross_grid {
+            parts.push(format!("cross_grid {g}"));
+        }
+        if let Some(r) = self.back_resolution {
+            parts.push(format!("back_resolution {r}"));
+        }
+        if parts.is_empty() {
+            f.write_str("none")
+        } else {
+            f.write_str(&parts.join(", "))
+        }
+    }
 }
 
 /// One node's instance of a glTF mesh with its own lightmap UVs

@@ -10,10 +10,14 @@ use std::sync::Arc;
 
 use glam::{Quat, Vec3};
 
-use super::file::{BoxJson, Facing, ImportJson, MeshJson, PoseJson, QuadJson, SceneFile, Vec3Json};
+use super::file::{
+    BoxJson, Facing, ImportJson, MeshJson, PoseJson, QuadJson, SceneFile, SolverJson, Vec3Json,
+};
 use super::gltf::{ImportOptions, ImportedScene};
 use super::texture::AlbedoMap;
-use super::{LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue, UvMesh};
+use super::{
+    LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue, SolverHints, UvMesh,
+};
 
 /// Largest atlas edge a scene may ask for.
 pub const MAX_ATLAS_LIMIT: u32 = 16384;
@@ -162,6 +166,8 @@ pub fn validate(
             format!("max_atlas_size = {max_atlas_size} must be between {MIN_ATLAS_LIMIT} and {MAX_ATLAS_LIMIT}"),
         );
     }
+
+    let solver = solver_hints(&mut c, &raw.solver, options.density_scale);
 
     // Materials.
     c.unique("material", raw.materials.iter().map(|m| m.name.as_str()));
@@ -360,7 +366,46 @@ pub fn validate(
         objects,
         patches,
         uv_meshes,
+        solver,
     })
+}
+
+/// The file's `"solver"` settings, checked; dropped (the defaults) at any
+/// density but the file's own, for which they were measured.
+fn solver_hints(c: &mut Checker, raw: &SolverJson, density_scale: f32) -> SolverHints {
+    let mut hints = SolverHints::default();
+    if let Some(g) = raw.cross_grid {
+        if (1..=SolverHints::MAX_CROSS_GRID).contains(&g) {
+            hints.cross_grid = Some(g);
+        } else {
+            c.report(
+                "solver",
+                format!(
+                    "cross_grid = {g} must be between 1 and {}",
+                    SolverHints::MAX_CROSS_GRID
+                ),
+            );
+        }
+    }
+    if let Some(r) = raw.back_resolution {
+        if (SolverHints::MIN_BACK_RESOLUTION..=SolverHints::MAX_BACK_RESOLUTION).contains(&r) {
+            hints.back_resolution = Some(r);
+        } else {
+            c.report(
+                "solver",
+                format!(
+                    "back_resolution = {r} must be between {} and {}",
+                    SolverHints::MIN_BACK_RESOLUTION,
+                    SolverHints::MAX_BACK_RESOLUTION
+                ),
+            );
+        }
+    }
+    if density_scale == 1.0 {
+        hints
+    } else {
+        SolverHints::default()
+    }
 }
 
 /// Relative tolerance for planarity and parallelogram checks.
@@ -795,6 +840,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         }],
         patches: Vec::new(),
         uv_meshes: Vec::new(),
+        solver: SolverHints::default(),
     };
     let into = Parts {
         materials: &mut scene.materials,

@@ -225,8 +225,13 @@ impl<T: Clone> GpuLive<T> {
         method: crate::gpu::Redistribution,
     ) -> Result<Self, crate::gpu::GpuError> {
         device.record_uncaptured_errors();
+        // The scene's measured solver settings, if it states any.
+        if !scene.solver.is_empty() {
+            tracing::info!(scene = %scene.name, settings = %scene.solver, "solver settings from the scene file");
+        }
         let options = crate::gpu::DynamicOptions {
             method,
+            progressive: crate::gpu::ProgressiveOptions::default().with_hints(&scene.solver),
             ..Default::default()
         };
         if options.corrections > 0 && !crate::gpu::corrections_affordable(scene, &atlas) {

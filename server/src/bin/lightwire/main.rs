@@ -11,7 +11,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use lightwire_server::gpu;
-use lightwire_server::scene::Charts;
+use lightwire_server::scene::{Charts, SolverHints};
 
 use bake::{SolveSettings, SolverKind, bake_command};
 use bench::{
@@ -195,9 +195,9 @@ enum BenchCommand {
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
         cross_tile: Option<u32>,
         /// Cross redistribution: rays per side of the grid through each
-        /// tile for the cross projection (thesis Alg. 4.5 gridSize)
-        /// [default: 4].
-        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
+        /// tile for the cross projection (thesis Alg. 4.5 gridSize); wins
+        /// over the scene file's `solver.cross_grid` [default: 4].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=i64::from(SolverHints::MAX_CROSS_GRID)))]
         cross_grid: Option<u32>,
         /// Cross redistribution: a receiver whose form factor to a tile is
         /// below this samples the tile's projection through a grid of half
@@ -215,8 +215,11 @@ enum BenchCommand {
         #[arg(long, value_parser = clap::value_parser!(u32).range(2..=512))]
         hemicube_resolution: Option<u32>,
         /// Cross redistribution: top-face resolution of the back hemicubes
-        /// of shot radiosity (thesis §4.5.2) [default: 32].
-        #[arg(long, value_parser = clap::value_parser!(u32).range(2..=256))]
+        /// of shot radiosity (thesis §4.5.2); wins over the scene file's
+        /// `solver.back_resolution` [default: 32].
+        #[arg(long, value_parser = clap::value_parser!(u32).range(
+            i64::from(SolverHints::MIN_BACK_RESOLUTION)..=i64::from(SolverHints::MAX_BACK_RESOLUTION)
+        ))]
         back_resolution: Option<u32>,
         /// Cross redistribution: samples per pixel of the back hemicubes
         /// (1 or 4; 4 blurs them) [default: 1].
@@ -414,6 +417,10 @@ fn main() -> ExitCode {
                         back_samples: back_samples.unwrap_or(defaults.back_samples),
                         ..defaults
                     }
+                },
+                stated: SolverHints {
+                    cross_grid,
+                    back_resolution,
                 },
                 gather: gpu::GatherOptions::default(),
                 corrections: corrections.unwrap_or(gpu::DynamicOptions::default().corrections),

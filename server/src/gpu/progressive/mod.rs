@@ -34,7 +34,7 @@ use super::placement::{
 };
 use super::profile::Profiler;
 use crate::atlas::Atlas;
-use crate::scene::{Pose, Scene};
+use crate::scene::{Pose, Scene, SolverHints};
 use crate::validity::Validity;
 
 mod clusters;
@@ -190,6 +190,18 @@ impl Default for ProgressiveOptions {
             one_draw_hemicubes: true,
             shared_batch_ratio: 0.5,
             cluster_triangles: true,
+        }
+    }
+}
+
+impl ProgressiveOptions {
+    /// These options with the settings `hints` states (a scene's measured
+    /// ones, `Scene::solver`, or the command line's) in place of theirs.
+    pub fn with_hints(self, hints: &SolverHints) -> Self {
+        Self {
+            cross_grid: hints.cross_grid.unwrap_or(self.cross_grid),
+            back_resolution: hints.back_resolution.unwrap_or(self.back_resolution),
+            ..self
         }
     }
 }
