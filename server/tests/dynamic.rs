@@ -523,6 +523,63 @@ fn a_box_resting_on_the_floor_has_no_tiles_on_its_bottom() {
     }
 }
 
+/// A cross move's old pose is the last move's new one, so it copies the
+/// item buffers the last move drew at its tiles' new pose instead of
+/// drawing them again (`ProgressiveOptions::keep_item_buffers`), but only
+/// when they are the same hemicubes: the box inserted, then turned three
+/// times with shifts (each move reuses), then lifted (the bottom gets tiles the last
+/// move did not draw: drawn anew), then turned lifted (reuses). The light
+/// equals that of a solver that draws every item buffer, to within the
+/// rasterizer's rounding of a hemicube drawn into another row of the
+/// target.
+#[test]
+fn cross_moves_reuse_the_last_moves_item_buffers_only_when_they_are_the_same() {
+    let (scene, atlas) = common::load("cornell-low.json", 0.5);
+    let resting = scene.initial_poses();
+    let present = vec![false; scene.objects.len()];
+    let moves = [
+        resting.clone(),
+        box_pose(&scene, 10.0, Vec3::new(0.3, 0.0, 0.0)),
+        box_pose(&scene, 20.0, Vec3::new(0.6, 0.0, -0.3)),
+        box_pose(&scene, 30.0, Vec3::new(0.3, 0.0, -0.6)),
+        box_pose(&scene, 30.0, Vec3::new(0.3, 0.05, -0.6)),
+        box_pose(&scene, 40.0, Vec3::new(0.0, 0.05, -0.3)),
+    ];
+    let run = |keep: bool| {
+        let options = ProgressiveOptions {
+            keep_item_buffers: keep,
+            ..ProgressiveOptions::default()
+        };
+        let mut s = static_solve_with(&scene, &atlas, &resting, 1e-2, options);
+        let mut reused = Vec::new();
+        for poses in &moves {
+            let before = s.kept_item_jobs();
+            let mut mv = s
+                .begin_move(poses, &present, Redistribution::Cross)
+                .unwrap_or_else(|e| panic!("{e}"));
+            s.finish_move(&mut mv).unwrap_or_else(|e| panic!("{e}"));
+            reused.push(s.kept_item_jobs() - before);
+        }
+        let radiosity = s.radiosity().unwrap_or_else(|e| panic!("{e}"));
+        (reused, radiosity)
+    };
+    let (reused, kept) = run(true);
+    assert_eq!(
+        reused,
+        [0, 1, 1, 1, 0, 1],
+        "cross jobs that reused, per move"
+    );
+    let (reused, drawn) = run(false);
+    assert_eq!(reused, [0; 6], "nothing kept when told not to");
+    let a = accuracy(&atlas, &kept, &drawn).expect("lit elements");
+    eprintln!("kept vs drawn item buffers: NRMSE {:.3e}", a.nrmse);
+    assert!(
+        a.nrmse < 1e-4,
+        "kept vs drawn item buffers: NRMSE {:.3e}",
+        a.nrmse
+    );
+}
+
 #[test]
 fn incremental_after_a_move_matches_a_from_scratch_solve_within_its_bound() {
     after_a_move_matches_a_from_scratch_solve(Redistribution::Incremental);

@@ -232,6 +232,24 @@ pub(super) fn pose_matrix(pose: &Pose) -> [[f32; 4]; 4] {
     .to_cols_array_2d()
 }
 
+/// The object-to-world matrix of every object at `poses`, zero for an
+/// absent one (`absent[o]`; present where `absent` is shorter): the
+/// hemicube shaders' `poses` for one pose set, on which an absent object's
+/// triangles collapse to a point.
+pub(super) fn pose_matrices(poses: &[Pose], absent: &[bool]) -> Vec<[[f32; 4]; 4]> {
+    poses
+        .iter()
+        .enumerate()
+        .map(|(o, p)| {
+            if absent.get(o).copied().unwrap_or(false) {
+                [[0.0; 4]; 4]
+            } else {
+                pose_matrix(p)
+            }
+        })
+        .collect()
+}
+
 /// Every atlas element in its object's space, with the invalid flag of
 /// `validity`; `extent` scales the distance receiving points are moved off
 /// edges and surfaces.

@@ -30,7 +30,7 @@ use super::device::{Device, GpuError};
 use super::hemicube::{Draws, FACES, patch_vertices};
 use super::placement::{
     self, ELEMENT_BYTES, INVALID_FLAG_OFFSET, LocalElement, PatchTable, WorldPatch, invalid_flag,
-    pose_matrix, world_areas,
+    pose_matrices, world_areas,
 };
 use super::profile::Profiler;
 use crate::atlas::Atlas;
@@ -170,6 +170,12 @@ pub struct ProgressiveOptions {
     /// shot per triangle (BENCHMARKS.md, "shooting clusters"); tests turn
     /// it off to compare.
     pub cluster_triangles: bool,
+    /// Cross redistribution: keep the item buffers a move draws at its
+    /// tiles' new pose and copy them back as the next move's old-pose ones
+    /// when its tiles, their shooters and every pose match
+    /// (`redistribute.rs` `KeptItems`), instead of drawing them again;
+    /// tests turn it off to compare.
+    pub keep_item_buffers: bool,
 }
 
 impl Default for ProgressiveOptions {
@@ -190,6 +196,7 @@ impl Default for ProgressiveOptions {
             one_draw_hemicubes: true,
             shared_batch_ratio: 0.5,
             cluster_triangles: true,
+            keep_item_buffers: true,
         }
     }
 }
@@ -312,6 +319,9 @@ pub struct ProgressiveSolver {
     triangle_vertices: u32,
     /// Redistribution passes and targets, built on first use.
     dynamic: Option<redistribute::DynamicPasses>,
+    /// Cross jobs that copied their old-pose item buffers from the last
+    /// move instead of drawing them (`ProgressiveOptions::keep_item_buffers`).
+    kept_item_jobs: u64,
     /// Where redistribution's time goes (disabled unless profiling).
     profile: Profiler,
 }
@@ -487,6 +497,7 @@ impl ProgressiveSolver {
             pipelines,
             triangle_vertices,
             dynamic: None,
+            kept_item_jobs: 0,
             profile: Profiler::disabled(),
         };
         let current = solver.poses.clone();
@@ -507,16 +518,11 @@ impl ProgressiveSolver {
     /// absent objects), `old` (zero for objects absent before), and which
     /// objects are `moving`.
     fn write_poses(&self, current: &[Pose], old: &[Pose], old_absent: &[bool]) {
-        let objects = current.len();
-        let mut matrices = vec![[[0.0f32; 4]; 4]; objects.max(1) * 2];
-        for o in 0..objects {
-            if !self.absent[o] {
-                matrices[o] = pose_matrix(&current[o]);
-            }
-            if !old_absent.get(o).copied().unwrap_or(false) {
-                matrices[objects.max(1) + o] = pose_matrix(&old[o]);
-            }
-        }
+        let objects = current.len().max(1);
+        let mut matrices = pose_matrices(current, &self.absent);
+        matrices.resize(objects, [[0.0; 4]; 4]);
+        matrices.extend(pose_matrices(old, old_absent));
+        matrices.resize(objects * 2, [[0.0; 4]; 4]);
         self.queue
             .write_buffer(&self.buffers.poses, 0, bytemuck::cast_slice(&matrices));
     }
@@ -599,6 +605,13 @@ impl ProgressiveSolver {
     /// draw per face.
     pub fn hemicubes_in_one_draw(&self) -> bool {
         matches!(self.draws, Draws::One { .. })
+    }
+
+    /// Cross jobs since the solver was created whose old-pose item buffers
+    /// were the last move's, copied instead of drawn
+    /// ([`ProgressiveOptions::keep_item_buffers`]).
+    pub fn kept_item_jobs(&self) -> u64 {
+        self.kept_item_jobs
     }
 
     /// Shooters shot since the solver was created.

@@ -69,7 +69,7 @@ use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::direct::element_direct_light;
 use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
 use crate::gpu::hemicube::{self, FACES};
-use crate::gpu::placement::{WorldPatch, world_areas};
+use crate::gpu::placement::{WorldPatch, pose_matrices, world_areas};
 use crate::gpu::profile::Stage;
 use crate::gpu::shaders;
 use crate::scene::Pose;
@@ -237,6 +237,65 @@ pub(in crate::gpu) struct DynamicPasses {
     back_msaa_view: Option<wgpu::TextureView>,
     back_view: wgpu::TextureView,
     back_depth_view: wgpu::TextureView,
+    /// The item buffers of the last cross job's new-pose slots.
+    kept: KeptItems,
+}
+
+/// Item buffers kept from one cross job for the next move. A move's old
+/// pose is the last move's new one, so the item buffers a job needs at its
+/// tiles' old pose are those the last move's job drew at their new pose
+/// whenever the tiles, hence their shooters, and the pose of every object
+/// are the same (the static scene and the hemicube settings never change):
+/// those rows are then copied back instead of drawn again, which saves
+/// half of a move's item buffers. They are a copy, since progressive
+/// refinement between moves draws over the item texture.
+struct KeptItems {
+    /// Rows as the item texture's: slot `k` in rows `k res .. (k + 1) res`.
+    view: wgpu::TextureView,
+    /// What the rows were drawn from: the job's new-pose shooters (slot
+    /// order, compared bit for bit) and every object's matrix at that pose
+    /// (zero: absent). Empty: nothing kept.
+    shooters: Vec<GpuShooter>,
+    poses: Vec<[[f32; 4]; 4]>,
+}
+
+impl KeptItems {
+    /// Whether the kept rows are the item buffers of `shooters` with the
+    /// objects at `poses`.
+    fn holds(&self, shooters: &[GpuShooter], poses: &[[[f32; 4]; 4]]) -> bool {
+        !self.shooters.is_empty()
+            && bytemuck::cast_slice::<_, u8>(&self.shooters)
+                == bytemuck::cast_slice::<_, u8>(shooters)
+            && bytemuck::cast_slice::<_, u8>(&self.poses) == bytemuck::cast_slice::<_, u8>(poses)
+    }
+}
+
+/// Copies `slots` hemicube rows of `res` pixels from row `from` of `src` to
+/// row `to` of `dst` (item textures, five faces wide).
+fn copy_slots(
+    encoder: &mut wgpu::CommandEncoder,
+    (src, from): (&wgpu::TextureView, u32),
+    (dst, to): (&wgpu::TextureView, u32),
+    slots: u32,
+    res: u32,
+) {
+    fn at(view: &wgpu::TextureView, row: u32) -> wgpu::TexelCopyTextureInfo<'_> {
+        wgpu::TexelCopyTextureInfo {
+            texture: view.texture(),
+            mip_level: 0,
+            origin: wgpu::Origin3d { x: 0, y: row, z: 0 },
+            aspect: wgpu::TextureAspect::All,
+        }
+    }
+    encoder.copy_texture_to_texture(
+        at(src, from * res),
+        at(dst, to * res),
+        wgpu::Extent3d {
+            width: FACES * res,
+            height: slots * res,
+            depth_or_array_layers: 1,
+        },
+    );
 }
 
 impl ProgressiveSolver {
@@ -449,6 +508,18 @@ impl ProgressiveSolver {
             back_msaa_view,
             back_view,
             back_depth_view,
+            kept: KeptItems {
+                view: texture(
+                    device,
+                    "kept item buffers",
+                    (FACES * res, res * cap.div_ceil(2)),
+                    wgpu::TextureFormat::R32Uint,
+                    1,
+                    wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+                ),
+                shooters: Vec::new(),
+                poses: Vec::new(),
+            },
         }
     }
 
@@ -842,7 +913,35 @@ impl ProgressiveSolver {
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
                 self.profile.stop(setup, Stage::JobSetup);
                 self.profile.open(&mut encoder);
-                self.encode_item_buffers(&mut encoder, total);
+                // The old pose's item buffers are the last move's new ones
+                // when nothing else changed (`KeptItems`).
+                let new_poses = pose_matrices(&self.poses, &self.absent);
+                let old_poses = pose_matrices(&mv.old_poses, &mv.old_absent);
+                let res = self.options.hemicube_resolution.max(1);
+                let kept = &d.kept;
+                let reused = self.options.keep_item_buffers
+                    && kept.holds(&list[old_from as usize..], &old_poses);
+                if reused {
+                    copy_slots(
+                        &mut encoder,
+                        (&kept.view, 0),
+                        (&self.buffers.item_view, old_from),
+                        old_from,
+                        res,
+                    );
+                    self.encode_item_buffers(&mut encoder, old_from);
+                } else {
+                    self.encode_item_buffers(&mut encoder, total);
+                }
+                if self.options.keep_item_buffers {
+                    copy_slots(
+                        &mut encoder,
+                        (&self.buffers.item_view, 0),
+                        (&kept.view, 0),
+                        old_from,
+                        res,
+                    );
+                }
                 self.profile.mark(&mut encoder, Stage::ItemBuffers);
                 // Counted with the front hemicubes (or the back ones).
                 encode_compute(
@@ -888,6 +987,14 @@ impl ProgressiveSolver {
                     self.element_count.div_ceil(WORKGROUP),
                 );
                 self.profile.mark(&mut encoder, Stage::CrossProjection);
+                if reused {
+                    self.kept_item_jobs += 1;
+                }
+                if self.options.keep_item_buffers {
+                    let kept = &mut self.dynamic.as_mut().expect("built in begin_move").kept;
+                    kept.shooters = list[..old_from as usize].to_vec();
+                    kept.poses = new_poses;
+                }
             }
         }
         self.queue.submit([encoder.finish()]);

@@ -170,7 +170,12 @@ impl Buffers {
                 size,
                 wgpu::TextureFormat::R32Uint,
                 1,
-                attach | wgpu::TextureUsages::TEXTURE_BINDING,
+                // Copies: cross moves keep their new-pose rows for the next
+                // (redistribute.rs `KeptItems`).
+                attach
+                    | wgpu::TextureUsages::TEXTURE_BINDING
+                    | wgpu::TextureUsages::COPY_SRC
+                    | wgpu::TextureUsages::COPY_DST,
             ),
             depth_view: texture(
                 device,
