@@ -42,7 +42,11 @@ struct Vertex {
 // shot radiosity (R_g(C, M) gathers from the static set only). With
 // Batch.mode == RAD_BACK they are left out altogether, so that a back
 // hemicube sees the static surfaces behind the moving object, and the
-// static ones show `shown_back`; otherwise `shown_front`.
+// static ones show `shown_back`; otherwise `shown_front`. The back pass
+// binds `poses` with the moving objects' matrices zero
+// (gpu/progressive/redistribute.rs `back_poses`), so their triangles
+// collapse before the rasterizer; the discard in `fs_rad` states the rule
+// for any fragment of theirs all the same.
 const RAD_BACK: u32 = 0x10000u;
 
 fn world_position(v: Vertex, slot: u32) -> vec3<f32> {

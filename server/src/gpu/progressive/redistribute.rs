@@ -228,6 +228,10 @@ pub(in crate::gpu) struct DynamicPasses {
     rad_back: (hemicube::Pipelines, wgpu::BindGroup),
     back_shooters: wgpu::Buffer,
     back_batch: wgpu::Buffer,
+    /// The back hemicubes' `poses`: both pose sets as the item buffers'
+    /// (`write_poses`), the moving objects' matrices zero, written per
+    /// cross job.
+    back_poses: wgpu::Buffer,
     /// Direct light of M's elements at their new position (`moving_direct`
     /// in redistribute.wgsl), written per move.
     pub(super) moving_direct: wgpu::Buffer,
@@ -481,9 +485,19 @@ impl ProgressiveSolver {
         };
         let front_pipeline = rad_pipeline(1);
         let front_group = rad.bind(device, &rad_layout, |s| resources.get(s));
+        // The back hemicubes see the scene without the moving objects
+        // (`RAD_BACK`): their matrices are zero there (`back_poses`), so
+        // their triangles collapse instead of being drawn and discarded.
+        let back_poses = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("poses without the moving objects"),
+            size: self.buffers.poses.size(),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let back_resources = self
             .buffers
             .resources()
+            .buffer(hemicube::slot::POSES, &back_poses)
             .buffer(hemicube::slot::SHOOTERS, &back_shooters)
             .buffer(hemicube::slot::BATCH, &back_batch)
             .view(hemicube::slot::SHOWN_BACK, &shown_back)
@@ -503,6 +517,7 @@ impl ProgressiveSolver {
             rad_back: (back_pipeline, back_group),
             back_shooters,
             back_batch,
+            back_poses,
             moving_direct,
             front_view,
             back_msaa_view,
@@ -911,6 +926,22 @@ impl ProgressiveSolver {
                     .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&through));
                 self.queue
                     .write_buffer(&d.back_batch, 0, bytemuck::bytes_of(&back_uniform));
+                let objects = self.poses.len().max(1);
+                let without_moving = |poses: &[Pose], absent: &[bool]| {
+                    let absent: Vec<bool> = (0..objects)
+                        .map(|o| {
+                            absent.get(o).copied().unwrap_or(false)
+                                || mv.moving.get(o).copied().unwrap_or(false)
+                        })
+                        .collect();
+                    let mut m = pose_matrices(poses, &absent);
+                    m.resize(objects, [[0.0; 4]; 4]);
+                    m
+                };
+                let mut back_poses = without_moving(&self.poses, &self.absent);
+                back_poses.extend(without_moving(&mv.old_poses, &mv.old_absent));
+                self.queue
+                    .write_buffer(&d.back_poses, 0, bytemuck::cast_slice(&back_poses));
                 self.profile.stop(setup, Stage::JobSetup);
                 self.profile.open(&mut encoder);
                 // The old pose's item buffers are the last move's new ones
