@@ -14,9 +14,11 @@
 //   vs_main/fs_main  item buffers (R32Uint): the nearest patch id.
 //   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
 //                    and the distance from the eye (Rgba16Float), for the
-//                    gathering and cross projection of thesis Alg. 4.4-4.5
-//                    (the gathering ones without the emission E), read
-//                    from the shown textures redistribute.wgsl fills.
+//                    cross projection of thesis Alg. 4.5, read from the
+//                    shown textures redistribute.wgsl fills.
+//   vs_rad/fs_element  the element seen (R32Uint), for the moving tiles'
+//                    gathering (thesis Alg. 4.4-4.5), which reads what
+//                    each element shows from those textures itself.
 
 // One vertex of a patch's triangles (two for a quad, one for a triangle
 // patch): xyz in object space, w = bitcast
@@ -135,6 +137,16 @@ fn fs_rad(in: RadFragment) -> @location(0) vec4<f32> {
         return vec4<f32>(shown.rgb, distance);
     }
     return vec4<f32>(textureLoad(shown_front, shown_texel(e), 0).rgb, distance);
+}
+
+// The element each pixel sees (R32Uint, the clear's NO_PATCH where
+// nothing is): a moving tile's gathering hemicube. The gather reads each
+// pixel's light from the shown textures (redistribute.wgsl
+// `front_irradiance`), so one drawing serves the gather in the move and the
+// one after it (`regather_moving`), which read different shown values.
+@fragment
+fn fs_element(in: RadFragment) -> @location(0) u32 {
+    return element_at(PatchRange(in.chart.x, 0u, in.chart.y, in.chart.z, in.chart.w), in.st);
 }
 
 // Clearing the slots a pass draws (gpu/hemicube.rs `encode`): a render

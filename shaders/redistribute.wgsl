@@ -27,7 +27,10 @@
 
 @group(0) @binding(15) var<storage, read> emission: array<vec4<f32>>;
 @group(0) @binding(16) var<storage, read_write> old_shot: array<vec4<f32>>;
-@group(0) @binding(17) var front_rad: texture_2d<f32>;
+// The element each pixel of a moving tile's gathering hemicube sees
+// (hemicube.wgsl `fs_element`; NO_PATCH: nothing), slot k in rows
+// k GATHER_RESOLUTION onwards, five faces a row.
+@group(0) @binding(17) var front_ids: texture_2d<u32>;
 @group(0) @binding(18) var back_rad: texture_2d<f32>;
 @group(0) @binding(19) var back_sampler: sampler;
 @group(0) @binding(20) var<uniform> back_shooters: array<Shooter, MAX_BATCH>;
@@ -66,6 +69,9 @@
 // tiles' gathering), or with `shade_total` what the texels show.
 @group(0) @binding(28) var shown_back_out: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(29) var shown_front_out: texture_storage_2d<rgba32float, write>;
+// The same texture as `shown_front_out`, read by the gathers (another
+// binding: a dispatch may not write and read one texture).
+@group(0) @binding(30) var shown_front: texture_2d<f32>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
 var<workgroup> partial: array<vec3<f32>, 64>;
@@ -274,8 +280,9 @@ fn delta_form_factor(face: u32, px: vec2<u32>, res: u32) -> f32 {
 }
 
 // The irradiance the front hemicube of slot `k` sees (zero unless
-// `present`): the workgroup's sum of its pixels by their delta form
-// factors. Call from uniform control flow.
+// `present`): the workgroup's sum over its pixels of what the element each
+// sees shows (`shown_front`, as `shade_static` or `shade_total` last wrote
+// it) by their delta form factors. Call from uniform control flow.
 fn front_irradiance(k: u32, lid: u32, present: bool) -> vec3<f32> {
     let res = GATHER_RESOLUTION;
     var acc = vec3<f32>(0.0);
@@ -286,7 +293,10 @@ fn front_irradiance(k: u32, lid: u32, present: bool) -> vec3<f32> {
             let q = p % per_face;
             let px = vec2<u32>(q % res, q / res);
             let texel = vec2<i32>(i32(face * res + px.x), i32(k * res + px.y));
-            acc += textureLoad(front_rad, texel, 0).rgb * delta_form_factor(face, px, res);
+            let seen = textureLoad(front_ids, texel, 0).r;
+            if (seen != NO_PATCH) {
+                acc += textureLoad(shown_front, shown_texel(seen), 0).rgb * delta_form_factor(face, px, res);
+            }
         }
     }
     partial[lid] = acc;

@@ -3,12 +3,14 @@
 //! render pass from the patches' triangles, which live in object space and
 //! are placed by the poses in the vertex shader (hemicube.wgsl).
 //!
-//! Two kinds of target come from the same geometry: item buffers of patch
+//! Three kinds of target come from the same geometry: item buffers of patch
 //! ids (`vs_main`/`fs_main`, R32Uint), which decide visibility in
-//! progressive refinement and redistribution, and shot radiosity
+//! progressive refinement and redistribution; element ids
+//! (`vs_rad`/`fs_element`, R32Uint), from which cross redistribution's
+//! moving tiles gather what each element shows; and shot radiosity
 //! (`vs_rad`/`fs_rad`, Rgba16Float, optionally multisampled as a blur,
-//! thesis §4.5.2), which cross redistribution gathers and projects. The
-//! gather solver's radiosity hemicubes use [`render_pipeline`] too.
+//! thesis §4.5.2), which cross redistribution projects. The gather
+//! solver's radiosity hemicubes use [`render_pipeline`] too.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -77,6 +79,20 @@ pub(super) const SHOT_RADIOSITY: Pass = Pass {
         slot::PATCHES,
         slot::SHOWN_BACK,
         slot::SHOWN_FRONT,
+    ],
+};
+
+/// The element seen per pixel (R32Uint): a moving tile's gathering
+/// hemicubes, whose light redistribute.wgsl reads per pixel from the shown
+/// textures, so that the gathers in and after a move share one drawing.
+pub(super) const ELEMENT_IDS: Pass = Pass {
+    entries: &["vs_rad", "fs_element"],
+    slots: &[
+        slot::VERTICES,
+        slot::SHOOTERS,
+        slot::BATCH,
+        slot::POSES,
+        slot::PATCHES,
     ],
 };
 
@@ -179,9 +195,9 @@ pub(super) struct Pipelines {
 }
 
 impl Pipelines {
-    /// The pipelines of `pass` (`ITEM_BUFFERS` into R32Uint, or
-    /// `SHOT_RADIOSITY` into Rgba16Float) with `module`, a module of
-    /// `draws`' layout.
+    /// The pipelines of `pass` (`ITEM_BUFFERS` or `ELEMENT_IDS` into
+    /// R32Uint, or `SHOT_RADIOSITY` into Rgba16Float) with `module`, a
+    /// module of `draws`' layout.
     pub(super) fn new(
         device: &wgpu::Device,
         (module, draws): (&wgpu::ShaderModule, Draws),
@@ -189,11 +205,12 @@ impl Pipelines {
         layout: &wgpu::BindGroupLayout,
         samples: u32,
     ) -> Self {
-        let (format, clear) = if pass.entries == ITEM_BUFFERS.entries {
-            (wgpu::TextureFormat::R32Uint, &CLEAR_ITEMS)
-        } else {
-            (wgpu::TextureFormat::Rgba16Float, &CLEAR_RADIOSITY)
-        };
+        let (format, clear) =
+            if pass.entries == ITEM_BUFFERS.entries || pass.entries == ELEMENT_IDS.entries {
+                (wgpu::TextureFormat::R32Uint, &CLEAR_ITEMS)
+            } else {
+                (wgpu::TextureFormat::Rgba16Float, &CLEAR_RADIOSITY)
+            };
         let draw = render_pipeline(
             device,
             module,

@@ -32,8 +32,7 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const PLACED: Slot = Slot::new("placed", 14, Kind::Storage);
     pub(in crate::gpu) const EMISSION: Slot = Slot::new("emission", 15, Kind::StorageRead);
     pub(in crate::gpu) const OLD_SHOT: Slot = Slot::new("old_shot", 16, Kind::Storage);
-    pub(in crate::gpu) const FRONT_RAD: Slot =
-        Slot::new("front_rad", 17, Kind::FloatTexture { filterable: false });
+    pub(in crate::gpu) const FRONT_IDS: Slot = Slot::new("front_ids", 17, Kind::UintTexture);
     pub(in crate::gpu) const BACK_RAD: Slot =
         Slot::new("back_rad", 18, Kind::FloatTexture { filterable: true });
     pub(in crate::gpu) const BACK_SAMPLER: Slot = Slot::new("back_sampler", 19, Kind::Sampler);
@@ -49,6 +48,8 @@ pub(in crate::gpu) mod slot {
         Slot::new("shown_back_out", 28, Kind::StorageTextureWrite);
     pub(in crate::gpu) const SHOWN_FRONT_OUT: Slot =
         Slot::new("shown_front_out", 29, Kind::StorageTextureWrite);
+    pub(in crate::gpu) const SHOWN_FRONT: Slot =
+        Slot::new("shown_front", 30, Kind::FloatTexture { filterable: false });
 }
 
 use slot::*;
@@ -134,7 +135,8 @@ pub(in crate::gpu) const GATHER_MOVING: Pass = Pass {
         BATCH,
         LOCAL_ELEMENTS,
         OLD_SHOT,
-        FRONT_RAD,
+        FRONT_IDS,
+        SHOWN_FRONT,
         GATHERED,
         MOVING_DIRECT,
     ],
@@ -144,7 +146,7 @@ pub(in crate::gpu) const GATHER_MOVING: Pass = Pass {
 /// radiosity, once a move's batches have run.
 pub(in crate::gpu) const REGATHER_MOVING: Pass = Pass {
     entries: &["regather_moving"],
-    slots: &[SHOOTERS, FRONT_RAD, REGATHERED],
+    slots: &[SHOOTERS, FRONT_IDS, SHOWN_FRONT, REGATHERED],
 };
 
 /// Cross redistribution: what the static set shows a batch's front and back

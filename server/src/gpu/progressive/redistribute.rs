@@ -224,6 +224,7 @@ pub(in crate::gpu) struct DynamicPasses {
     /// regathering read (`shade_static`, `shade_total`).
     shade_static: (wgpu::ComputePipeline, wgpu::BindGroup),
     shade_total: (wgpu::ComputePipeline, wgpu::BindGroup),
+    /// The tiles' gathering hemicubes (`ELEMENT_IDS` into `front_view`).
     rad_front: (hemicube::Pipelines, wgpu::BindGroup),
     rad_back: (hemicube::Pipelines, wgpu::BindGroup),
     back_shooters: wgpu::Buffer,
@@ -243,6 +244,11 @@ pub(in crate::gpu) struct DynamicPasses {
     back_depth_view: wgpu::TextureView,
     /// The item buffers of the last cross job's new-pose slots.
     kept: KeptItems,
+    /// The tiles whose gathering hemicubes `front_view` holds, slot by
+    /// slot, drawn at this move's new pose by its cross job; empty when
+    /// none of this move. The gather after the move reads them again
+    /// unless they are not its tiles (a move of several jobs).
+    front_ids_of: Vec<CrossTile>,
 }
 
 /// Item buffers kept from one cross job for the next move. A move's old
@@ -329,9 +335,9 @@ impl ProgressiveSolver {
         let rgba = wgpu::TextureFormat::Rgba16Float;
         let front_view = texture(
             device,
-            "front radiosity hemicubes",
+            "moving tiles' gathering hemicubes (element ids)",
             (FACES * res, res * cap),
-            rgba,
+            wgpu::TextureFormat::R32Uint,
             1,
             attach,
         );
@@ -449,7 +455,8 @@ impl ProgressiveSolver {
             .buffer(slot::REGATHERED, &regathered)
             .buffer(slot::MOVING_DIRECT, &moving_direct)
             .buffer(slot::SMOOTHED, &smoothed)
-            .view(slot::FRONT_RAD, &front_view)
+            .view(slot::FRONT_IDS, &front_view)
+            .view(slot::SHOWN_FRONT, &shown_front)
             .view(slot::BACK_RAD, &back_view)
             .sampler(slot::BACK_SAMPLER, &sampler)
             .buffer(slot::BACK_SHOOTERS, &back_shooters)
@@ -469,9 +476,14 @@ impl ProgressiveSolver {
         let reconstruct = compute(RECONSTRUCT_DYN, &grid);
         let shade_static = compute(SHADE_STATIC, &[]);
         let shade_total = compute(SHADE_TOTAL, &[]);
-        // Shot radiosity hemicubes: the front ones at the batch's shooters,
-        // the back ones (multisampled if asked) at their own shooters and
-        // constants.
+        // The tiles' gathering hemicubes at the batch's shooters (the
+        // element seen per pixel), and the back ones of shot radiosity
+        // (multisampled if asked) at their own shooters and constants.
+        let ids = &hemicube::ELEMENT_IDS;
+        let ids_layout = ids.layout(device);
+        let front_pipeline =
+            hemicube::Pipelines::new(device, (&hemicube_module, self.draws), ids, &ids_layout, 1);
+        let front_group = ids.bind(device, &ids_layout, |s| resources.get(s));
         let rad = &hemicube::SHOT_RADIOSITY;
         let rad_layout = rad.layout(device);
         let rad_pipeline = |samples: u32| {
@@ -483,8 +495,6 @@ impl ProgressiveSolver {
                 samples,
             )
         };
-        let front_pipeline = rad_pipeline(1);
-        let front_group = rad.bind(device, &rad_layout, |s| resources.get(s));
         // The back hemicubes see the scene without the moving objects
         // (`RAD_BACK`): their matrices are zero there (`back_poses`), so
         // their triangles collapse instead of being drawn and discarded.
@@ -535,6 +545,7 @@ impl ProgressiveSolver {
                 shooters: Vec::new(),
                 poses: Vec::new(),
             },
+            front_ids_of: Vec::new(),
         }
     }
 
@@ -610,7 +621,11 @@ impl ProgressiveSolver {
         let uniform = self.batch_uniform(u32::MAX, 0, u32::MAX, reset_mode);
         self.queue
             .write_buffer(&self.buffers.batch, 0, bytemuck::bytes_of(&uniform));
+        // The gathering hemicubes drawn before are of other poses.
         self.dynamic_passes();
+        if let Some(d) = self.dynamic.as_mut() {
+            d.front_ids_of.clear();
+        }
         if method != Redistribution::Incremental {
             self.write_moving_direct(&mv.moving);
         }
@@ -1021,10 +1036,14 @@ impl ProgressiveSolver {
                 if reused {
                     self.kept_item_jobs += 1;
                 }
+                let d = self.dynamic.as_mut().expect("built in begin_move");
                 if self.options.keep_item_buffers {
-                    let kept = &mut self.dynamic.as_mut().expect("built in begin_move").kept;
-                    kept.shooters = list[..old_from as usize].to_vec();
-                    kept.poses = new_poses;
+                    d.kept.shooters = list[..old_from as usize].to_vec();
+                    d.kept.poses = new_poses;
+                }
+                d.front_ids_of.clear();
+                if has_new {
+                    d.front_ids_of.extend_from_slice(tiles);
                 }
             }
         }
@@ -1159,6 +1178,8 @@ impl ProgressiveSolver {
         let capacity = self.batch_capacity.max(1) as usize;
         let d = self.dynamic.as_ref().expect("built in begin_move");
         self.profile.open(encoder);
+        // Whether a chunk has drawn over the job's hemicubes.
+        let mut drawn = false;
         for (c, chunk) in tiles.chunks(capacity).enumerate() {
             let list = front_shooters(&tiling, chunk, &self.patches, &self.areas);
             let n = list.len() as u32;
@@ -1179,20 +1200,26 @@ impl ProgressiveSolver {
                     self.element_count.div_ceil(WORKGROUP),
                 );
             }
-            hemicube::encode(
-                encoder,
-                (&d.rad_front.0, &d.rad_front.1),
-                &hemicube::Target {
-                    view: &d.front_view,
-                    resolve: None,
-                    depth: &self.buffers.depth_view,
-                    resolution: res,
-                },
-                n,
-                self.triangle_vertices,
-                self.draws,
-            );
-            self.profile.mark(encoder, Stage::FrontHemicubes);
+            // The move's job drew these tiles' hemicubes already (what
+            // they see is read per pixel, from the shown texture
+            // `shade_total` just wrote).
+            if drawn || d.front_ids_of != chunk {
+                drawn = true;
+                hemicube::encode(
+                    encoder,
+                    (&d.rad_front.0, &d.rad_front.1),
+                    &hemicube::Target {
+                        view: &d.front_view,
+                        resolve: None,
+                        depth: &self.buffers.depth_view,
+                        resolution: res,
+                    },
+                    n,
+                    self.triangle_vertices,
+                    self.draws,
+                );
+                self.profile.mark(encoder, Stage::FrontHemicubes);
+            }
             encode_compute(encoder, &d.regather, n);
             self.profile.mark(encoder, Stage::TileGather);
         }
