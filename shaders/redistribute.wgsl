@@ -417,18 +417,35 @@ fn gather_moving(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
 // so that neighbouring faces and undrawn rows do not bleed in), and in .a
 // the distance.
 fn sample_back(slot: u32, b: Shooter, d: vec3<f32>) -> vec4<f32> {
-    let face = face_of(b, d);
-    let l = face_local(b, face, d);
-    if (l.z <= 0.0) {
+    let at = back_pixel(slot, b, d);
+    if (at.z <= 0.0) {
         return vec4<f32>(0.0);
     }
+    let size = vec2<f32>(textureDimensions(back_rad));
+    return textureSampleLevel(back_rad, back_sampler, at.xy / size, 0.0);
+}
+
+// Where world direction `d` from back hemicube `slot`'s eye lands in the
+// back target (xy, pixels, clamped as `sample_back` says), and z > 0 if
+// it lies in front of the face it falls in.
+fn back_pixel(slot: u32, b: Shooter, d: vec3<f32>) -> vec3<f32> {
+    let face = face_of(b, d);
+    let l = face_local(b, face, d);
     let res = f32(back.resolution);
-    let ndc = l.xy / l.z;
+    let ndc = l.xy / max(l.z, 1e-30);
     let rows = select(ceil(res * 0.5), res, face == 0u);
     let p = clamp(vec2<f32>((ndc.x * 0.5 + 0.5) * res, (0.5 - ndc.y * 0.5) * res), vec2<f32>(0.5), vec2<f32>(res - 0.5, rows - 0.5));
-    let size = vec2<f32>(textureDimensions(back_rad));
-    let uv = (vec2<f32>(f32(face) * res, f32(slot) * res) + p) / size;
-    return textureSampleLevel(back_rad, back_sampler, uv, 0.0);
+    return vec3<f32>(vec2<f32>(f32(face) * res, f32(slot) * res) + p, l.z);
+}
+
+// The distance the back hemicube `slot` stores in direction `d` (its
+// nearest pixel: a depth read between two surfaces would be neither's).
+fn back_depth(slot: u32, b: Shooter, d: vec3<f32>) -> f32 {
+    let at = back_pixel(slot, b, d);
+    if (at.z <= 0.0) {
+        return 0.0;
+    }
+    return textureLoad(back_rad, vec2<i32>(at.xy), 0).a;
 }
 
 // Cell `c` (row by row) of a g x g grid on shooter `b`: in xyz the
@@ -471,7 +488,7 @@ fn projected_radiosity(slot: u32, x: vec3<f32>, coarse: bool) -> vec3<f32> {
         }
         weight += cell.w;
         let r = normalize(cell.xyz - x);
-        let depth = sample_back(slot, b, r).a;
+        let depth = back_depth(slot, b, r);
         // Nothing there (distance 0 is the cleared background): the
         // ray leaves the scene (an open side) and carried no light to
         // block. Reprojecting it by distance 0 would sample the
