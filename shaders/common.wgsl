@@ -49,8 +49,14 @@ fn shooter_cut(s: Shooter) -> vec3<f32> {
     return vec3<f32>(s.sv.w, s.t1.w, s.t2.w);
 }
 
+// Whether any shooter may be cut: false for a scene without triangle
+// patches (server/src/gpu/progressive/pipelines.rs `cut_constants`), whose
+// shooters never are, so that the compiler drops the cut code, which a SIMD
+// rasterizer (lavapipe) would otherwise run under a mask for every lane.
+override CUT_SHOOTERS: bool = true;
+
 fn is_cut(cut: vec3<f32>) -> bool {
-    return cut.x != 0.0 || cut.y != 0.0;
+    return CUT_SHOOTERS && (cut.x != 0.0 || cut.y != 0.0);
 }
 
 // Running sums of a polygon clipped by a line, taken edge by edge: a convex

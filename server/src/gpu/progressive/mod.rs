@@ -322,6 +322,9 @@ pub struct ProgressiveSolver {
     /// Cross jobs that copied their old-pose item buffers from the last
     /// move instead of drawing them (`ProgressiveOptions::keep_item_buffers`).
     kept_item_jobs: u64,
+    /// Whether the scene has triangle patches, whose shooters may be cut
+    /// (`pipelines::cut_constants`).
+    triangles: bool,
     /// Where redistribution's time goes (disabled unless profiling).
     profile: Profiler,
 }
@@ -453,7 +456,8 @@ impl ProgressiveSolver {
             },
         );
         let draws = Draws::choose(&device, batch_capacity, options.one_draw_hemicubes);
-        let pipelines = Pipelines::new(&device, &buffers, draws);
+        let triangles = scene.patches.iter().any(|p| p.shape.is_triangle());
+        let pipelines = Pipelines::new(&device, &buffers, draws, triangles);
 
         let mut solver = Self {
             device,
@@ -498,6 +502,7 @@ impl ProgressiveSolver {
             triangle_vertices,
             dynamic: None,
             kept_item_jobs: 0,
+            triangles,
             profile: Profiler::disabled(),
         };
         let current = solver.poses.clone();

@@ -253,15 +253,29 @@ pub(super) struct Pipelines {
     pub(super) item_buffers: (hemicube::Pipelines, wgpu::BindGroup),
 }
 
+/// The compute modules' `CUT_SHOOTERS` (common.wgsl): only a scene with
+/// triangle patches has shooters cut by a triangle's diagonal.
+pub(super) fn cut_constants(triangles: bool) -> [(&'static str, f64); 1] {
+    [("CUT_SHOOTERS", if triangles { 1.0 } else { 0.0 })]
+}
+
 impl Pipelines {
-    pub(super) fn new(device: &wgpu::Device, buffers: &Buffers, draws: Draws) -> Self {
+    /// `triangles`: whether the scene has triangle patches
+    /// ([`cut_constants`]).
+    pub(super) fn new(
+        device: &wgpu::Device,
+        buffers: &Buffers,
+        draws: Draws,
+        triangles: bool,
+    ) -> Self {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("progressive.wgsl"),
             source: wgpu::ShaderSource::Wgsl(shaders::progressive().into()),
         });
         let hemicube_module = draws.module(device, "hemicube.wgsl");
         let resources = buffers.resources();
-        let compute = |pass: Pass| pass.compute(device, &module, &[], |s| resources.get(s));
+        let cuts = cut_constants(triangles);
+        let compute = |pass: Pass| pass.compute(device, &module, &cuts, |s| resources.get(s));
         let item_layout = hemicube::ITEM_BUFFERS.layout(device);
         let item_pipeline = hemicube::Pipelines::new(
             device,

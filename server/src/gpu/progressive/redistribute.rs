@@ -465,8 +465,10 @@ impl ProgressiveSolver {
             .view(slot::SHOWN_FRONT_OUT, &shown_front)
             .view(hemicube::slot::SHOWN_BACK, &shown_back)
             .view(hemicube::slot::SHOWN_FRONT, &shown_front);
+        let cuts = super::pipelines::cut_constants(self.triangles);
         let compute = |pass: crate::gpu::binding::Pass, constants: &[(&str, f64)]| {
-            pass.compute(device, &module, constants, |s| resources.get(s))
+            let constants: Vec<(&str, f64)> = constants.iter().chain(&cuts).copied().collect();
+            pass.compute(device, &module, &constants, |s| resources.get(s))
         };
         let reset = compute(RESET_MOVING, &[]);
         let energy = compute(SHOOTER_ENERGY_DYN, &[]);
