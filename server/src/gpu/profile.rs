@@ -123,11 +123,13 @@ pub enum Stage {
     JobSetup,
     /// GPU: incremental batches' shooter energies.
     ShooterEnergy,
-    /// GPU: hemicube item buffers (cross: front and back, at the old and
-    /// the new position).
+    /// GPU: hemicube item buffers (cross: front and back, at the new
+    /// position, and at the old one unless the last move's are copied
+    /// back).
     ItemBuffers,
-    /// GPU: cross's front radiosity hemicubes, from which M gathers
-    /// R_g(C, M).
+    /// GPU: cross's front hemicubes of element ids, from which M gathers
+    /// R_g(C, M) (drawn again after the move only for a move of several
+    /// jobs).
     FrontHemicubes,
     /// GPU: cross's back hemicubes of C's shot radiosity with depth
     /// (multisampled if `back_samples` says so), at both positions.
