@@ -818,7 +818,6 @@ impl ProgressiveSolver {
         let setup = self.profile.start();
         let old_patches = self.table.place(&mv.old_poses);
         let old_areas = world_areas(&self.local_areas, &self.element_objects, &mv.old_poses);
-        let gather_res = self.gather_resolution();
         let mut encoder = self.device.create_command_encoder(&Default::default());
         match job {
             Job::Negative { patch, shooters } => {
@@ -998,19 +997,7 @@ impl ProgressiveSolver {
                     self.element_count.div_ceil(WORKGROUP),
                 );
                 if has_new {
-                    hemicube::encode(
-                        &mut encoder,
-                        (&d.rad_front.0, &d.rad_front.1),
-                        &hemicube::Target {
-                            view: &d.front_view,
-                            resolve: None,
-                            depth: &self.buffers.depth_view,
-                            resolution: gather_res,
-                        },
-                        count,
-                        self.triangle_vertices,
-                        self.draws,
-                    );
+                    self.encode_gathering_hemicubes(&mut encoder, d, count);
                     self.profile.mark(&mut encoder, Stage::FrontHemicubes);
                 }
                 hemicube::encode(
@@ -1176,7 +1163,6 @@ impl ProgressiveSolver {
             .copied()
             .collect();
         let tiling = self.tiling();
-        let res = self.gather_resolution();
         let capacity = self.batch_capacity.max(1) as usize;
         let d = self.dynamic.as_ref().expect("built in begin_move");
         self.profile.open(encoder);
@@ -1207,24 +1193,35 @@ impl ProgressiveSolver {
             // `shade_total` just wrote).
             if drawn || d.front_ids_of != chunk {
                 drawn = true;
-                hemicube::encode(
-                    encoder,
-                    (&d.rad_front.0, &d.rad_front.1),
-                    &hemicube::Target {
-                        view: &d.front_view,
-                        resolve: None,
-                        depth: &self.buffers.depth_view,
-                        resolution: res,
-                    },
-                    n,
-                    self.triangle_vertices,
-                    self.draws,
-                );
+                self.encode_gathering_hemicubes(encoder, d, n);
                 self.profile.mark(encoder, Stage::FrontHemicubes);
             }
             encode_compute(encoder, &d.regather, n);
             self.profile.mark(encoder, Stage::TileGather);
         }
+    }
+
+    /// The moving tiles' gathering hemicubes (element ids, `ELEMENT_IDS`)
+    /// for the first `slots` shooters uploaded.
+    fn encode_gathering_hemicubes(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        d: &DynamicPasses,
+        slots: u32,
+    ) {
+        hemicube::encode(
+            encoder,
+            (&d.rad_front.0, &d.rad_front.1),
+            &hemicube::Target {
+                view: &d.front_view,
+                resolve: None,
+                depth: &self.buffers.depth_view,
+                resolution: self.gather_resolution(),
+            },
+            slots,
+            self.triangle_vertices,
+            self.draws,
+        );
     }
 
     /// Most tiles a redistribution job's grid may be split into at
