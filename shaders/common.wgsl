@@ -188,7 +188,7 @@ fn element_at(p: PatchRange, st: vec2<f32>) -> u32 {
 
 // Texels per row of the textures of what the static set shows moving
 // tiles' hemicubes, one texel per element (`shade_static` in
-// redistribute.wgsl, read by `fs_rad` in hemicube.wgsl; `SHOWN_WIDTH` in
+// redistribute.wgsl, read by its hemicube passes; `SHOWN_WIDTH` in
 // server/src/gpu/progressive/redistribute.rs).
 const SHOWN_WIDTH: u32 = 2048u;
 

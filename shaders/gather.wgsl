@@ -118,7 +118,7 @@ fn vs_gather(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
 // The radiosity a pixel shows: the reflected part R = B - E (what the
 // radiosity buffers hold) of the element of the seen patch nearest to the
 // fragment on the patch's chart (`element_at` in common.wgsl, the same
-// lookup as `fs_rad` in hemicube.wgsl; never a texel above a triangle's
+// lookup as `fs_element` in hemicube.wgsl; never a texel above a triangle's
 // diagonal). The emission
 // reaches receivers through `GatherElement::direct` instead: a few pixels
 // of a small light alias.

@@ -9,16 +9,17 @@
 // the old and at the new position of each shooter). An object whose matrix
 // is zero is absent: its triangles collapse to a point and draw nothing.
 //
-// Two kinds of target (the vertex entry points are in the draw layouts'
+// Three kinds of target (the vertex entry points are in the draw layouts'
 // files, hemicube_faces.wgsl and hemicube_rows.wgsl):
 //   vs_main/fs_main  item buffers (R32Uint): the nearest patch id.
-//   vs_rad/fs_rad    shot radiosity B^s = B - B^u of the static surfaces
-//                    and the distance from the eye (Rgba16Float), for the
-//                    cross projection of thesis Alg. 4.5, read from the
-//                    shown textures redistribute.wgsl fills.
+//   vs_rad/fs_back   the element seen and its distance from the eye
+//                    (Rg32Uint), for the cross projection of thesis
+//                    Alg. 4.5, which reads them once redistribute.wgsl's
+//                    `shade_back` has turned them into shot radiosity.
 //   vs_rad/fs_element  the element seen (R32Uint), for the moving tiles'
 //                    gathering (thesis Alg. 4.4-4.5), which reads what
-//                    each element shows from those textures itself.
+//                    each element shows from redistribute.wgsl's shown
+//                    textures itself.
 
 // One vertex of a patch's triangles (two for a quad, one for a triangle
 // patch): xyz in object space, w = bitcast
@@ -34,22 +35,6 @@ struct Vertex {
 @group(0) @binding(2) var<uniform> batch: Batch;
 @group(0) @binding(3) var<storage, read> poses: array<mat4x4<f32>>;
 @group(0) @binding(6) var<storage, read> patches: array<PatchRange>;
-// What each static element shows, one texel per element (`shown_texel`;
-// written by `shade_static` and `shade_total` in redistribute.wgsl, where
-// the values are defined): w = 0 marks an element of a moving object.
-@group(0) @binding(10) var shown_back: texture_2d<f32>;
-@group(0) @binding(11) var shown_front: texture_2d<f32>;
-
-// What fs_rad does with moving objects. Normally they occlude but carry no
-// shot radiosity (R_g(C, M) gathers from the static set only). With
-// Batch.mode == RAD_BACK they are left out altogether, so that a back
-// hemicube sees the static surfaces behind the moving object, and the
-// static ones show `shown_back`; otherwise `shown_front`. The back pass
-// binds `poses` with the moving objects' matrices zero
-// (gpu/progressive/redistribute.rs `back_poses`), so their triangles
-// collapse before the rasterizer; the discard in `fs_rad` states the rule
-// for any fragment of theirs all the same.
-const RAD_BACK: u32 = 0x10000u;
 
 fn world_position(v: Vertex, slot: u32) -> vec3<f32> {
     let objects = arrayLength(&poses) / 2u;
@@ -123,20 +108,18 @@ struct RadFragment {
     @location(3) offset: vec3<f32>,
 };
 
+// The element each pixel sees and its distance from the eye (Rg32Uint,
+// the distance bitcast; the clear's NO_PATCH and 0 where nothing is): a
+// back hemicube of cross redistribution. The back pass binds `poses` with
+// the moving objects' matrices zero (gpu/progressive/redistribute.rs
+// `back_poses`), so it sees the static surfaces behind them; what they
+// show is looked up per pixel (redistribute.wgsl `shade_back`), so the
+// drawing at a tile's new pose serves again at its old pose in the next
+// move, when their light has changed.
 @fragment
-fn fs_rad(in: RadFragment) -> @location(0) vec4<f32> {
-    let distance = length(in.offset);
-    // The element nearest to the fragment on its patch's chart.
+fn fs_back(in: RadFragment) -> @location(0) vec2<u32> {
     let e = element_at(PatchRange(in.chart.x, 0u, in.chart.y, in.chart.z, in.chart.w), in.st);
-    if (batch.mode == RAD_BACK) {
-        // The cross projection: everything the static set shot.
-        let shown = textureLoad(shown_back, shown_texel(e), 0);
-        if (shown.w == 0.0) {
-            discard;
-        }
-        return vec4<f32>(shown.rgb, distance);
-    }
-    return vec4<f32>(textureLoad(shown_front, shown_texel(e), 0).rgb, distance);
+    return vec2<u32>(e, bitcast<u32>(length(in.offset)));
 }
 
 // The element each pixel sees (R32Uint, the clear's NO_PATCH where
@@ -167,6 +150,6 @@ fn fs_clear_items() -> @location(0) u32 {
 }
 
 @fragment
-fn fs_clear_radiosity() -> @location(0) vec4<f32> {
-    return vec4<f32>(0.0);
+fn fs_clear_back() -> @location(0) vec2<u32> {
+    return vec2<u32>(NO_PATCH, 0u);
 }

@@ -21,6 +21,8 @@
 //                        shadows and light M's new position casts on C
 //                        (`regathered`; what the texels show, not what
 //                        the tiles shot).
+//   shade_back           the back hemicubes' elements shaded with their shot
+//                        radiosity, for the cross projection.
 //   reconstruct_dyn      every element receives the batch's redistribution:
 //                        INCREMENTALRECONSTRUCTIONSHADER (Alg. 4.3) or
 //                        CROSSPROJECTIONRECONSTRUCTIONSHADER (Alg. 4.5).
@@ -31,7 +33,16 @@
 // (hemicube.wgsl `fs_element`; NO_PATCH: nothing), slot k in rows
 // k GATHER_RESOLUTION onwards, five faces a row.
 @group(0) @binding(17) var front_ids: texture_2d<u32>;
+// The back hemicubes as drawn (hemicube.wgsl `fs_back`): per pixel the
+// element seen (NO_PATCH: nothing) and its distance from the eye
+// (bitcast f32), slot k in rows k back.resolution onwards, five faces a
+// row. `shade_back` turns them into `back_rad`.
+@group(0) @binding(24) var back_ids: texture_2d<u32>;
+// The back hemicubes shaded: shot radiosity of the static set in rgb and
+// the distance in a (0: nothing there), written by `shade_back` through
+// `back_rad_out` and sampled by the cross projection through `back_rad`.
 @group(0) @binding(18) var back_rad: texture_2d<f32>;
+@group(0) @binding(31) var back_rad_out: texture_storage_2d<rgba16float, write>;
 @group(0) @binding(19) var back_sampler: sampler;
 @group(0) @binding(20) var<uniform> back_shooters: array<Shooter, MAX_BATCH>;
 @group(0) @binding(21) var<uniform> back: Batch;
@@ -60,10 +71,10 @@
 @group(0) @binding(26) var<storage, read> moving_direct: array<vec4<f32>>;
 // What the static set shows the moving tiles' hemicubes, one texel per
 // element (`shown_texel`), in rgb, with w = 1 (0: an element of a moving
-// object, which shows nothing and hides what is behind it from no back
-// hemicube): written by `shade_static` / `shade_total` right before the
-// hemicubes are drawn, so that a fragment reads one texel (hemicube.wgsl
-// `fs_rad`) instead of three of an element's records.
+// object, which shows nothing; the back hemicubes do not draw them):
+// written by `shade_static` / `shade_total` right before the
+// hemicubes are read, so that a pixel reads one texel (`shade_back`,
+// `front_irradiance`) instead of three of an element's records.
 // shown_back_out: shot radiosity B - B^u (the cross projection's back
 // hemicubes). shown_front_out: reflected shot radiosity B - E - B^u (the
 // tiles' gathering), or with `shade_total` what the texels show.
@@ -72,6 +83,7 @@
 // The same texture as `shown_front_out`, read by the gathers (another
 // binding: a dispatch may not write and read one texture).
 @group(0) @binding(30) var shown_front: texture_2d<f32>;
+@group(0) @binding(32) var shown_back: texture_2d<f32>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
 var<workgroup> partial: array<vec3<f32>, 64>;
@@ -147,8 +159,8 @@ fn is_moving(el: Element) -> bool {
 }
 
 // Fills the shown textures for a cross batch's hemicubes: the back
-// hemicubes' shot radiosity and the tiles' gathering's reflected shot
-// radiosity.
+// hemicubes' shot radiosity (`shade_back`) and the tiles' gathering's
+// reflected shot radiosity.
 @compute @workgroup_size(64)
 fn shade_static(@builtin(global_invocation_id) gid: vec3<u32>) {
     let e = gid.x;
@@ -167,6 +179,26 @@ fn shade_static(@builtin(global_invocation_id) gid: vec3<u32>) {
     // Without the emission: each texel of a tile takes its direct light on
     // its own (`moving_direct`).
     textureStore(shown_front_out, at, vec4<f32>(b - emission[e].rgb - u, 1.0));
+}
+
+// Shades the back hemicubes of a cross job (slots [0, 2 back.old_from_slot),
+// every slot the job's projection reads, whether drawn now or kept from the
+// last move, `run_job` in gpu/progressive/redistribute.rs): the element a
+// pixel sees shows its shot radiosity (`shown_back`, just filled by
+// `shade_static`), with the distance the drawing stored.
+@compute @workgroup_size(8, 8)
+fn shade_back(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let rows = 2u * back.old_from_slot * back.resolution;
+    if (gid.x >= 5u * back.resolution || gid.y >= rows) {
+        return;
+    }
+    let at = vec2<i32>(gid.xy);
+    let seen = textureLoad(back_ids, at, 0).xy;
+    var shaded = vec4<f32>(0.0);
+    if (seen.x != NO_PATCH) {
+        shaded = vec4<f32>(textureLoad(shown_back, shown_texel(seen.x), 0).rgb, bitcast<f32>(seen.y));
+    }
+    textureStore(back_rad_out, at, shaded);
 }
 
 // Fills the front texture for the regathering (`regather_moving`): what the

@@ -28,8 +28,9 @@ pub(super) enum Kind {
     FloatTexture { filterable: bool },
     /// `sampler` (filtering).
     Sampler,
-    /// `texture_storage_2d<rgba32float, write>`.
-    StorageTextureWrite,
+    /// `texture_storage_2d<F, write>` of format `F`: rgba32float or
+    /// rgba16float.
+    StorageTextureWrite(wgpu::TextureFormat),
 }
 
 /// One binding of group 0 of a shader module.
@@ -103,9 +104,9 @@ impl Pass {
                     Kind::Sampler => {
                         wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)
                     }
-                    Kind::StorageTextureWrite => wgpu::BindingType::StorageTexture {
+                    Kind::StorageTextureWrite(format) => wgpu::BindingType::StorageTexture {
                         access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: wgpu::TextureFormat::Rgba32Float,
+                        format,
                         view_dimension: wgpu::TextureViewDimension::D2,
                     },
                 };
@@ -325,13 +326,15 @@ pub(super) mod check {
                 },
                 naga::TypeInner::Sampler { .. } => Kind::Sampler,
                 naga::TypeInner::Image {
-                    class:
-                        naga::ImageClass::Storage {
-                            format: naga::StorageFormat::Rgba32Float,
-                            access,
-                        },
+                    class: naga::ImageClass::Storage { format, access },
                     ..
-                } if !access.contains(naga::StorageAccess::LOAD) => Kind::StorageTextureWrite,
+                } if !access.contains(naga::StorageAccess::LOAD) => {
+                    Kind::StorageTextureWrite(match format {
+                        naga::StorageFormat::Rgba32Float => wgpu::TextureFormat::Rgba32Float,
+                        naga::StorageFormat::Rgba16Float => wgpu::TextureFormat::Rgba16Float,
+                        other => panic!("unexpected storage texture format {other:?}"),
+                    })
+                }
                 other => panic!("unexpected handle type {other:?}"),
             },
             other => panic!("unexpected address space {other:?}"),

@@ -45,13 +45,22 @@ pub(super) fn texture(
 /// one).
 pub(super) fn encode_compute(
     encoder: &mut wgpu::CommandEncoder,
-    (pipeline, group): &(wgpu::ComputePipeline, wgpu::BindGroup),
+    pipeline: &(wgpu::ComputePipeline, wgpu::BindGroup),
     workgroups: u32,
+) {
+    encode_compute_grid(encoder, pipeline, (workgroups, 1));
+}
+
+/// [`encode_compute`] over a grid of `x` by `y` workgroups.
+pub(super) fn encode_compute_grid(
+    encoder: &mut wgpu::CommandEncoder,
+    (pipeline, group): &(wgpu::ComputePipeline, wgpu::BindGroup),
+    (x, y): (u32, u32),
 ) {
     let mut pass = encoder.begin_compute_pass(&Default::default());
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, group, &[]);
-    pass.dispatch_workgroups(workgroups.max(1), 1, 1);
+    pass.dispatch_workgroups(x.max(1), y.max(1), 1);
 }
 
 /// Copies the first `count` entries of a vec4 buffer (one per element)

@@ -7,10 +7,10 @@
 //! ids (`vs_main`/`fs_main`, R32Uint), which decide visibility in
 //! progressive refinement and redistribution; element ids
 //! (`vs_rad`/`fs_element`, R32Uint), from which cross redistribution's
-//! moving tiles gather what each element shows; and shot radiosity
-//! (`vs_rad`/`fs_rad`, Rgba16Float, optionally multisampled as a blur,
-//! thesis §4.5.2), which cross redistribution projects. The gather
-//! solver's radiosity hemicubes use [`render_pipeline`] too.
+//! moving tiles gather what each element shows; and element ids with the
+//! distance from the eye (`vs_rad`/`fs_back`, Rg32Uint), which cross
+//! redistribution shades with shot radiosity and projects (thesis §4.5.2).
+//! The gather solver's radiosity hemicubes use [`render_pipeline`] too.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -39,10 +39,6 @@ pub(super) mod slot {
     pub(in crate::gpu) const BATCH: Slot = Slot::new("batch", 2, Kind::Uniform);
     pub(in crate::gpu) const POSES: Slot = Slot::new("poses", 3, Kind::StorageRead);
     pub(in crate::gpu) const PATCHES: Slot = Slot::new("patches", 6, Kind::StorageRead);
-    pub(in crate::gpu) const SHOWN_BACK: Slot =
-        Slot::new("shown_back", 10, Kind::FloatTexture { filterable: false });
-    pub(in crate::gpu) const SHOWN_FRONT: Slot =
-        Slot::new("shown_front", 11, Kind::FloatTexture { filterable: false });
 }
 
 /// Clearing the slots an item-buffer pass draws to "no patch" (no
@@ -52,9 +48,10 @@ pub(super) const CLEAR_ITEMS: Pass = Pass {
     slots: &[],
 };
 
-/// Clearing the slots a shot-radiosity pass draws to zero (no bindings).
-pub(super) const CLEAR_RADIOSITY: Pass = Pass {
-    entries: &["vs_clear", "fs_clear_radiosity"],
+/// Clearing the slots a back hemicube pass draws to "no element" at
+/// distance 0 (no bindings).
+pub(super) const CLEAR_BACK: Pass = Pass {
+    entries: &["vs_clear", "fs_clear_back"],
     slots: &[],
 };
 
@@ -64,21 +61,19 @@ pub(super) const ITEM_BUFFERS: Pass = Pass {
     slots: &[slot::VERTICES, slot::SHOOTERS, slot::BATCH, slot::POSES],
 };
 
-/// Shot radiosity `B - B^u` of the static surfaces and the distance from
-/// the eye (thesis Alg. 4.4-4.5); without the emission `E` for a moving
-/// tile's gathering, which takes its direct light per texel. What each
-/// element shows is read from the shown textures the redistribution fills
-/// first (`shade_static` in redistribute.wgsl).
-pub(super) const SHOT_RADIOSITY: Pass = Pass {
-    entries: &["vs_rad", "fs_rad"],
+/// The element seen per pixel and its distance from the eye (Rg32Uint):
+/// cross redistribution's back hemicubes, which redistribute.wgsl shades
+/// with shot radiosity `B - B^u` (thesis Alg. 4.4-4.5) after drawing, so
+/// that a drawing at a tile's new pose serves again at its old pose in the
+/// next move.
+pub(super) const BACK_ELEMENTS: Pass = Pass {
+    entries: &["vs_rad", "fs_back"],
     slots: &[
         slot::VERTICES,
         slot::SHOOTERS,
         slot::BATCH,
         slot::POSES,
         slot::PATCHES,
-        slot::SHOWN_BACK,
-        slot::SHOWN_FRONT,
     ],
 };
 
@@ -196,21 +191,19 @@ pub(super) struct Pipelines {
 
 impl Pipelines {
     /// The pipelines of `pass` (`ITEM_BUFFERS` or `ELEMENT_IDS` into
-    /// R32Uint, or `SHOT_RADIOSITY` into Rgba16Float) with `module`, a
-    /// module of `draws`' layout.
+    /// R32Uint, or `BACK_ELEMENTS` into Rg32Uint) with `module`, a module of
+    /// `draws`' layout.
     pub(super) fn new(
         device: &wgpu::Device,
         (module, draws): (&wgpu::ShaderModule, Draws),
         pass: &Pass,
         layout: &wgpu::BindGroupLayout,
-        samples: u32,
     ) -> Self {
-        let (format, clear) =
-            if pass.entries == ITEM_BUFFERS.entries || pass.entries == ELEMENT_IDS.entries {
-                (wgpu::TextureFormat::R32Uint, &CLEAR_ITEMS)
-            } else {
-                (wgpu::TextureFormat::Rgba16Float, &CLEAR_RADIOSITY)
-            };
+        let (format, clear) = if pass.entries == BACK_ELEMENTS.entries {
+            (wgpu::TextureFormat::Rg32Uint, &CLEAR_BACK)
+        } else {
+            (wgpu::TextureFormat::R32Uint, &CLEAR_ITEMS)
+        };
         let draw = render_pipeline(
             device,
             module,
@@ -218,7 +211,7 @@ impl Pipelines {
             pass,
             layout,
             format,
-            samples,
+            1,
             wgpu::CompareFunction::Less,
         );
         let empty = clear.layout(device);
@@ -229,7 +222,7 @@ impl Pipelines {
             clear,
             &empty,
             format,
-            samples,
+            1,
             wgpu::CompareFunction::Always,
         );
         Self { draw, clear }
@@ -308,8 +301,6 @@ pub(super) fn face_height(face: u32, res: u32) -> u32 {
 /// Where one hemicube render pass draws.
 pub(super) struct Target<'a> {
     pub(super) view: &'a wgpu::TextureView,
-    /// Resolve target of a multisampled `view` (then `view` is discarded).
-    pub(super) resolve: Option<&'a wgpu::TextureView>,
     pub(super) depth: &'a wgpu::TextureView,
     /// Top-face resolution in pixels.
     pub(super) resolution: u32,
@@ -339,10 +330,7 @@ pub(super) fn encode(
         color_attachments: &[Some(wgpu::RenderPassColorAttachment {
             view: target.view,
             depth_slice: None,
-            resolve_target: target.resolve,
-            // Stored, even a multisampled view that was resolved: wgpu
-            // clears a discarded texture in full before the next pass
-            // loads it, which is the cost this avoids.
+            resolve_target: None,
             ops: wgpu::Operations {
                 load: wgpu::LoadOp::Load,
                 store: wgpu::StoreOp::Store,

@@ -131,12 +131,14 @@ pub enum Stage {
     /// R_g(C, M) (drawn again after the move only for a move of several
     /// jobs).
     FrontHemicubes,
-    /// GPU: cross's back hemicubes of C's shot radiosity with depth
-    /// (multisampled if `back_samples` says so), at both positions.
+    /// GPU: cross's back hemicubes of C's elements with their distance, at
+    /// the new position and at the old one unless the last move's are
+    /// copied back.
     BackHemicubes,
     /// GPU: the moving tiles gather from their front hemicubes.
     TileGather,
-    /// GPU: `reconstruct_dyn` for cross: every element of C samples the
+    /// GPU: `shade_back`, which shades the back hemicubes with C's shot
+    /// radiosity, and `reconstruct_dyn` for cross: every element of C samples the
     /// back hemicubes (the cross projection R_x(C, C), eq. 3.3.1) with
     /// reprojection by depth (Alg. 4.5 REPROJECT), and receives the tiles'
     /// shots. Projection and reprojection are one loop of one kernel and

@@ -335,9 +335,10 @@ mod tests {
     fn every_pass_binds_what_its_shader_declares() {
         let hemicube_passes = vec![
             hemicube::ITEM_BUFFERS,
-            hemicube::SHOT_RADIOSITY,
+            hemicube::ELEMENT_IDS,
+            hemicube::BACK_ELEMENTS,
             hemicube::CLEAR_ITEMS,
-            hemicube::CLEAR_RADIOSITY,
+            hemicube::CLEAR_BACK,
         ];
         let passes: [(&str, String, Vec<Pass>); 5] = [
             (

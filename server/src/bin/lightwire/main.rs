@@ -221,10 +221,6 @@ enum BenchCommand {
             i64::from(SolverHints::MIN_BACK_RESOLUTION)..=i64::from(SolverHints::MAX_BACK_RESOLUTION)
         ))]
         back_resolution: Option<u32>,
-        /// Cross redistribution: samples per pixel of the back hemicubes
-        /// (1 or 4; 4 blurs them) [default: 1].
-        #[arg(long, value_parser = back_samples)]
-        back_samples: Option<u32>,
         /// Cross redistribution: gathered correction rounds after the
         /// first solve (0: none) [default: 2].
         #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
@@ -279,18 +275,6 @@ enum BenchCommand {
     /// codecs over the recording side by side: bytes per version, encode
     /// and decode time, and the deviation a viewer sees.
     Codec(CodecArgs),
-}
-
-/// `--back-samples`: the sample counts every adapter renders (WebGPU's 1
-/// and 4).
-fn back_samples(text: &str) -> Result<u32, String> {
-    match text {
-        "1" => Ok(1),
-        "4" => Ok(4),
-        _ => Err(format!(
-            "{text:?} is not a sample count every adapter has: use 1 or 4"
-        )),
-    }
 }
 
 /// A number from 0 to 1; `what` names it in the error.
@@ -389,7 +373,6 @@ fn main() -> ExitCode {
                     shared_batch_ratio,
                     hemicube_resolution,
                     back_resolution,
-                    back_samples,
                     corrections,
                     charts,
                 },
@@ -414,7 +397,6 @@ fn main() -> ExitCode {
                         hemicube_resolution: hemicube_resolution
                             .unwrap_or(defaults.hemicube_resolution),
                         back_resolution: back_resolution.unwrap_or(defaults.back_resolution),
-                        back_samples: back_samples.unwrap_or(defaults.back_samples),
                         ..defaults
                     }
                 },

@@ -123,14 +123,11 @@ pub struct ProgressiveOptions {
     pub cross_tile: u32,
     /// Top-face resolution of the back hemicubes of shot radiosity used by
     /// the cross projection (thesis §4.5.2 renders them as low as 16, with
-    /// multisampling as a blur).
+    /// multisampling as a blur; here one sample per pixel, which at 32²
+    /// was more accurate than 16² with four and cost the same on lavapipe,
+    /// BENCHMARKS.md "back hemicubes at 32²", and lets a back hemicube
+    /// hold element ids that serve two moves, `redistribute.rs` `Kept`).
     pub back_resolution: u32,
-    /// Samples per pixel of the back hemicubes: more than one blurs them
-    /// (resolved by averaging), which hides the undersampling of the cross
-    /// projection (thesis §4.5.2). At 32² one sample is more accurate
-    /// than 16² with four and costs the same on lavapipe (BENCHMARKS.md,
-    /// "back hemicubes at 32²"); WebGPU guarantees 1 and 4.
-    pub back_samples: u32,
     /// Split shooter tiles that straddle a contact (valid and invalid
     /// elements), up to 1.5 times the tiles of the power-based grid
     /// (`Tiling::split_contacts` in `shooters.rs`), for every method.
@@ -170,12 +167,12 @@ pub struct ProgressiveOptions {
     /// shot per triangle (BENCHMARKS.md, "shooting clusters"); tests turn
     /// it off to compare.
     pub cluster_triangles: bool,
-    /// Cross redistribution: keep the item buffers a move draws at its
-    /// tiles' new pose and copy them back as the next move's old-pose ones
-    /// when its tiles, their shooters and every pose match
-    /// (`redistribute.rs` `KeptItems`), instead of drawing them again;
+    /// Cross redistribution: keep the item buffers and back hemicubes a
+    /// move draws at its tiles' new pose and copy them back as the next
+    /// move's old-pose ones when its tiles, their shooters and every pose
+    /// match (`redistribute.rs` `Kept`), instead of drawing them again;
     /// tests turn it off to compare.
-    pub keep_item_buffers: bool,
+    pub keep_old_pose_hemicubes: bool,
 }
 
 impl Default for ProgressiveOptions {
@@ -190,13 +187,12 @@ impl Default for ProgressiveOptions {
             cross_coarse_below: 0.005,
             cross_tile: 5,
             back_resolution: 32,
-            back_samples: 1,
             split_contacts: true,
             max_power_workgroups: u32::MAX,
             one_draw_hemicubes: true,
             shared_batch_ratio: 0.5,
             cluster_triangles: true,
-            keep_item_buffers: true,
+            keep_old_pose_hemicubes: true,
         }
     }
 }
@@ -319,9 +315,11 @@ pub struct ProgressiveSolver {
     triangle_vertices: u32,
     /// Redistribution passes and targets, built on first use.
     dynamic: Option<redistribute::DynamicPasses>,
-    /// Cross jobs that copied their old-pose item buffers from the last
-    /// move instead of drawing them (`ProgressiveOptions::keep_item_buffers`).
+    /// Cross jobs that copied their old-pose item buffers, and their
+    /// old-pose back hemicubes, from the last move instead of drawing them
+    /// (`ProgressiveOptions::keep_old_pose_hemicubes`).
     kept_item_jobs: u64,
+    kept_back_jobs: u64,
     /// Whether the scene has triangle patches, whose shooters may be cut
     /// (`pipelines::cut_constants`).
     triangles: bool,
@@ -502,6 +500,7 @@ impl ProgressiveSolver {
             triangle_vertices,
             dynamic: None,
             kept_item_jobs: 0,
+            kept_back_jobs: 0,
             triangles,
             profile: Profiler::disabled(),
         };
@@ -614,9 +613,15 @@ impl ProgressiveSolver {
 
     /// Cross jobs since the solver was created whose old-pose item buffers
     /// were the last move's, copied instead of drawn
-    /// ([`ProgressiveOptions::keep_item_buffers`]).
+    /// ([`ProgressiveOptions::keep_old_pose_hemicubes`]).
     pub fn kept_item_jobs(&self) -> u64 {
         self.kept_item_jobs
+    }
+
+    /// Cross jobs since the solver was created whose old-pose back
+    /// hemicubes were the last move's, copied instead of drawn.
+    pub fn kept_back_jobs(&self) -> u64 {
+        self.kept_back_jobs
     }
 
     /// Shooters shot since the solver was created.

@@ -10,7 +10,7 @@ use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
 /// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26, 28 and 29.
+/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26 and 28-32.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -44,12 +44,26 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const MOVING_DIRECT: Slot =
         Slot::new("moving_direct", 26, Kind::StorageRead);
     pub(in crate::gpu) const MEMBERS: Slot = Slot::new("members", 27, Kind::StorageRead);
-    pub(in crate::gpu) const SHOWN_BACK_OUT: Slot =
-        Slot::new("shown_back_out", 28, Kind::StorageTextureWrite);
-    pub(in crate::gpu) const SHOWN_FRONT_OUT: Slot =
-        Slot::new("shown_front_out", 29, Kind::StorageTextureWrite);
+    pub(in crate::gpu) const SHOWN_BACK_OUT: Slot = Slot::new(
+        "shown_back_out",
+        28,
+        Kind::StorageTextureWrite(wgpu::TextureFormat::Rgba32Float),
+    );
+    pub(in crate::gpu) const SHOWN_FRONT_OUT: Slot = Slot::new(
+        "shown_front_out",
+        29,
+        Kind::StorageTextureWrite(wgpu::TextureFormat::Rgba32Float),
+    );
     pub(in crate::gpu) const SHOWN_FRONT: Slot =
         Slot::new("shown_front", 30, Kind::FloatTexture { filterable: false });
+    pub(in crate::gpu) const BACK_IDS: Slot = Slot::new("back_ids", 24, Kind::UintTexture);
+    pub(in crate::gpu) const BACK_RAD_OUT: Slot = Slot::new(
+        "back_rad_out",
+        31,
+        Kind::StorageTextureWrite(wgpu::TextureFormat::Rgba16Float),
+    );
+    pub(in crate::gpu) const SHOWN_BACK: Slot =
+        Slot::new("shown_back", 32, Kind::FloatTexture { filterable: false });
 }
 
 use slot::*;
@@ -150,7 +164,8 @@ pub(in crate::gpu) const REGATHER_MOVING: Pass = Pass {
 };
 
 /// Cross redistribution: what the static set shows a batch's front and back
-/// hemicubes, one texel per element (hemicube.wgsl `fs_rad` reads them).
+/// hemicubes, one texel per element (`shade_back` and the moving tiles'
+/// gathers read them).
 pub(in crate::gpu) const SHADE_STATIC: Pass = Pass {
     entries: &["shade_static"],
     slots: &[
@@ -178,6 +193,13 @@ pub(in crate::gpu) const SHADE_TOTAL: Pass = Pass {
         EMISSION,
         SHOWN_FRONT_OUT,
     ],
+};
+
+/// Cross redistribution: the back hemicubes' element ids and distances
+/// shaded into shot radiosity and distance for the cross projection.
+pub(in crate::gpu) const SHADE_BACK: Pass = Pass {
+    entries: &["shade_back"],
+    slots: &[BACK, BACK_IDS, SHOWN_BACK, BACK_RAD_OUT],
 };
 
 /// Cross redistribution: a moving face's light read between tile centres.
@@ -231,10 +253,11 @@ pub(in crate::gpu) const PROGRESSIVE_PASSES: [Pass; 5] = [
 /// Every pass of the redistribution module, for the naga check in
 /// shaders.rs.
 #[cfg(test)]
-pub(in crate::gpu) const REDISTRIBUTION_PASSES: [Pass; 8] = [
+pub(in crate::gpu) const REDISTRIBUTION_PASSES: [Pass; 9] = [
     RESET_MOVING,
     SHOOTER_ENERGY_DYN,
     SHADE_STATIC,
+    SHADE_BACK,
     SHADE_TOTAL,
     GATHER_MOVING,
     REGATHER_MOVING,
@@ -282,7 +305,6 @@ impl Pipelines {
             (&hemicube_module, draws),
             &hemicube::ITEM_BUFFERS,
             &item_layout,
-            1,
         );
         let item_group = hemicube::ITEM_BUFFERS.bind(device, &item_layout, |s| resources.get(s));
         Self {

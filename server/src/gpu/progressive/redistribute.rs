@@ -61,13 +61,13 @@ use std::str::FromStr;
 use glam::Vec3;
 
 use super::pipelines::{
-    GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHADE_STATIC, SHADE_TOTAL,
-    SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
+    GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHADE_BACK, SHADE_STATIC,
+    SHADE_TOTAL, SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
 };
 use super::shooters::contact_limit;
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::direct::element_direct_light;
-use crate::gpu::buffers::{WORKGROUP, encode_compute, texture, v4};
+use crate::gpu::buffers::{WORKGROUP, encode_compute, encode_compute_grid, texture, v4};
 use crate::gpu::hemicube::{self, FACES};
 use crate::gpu::placement::{WorldPatch, pose_matrices, world_areas};
 use crate::gpu::profile::Stage;
@@ -131,8 +131,9 @@ const ONE_SIDED: u32 = 0x800;
 /// Texels per row of the shown textures (`SHOWN_WIDTH` in common.wgsl).
 pub(in crate::gpu) const SHOWN_WIDTH: u32 = 2048;
 
-/// `Batch.mode` of a back hemicube pass (hemicube.wgsl `RAD_BACK`).
-const RAD_BACK: u32 = 0x10000;
+/// `Batch.mode` of a batch that only draws hemicubes and reads them (the
+/// back hemicubes, the regathering): no kind of reconstruction.
+const HEMICUBES_ONLY: u32 = 0;
 /// Samples per emitting patch of the moving elements' direct light,
 /// `DIRECT_GRID`² (as regather.rs: a shadow ray each, the unoccluded form
 /// factor exact whatever the count).
@@ -142,10 +143,6 @@ const DIRECT_GRID: usize = 8;
 /// (no emitter), which varies slowly, so a quarter of the pixels of the
 /// default 64² does; on lavapipe the pass costs about what its pixels do.
 const GATHER_RESOLUTION: u32 = 32;
-/// `Batch.mode` of the regathering hemicubes, which show the static set's
-/// total radiosity (`shade_total` fills what they read); any mode but
-/// `RAD_BACK` draws the front texture.
-const RAD_TOTAL: u32 = 0x20000;
 
 /// One GPU batch of a move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -237,13 +234,17 @@ pub(in crate::gpu) struct DynamicPasses {
     /// in redistribute.wgsl), written per move.
     pub(super) moving_direct: wgpu::Buffer,
     front_view: wgpu::TextureView,
-    /// Multisampled back hemicubes, resolved into `back_view` (none with
-    /// one sample per pixel: drawn into `back_view` directly).
-    back_msaa_view: Option<wgpu::TextureView>,
-    back_view: wgpu::TextureView,
+    /// The back hemicubes as drawn (`BACK_ELEMENTS`: element and distance
+    /// per pixel); `shade_back` shades them for the projection into a
+    /// texture only its bind groups hold (shot radiosity and distance,
+    /// Rgba16Float).
+    back_ids_view: wgpu::TextureView,
     back_depth_view: wgpu::TextureView,
+    shade_back: (wgpu::ComputePipeline, wgpu::BindGroup),
     /// The item buffers of the last cross job's new-pose slots.
-    kept: KeptItems,
+    kept: Kept,
+    /// Its back hemicubes' new-pose slots (`back_ids_view` rows).
+    kept_back: Kept,
     /// The tiles whose gathering hemicubes `front_view` holds, slot by
     /// slot, drawn at this move's new pose by its cross job; empty when
     /// none of this move. The gather after the move reads them again
@@ -251,37 +252,61 @@ pub(in crate::gpu) struct DynamicPasses {
     front_ids_of: Vec<CrossTile>,
 }
 
-/// Item buffers kept from one cross job for the next move. A move's old
-/// pose is the last move's new one, so the item buffers a job needs at its
-/// tiles' old pose are those the last move's job drew at their new pose
-/// whenever the tiles, hence their shooters, and the pose of every object
-/// are the same (the static scene and the hemicube settings never change):
-/// those rows are then copied back instead of drawn again, which saves
-/// half of a move's item buffers. They are a copy, since progressive
-/// refinement between moves draws over the item texture.
-struct KeptItems {
-    /// Rows as the item texture's: slot `k` in rows `k res .. (k + 1) res`.
+/// Hemicube rows kept from one cross job for the next move. A move's old
+/// pose is the last move's new one, so the item buffers and the back
+/// hemicubes a job needs at its tiles' old pose are those the last move's
+/// job drew at their new pose whenever the tiles, hence their shooters,
+/// and the pose of every object are the same (the static scene and the
+/// hemicube settings never change): those rows are then copied back
+/// instead of drawn again, which saves half of a move's item buffers and
+/// back hemicubes. They are a copy, since progressive refinement between
+/// moves draws over the item texture and every job over the back one.
+/// The back hemicubes hold element ids, not light, so a kept one shows the
+/// light of the job that reads it (`shade_back`).
+struct Kept {
+    /// Rows as the drawn texture's: slot `k` in rows `k res .. (k + 1) res`.
     view: wgpu::TextureView,
     /// What the rows were drawn from: the job's new-pose shooters (slot
     /// order, compared bit for bit) and every object's matrix at that pose
-    /// (zero: absent). Empty: nothing kept.
+    /// (zero: absent, or left out of a back hemicube). Empty: nothing kept.
     shooters: Vec<GpuShooter>,
     poses: Vec<[[f32; 4]; 4]>,
 }
 
-impl KeptItems {
-    /// Whether the kept rows are the item buffers of `shooters` with the
-    /// objects at `poses`.
+impl Kept {
+    /// Whether the kept rows were drawn from `shooters` with the objects
+    /// at `poses`.
     fn holds(&self, shooters: &[GpuShooter], poses: &[[[f32; 4]; 4]]) -> bool {
         !self.shooters.is_empty()
             && bytemuck::cast_slice::<_, u8>(&self.shooters)
                 == bytemuck::cast_slice::<_, u8>(shooters)
             && bytemuck::cast_slice::<_, u8>(&self.poses) == bytemuck::cast_slice::<_, u8>(poses)
     }
+
+    /// Rows of `slots` slots of `res` pixels, five faces wide, of `format`.
+    fn rows(
+        device: &wgpu::Device,
+        label: &str,
+        (slots, res): (u32, u32),
+        format: wgpu::TextureFormat,
+    ) -> Self {
+        Self {
+            view: texture(
+                device,
+                label,
+                (FACES * res, res * slots),
+                format,
+                1,
+                wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+            ),
+            shooters: Vec::new(),
+            poses: Vec::new(),
+        }
+    }
 }
 
 /// Copies `slots` hemicube rows of `res` pixels from row `from` of `src` to
-/// row `to` of `dst` (item textures, five faces wide).
+/// row `to` of `dst` (hemicube textures of one format, five faces wide).
 fn copy_slots(
     encoder: &mut wgpu::CommandEncoder,
     (src, from): (&wgpu::TextureView, u32),
@@ -306,6 +331,35 @@ fn copy_slots(
             depth_or_array_layers: 1,
         },
     );
+}
+
+/// A cross job's hemicube rows in `view` (`total` slots of `res` pixels,
+/// the old pose's from `old_from` on): with `reused`, the old pose's rows
+/// copied from `kept` and only the new pose's drawn, else all drawn
+/// (`draw` draws slots `0..n`); with `keep`, the new pose's rows then
+/// copied to `kept` for the next move.
+fn encode_kept_rows(
+    encoder: &mut wgpu::CommandEncoder,
+    keep: bool,
+    (kept, reused): (&Kept, bool),
+    (view, old_from, total, res): (&wgpu::TextureView, u32, u32, u32),
+    draw: impl FnOnce(&mut wgpu::CommandEncoder, u32),
+) {
+    if reused {
+        copy_slots(
+            encoder,
+            (&kept.view, 0),
+            (view, old_from),
+            total - old_from,
+            res,
+        );
+        draw(encoder, old_from);
+    } else {
+        draw(encoder, total);
+    }
+    if keep {
+        copy_slots(encoder, (view, 0), (&kept.view, 0), old_from, res);
+    }
 }
 
 impl ProgressiveSolver {
@@ -342,24 +396,28 @@ impl ProgressiveSolver {
             attach,
         );
         let back_size = (FACES * back_res, back_res * cap);
-        let back_samples = self.options.back_samples.max(1);
-        let back_msaa_view = (back_samples > 1).then(|| {
-            texture(
-                device,
-                "back hemicubes (multisampled)",
-                back_size,
-                rgba,
-                back_samples,
-                wgpu::TextureUsages::RENDER_ATTACHMENT,
-            )
-        });
-        let back_view = texture(device, "back hemicubes", back_size, rgba, 1, attach);
+        let back_ids_view = texture(
+            device,
+            "back hemicubes (element ids and distances)",
+            back_size,
+            wgpu::TextureFormat::Rg32Uint,
+            1,
+            attach | wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+        );
+        let back_view = texture(
+            device,
+            "back hemicubes (shot radiosity and distance)",
+            back_size,
+            rgba,
+            1,
+            wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
         let back_depth_view = texture(
             device,
             "back hemicube depth",
             back_size,
             wgpu::TextureFormat::Depth32Float,
-            back_samples,
+            1,
             wgpu::TextureUsages::RENDER_ATTACHMENT,
         );
         let back_shooters = device.create_buffer(&wgpu::BufferDescriptor {
@@ -458,13 +516,14 @@ impl ProgressiveSolver {
             .view(slot::FRONT_IDS, &front_view)
             .view(slot::SHOWN_FRONT, &shown_front)
             .view(slot::BACK_RAD, &back_view)
+            .view(slot::BACK_RAD_OUT, &back_view)
+            .view(slot::BACK_IDS, &back_ids_view)
+            .view(slot::SHOWN_BACK, &shown_back)
             .sampler(slot::BACK_SAMPLER, &sampler)
             .buffer(slot::BACK_SHOOTERS, &back_shooters)
             .buffer(slot::BACK, &back_batch)
             .view(slot::SHOWN_BACK_OUT, &shown_back)
-            .view(slot::SHOWN_FRONT_OUT, &shown_front)
-            .view(hemicube::slot::SHOWN_BACK, &shown_back)
-            .view(hemicube::slot::SHOWN_FRONT, &shown_front);
+            .view(slot::SHOWN_FRONT_OUT, &shown_front);
         let cuts = super::pipelines::cut_constants(self.triangles);
         let compute = |pass: crate::gpu::binding::Pass, constants: &[(&str, f64)]| {
             let constants: Vec<(&str, f64)> = constants.iter().chain(&cuts).copied().collect();
@@ -478,28 +537,18 @@ impl ProgressiveSolver {
         let reconstruct = compute(RECONSTRUCT_DYN, &grid);
         let shade_static = compute(SHADE_STATIC, &[]);
         let shade_total = compute(SHADE_TOTAL, &[]);
-        // The tiles' gathering hemicubes at the batch's shooters (the
-        // element seen per pixel), and the back ones of shot radiosity
-        // (multisampled if asked) at their own shooters and constants.
+        let shade_back = compute(SHADE_BACK, &[]);
+        // The tiles' gathering hemicubes at the batch's shooters and the
+        // back ones at their own shooters: the element seen per pixel (and
+        // for the back ones its distance).
         let ids = &hemicube::ELEMENT_IDS;
         let ids_layout = ids.layout(device);
         let front_pipeline =
-            hemicube::Pipelines::new(device, (&hemicube_module, self.draws), ids, &ids_layout, 1);
+            hemicube::Pipelines::new(device, (&hemicube_module, self.draws), ids, &ids_layout);
         let front_group = ids.bind(device, &ids_layout, |s| resources.get(s));
-        let rad = &hemicube::SHOT_RADIOSITY;
-        let rad_layout = rad.layout(device);
-        let rad_pipeline = |samples: u32| {
-            hemicube::Pipelines::new(
-                device,
-                (&hemicube_module, self.draws),
-                rad,
-                &rad_layout,
-                samples,
-            )
-        };
         // The back hemicubes see the scene without the moving objects
-        // (`RAD_BACK`): their matrices are zero there (`back_poses`), so
-        // their triangles collapse instead of being drawn and discarded.
+        // (thesis Alg. 4.5): their matrices are zero there (`back_poses`),
+        // so their triangles collapse before the rasterizer.
         let back_poses = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("poses without the moving objects"),
             size: self.buffers.poses.size(),
@@ -511,11 +560,12 @@ impl ProgressiveSolver {
             .resources()
             .buffer(hemicube::slot::POSES, &back_poses)
             .buffer(hemicube::slot::SHOOTERS, &back_shooters)
-            .buffer(hemicube::slot::BATCH, &back_batch)
-            .view(hemicube::slot::SHOWN_BACK, &shown_back)
-            .view(hemicube::slot::SHOWN_FRONT, &shown_front);
-        let back_pipeline = rad_pipeline(back_samples);
-        let back_group = rad.bind(device, &rad_layout, |s| back_resources.get(s));
+            .buffer(hemicube::slot::BATCH, &back_batch);
+        let back = &hemicube::BACK_ELEMENTS;
+        let back_layout = back.layout(device);
+        let back_pipeline =
+            hemicube::Pipelines::new(device, (&hemicube_module, self.draws), back, &back_layout);
+        let back_group = back.bind(device, &back_layout, |s| back_resources.get(s));
         DynamicPasses {
             reset,
             energy,
@@ -532,21 +582,21 @@ impl ProgressiveSolver {
             back_poses,
             moving_direct,
             front_view,
-            back_msaa_view,
-            back_view,
+            back_ids_view,
             back_depth_view,
-            kept: KeptItems {
-                view: texture(
-                    device,
-                    "kept item buffers",
-                    (FACES * res, res * cap.div_ceil(2)),
-                    wgpu::TextureFormat::R32Uint,
-                    1,
-                    wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
-                ),
-                shooters: Vec::new(),
-                poses: Vec::new(),
-            },
+            shade_back,
+            kept: Kept::rows(
+                device,
+                "kept item buffers",
+                (cap.div_ceil(2), res),
+                wgpu::TextureFormat::R32Uint,
+            ),
+            kept_back: Kept::rows(
+                device,
+                "kept back hemicubes",
+                (cap.div_ceil(2), back_res),
+                wgpu::TextureFormat::Rg32Uint,
+            ),
             front_ids_of: Vec::new(),
         }
     }
@@ -935,7 +985,7 @@ impl ProgressiveSolver {
                     mode |= HAS_OLD;
                 }
                 self.upload(&list, self.batch_uniform(patch, count, old_from, mode));
-                let mut back_uniform = self.batch_uniform(patch, count, old_from, RAD_BACK);
+                let mut back_uniform = self.batch_uniform(patch, count, old_from, HEMICUBES_ONLY);
                 back_uniform.resolution = self.options.back_resolution.max(1);
                 let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.queue
@@ -960,35 +1010,20 @@ impl ProgressiveSolver {
                     .write_buffer(&d.back_poses, 0, bytemuck::cast_slice(&back_poses));
                 self.profile.stop(setup, Stage::JobSetup);
                 self.profile.open(&mut encoder);
-                // The old pose's item buffers are the last move's new ones
-                // when nothing else changed (`KeptItems`).
+                // The old pose's item buffers and back hemicubes are the last
+                // move's new ones when nothing else changed (`Kept`).
                 let new_poses = pose_matrices(&self.poses, &self.absent);
                 let old_poses = pose_matrices(&mv.old_poses, &mv.old_absent);
+                let keep = self.options.keep_old_pose_hemicubes;
                 let res = self.options.hemicube_resolution.max(1);
-                let kept = &d.kept;
-                let reused = self.options.keep_item_buffers
-                    && kept.holds(&list[old_from as usize..], &old_poses);
-                if reused {
-                    copy_slots(
-                        &mut encoder,
-                        (&kept.view, 0),
-                        (&self.buffers.item_view, old_from),
-                        old_from,
-                        res,
-                    );
-                    self.encode_item_buffers(&mut encoder, old_from);
-                } else {
-                    self.encode_item_buffers(&mut encoder, total);
-                }
-                if self.options.keep_item_buffers {
-                    copy_slots(
-                        &mut encoder,
-                        (&self.buffers.item_view, 0),
-                        (&kept.view, 0),
-                        old_from,
-                        res,
-                    );
-                }
+                let items_kept = keep && d.kept.holds(&list[old_from as usize..], &old_poses);
+                encode_kept_rows(
+                    &mut encoder,
+                    keep,
+                    (&d.kept, items_kept),
+                    (&self.buffers.item_view, old_from, total, res),
+                    |encoder, slots| self.encode_item_buffers(encoder, slots),
+                );
                 self.profile.mark(&mut encoder, Stage::ItemBuffers);
                 // Counted with the front hemicubes (or the back ones).
                 encode_compute(
@@ -1000,35 +1035,59 @@ impl ProgressiveSolver {
                     self.encode_gathering_hemicubes(&mut encoder, d, count);
                     self.profile.mark(&mut encoder, Stage::FrontHemicubes);
                 }
-                hemicube::encode(
-                    &mut encoder,
-                    (&d.rad_back.0, &d.rad_back.1),
-                    &hemicube::Target {
-                        view: d.back_msaa_view.as_ref().unwrap_or(&d.back_view),
-                        resolve: d.back_msaa_view.as_ref().map(|_| &d.back_view),
-                        depth: &d.back_depth_view,
-                        resolution: back_uniform.resolution,
-                    },
-                    total,
-                    self.triangle_vertices,
-                    self.draws,
-                );
-                self.profile.mark(&mut encoder, Stage::BackHemicubes);
                 encode_compute(&mut encoder, &d.gather, count);
                 self.profile.mark(&mut encoder, Stage::TileGather);
+                let back_res = back_uniform.resolution;
+                let (new_back, old_back) = back_poses.split_at(objects);
+                let back_kept = keep && d.kept_back.holds(&through[old_from as usize..], old_back);
+                encode_kept_rows(
+                    &mut encoder,
+                    keep,
+                    (&d.kept_back, back_kept),
+                    (&d.back_ids_view, old_from, total, back_res),
+                    |encoder, slots| {
+                        hemicube::encode(
+                            encoder,
+                            (&d.rad_back.0, &d.rad_back.1),
+                            &hemicube::Target {
+                                view: &d.back_ids_view,
+                                depth: &d.back_depth_view,
+                                resolution: back_res,
+                            },
+                            slots,
+                            self.triangle_vertices,
+                            self.draws,
+                        )
+                    },
+                );
+                self.profile.mark(&mut encoder, Stage::BackHemicubes);
+                // Every slot shaded with the light of now, kept or drawn
+                // (counted with the projection: on lavapipe a timestamp
+                // right after a pass that writes a storage texture is
+                // taken only once the next pass has run).
+                encode_compute_grid(
+                    &mut encoder,
+                    &d.shade_back,
+                    (
+                        (FACES * back_res).div_ceil(8),
+                        (total * back_res).div_ceil(8),
+                    ),
+                );
                 encode_compute(
                     &mut encoder,
                     &d.reconstruct,
                     self.element_count.div_ceil(WORKGROUP),
                 );
                 self.profile.mark(&mut encoder, Stage::CrossProjection);
-                if reused {
-                    self.kept_item_jobs += 1;
-                }
+                self.kept_item_jobs += u64::from(items_kept);
+                self.kept_back_jobs += u64::from(back_kept);
+                let new_back = new_back.to_vec();
                 let d = self.dynamic.as_mut().expect("built in begin_move");
-                if self.options.keep_item_buffers {
+                if keep {
                     d.kept.shooters = list[..old_from as usize].to_vec();
                     d.kept.poses = new_poses;
+                    d.kept_back.shooters = through[..old_from as usize].to_vec();
+                    d.kept_back.poses = new_back;
                 }
                 d.front_ids_of.clear();
                 if has_new {
@@ -1171,7 +1230,7 @@ impl ProgressiveSolver {
         for (c, chunk) in tiles.chunks(capacity).enumerate() {
             let list = front_shooters(&tiling, chunk, &self.patches, &self.areas);
             let n = list.len() as u32;
-            let uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, RAD_TOTAL);
+            let uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, HEMICUBES_ONLY);
             // Each chunk's shooters and uniform must be in place when its
             // passes run: submit what came before first.
             let done = std::mem::replace(
@@ -1214,7 +1273,6 @@ impl ProgressiveSolver {
             (&d.rad_front.0, &d.rad_front.1),
             &hemicube::Target {
                 view: &d.front_view,
-                resolve: None,
                 depth: &self.buffers.depth_view,
                 resolution: self.gather_resolution(),
             },

@@ -91,7 +91,6 @@ impl ProgressiveSolver {
             (&item.0, &item.1),
             &hemicube::Target {
                 view: &self.buffers.item_view,
-                resolve: None,
                 depth: &self.buffers.depth_view,
                 resolution: self.options.hemicube_resolution.max(1),
             },
