@@ -84,6 +84,12 @@
 // binding: a dispatch may not write and read one texture).
 @group(0) @binding(30) var shown_front: texture_2d<f32>;
 @group(0) @binding(32) var shown_back: texture_2d<f32>;
+// Which of a cross job's new-pose slots reach each element (the plane
+// test and the visibility `reconstruct_dyn` marks them by), MARK_WORDS
+// words an element, bit k of word w for slot w MARK_CHUNK + k: the next
+// job's old-pose slots when they are these (KEPT_MARKS). The element, the
+// shooter and the item buffer are the same, so the marks are too.
+@group(0) @binding(33) var<storage, read_write> marks: array<u32>;
 
 // Scratch of the workgroup reductions: radiosity sums, area sums.
 var<workgroup> partial: array<vec3<f32>, 64>;
@@ -115,6 +121,10 @@ const RESET_UNSHOT: u32 = 0x400u;
 // [new front, old front] instead of [new front, new back, old front, old
 // back].
 const ONE_SIDED: u32 = 0x800u;
+// Cross: the old-pose slots are the last cross job's new-pose ones, item
+// buffers and all (gpu/progressive/redistribute.rs `Kept`), so which of
+// them reach an element is what that job marked (`marks`).
+const KEPT_MARKS: u32 = 0x1000u;
 
 // Side length of the cross projection's sampling grid on a shooter (thesis
 // Alg. 4.5 gridSize, 4 by default).
@@ -146,6 +156,9 @@ override GATHER_RESOLUTION: u32 = 32u;
 // lane is in it, so an unmarked slot costs nothing only by not being
 // looped over.
 const MARK_CHUNK: u32 = 32u;
+// Words of `marks` per element: a bit per new-pose slot of a cross job
+// (half of its at most MAX_BATCH slots).
+const MARK_WORDS: u32 = (MAX_BATCH / 2u + MARK_CHUNK - 1u) / MARK_CHUNK;
 
 // The lowest marked bit of `marked`, which is cleared.
 fn next_marked(marked: ptr<function, u32>) -> u32 {
@@ -535,6 +548,36 @@ fn projected_radiosity(slot: u32, x: vec3<f32>, coarse: bool) -> vec3<f32> {
     return acc / max(weight, 1e-12);
 }
 
+// The slots `first .. first + len` of a cross batch (`n` tiles, sides
+// shifted by `side_shift`) that reach element `id` at `x` (visibility
+// looked up from `d`), bit b for slot first + b: those of a pose that
+// exists, that the element may receive from (a moving element only from
+// the new pose's fronts, R_p(M, M)), not its own patch, with the element
+// in front of the tile and visible from it.
+fn mark_slots(first: u32, len: u32, n: u32, side_shift: u32, has_new: bool, has_old: bool, moving: bool, id: u32, x: vec3<f32>, d: vec3<f32>) -> u32 {
+    var marked = 0u;
+    for (var b = 0u; b < len; b++) {
+        let q = first + b;
+        let side = (q / n) << side_shift;
+        let new_pose = side < 2u;
+        let front = (side & 1u) == 0u;
+        if ((new_pose && !has_new) || (!new_pose && !has_old)) {
+            continue;
+        }
+        if (moving && !(new_pose && front)) {
+            continue;
+        }
+        let s = shooters[q];
+        if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
+            continue;
+        }
+        if (visibility(q, s, d - s.eye.xyz, x, id) > 0.0) {
+            marked |= 1u << b;
+        }
+    }
+    return marked;
+}
+
 // One thread per element: what this batch redistributes to it.
 @compute @workgroup_size(64)
 fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -607,31 +650,38 @@ fn reconstruct_dyn(@builtin(global_invocation_id) gid: vec3<u32>) {
         let has_old = (batch.mode & HAS_OLD) != 0u;
         let side_shift = select(0u, 1u, (batch.mode & ONE_SIDED) != 0u);
         let slots = (4u >> side_shift) * n;
-        for (var first = 0u; first < slots; first += MARK_CHUNK) {
+        let half = slots / 2u;
+        // The last job's marks, read before this job's new half replaces
+        // them (a moving element receives from no old slot).
+        var kept = array<u32, MARK_WORDS>();
+        let kept_marks = (batch.mode & KEPT_MARKS) != 0u;
+        if (kept_marks && has_old && !moving) {
+            for (var w = 0u; w < MARK_WORDS; w++) {
+                kept[w] = marks[e * MARK_WORDS + w];
+            }
+        }
+        // Chunks never straddle the two poses' halves.
+        var first = 0u;
+        loop {
+            if (first >= slots) {
+                break;
+            }
+            let old_half = first >= half;
+            let len = min(MARK_CHUNK, select(half, slots, old_half) - first);
+            let word = (first - select(0u, half, old_half)) / MARK_CHUNK;
             var marked = 0u;
-            for (var b = 0u; b < min(MARK_CHUNK, slots - first); b++) {
-                let q = first + b;
-                let side = (q / n) << side_shift;
-                let new_pose = side < 2u;
-                let front = (side & 1u) == 0u;
-                if ((new_pose && !has_new) || (!new_pose && !has_old)) {
-                    continue;
-                }
-                // A moving element receives only what the front of the new
-                // position shoots (R_p(M, M)); its own patch never.
-                if (moving && !(new_pose && front)) {
-                    continue;
-                }
-                let s = shooters[q];
-                if (bitcast<u32>(s.n.w) == id || dot(x - s.corner.xyz, s.n.xyz) <= 0.0) {
-                    continue;
-                }
-                if (visibility(q, s, d - s.eye.xyz, x, id) > 0.0) {
-                    marked |= 1u << b;
+            if (old_half && kept_marks) {
+                marked = kept[word];
+            } else {
+                marked = mark_slots(first, len, n, side_shift, has_new, has_old, moving, id, x, d);
+                if (!old_half) {
+                    marks[e * MARK_WORDS + word] = marked;
                 }
             }
+            let base = first;
+            first += len;
             while (marked != 0u) {
-                let q = first + next_marked(&marked);
+                let q = base + next_marked(&marked);
                 let side = (q / n) << side_shift;
                 let k = q % n;
                 let new_pose = side < 2u;

@@ -10,7 +10,7 @@ use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
 /// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26 and 28-32.
+/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26 and 28-33.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -64,6 +64,7 @@ pub(in crate::gpu) mod slot {
     );
     pub(in crate::gpu) const SHOWN_BACK: Slot =
         Slot::new("shown_back", 32, Kind::FloatTexture { filterable: false });
+    pub(in crate::gpu) const MARKS: Slot = Slot::new("marks", 33, Kind::Storage);
 }
 
 use slot::*;
@@ -237,6 +238,7 @@ pub(in crate::gpu) const RECONSTRUCT_DYN: Pass = Pass {
         BACK_SAMPLER,
         BACK_SHOOTERS,
         BACK,
+        MARKS,
     ],
 };
 

@@ -128,6 +128,12 @@ const HAS_OLD: u32 = 0x200;
 const RESET_UNSHOT: u32 = 0x400;
 /// Cross: the tiles have no back hemicubes (a closed object's).
 const ONE_SIDED: u32 = 0x800;
+/// Cross: the old-pose slots are the last job's new-pose ones (`Kept`), so
+/// `reconstruct_dyn` reads which reach an element from `marks`.
+const KEPT_MARKS: u32 = 0x1000;
+/// Words of `marks` per element (`MARK_WORDS` in redistribute.wgsl): a bit
+/// per new-pose slot, at most half of a batch's.
+const MARK_WORDS: u64 = (super::shooters::MAX_BATCH as u64 / 2).div_ceil(32);
 /// Texels per row of the shown textures (`SHOWN_WIDTH` in common.wgsl).
 pub(in crate::gpu) const SHOWN_WIDTH: u32 = 2048;
 
@@ -455,6 +461,12 @@ impl ProgressiveSolver {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let marks = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("cross slots marked per element"),
+            size: u64::from(self.element_count.max(1)) * MARK_WORDS * 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         let old_shot = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("old shot radiosity"),
             size: u64::from(self.element_count.max(1)) * 16,
@@ -509,6 +521,7 @@ impl ProgressiveSolver {
             .buffers
             .resources()
             .buffer(slot::OLD_SHOT, &old_shot)
+            .buffer(slot::MARKS, &marks)
             .buffer(slot::GATHERED, &gathered)
             .buffer(slot::REGATHERED, &regathered)
             .buffer(slot::MOVING_DIRECT, &moving_direct)
@@ -984,6 +997,17 @@ impl ProgressiveSolver {
                 if has_old {
                     mode |= HAS_OLD;
                 }
+                // The old pose's item buffers and back hemicubes are the last
+                // move's new ones when nothing else changed (`Kept`), and so
+                // is which of their slots reach each element.
+                let new_poses = pose_matrices(&self.poses, &self.absent);
+                let old_poses = pose_matrices(&mv.old_poses, &mv.old_absent);
+                let keep = self.options.keep_old_pose_hemicubes;
+                let d = self.dynamic.as_ref().expect("built in begin_move");
+                let items_kept = keep && d.kept.holds(&list[old_from as usize..], &old_poses);
+                if items_kept {
+                    mode |= KEPT_MARKS;
+                }
                 self.upload(&list, self.batch_uniform(patch, count, old_from, mode));
                 let mut back_uniform = self.batch_uniform(patch, count, old_from, HEMICUBES_ONLY);
                 back_uniform.resolution = self.options.back_resolution.max(1);
@@ -1010,13 +1034,7 @@ impl ProgressiveSolver {
                     .write_buffer(&d.back_poses, 0, bytemuck::cast_slice(&back_poses));
                 self.profile.stop(setup, Stage::JobSetup);
                 self.profile.open(&mut encoder);
-                // The old pose's item buffers and back hemicubes are the last
-                // move's new ones when nothing else changed (`Kept`).
-                let new_poses = pose_matrices(&self.poses, &self.absent);
-                let old_poses = pose_matrices(&mv.old_poses, &mv.old_absent);
-                let keep = self.options.keep_old_pose_hemicubes;
                 let res = self.options.hemicube_resolution.max(1);
-                let items_kept = keep && d.kept.holds(&list[old_from as usize..], &old_poses);
                 encode_kept_rows(
                     &mut encoder,
                     keep,
