@@ -68,16 +68,25 @@ fn fixtures_with_shape_errors_fail_the_schema() {
 /// A scene file's `"solver"` settings satisfy the schema, reach the
 /// solver's options at the file's own density, not at another (they were
 /// measured at that one), and settings the command line states win over
-/// them. (No shipped scene states any: BENCHMARKS.md says why.)
+/// them. (Written here on a copy of cornell-low, whose own file states
+/// only `cross_coarse_below`.)
 #[test]
 fn scene_solver_settings_apply_at_the_files_density_and_yield_to_the_command_line() {
     use lightwire_server::gpu::ProgressiveOptions;
     use lightwire_server::scene::{LoadOptions, Scene, SolverHints};
 
     let defaults = ProgressiveOptions::default();
-    let (grid, back) = (defaults.cross_grid + 1, defaults.back_resolution / 2);
+    let (grid, back, coarse) = (
+        defaults.cross_grid + 1,
+        defaults.back_resolution / 2,
+        defaults.cross_coarse_below * 4.0,
+    );
     let mut file = read_json(&scenes_dir().join("cornell-low.json"));
-    file["solver"] = serde_json::json!({ "cross_grid": grid, "back_resolution": back });
+    file["solver"] = serde_json::json!({
+        "cross_grid": grid,
+        "back_resolution": back,
+        "cross_coarse_below": coarse,
+    });
     file.as_object_mut().expect("an object").remove("$schema");
     let errors: Vec<String> = validator()
         .iter_errors(&file)
@@ -94,7 +103,14 @@ fn scene_solver_settings_apply_at_the_files_density_and_yield_to_the_command_lin
     std::fs::remove_file(&path).ok();
     let scene = scene.expect("the scene loads");
     let options = defaults.with_hints(&scene.solver);
-    assert_eq!((options.cross_grid, options.back_resolution), (grid, back));
+    assert_eq!(
+        (
+            options.cross_grid,
+            options.back_resolution,
+            options.cross_coarse_below
+        ),
+        (grid, back, coarse)
+    );
     // Everything else keeps the defaults.
     assert_eq!(options.cross_tile, defaults.cross_tile);
     assert_eq!(options.hemicube_resolution, defaults.hemicube_resolution);
@@ -105,10 +121,15 @@ fn scene_solver_settings_apply_at_the_files_density_and_yield_to_the_command_lin
     let cli = SolverHints {
         cross_grid: Some(grid + 1),
         back_resolution: None,
+        cross_coarse_below: Some(0.0),
     };
     let options = defaults.with_hints(&cli.or(scene.solver));
     assert_eq!(
-        (options.cross_grid, options.back_resolution),
-        (grid + 1, back)
+        (
+            options.cross_grid,
+            options.back_resolution,
+            options.cross_coarse_below
+        ),
+        (grid + 1, back, 0.0)
     );
 }

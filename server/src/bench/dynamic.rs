@@ -365,6 +365,10 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             .solver
             .back_resolution
             .filter(|_| settings.stated.back_resolution.is_none()),
+        cross_coarse_below: scene
+            .solver
+            .cross_coarse_below
+            .filter(|_| settings.stated.cross_coarse_below.is_none()),
     };
     let progressive = settings.progressive.with_hints(&used);
     let pose_at = |frame: u32| -> Vec<Pose> {

@@ -55,6 +55,10 @@ pub struct SolverJson {
     /// Top-face resolution of the back hemicubes of shot radiosity.
     #[serde(default)]
     pub back_resolution: Option<u32>,
+    /// Form factor below which a receiver samples a tile through the
+    /// coarse grid.
+    #[serde(default)]
+    pub cross_coarse_below: Option<f64>,
 }
 
 /// A glTF 2.0 file (`.glb` or `.gltf`) imported into the scene: every

@@ -61,7 +61,7 @@ pub struct Scene {
 /// Solver settings measured for one scene (its file's `"solver"`; see
 /// scenes/README.md): `None` keeps the solver's default.
 /// `gpu::ProgressiveOptions::with_hints` applies them.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SolverHints {
     /// Rays per side of the cross projection's grid on a tile (thesis
     /// Alg. 4.5 gridSize), 1 to [`SolverHints::MAX_CROSS_GRID`].
@@ -70,6 +70,9 @@ pub struct SolverHints {
     /// pixels, [`SolverHints::MIN_BACK_RESOLUTION`] to
     /// [`SolverHints::MAX_BACK_RESOLUTION`].
     pub back_resolution: Option<u32>,
+    /// Form factor to a tile below which a receiver samples the tile's
+    /// projection through the grid of half the side, 0 to 1.
+    pub cross_coarse_below: Option<f32>,
 }
 
 impl SolverHints {
@@ -82,6 +85,7 @@ impl SolverHints {
         SolverHints {
             cross_grid: self.cross_grid.or(other.cross_grid),
             back_resolution: self.back_resolution.or(other.back_resolution),
+            cross_coarse_below: self.cross_coarse_below.or(other.cross_coarse_below),
         }
     }
 
@@ -100,6 +104,9 @@ impl std::fmt::Display for SolverHints {
         }
         if let Some(r) = self.back_resolution {
             parts.push(format!("back_resolution {r}"));
+        }
+        if let Some(t) = self.cross_coarse_below {
+            parts.push(format!("cross_coarse_below {t}"));
         }
         if parts.is_empty() {
             f.write_str("none")

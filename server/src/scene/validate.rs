@@ -401,6 +401,16 @@ fn solver_hints(c: &mut Checker, raw: &SolverJson, density_scale: f32) -> Solver
             );
         }
     }
+    if let Some(t) = raw.cross_coarse_below {
+        if (0.0..=1.0).contains(&t) {
+            hints.cross_coarse_below = Some(t as f32);
+        } else {
+            c.report(
+                "solver",
+                format!("cross_coarse_below = {t} must be between 0 and 1"),
+            );
+        }
+    }
     if density_scale == 1.0 {
         hints
     } else {

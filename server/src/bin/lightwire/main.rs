@@ -201,7 +201,8 @@ enum BenchCommand {
         cross_grid: Option<u32>,
         /// Cross redistribution: a receiver whose form factor to a tile is
         /// below this samples the tile's projection through a grid of half
-        /// the side (0: never) [default: 0.005].
+        /// the side (0: never); wins over the scene file's
+        /// `solver.cross_coarse_below` [default: 0.005].
         #[arg(long, value_parser = form_factor_threshold)]
         cross_coarse_below: Option<f32>,
         /// Progressive refinement (the full method's solves, every
@@ -403,6 +404,7 @@ fn main() -> ExitCode {
                 stated: SolverHints {
                     cross_grid,
                     back_resolution,
+                    cross_coarse_below,
                 },
                 gather: gpu::GatherOptions::default(),
                 corrections: corrections.unwrap_or(gpu::DynamicOptions::default().corrections),

@@ -204,6 +204,7 @@ impl ProgressiveOptions {
         Self {
             cross_grid: hints.cross_grid.unwrap_or(self.cross_grid),
             back_resolution: hints.back_resolution.unwrap_or(self.back_resolution),
+            cross_coarse_below: hints.cross_coarse_below.unwrap_or(self.cross_coarse_below),
             ..self
         }
     }
