@@ -61,6 +61,16 @@ pub(super) const ITEM_BUFFERS: Pass = Pass {
     slots: &[slot::VERTICES, slot::SHOOTERS, slot::BATCH, slot::POSES],
 };
 
+/// What the passes that draw the element seen per pixel (`vs_rad`) bind:
+/// the patches' charts besides the geometry.
+const ELEMENT_SLOTS: &[Slot] = &[
+    slot::VERTICES,
+    slot::SHOOTERS,
+    slot::BATCH,
+    slot::POSES,
+    slot::PATCHES,
+];
+
 /// The element seen per pixel and its distance from the eye (Rg32Uint):
 /// cross redistribution's back hemicubes, which redistribute.wgsl shades
 /// with shot radiosity `B - B^u` (thesis Alg. 4.4-4.5) after drawing, so
@@ -68,13 +78,7 @@ pub(super) const ITEM_BUFFERS: Pass = Pass {
 /// next move.
 pub(super) const BACK_ELEMENTS: Pass = Pass {
     entries: &["vs_rad", "fs_back"],
-    slots: &[
-        slot::VERTICES,
-        slot::SHOOTERS,
-        slot::BATCH,
-        slot::POSES,
-        slot::PATCHES,
-    ],
+    slots: ELEMENT_SLOTS,
 };
 
 /// The element seen per pixel (R32Uint): a moving tile's gathering
@@ -82,13 +86,7 @@ pub(super) const BACK_ELEMENTS: Pass = Pass {
 /// textures, so that the gathers in and after a move share one drawing.
 pub(super) const ELEMENT_IDS: Pass = Pass {
     entries: &["vs_rad", "fs_element"],
-    slots: &[
-        slot::VERTICES,
-        slot::SHOOTERS,
-        slot::BATCH,
-        slot::POSES,
-        slot::PATCHES,
-    ],
+    slots: ELEMENT_SLOTS,
 };
 
 /// The triangles of every patch in object space (a quad's two, a triangle

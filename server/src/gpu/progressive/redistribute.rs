@@ -1011,7 +1011,6 @@ impl ProgressiveSolver {
                 self.upload(&list, self.batch_uniform(patch, count, old_from, mode));
                 let mut back_uniform = self.batch_uniform(patch, count, old_from, HEMICUBES_ONLY);
                 back_uniform.resolution = self.options.back_resolution.max(1);
-                let d = self.dynamic.as_ref().expect("built in begin_move");
                 self.queue
                     .write_buffer(&d.back_shooters, 0, bytemuck::cast_slice(&through));
                 self.queue
