@@ -20,12 +20,14 @@
 //! moved object). The path tracer keeps its own sampling, so that the
 //! oracle shares no code with the solvers it checks.
 
+use std::collections::HashMap;
+
 use glam::{DVec3, Vec3};
 
 use rayon::prelude::*;
 
 use crate::atlas::Atlas;
-use crate::raycast::{Raycaster, WorldPatch, cosine_grid};
+use crate::raycast::{CosineGrid, Hit, Raycaster, WorldPatch};
 use crate::scene::{Pose, Scene};
 
 /// Samples per emitting patch for the solvers' direct light, `GRID`².
@@ -264,10 +266,10 @@ pub enum Lookup {
 /// by next-event estimation (`grid`² samples
 /// per emitting patch, a shadow ray each, [`Emitters::irradiance`]),
 /// everything else by `side`² stratified cosine-distributed rays (Malley's
-/// method, [`cosine_grid`]), each reading `radiosity` where it hits as
-/// `lookup` says; a back face gives nothing. Users: cross redistribution's
-/// regathering (`gpu/progressive/regather.rs`) and the tests that check
-/// what cross projection blocks against rays.
+/// method, [`CosineGrid`]), each reading `radiosity` where it hits as
+/// `lookup` says; a back face gives nothing. Users: the tests that check
+/// what cross projection blocks against rays; cross redistribution's
+/// regathering calls [`gather_cached`].
 #[allow(clippy::too_many_arguments)]
 pub fn gather(
     scene: &Scene,
@@ -278,6 +280,33 @@ pub fn gather(
     side: usize,
     grid: usize,
     lookup: Lookup,
+) -> Vec<Vec3> {
+    let mut none = StaticHits::new(side, 0);
+    gather_cached(
+        scene,
+        atlas,
+        (poses, absent),
+        radiosity,
+        elements,
+        grid,
+        lookup,
+        &mut none,
+    )
+}
+
+/// [`gather`] with the `cache.side()`² cosine rays' hits on the static
+/// world taken from (and added to) `cache`: only the dynamic objects are
+/// ray cast again. The hits are the same as casting against everything.
+#[allow(clippy::too_many_arguments)]
+pub fn gather_cached(
+    scene: &Scene,
+    atlas: &Atlas,
+    (poses, absent): (&[Pose], &[bool]),
+    radiosity: &[[f32; 4]],
+    elements: &[usize],
+    grid: usize,
+    lookup: Lookup,
+    cache: &mut StaticHits,
 ) -> Vec<Vec3> {
     let caster = Raycaster::with_absent(scene, poses, absent);
     let emitters = Emitters::of(scene);
@@ -301,14 +330,19 @@ pub fn gather(
         }
         element_at(&caster, atlas, patch, x).map(value)
     };
+    let samples: Vec<(DVec3, DVec3)> = elements
+        .iter()
+        .map(|&i| sample_point(scene, &caster, atlas, poses, i))
+        .collect();
+    let rays = cache.prepare(scene, (poses, absent), elements, &samples);
     elements
         .par_iter()
-        .map(|&i| {
+        .zip(&samples)
+        .map(|(&i, &(x, n))| {
             let e = &atlas.elements[i];
-            let (x, n) = sample_point(scene, &caster, atlas, poses, i);
             let mut h = Vec3::ZERO;
-            for d in cosine_grid(n, side) {
-                let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
+            for hit in rays.hits(&caster, i, x, n) {
+                let Some(hit) = hit else {
                     continue;
                 };
                 // Emitters are sampled on their own below.
@@ -319,11 +353,193 @@ pub fn gather(
                     h += b;
                 }
             }
-            h /= (side * side) as f32;
+            h /= rays.count() as f32;
             h += emitters.irradiance(&caster, atlas, x, n, grid, value);
             e.emission + e.albedo * h
         })
         .collect()
+}
+
+/// An element's kept rays: the sample point and normal they leave from,
+/// and per direction the static patch hit and its distance.
+type KeptRays = (DVec3, DVec3, Box<[(u32, f64)]>);
+
+/// A kept ray's patch when it hits nothing of the static world.
+const NO_HIT: u32 = u32::MAX;
+
+/// The closest hits of the cosine rays of gathering elements against the
+/// static world (object 0, which never moves), kept between gathers: the
+/// texels next to a moving object gather after every move, and only the
+/// rays that meet a dynamic object change. Holds at most `capacity`
+/// elements' rays (`side`² hits each, 16 bytes a hit, [`NO_HIT`] for a ray
+/// that leaves the scene); when a gather needs
+/// more it starts over, so memory stays bounded whatever the moves.
+#[derive(Debug)]
+pub struct StaticHits {
+    directions: CosineGrid,
+    capacity: usize,
+    /// The static world's patches (the dynamic objects' absent) and the
+    /// world pose they were placed with.
+    world: Option<(Pose, Raycaster)>,
+    /// Per element: the sample point and normal the hits are of, and per
+    /// direction the static patch hit and its distance.
+    entries: HashMap<usize, KeptRays>,
+}
+
+impl StaticHits {
+    /// An empty cache of `side`² rays per element for at most `capacity`
+    /// elements (0: nothing is kept; every ray is cast against everything).
+    pub fn new(side: usize, capacity: usize) -> Self {
+        Self {
+            directions: CosineGrid::new(side),
+            capacity,
+            world: None,
+            entries: HashMap::new(),
+        }
+    }
+
+    /// Elements whose hits are kept.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether no element's hits are kept.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// Fills the hits of `elements` (sampled at `samples`) that are missing
+    /// or of another point, and returns the rays to cast for them at
+    /// `poses` without the objects flagged in `absent`.
+    fn prepare<'a>(
+        &'a mut self,
+        scene: &Scene,
+        (poses, absent): (&[Pose], &[bool]),
+        elements: &[usize],
+        samples: &[(DVec3, DVec3)],
+    ) -> Rays<'a> {
+        let keep = self.capacity > 0 && elements.len() <= self.capacity;
+        if !keep {
+            return Rays {
+                directions: &self.directions,
+                kept: None,
+            };
+        }
+        let world_pose = poses[0];
+        if self.world.as_ref().is_none_or(|(p, _)| *p != world_pose) {
+            let dynamic: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
+            self.world = Some((world_pose, Raycaster::with_absent(scene, poses, &dynamic)));
+            self.entries.clear();
+        }
+        let missing: Vec<(usize, DVec3, DVec3)> = elements
+            .iter()
+            .zip(samples)
+            .filter(|&(i, &(x, n))| {
+                self.entries
+                    .get(i)
+                    .is_none_or(|(kx, kn, _)| *kx != x || *kn != n)
+            })
+            .map(|(&i, &(x, n))| (i, x, n))
+            .collect();
+        if self.entries.len() + missing.len() > self.capacity {
+            self.entries.clear();
+        }
+        if let Some((_, world)) = &self.world {
+            let directions = &self.directions;
+            let found: Vec<_> = missing
+                .par_iter()
+                .map(|&(i, x, n)| {
+                    let hits = directions
+                        .around(n)
+                        .map(|d| {
+                            world
+                                .closest_hit(x, d, f64::INFINITY)
+                                .map_or((NO_HIT, f64::INFINITY), |h| (h.patch, h.distance))
+                        })
+                        .collect();
+                    (i, (x, n, hits))
+                })
+                .collect();
+            self.entries.extend(found);
+        }
+        // The present dynamic objects alone, ids mapped back to the
+        // scene's.
+        let (patches, ids): (Vec<WorldPatch>, Vec<u32>) = scene
+            .patches
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| {
+                let o = p.object as usize;
+                scene.objects[o].dynamic && !absent.get(o).copied().unwrap_or(false)
+            })
+            .map(|(id, p)| {
+                (
+                    WorldPatch::new(&p.shape, &poses[p.object as usize]),
+                    id as u32,
+                )
+            })
+            .unzip();
+        Rays {
+            directions: &self.directions,
+            kept: self.world.as_ref().map(|(_, world)| Kept {
+                entries: &self.entries,
+                world,
+                dynamic: Raycaster::from_patches(patches),
+                ids,
+            }),
+        }
+    }
+}
+
+/// The cosine rays of one gather ([`StaticHits::prepare`]).
+struct Rays<'a> {
+    directions: &'a CosineGrid,
+    /// The kept static hits; none: every ray is cast against everything.
+    kept: Option<Kept<'a>>,
+}
+
+/// Kept static hits and what completes them.
+struct Kept<'a> {
+    entries: &'a HashMap<usize, KeptRays>,
+    /// The static world they were cast against.
+    world: &'a Raycaster,
+    /// The present dynamic objects' patches, and their ids in the scene.
+    dynamic: Raycaster,
+    ids: Vec<u32>,
+}
+
+impl Rays<'_> {
+    fn count(&self) -> usize {
+        self.directions.len()
+    }
+
+    /// The closest hit of each cosine ray of element `i` at `x` (normal
+    /// `n`): the nearer of its kept static hit and a present dynamic
+    /// object's, or, with nothing kept for it, what `everything` (the
+    /// scene as the gather sees it) gives.
+    fn hits<'b>(
+        &'b self,
+        everything: &'b Raycaster,
+        i: usize,
+        x: DVec3,
+        n: DVec3,
+    ) -> impl Iterator<Item = Option<Hit>> + 'b {
+        let kept = self
+            .kept
+            .as_ref()
+            .and_then(|k| Some((k, &k.entries.get(&i)?.2)));
+        self.directions.around(n).enumerate().map(move |(r, d)| {
+            let Some((k, hits)) = kept else {
+                return everything.closest_hit(x, d, f64::INFINITY);
+            };
+            let (patch, t) = hits[r];
+            if let Some(hit) = k.dynamic.closest_hit(x, d, t) {
+                let patch = k.ids[hit.patch as usize];
+                return Some(Hit { patch, ..hit });
+            }
+            (patch != NO_HIT).then(|| k.world.hit(patch, x, d, t))
+        })
+    }
 }
 
 /// The sample point of element `i` placed by its object's pose, a hair
@@ -420,6 +636,111 @@ pub fn element_direct_light(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A room's floor, a lamp and a dynamic crate that moves about.
+    const CRATE: &str = r#"{
+      "name": "crate", "lightmap": { "texel_density": 6 },
+      "materials": [
+        { "name": "white", "albedo": [0.5, 0.5, 0.5] },
+        { "name": "red", "albedo": [0.6, 0.1, 0.1] },
+        { "name": "light", "albedo": [0, 0, 0], "emission": [10, 10, 10] }
+      ],
+      "objects": [{ "name": "crate", "pose": { "translation": [1.0, 0.25, 1.0] } }],
+      "surfaces": [
+        { "name": "floor", "material": "white",
+          "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } },
+        { "name": "wall", "material": "red",
+          "quad": { "origin": [0, 0, 0], "u": [2, 0, 0], "v": [0, 2, 0] } },
+        { "name": "light", "material": "light",
+          "quad": { "origin": [0.5, 2, 0.5], "u": [1, 0, 0], "v": [0, 0, 1] } },
+        { "name": "crate", "material": "white", "object": "crate",
+          "box": { "center": [0, 0, 0], "size": [0.5, 0.5, 0.5] } }
+      ]
+    }"#;
+
+    /// Kept static hits change nothing: after every move (the crate
+    /// placed, moved, taken out, put back), the cached gather gives each
+    /// element exactly what casting every ray against everything gives, for
+    /// the texels a move keeps, those it adds, and with a cache too small
+    /// for them (which starts over).
+    #[test]
+    fn gathering_with_kept_static_hits_gives_what_casting_everything_gives() {
+        let scene = Scene::parse(CRATE, "crate").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let radiosity: Vec<[f32; 4]> = (0..atlas.elements.len())
+            .map(|i| {
+                let e = &atlas.elements[i];
+                [e.emission.x + 0.1 + (i % 7) as f32 * 0.05, 0.3, 0.2, 0.0]
+            })
+            .collect();
+        let floor: Vec<usize> = (0..atlas.elements.len())
+            .filter(|&i| atlas.elements[i].patch == 0)
+            .collect();
+        let mut poses = scene.initial_poses();
+        let mut cache = StaticHits::new(6, 1000);
+        // Room for one move's texels but not two: it starts over.
+        let mut tight = StaticHits::new(6, floor.len() / 2 + 2);
+        // Too small for one move's: every ray is cast against everything.
+        let mut small = StaticHits::new(6, floor.len() / 3);
+        let moves = [
+            ([1.0, 0.25, 1.0], false),
+            ([1.2, 0.25, 0.9], false),
+            ([1.2, 0.25, 0.9], true),
+            ([0.6, 0.25, 1.3], false),
+        ];
+        let mut hit_crate = false;
+        for (step, (at, gone)) in moves.into_iter().enumerate() {
+            poses[1].translation = Vec3::from(at);
+            let absent = [false, gone];
+            // A different part of the floor each time, overlapping the last.
+            let elements: Vec<usize> = floor
+                .iter()
+                .copied()
+                .skip(step * floor.len() / 8)
+                .take(floor.len() / 2)
+                .collect();
+            let expected = gather(
+                &scene,
+                &atlas,
+                (&poses, &absent),
+                &radiosity,
+                &elements,
+                6,
+                4,
+                Lookup::Bilinear,
+            );
+            for cache in [&mut cache, &mut tight, &mut small] {
+                let got = gather_cached(
+                    &scene,
+                    &atlas,
+                    (&poses, &absent),
+                    &radiosity,
+                    &elements,
+                    4,
+                    Lookup::Bilinear,
+                    cache,
+                );
+                assert_eq!(got, expected, "move {step}");
+            }
+            assert!(cache.len() >= elements.len(), "move {step}: kept");
+            assert!(tight.len() <= floor.len() / 2 + 2, "move {step}: bounded");
+            assert!(small.is_empty(), "move {step}: nothing kept");
+            // The crate must matter, or the test shows nothing: without
+            // it the floor gathers otherwise.
+            let without = gather(
+                &scene,
+                &atlas,
+                (&poses, &[false, true]),
+                &radiosity,
+                &elements,
+                6,
+                4,
+                Lookup::Bilinear,
+            );
+            hit_crate |= !gone && without != expected;
+        }
+        assert!(hit_crate, "the crate shadows none of the gathering texels");
+    }
 
     /// Two directly opposed parallel unit squares one unit apart: the form
     /// factor from the centre of one to the other is four times the closed

@@ -35,10 +35,12 @@
 //! poses, so a box put down on the floor invalidates the texels under it
 //! and a box moved away gives them back.
 
+use std::sync::LazyLock;
+
 use glam::Vec3;
 
 use crate::atlas::Atlas;
-use crate::raycast::Raycaster;
+use crate::raycast::{CosineGrid, Raycaster};
 use crate::scene::{Pose, Scene};
 
 /// Rays per element (a stratified 8 x 8 grid over the cosine-weighted
@@ -385,14 +387,15 @@ fn encloses(
     let centre = patch.shape.transformed(pose).centre().as_dvec3();
     let inward = (centre - x).normalize_or_zero();
     let origin = x + (n + inward) * (OFFSET * extent);
-    let side = (RAYS as f64).sqrt() as usize;
-    let total = side * side;
+    static DIRECTIONS: LazyLock<CosineGrid> =
+        LazyLock::new(|| CosineGrid::new((RAYS as f64).sqrt() as usize));
+    let total = DIRECTIONS.len();
     // Invalid when more than `limit` rays see backs; decided as soon as the
     // rays left cannot change the answer (about half of them for a texel
     // in the open).
     let limit = (BACK_FACE_LIMIT * total as f64).floor() as usize;
     let (mut back, mut cast) = (0, 0);
-    for d in crate::raycast::cosine_grid(n, side) {
+    for d in DIRECTIONS.around(n) {
         if back > limit || back + (total - cast) <= limit {
             break;
         }

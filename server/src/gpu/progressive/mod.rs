@@ -34,6 +34,7 @@ use super::placement::{
 };
 use super::profile::Profiler;
 use crate::atlas::Atlas;
+use crate::direct::StaticHits;
 use crate::scene::{Pose, Scene, SolverHints};
 use crate::validity::Validity;
 
@@ -270,6 +271,9 @@ pub struct ProgressiveSolver {
     /// completed (those near the moved objects): cross redistribution has
     /// them gather their light when the move completes (regather.rs).
     regather: Vec<usize>,
+    /// The regathering rays' hits on the static world, kept between moves
+    /// (regather.rs).
+    static_hits: StaticHits,
     /// The scene and atlas, to re-test validity after a move.
     scene: Scene,
     atlas: Atlas,
@@ -473,6 +477,7 @@ impl ProgressiveSolver {
             poses: poses.to_vec(),
             validity,
             regather: Vec::new(),
+            static_hits: regather::static_hits(),
             closed: (0..scene.objects.len() as u32)
                 .map(|o| scene.objects[o as usize].dynamic && scene.is_closed(o))
                 .collect(),

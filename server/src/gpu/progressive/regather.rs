@@ -36,19 +36,33 @@
 //! of unshot power that they had never received, and refining with the
 //! box in place left the room 3.3% darker than a from-scratch solve
 //! instead of 1.2%.
+//!
+//! The texels next to a moving object are mostly the same from one move to
+//! the next, and most of their rays meet the static world, whose hits do not
+//! change: those are kept ([`StaticHits`]) and only the dynamic objects are
+//! ray cast again (the same values to the bit).
 
 use glam::Vec3;
 
 use super::super::device::GpuError;
 use super::super::profile::Stage;
 use super::ProgressiveSolver;
-use crate::direct::{Lookup, at_contact, gather};
+use crate::direct::{Lookup, StaticHits, at_contact, gather, gather_cached};
 
 /// Cosine-distributed rays per gathering element, as a `SIDE` x `SIDE`
 /// stratified grid (`raycast::cosine_grid`).
 const SIDE: usize = 16;
 /// Samples per emitting patch for next-event estimation, `GRID` x `GRID`.
 const GRID: usize = 8;
+/// Elements whose rays' hits on the static world are kept between moves:
+/// the texels next to a moving object are mostly the same from one move to
+/// the next. 16 bytes a ray, 8 MiB at most.
+const KEPT_ELEMENTS: usize = 2048;
+
+/// The cache of static hits the regathering keeps.
+pub(super) fn static_hits() -> StaticHits {
+    StaticHits::new(SIDE, KEPT_ELEMENTS)
+}
 
 impl ProgressiveSolver {
     /// Gathers the light of the valid elements re-tested since the last
@@ -109,15 +123,15 @@ impl ProgressiveSolver {
             .collect();
         self.validity.dilate(&self.atlas, &mut seen);
         let mut seen: Vec<[f32; 4]> = seen.iter().map(|b| [b.x, b.y, b.z, 0.0]).collect();
-        let lit = gather(
+        let lit = gather_cached(
             &self.scene,
             &self.atlas,
             (&self.poses, &self.absent),
             &seen,
             &elements,
-            SIDE,
             GRID,
             Lookup::Bilinear,
+            &mut self.static_hits,
         );
         let zero = std::iter::repeat_n(Vec3::ZERO, covered.len());
         let (mut radiosity, mut unshot) = (radiosity, unshot);
