@@ -135,6 +135,9 @@ pub enum Stage {
     /// the new position and at the old one unless the last move's are
     /// copied back.
     BackHemicubes,
+    /// CPU: M's direct light per texel (cross; on the CPU while the GPU
+    /// draws the first job's hemicubes, so the GPU clock does not see it).
+    DirectLight,
     /// GPU: the moving tiles gather from their front hemicubes.
     TileGather,
     /// GPU: `shade_back`, which shades the back hemicubes with C's shot
@@ -171,7 +174,7 @@ pub enum Stage {
 
 impl Stage {
     /// Every stage, in report order.
-    pub const ALL: [Stage; 19] = [
+    pub const ALL: [Stage; 20] = [
         Self::SolverSetup,
         Self::MoveSetup,
         Self::JobSetup,
@@ -179,6 +182,7 @@ impl Stage {
         Self::ItemBuffers,
         Self::FrontHemicubes,
         Self::BackHemicubes,
+        Self::DirectLight,
         Self::TileGather,
         Self::CrossProjection,
         Self::Reconstruct,
@@ -203,6 +207,7 @@ impl Stage {
             Self::ItemBuffers => "item buffers",
             Self::FrontHemicubes => "front hemicubes",
             Self::BackHemicubes => "back hemicubes",
+            Self::DirectLight => "direct light",
             Self::TileGather => "tile gather",
             Self::CrossProjection => "cross projection + reprojection",
             Self::Reconstruct => "reconstruct",

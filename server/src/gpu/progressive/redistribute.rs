@@ -192,6 +192,10 @@ pub struct Move {
     jobs: VecDeque<Job>,
     /// Cross: the shooting tiles of M.
     tiles: Vec<CrossTile>,
+    /// Whether M's direct light is still to be computed and written
+    /// (`write_moving_direct`): the first cross job does it on the CPU
+    /// while the GPU draws its hemicubes.
+    direct_due: bool,
     /// Batches run so far.
     pub batches: u32,
 }
@@ -656,6 +660,7 @@ impl ProgressiveSolver {
             moving,
             jobs: VecDeque::new(),
             tiles: Vec::new(),
+            direct_due: false,
             batches: 0,
         };
         if mv.is_empty_move() {
@@ -691,9 +696,8 @@ impl ProgressiveSolver {
         if let Some(d) = self.dynamic.as_mut() {
             d.front_ids_of.clear();
         }
-        if method != Redistribution::Incremental {
-            self.write_moving_direct(&mv.moving);
-        }
+        // Cross: written by the first job once its hemicubes are queued.
+        mv.direct_due = method != Redistribution::Incremental;
         let mut encoder = self.device.create_command_encoder(&Default::default());
         // The reset reads the elements only for their objects, so it may
         // run after placement.
@@ -809,12 +813,17 @@ impl ProgressiveSolver {
     /// selected, so that progressive refinement can continue.
     pub fn move_step(&mut self, mv: &mut Move) -> Result<bool, GpuError> {
         if let Some(job) = mv.jobs.pop_front() {
-            if let Some(rest) = self.run_job(mv, job)? {
+            let direct_due = std::mem::take(&mut mv.direct_due);
+            if let Some(rest) = self.run_job(mv, job, direct_due)? {
                 mv.jobs.push_front(rest);
             }
             mv.batches += 1;
         }
         if mv.jobs.is_empty() {
+            if std::mem::take(&mut mv.direct_due) {
+                // A move without jobs (nothing of M faces anything).
+                self.write_moving_direct(&mv.moving);
+            }
             let mut encoder = self.device.create_command_encoder(&Default::default());
             if mv.method == Redistribution::Cross && !mv.is_empty_move() {
                 // While M is still marked: the tiles' gathered light, read
@@ -830,12 +839,25 @@ impl ProgressiveSolver {
                 // unshot (before the next shooter is chosen); then the
                 // tiles gather again from the static set as it now is,
                 // those texels included, and their texels show that.
-                self.regather(&mv.moving, true)?;
+                let contacts = self.regather(&mv.moving, true)?;
                 self.regather_tiles(mv, &mut encoder);
+                if let Some(contacts) = contacts {
+                    // The texels at a contact gather on the CPU while the
+                    // tiles gather again on the GPU; only the smoothing
+                    // reads what they gather.
+                    let queued = std::mem::replace(
+                        &mut encoder,
+                        self.device.create_command_encoder(&Default::default()),
+                    );
+                    self.queue.submit([queued.finish()]);
+                    self.gather_contacts(&contacts);
+                    self.profile.open(&mut encoder);
+                }
                 self.encode_smoothing(&mut encoder);
                 self.queue.submit([encoder.finish()]);
                 encoder = self.device.create_command_encoder(&Default::default());
             } else if mv.method == Redistribution::Cross {
+                // Without contacts to gather.
                 self.regather(&mv.moving, false)?;
             } else {
                 // Incremental reshooting reaches them (tests/dynamic.rs).
@@ -876,7 +898,10 @@ impl ProgressiveSolver {
 
     /// Runs one batch of `job`; returns what is left of it for the next
     /// batch (a static patch whose shooters did not all fit).
-    fn run_job(&mut self, mv: &Move, job: Job) -> Result<Option<Job>, GpuError> {
+    /// Runs `job` of `mv`; with `direct_due`, computes and writes M's
+    /// direct light (`write_moving_direct`) before the first pass that
+    /// reads it.
+    fn run_job(&mut self, mv: &Move, job: Job, direct_due: bool) -> Result<Option<Job>, GpuError> {
         let mut rest = None;
         let setup = self.profile.start();
         let old_patches = self.table.place(&mv.old_poses);
@@ -1052,8 +1077,6 @@ impl ProgressiveSolver {
                     self.encode_gathering_hemicubes(&mut encoder, d, count);
                     self.profile.mark(&mut encoder, Stage::FrontHemicubes);
                 }
-                encode_compute(&mut encoder, &d.gather, count);
-                self.profile.mark(&mut encoder, Stage::TileGather);
                 let back_res = back_uniform.resolution;
                 let (new_back, old_back) = back_poses.split_at(objects);
                 let back_kept = keep && d.kept_back.holds(&through[old_from as usize..], old_back);
@@ -1078,6 +1101,23 @@ impl ProgressiveSolver {
                     },
                 );
                 self.profile.mark(&mut encoder, Stage::BackHemicubes);
+                if direct_due {
+                    // The tiles' gather reads M's direct light: computed
+                    // on the CPU while the GPU draws the hemicubes queued
+                    // so far (which do not read it).
+                    let queued = std::mem::replace(
+                        &mut encoder,
+                        self.device.create_command_encoder(&Default::default()),
+                    );
+                    self.queue.submit([queued.finish()]);
+                    let direct = self.profile.start();
+                    self.write_moving_direct(&mv.moving);
+                    self.profile.stop(direct, Stage::DirectLight);
+                    self.profile.open(&mut encoder);
+                }
+                let d = self.dynamic.as_ref().expect("built in begin_move");
+                encode_compute(&mut encoder, &d.gather, count);
+                self.profile.mark(&mut encoder, Stage::TileGather);
                 // Every slot shaded with the light of now, kept or drawn
                 // (counted with the projection: on lavapipe a timestamp
                 // right after a pass that writes a storage texture is

@@ -64,6 +64,14 @@ pub(super) fn static_hits() -> StaticHits {
     StaticHits::new(SIDE, KEPT_ELEMENTS)
 }
 
+/// The moved texels at a contact that gather on their own
+/// ([`ProgressiveSolver::gather_contacts`]), and the radiosity they read
+/// (the static set as just relit, invalid texels filled).
+pub(super) struct Contacts {
+    elements: Vec<usize>,
+    radiosity: Vec<[f32; 4]>,
+}
+
 impl ProgressiveSolver {
     /// Gathers the light of the valid elements re-tested since the last
     /// cross move completed and zeroes the invalid ones (see the module
@@ -71,11 +79,16 @@ impl ProgressiveSolver {
     /// of the objects flagged in `moving`: cross redistribution relights
     /// those itself and keeps its own account of what they shot. With
     /// `contacts`, the elements of `moving` that stand at a contact
-    /// ([`at_contact`]) gather too, from the static set as just relit, and
-    /// what they gathered goes to `moving_direct` for `smooth_moving` to
-    /// show (see `gather_contacts`). Call while no batch is pending, before
-    /// the next shooter is selected.
-    pub(super) fn regather(&mut self, moving: &[bool], contacts: bool) -> Result<(), GpuError> {
+    /// ([`at_contact`]) are returned, to gather from the static set as just
+    /// relit with [`Self::gather_contacts`] (which the caller may run while
+    /// the GPU works), and what they gather goes to `moving_direct` for
+    /// `smooth_moving` to show. Call while no batch is pending, before the
+    /// next shooter is selected.
+    pub(super) fn regather(
+        &mut self,
+        moving: &[bool],
+        contacts: bool,
+    ) -> Result<Option<Contacts>, GpuError> {
         let mut elements = std::mem::take(&mut self.regather);
         elements.sort_unstable();
         elements.dedup();
@@ -99,7 +112,7 @@ impl ProgressiveSolver {
         };
         self.profile.stop(gathering, Stage::Regather);
         if elements.is_empty() && covered.is_empty() && contacts.is_empty() {
-            return Ok(());
+            return Ok(None);
         }
         self.profile.sync();
         let readback = self.profile.start();
@@ -169,9 +182,11 @@ impl ProgressiveSolver {
                     .write_buffer(buffer, offset, bytemuck::cast_slice(&values[start..end]));
             }
         }
-        self.gather_contacts(&contacts, &seen);
         self.profile.stop(gathering, Stage::Regather);
-        Ok(())
+        Ok((!contacts.is_empty()).then_some(Contacts {
+            elements: contacts,
+            radiosity: seen,
+        }))
     }
 
     /// The valid elements of the present objects flagged in `moving` that
@@ -205,10 +220,12 @@ impl ProgressiveSolver {
     /// part of what the row above sees, cannot be. The direct light in
     /// `moving_direct` has served by then: every batch of the move has
     /// shot, and the next move writes it again.
-    fn gather_contacts(&self, contacts: &[usize], radiosity: &[[f32; 4]]) {
-        if contacts.is_empty() {
-            return;
-        }
+    pub(super) fn gather_contacts(&self, contacts: &Contacts) {
+        let gathering = self.profile.start();
+        let Contacts {
+            elements: contacts,
+            radiosity,
+        } = contacts;
         let lit = gather(
             &self.scene,
             &self.atlas,
@@ -227,5 +244,6 @@ impl ProgressiveSolver {
                 bytemuck::bytes_of(&[b.x, b.y, b.z, 1.0f32]),
             );
         }
+        self.profile.stop(gathering, Stage::Regather);
     }
 }
