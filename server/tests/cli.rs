@@ -300,6 +300,16 @@ fn bench_dynamic_profile_writes_the_breakdown_per_method() {
     std::fs::remove_dir_all(&dir).ok();
     let methods = report[0]["methods"].as_array().expect("methods");
     assert_eq!(methods.len(), 2, "{report}");
+    // The texels the motion changed and the NRMSE over them (null when
+    // none changed).
+    assert!(report[0]["changed_texels"].is_u64(), "{report}");
+    for m in methods {
+        let changed = &m["nrmse_changed"];
+        assert!(
+            changed.is_null() || changed.as_f64().is_some_and(|v| v >= 0.0),
+            "{m}"
+        );
+    }
     for m in methods {
         let p = &m["profile"];
         assert!(
@@ -330,6 +340,7 @@ fn bench_dynamic_profile_writes_the_breakdown_per_method() {
             for stage in [
                 "item buffers",
                 "back hemicubes",
+                "direct light",
                 "cross projection + reprojection",
             ] {
                 assert!(named("move", stage), "{stage}: {p}");

@@ -117,15 +117,15 @@ pub(crate) fn bench_dynamic_command(
     eprintln!("adapter: {}", gpu.describe());
     let mut results = Vec::new();
     println!(
-        "| scene | elements (dynamic) | method | ms/frame (median) | min | max | ms to first state | NRMSE | p95 rel | vs |"
+        "| scene | elements (dynamic) | method | ms/frame (median) | min | max | ms to first state | NRMSE | p95 rel | NRMSE where it changed (texels) | vs |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for path in &scenes {
         let result = bench::dynamic::dynamic_scene(&gpu, path, &settings)
             .with_context(|| format!("benchmarking {}", path.display()))?;
         for m in &result.methods {
             println!(
-                "| {} | {} ({}) | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2}% | {:.1}% | {} |",
+                "| {} | {} ({}) | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2}% | {:.1}% | {:.2}% ({}) | {} |",
                 result.scene,
                 result.elements,
                 result.dynamic_elements,
@@ -136,6 +136,8 @@ pub(crate) fn bench_dynamic_command(
                 m.ms_to_state,
                 m.nrmse * 100.0,
                 m.p95_rel * 100.0,
+                m.nrmse_changed * 100.0,
+                result.changed_texels,
                 result.reference
             );
         }
