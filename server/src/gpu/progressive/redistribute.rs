@@ -845,11 +845,7 @@ impl ProgressiveSolver {
                     // The texels at a contact gather on the CPU while the
                     // tiles gather again on the GPU; only the smoothing
                     // reads what they gather.
-                    let queued = std::mem::replace(
-                        &mut encoder,
-                        self.device.create_command_encoder(&Default::default()),
-                    );
-                    self.queue.submit([queued.finish()]);
+                    self.submit_queued(&mut encoder);
                     self.gather_contacts(&contacts);
                     self.profile.open(&mut encoder);
                 }
@@ -875,6 +871,16 @@ impl ProgressiveSolver {
             return Ok(false);
         }
         Ok(true)
+    }
+
+    /// Submits what `encoder` holds and leaves a new encoder in its place:
+    /// the GPU starts on it while the CPU prepares what comes next.
+    fn submit_queued(&self, encoder: &mut wgpu::CommandEncoder) {
+        let queued = std::mem::replace(
+            encoder,
+            self.device.create_command_encoder(&Default::default()),
+        );
+        self.queue.submit([queued.finish()]);
     }
 
     /// Runs every batch of `mv`.
@@ -1105,11 +1111,7 @@ impl ProgressiveSolver {
                     // The tiles' gather reads M's direct light: computed
                     // on the CPU while the GPU draws the hemicubes queued
                     // so far (which do not read it).
-                    let queued = std::mem::replace(
-                        &mut encoder,
-                        self.device.create_command_encoder(&Default::default()),
-                    );
-                    self.queue.submit([queued.finish()]);
+                    self.submit_queued(&mut encoder);
                     let direct = self.profile.start();
                     self.write_moving_direct(&mv.moving);
                     self.profile.stop(direct, Stage::DirectLight);
@@ -1290,11 +1292,7 @@ impl ProgressiveSolver {
             let uniform = self.batch_uniform(chunk[0].patch, n, u32::MAX, HEMICUBES_ONLY);
             // Each chunk's shooters and uniform must be in place when its
             // passes run: submit what came before first.
-            let done = std::mem::replace(
-                encoder,
-                self.device.create_command_encoder(&Default::default()),
-            );
-            self.queue.submit([done.finish()]);
+            self.submit_queued(encoder);
             self.upload(&list, uniform);
             if c == 0 {
                 // The radiosity does not change between the chunks.
