@@ -294,9 +294,10 @@ pub fn gather(
     )
 }
 
-/// [`gather`] with the `cache.side()`² cosine rays' hits on the static
-/// world taken from (and added to) `cache`: only the dynamic objects are
-/// ray cast again. The hits are the same as casting against everything.
+/// [`gather`] with the cache's `side`² cosine rays ([`StaticHits::new`])
+/// and their hits on the static world taken from (and added to) `cache`:
+/// only the dynamic objects are ray cast again. The hits are the same as
+/// casting against everything.
 #[allow(clippy::too_many_arguments)]
 pub fn gather_cached(
     scene: &Scene,
@@ -372,8 +373,8 @@ const NO_HIT: u32 = u32::MAX;
 /// texels next to a moving object gather after every move, and only the
 /// rays that meet a dynamic object change. Holds at most `capacity`
 /// elements' rays (`side`² hits each, 16 bytes a hit, [`NO_HIT`] for a ray
-/// that leaves the scene); when a gather needs
-/// more it starts over, so memory stays bounded whatever the moves.
+/// that leaves the scene); when a gather needs more it starts over, so
+/// memory stays bounded whatever the moves.
 #[derive(Debug)]
 pub struct StaticHits {
     directions: CosineGrid,
