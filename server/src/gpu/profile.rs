@@ -603,6 +603,7 @@ mod tests {
                 "item buffers",
                 "front hemicubes",
                 "back hemicubes",
+                "direct light",
                 "tile gather",
                 "cross projection + reprojection",
                 "reconstruct",
