@@ -516,18 +516,13 @@ fn build(bounds: &[Aabb], ids: &mut [u32], first: usize, nodes: &mut Vec<Node>) 
     index
 }
 
-/// `side`² cosine-distributed directions over the hemisphere of unit normal
-/// `n`, stratified: cell `(j, k)` of a uniform grid on the unit disk lifted
-/// to the hemisphere (Malley's method). [`CosineGrid`] computes the grid
-/// once for many normals.
-pub fn cosine_grid(n: DVec3, side: usize) -> impl Iterator<Item = DVec3> {
-    CosineGrid::new(side).into_around(n)
-}
-
-/// The directions of [`cosine_grid`] in a tangent frame, `(x, y, z)` with
-/// `z` along the normal, computed once: placing them around a normal costs
-/// three multiply-adds each instead of a square root, a sine and a cosine
-/// (a quarter of cross redistribution's regathering).
+/// `side`² cosine-distributed directions over the hemisphere of a unit
+/// normal, stratified: cell `(j, k)` of a uniform grid on the unit disk
+/// lifted to the hemisphere (Malley's method), kept in a tangent frame,
+/// `(x, y, z)` with `z` along the normal, and computed once: placing them
+/// around a normal ([`CosineGrid::around`]) costs three multiply-adds each
+/// instead of a square root, a sine and a cosine (a quarter of cross
+/// redistribution's regathering).
 #[derive(Debug, Clone)]
 pub struct CosineGrid {
     local: Vec<DVec3>,
@@ -563,24 +558,12 @@ impl CosineGrid {
 
     /// The directions around the unit normal `n`, cell by cell.
     pub fn around(&self, n: DVec3) -> impl Iterator<Item = DVec3> + '_ {
-        let (t1, t2) = tangents(n);
+        let t1 = n.any_orthonormal_vector();
+        let t2 = n.cross(t1);
         self.local
             .iter()
             .map(move |l| t1 * l.x + t2 * l.y + n * l.z)
     }
-
-    fn into_around(self, n: DVec3) -> impl Iterator<Item = DVec3> {
-        let (t1, t2) = tangents(n);
-        self.local
-            .into_iter()
-            .map(move |l| t1 * l.x + t2 * l.y + n * l.z)
-    }
-}
-
-/// The tangent frame the cosine grid is placed in around `n`.
-fn tangents(n: DVec3) -> (DVec3, DVec3) {
-    let t1 = n.any_orthonormal_vector();
-    (t1, n.cross(t1))
 }
 
 #[cfg(test)]

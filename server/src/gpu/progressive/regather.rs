@@ -50,7 +50,7 @@ use super::ProgressiveSolver;
 use crate::direct::{Lookup, StaticHits, at_contact, gather, gather_cached};
 
 /// Cosine-distributed rays per gathering element, as a `SIDE` x `SIDE`
-/// stratified grid (`raycast::cosine_grid`).
+/// stratified grid (`raycast::CosineGrid`).
 const SIDE: usize = 16;
 /// Samples per emitting patch for next-event estimation, `GRID` x `GRID`.
 const GRID: usize = 8;
