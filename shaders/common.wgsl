@@ -158,32 +158,52 @@ struct Batch {
 };
 
 // A patch's elements: first element, element count, chart width, chart
-// height, and 1 if the patch is a triangle (the half t <= s of its chart,
-// server/src/scene/mod.rs), else 0. Mirrors `PatchRange` in
-// server/src/gpu/placement.rs.
+// height, and whether the patch is a triangle: 0 a quad, 1 a triangle (the
+// half t <= s of its chart, server/src/scene/mod.rs), 2 a triangle on its
+// mesh's own lightmap UVs (server/src/atlas/uv.rs), whose frame in object
+// space (origin, u, v) follows, since its corner texels do not lie on its
+// corners. Mirrors `PatchRange` in server/src/gpu/placement.rs.
 struct PatchRange {
     first: u32,
     count: u32,
     w: u32,
     h: u32,
     triangle: u32,
+    ox: f32, oy: f32, oz: f32,
+    ux: f32, uy: f32, uz: f32,
+    vx: f32, vy: f32, vz: f32,
 };
 
+const TRIANGLE_ON_LIGHTMAP: u32 = 2u;
+
 // The element of patch `p` nearest to patch parameters `st` on its chart
-// (texel centres lie on the patch edges, thesis §4.1): the texel `st`
-// rounds to. On a triangle the texels above the chart's diagonal (b > a)
-// stand for no surface and hold no light (server/src/atlas.rs), so a
-// fragment that interpolation put a hair above the diagonal edge reads the
-// diagonal texel of its column instead (wallner §2: a triangle's texels
-// are those its footprint covers).
+// (`element_in_chart`).
 fn element_at(p: PatchRange, st: vec2<f32>) -> u32 {
+    return element_in_chart(p.first, p.w, p.h, p.triangle, st);
+}
+
+// The element nearest to `st` on the chart of `w` x `h` texels from element
+// `first` (texel centres lie on the patch edges, thesis §4.1): the texel
+// `st` rounds to. On a triangle the texels above the chart's diagonal
+// (b > a) stand for no surface and hold no light (server/src/atlas.rs), so
+// a fragment that interpolation put a hair above the diagonal edge reads
+// the diagonal texel of its column instead (wallner §2: a triangle's texels
+// are those its footprint covers). On a triangle on its mesh's lightmap,
+// `st` is already in chart coordinates (its hemicube vertices carry them,
+// server/src/gpu/hemicube.rs `patch_vertices`), and the texel a point of
+// the triangle rounds to overlaps the triangle.
+fn element_in_chart(first: u32, w: u32, h: u32, triangle: u32, st: vec2<f32>) -> u32 {
+    if (triangle == TRIANGLE_ON_LIGHTMAP) {
+        let c = clamp(round(st), vec2<f32>(0.0), vec2<f32>(f32(w - 1u), f32(h - 1u)));
+        return first + u32(c.y) * w + u32(c.x);
+    }
     let c = clamp(st, vec2<f32>(0.0), vec2<f32>(1.0));
-    let a = u32(round(c.x * f32(p.w - 1u)));
-    var b = u32(round(c.y * f32(p.h - 1u)));
-    if (p.triangle != 0u) {
+    let a = u32(round(c.x * f32(w - 1u)));
+    var b = u32(round(c.y * f32(h - 1u)));
+    if (triangle != 0u) {
         b = min(b, a);
     }
-    return p.first + b * p.w + a;
+    return first + b * w + a;
 }
 
 // Texels per row of the textures of what the static set shows moving

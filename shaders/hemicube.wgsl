@@ -118,7 +118,7 @@ struct RadFragment {
 // move, when their light has changed.
 @fragment
 fn fs_back(in: RadFragment) -> @location(0) vec2<u32> {
-    let e = element_at(PatchRange(in.chart.x, 0u, in.chart.y, in.chart.z, in.chart.w), in.st);
+    let e = element_in_chart(in.chart.x, in.chart.y, in.chart.z, in.chart.w, in.st);
     return vec2<u32>(e, bitcast<u32>(length(in.offset)));
 }
 
@@ -129,7 +129,7 @@ fn fs_back(in: RadFragment) -> @location(0) vec2<u32> {
 // one after it (`regather_moving`), which read different shown values.
 @fragment
 fn fs_element(in: RadFragment) -> @location(0) u32 {
-    return element_at(PatchRange(in.chart.x, 0u, in.chart.y, in.chart.z, in.chart.w), in.st);
+    return element_in_chart(in.chart.x, in.chart.y, in.chart.z, in.chart.w, in.st);
 }
 
 // Clearing the slots a pass draws (gpu/hemicube.rs `encode`): a render

@@ -72,20 +72,30 @@ fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     let r = patches[p];
     let first = local_elements[r.first];
     let m = poses[pose_base + bitcast<u32>(first.lookup.w)];
-    let e00 = (m * vec4<f32>(first.position.xyz, 1.0)).xyz;
-    let e10 = (m * vec4<f32>(local_elements[r.first + r.w - 1u].position.xyz, 1.0)).xyz;
-    let cu = (e10 - e00) / (f32(r.w - 1u) - 2.0 * CORNER_OFFSET);
-    var cv: vec3<f32>;
-    if (r.triangle != 0u) {
-        let e11 = (m * vec4<f32>(local_elements[r.first + r.h * r.w - 1u].position.xyz, 1.0)).xyz;
-        cv = (e11 - e10) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+    var o: vec3<f32>;
+    var u: vec3<f32>;
+    var v: vec3<f32>;
+    if (r.triangle == TRIANGLE_ON_LIGHTMAP) {
+        // Its frame is stored: its corner texels are not on its corners.
+        o = (m * vec4<f32>(r.ox, r.oy, r.oz, 1.0)).xyz;
+        u = (m * vec4<f32>(r.ux, r.uy, r.uz, 0.0)).xyz;
+        v = (m * vec4<f32>(r.vx, r.vy, r.vz, 0.0)).xyz;
     } else {
-        let e01 = (m * vec4<f32>(local_elements[r.first + (r.h - 1u) * r.w].position.xyz, 1.0)).xyz;
-        cv = (e01 - e00) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+        let e00 = (m * vec4<f32>(first.position.xyz, 1.0)).xyz;
+        let e10 = (m * vec4<f32>(local_elements[r.first + r.w - 1u].position.xyz, 1.0)).xyz;
+        let cu = (e10 - e00) / (f32(r.w - 1u) - 2.0 * CORNER_OFFSET);
+        var cv: vec3<f32>;
+        if (r.triangle != 0u) {
+            let e11 = (m * vec4<f32>(local_elements[r.first + r.h * r.w - 1u].position.xyz, 1.0)).xyz;
+            cv = (e11 - e10) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+        } else {
+            let e01 = (m * vec4<f32>(local_elements[r.first + (r.h - 1u) * r.w].position.xyz, 1.0)).xyz;
+            cv = (e01 - e00) / (f32(r.h - 1u) - 2.0 * CORNER_OFFSET);
+        }
+        o = e00 - (cu + cv) * CORNER_OFFSET;
+        u = cu * f32(r.w - 1u);
+        v = cv * f32(r.h - 1u);
     }
-    let o = e00 - (cu + cv) * CORNER_OFFSET;
-    let u = cu * f32(r.w - 1u);
-    let v = cv * f32(r.h - 1u);
     let n = cross(u, v);
     let denom = dot(b - a, n);
     if (abs(denom) < 1e-30) {

@@ -24,9 +24,12 @@
 //! multiple of [`HEIGHT_ALIGN`]. Texels that belong to no chart are "not
 //! covered" and carry no element.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use crate::scene::{Patch, PatchShape, Scene, SceneIssue};
+
+pub mod uv;
+pub use uv::ChartMap;
 
 /// Empty texels between neighbouring charts (a gutter for filtering).
 pub const PADDING: u32 = 1;
@@ -105,8 +108,17 @@ pub struct Atlas {
     /// [`NO_ELEMENT`].
     pub texel_element: Vec<u32>,
     /// Groups of elements of different charts that stand for the same point
-    /// of a surface (a seam's texels, [`Atlas::stitch`]).
+    /// of a surface (a seam's texels, [`Atlas::stitch`]), or for one texel
+    /// of a mesh's own lightmap that several of its triangles cover
+    /// (`atlas/uv.rs`).
     pub seams: Vec<Vec<u32>>,
+    /// Per patch, the map from its parameters to its chart's texels when
+    /// it is a triangle lit on its mesh's own lightmap UVs (`atlas/uv.rs`);
+    /// `None` on Lightwire's own charts ([`ChartMap::native`]).
+    pub lightmap_maps: Vec<Option<ChartMap>>,
+    /// Per entry of [`Scene::uv_meshes`], its lightmap's block in the atlas
+    /// when its triangles are lit on it (a square chart of `w = h` texels).
+    pub blocks: Vec<Option<Chart>>,
 }
 
 /// Chart sizes and positions without elements: enough to know whether a
@@ -116,6 +128,10 @@ pub struct Layout {
     pub width: u32,
     pub height: u32,
     pub charts: Vec<Chart>,
+    /// As [`Atlas::lightmap_maps`].
+    pub lightmap_maps: Vec<Option<ChartMap>>,
+    /// As [`Atlas::blocks`].
+    pub blocks: Vec<Option<Chart>>,
 }
 
 /// Two patches meet smoothly (their seam's texels are stitched) when their
@@ -143,6 +159,11 @@ fn find_seams(scene: &Scene, charts: &[Chart], elements: &[Element]) -> Vec<Vec<
     for (patch, chart) in scene.patches.iter().zip(charts) {
         let (origin, u, v) = patch.shape.frame();
         let count = (chart.w * chart.h) as usize;
+        if patch.lightmap.is_some() {
+            // Its texels are not on its edges (`atlas/uv.rs`).
+            first += count;
+            continue;
+        }
         for (k, e) in elements[first..first + count].iter().enumerate() {
             let (a, b) = ((k as u32) % chart.w, (k as u32) / chart.w);
             let on_edge = a == 0
@@ -189,8 +210,89 @@ fn find_seams(scene: &Scene, charts: &[Chart], elements: &[Element]) -> Vec<Vec<
             }
         }));
     }
-    seams.sort_unstable();
     seams
+}
+
+/// Groups of the elements that share a texel of a mesh's own lightmap and
+/// cover part of it (`atlas/uv.rs`), two or more each.
+fn shared_texels(maps: &[Option<ChartMap>], elements: &[Element]) -> Vec<Vec<u32>> {
+    use std::collections::HashMap;
+    let mut at: HashMap<[u32; 2], Vec<u32>> = HashMap::new();
+    for (i, e) in elements.iter().enumerate() {
+        if e.covers_surface() && maps.get(e.patch as usize).is_some_and(|m| m.is_some()) {
+            at.entry(e.texel).or_default().push(i as u32);
+        }
+    }
+    at.into_values().filter(|g| g.len() >= 2).collect()
+}
+
+fn elements_area(elements: &[Element], i: u32) -> f32 {
+    elements.get(i as usize).map_or(0.0, |e| e.area)
+}
+
+/// The elements of a triangle lit on its mesh's own lightmap: every texel
+/// of its chart, row-major, as `atlas/uv.rs` says.
+fn uv_elements(
+    patch: &Patch,
+    p: u32,
+    material: &crate::scene::Material,
+    chart: &Chart,
+    map: &ChartMap,
+) -> Vec<Element> {
+    let (origin, u, v) = patch.shape.frame();
+    let normal = patch.shape.normal();
+    // The triangle's corners in chart coordinates, and world area per
+    // texel² of the chart.
+    let q = [
+        map.to_chart(Vec2::new(0.0, 0.0)),
+        map.to_chart(Vec2::new(1.0, 0.0)),
+        map.to_chart(Vec2::new(1.0, 1.0)),
+    ];
+    let texels = f64::from(uv::uv_area(&q).abs());
+    let scale = if texels > 0.0 {
+        f64::from(patch.shape.area()) / texels
+    } else {
+        0.0
+    };
+    // Chart coordinates put texel (a, b)'s footprint at [a - 0.5, a + 0.5]:
+    // shift by half a texel for `uv::covered`, whose texel (i, j) covers
+    // [i, i + 1].
+    let shifted = q.map(|c| c + Vec2::splat(0.5));
+    let param = |xy: Vec2| map.to_param(xy).unwrap_or(Vec2::new(2.0 / 3.0, 1.0 / 3.0));
+    let mut out = Vec::with_capacity((chart.w * chart.h) as usize);
+    for b in 0..chart.h {
+        for a in 0..chart.w {
+            let centre = Vec2::new(a as f32, b as f32);
+            let (covered, poly) = uv::covered(&shifted, a, b);
+            let st = param(uv::nearest_on_triangle(&q, centre));
+            // The bounds of the covered part in patch parameters (the
+            // texel's sample alone when it covers none).
+            let mut region = [st.x, st.y, st.x, st.y];
+            for c in &poly {
+                let at = param(c.as_vec2() - Vec2::splat(0.5));
+                region = [
+                    region[0].min(at.x),
+                    region[1].min(at.y),
+                    region[2].max(at.x),
+                    region[3].max(at.y),
+                ];
+            }
+            let area = (covered * scale) as f32;
+            out.push(Element {
+                patch: p,
+                object: patch.object,
+                texel: [chart.x + a, chart.y + b],
+                st: st.to_array(),
+                position: origin + u * st.x + v * st.y,
+                normal,
+                area,
+                region,
+                albedo: patch.region_albedo(material, region, st.to_array()),
+                emission: material.emission,
+            });
+        }
+    }
+    out
 }
 
 /// Texels along an edge of `length` metres at `density` texels per metre.
@@ -270,7 +372,35 @@ fn shelf_pack(sizes: &[(u32, u32)], width: u32) -> Option<(Vec<(u32, u32)>, u32)
 
 /// Plans the atlas for a scene, or explains why it does not fit.
 pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
-    let sizes: Vec<(u32, u32)> = scene.patches.iter().map(chart_size).collect();
+    // Packed items: every patch on a chart of its own (a triangle on its
+    // mesh's lightmap takes none: a 0 x 0 item, placed with its block
+    // below), then the blocks of the meshes whose triangles use them.
+    let mut sizes: Vec<(u32, u32)> = scene
+        .patches
+        .iter()
+        .map(|p| {
+            if p.lightmap.is_some() {
+                (0, 0)
+            } else {
+                chart_size(p)
+            }
+        })
+        .collect();
+    let used: Vec<bool> = (0..scene.uv_meshes.len())
+        .map(|m| {
+            scene
+                .patches
+                .iter()
+                .any(|p| p.lightmap.is_some_and(|l| l.mesh as usize == m))
+        })
+        .collect();
+    let sides: Vec<u32> = scene
+        .uv_meshes
+        .iter()
+        .zip(&used)
+        .map(|(mesh, &used)| if used { uv::block_side(scene, mesh) } else { 0 })
+        .collect();
+    sizes.extend(sides.iter().map(|&n| (n, n)));
     let max = scene.max_atlas_size;
     let location = "lightmap".to_string();
     if let Some((i, (w, h))) = sizes
@@ -278,11 +408,15 @@ pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
         .enumerate()
         .find(|(_, (w, h))| *w > max || *h > max)
     {
-        return Err(SceneIssue {
-            location: format!(
-                "surface #{} \"{}\"",
-                scene.patches[i].surface_index, scene.patches[i].name
+        let location = match scene.patches.get(i) {
+            Some(p) => format!("surface #{} \"{}\"", p.surface_index, p.name),
+            None => format!(
+                "mesh \"{}\"'s lightmap",
+                scene.uv_meshes[i - scene.patches.len()].name
             ),
+        };
+        return Err(SceneIssue {
+            location,
             problem: format!(
                 "atlas overflow: this surface alone needs {w} x {h} texels but lightmap.max_atlas_size is {max}; lower its texel_density"
             ),
@@ -297,15 +431,44 @@ pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
         if let Some((pos, height)) = shelf_pack(&sizes, width) {
             let aligned = height.div_ceil(HEIGHT_ALIGN) * HEIGHT_ALIGN;
             if aligned <= width || (width >= max && aligned <= max) {
-                let charts = sizes
+                let mut charts: Vec<Chart> = sizes
                     .iter()
                     .zip(pos)
                     .map(|(&(w, h), (x, y))| Chart { x, y, w, h })
                     .collect();
+                let blocks: Vec<Option<Chart>> = charts
+                    .split_off(scene.patches.len())
+                    .into_iter()
+                    .zip(&used)
+                    .map(|(b, &used)| used.then_some(b))
+                    .collect();
+                let mut lightmap_maps = vec![None; scene.patches.len()];
+                for (p, patch) in scene.patches.iter().enumerate() {
+                    let Some(l) = patch.lightmap else { continue };
+                    let Some(block) = blocks.get(l.mesh as usize).copied().flatten() else {
+                        continue;
+                    };
+                    let q = l.uv.map(|c| c * block.w as f32);
+                    let ([x, y], [w, h]) = uv::triangle_chart(&q, block.w);
+                    charts[p] = Chart {
+                        x: block.x + x,
+                        y: block.y + y,
+                        w,
+                        h,
+                    };
+                    let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+                    lightmap_maps[p] = Some(ChartMap {
+                        origin: q[0] - centre,
+                        ds: q[1] - q[0],
+                        dt: q[2] - q[1],
+                    });
+                }
                 return Ok(Layout {
                     width,
                     height: aligned.max(HEIGHT_ALIGN),
                     charts,
+                    lightmap_maps,
+                    blocks,
                 });
             }
         }
@@ -406,6 +569,18 @@ impl Atlas {
         for (p, (patch, chart)) in scene.patches.iter().zip(&layout.charts).enumerate() {
             patch_elements.push(elements.len() as u32);
             let material = &scene.materials[patch.material as usize];
+            if let Some(map) = layout.lightmap_maps[p] {
+                for e in uv_elements(patch, p as u32, material, chart, &map) {
+                    let texel = (e.texel[1] * width + e.texel[0]) as usize;
+                    let owner = texel_element[texel];
+                    // The texel shows the element that covers most of it.
+                    if owner == NO_ELEMENT || elements_area(&elements, owner) < e.area {
+                        texel_element[texel] = elements.len() as u32;
+                    }
+                    elements.push(e);
+                }
+                continue;
+            }
             let (origin, u, v) = patch.shape.frame();
             let triangle = patch.shape.is_triangle();
             let normal = patch.shape.normal();
@@ -458,7 +633,9 @@ impl Atlas {
             }
         }
         patch_elements.push(elements.len() as u32);
-        let seams = find_seams(scene, &layout.charts, &elements);
+        let mut seams = find_seams(scene, &layout.charts, &elements);
+        seams.extend(shared_texels(&layout.lightmap_maps, &elements));
+        seams.sort_unstable();
         Ok(Atlas {
             width,
             height,
@@ -467,7 +644,63 @@ impl Atlas {
             patch_elements,
             texel_element,
             seams,
+            lightmap_maps: layout.lightmap_maps,
+            blocks: layout.blocks,
         })
+    }
+
+    /// The map from `patch`'s parameters to its chart's texel coordinates.
+    pub fn chart_map(&self, patch: u32) -> ChartMap {
+        match self.lightmap_maps.get(patch as usize).copied().flatten() {
+            Some(map) => map,
+            None => {
+                let c = self.charts[patch as usize];
+                ChartMap::native(c.w, c.h)
+            }
+        }
+    }
+
+    /// The part of element `e`'s texel footprint its triangle covers, in
+    /// patch parameters, when the element is of a triangle lit on its
+    /// mesh's own lightmap UVs (`atlas/uv.rs`; empty when it covers none).
+    pub fn lightmap_region(&self, e: usize) -> Option<Vec<Vec2>> {
+        let el = self.elements.get(e)?;
+        let map = self
+            .lightmap_maps
+            .get(el.patch as usize)
+            .copied()
+            .flatten()?;
+        let chart = self.charts[el.patch as usize];
+        let q = [Vec2::ZERO, Vec2::X, Vec2::ONE].map(|st| map.to_chart(st) + Vec2::splat(0.5));
+        let (_, polygon) = uv::covered(&q, el.texel[0] - chart.x, el.texel[1] - chart.y);
+        Some(
+            polygon
+                .into_iter()
+                .filter_map(|c| map.to_param(c.as_vec2() - Vec2::splat(0.5)))
+                .collect(),
+        )
+    }
+
+    /// Whether `patch` is a triangle lit on its mesh's own lightmap UVs.
+    pub fn on_lightmap_uvs(&self, patch: u32) -> bool {
+        self.lightmap_maps
+            .get(patch as usize)
+            .is_some_and(|m| m.is_some())
+    }
+
+    /// The element of `patch` whose texel holds the point at patch
+    /// parameters `st` (clamped onto its chart; on a triangle of
+    /// Lightwire's own charts, a point beyond the diagonal reads the
+    /// diagonal's texel, whose `b <= a` stands for surface).
+    pub fn element_of(&self, patch: u32, triangle: bool, st: Vec2) -> Option<usize> {
+        let chart = *self.charts.get(patch as usize)?;
+        let xy = self.chart_map(patch).to_chart(st);
+        let a = xy.x.round().clamp(0.0, (chart.w - 1) as f32) as u32;
+        let mut b = xy.y.round().clamp(0.0, (chart.h - 1) as f32) as u32;
+        if triangle && !self.on_lightmap_uvs(patch) {
+            b = b.min(a);
+        }
+        Some(self.patch_elements[patch as usize] as usize + (b * chart.w + a) as usize)
     }
 
     /// Makes the texels of every seam agree: each group of
@@ -533,12 +766,13 @@ impl Atlas {
     pub fn sample(&self, values: &[Vec3], patch: u32, [s, t]: [f32; 2]) -> Vec3 {
         let chart = self.charts[patch as usize];
         let first = self.patch_elements[patch as usize] as usize;
-        let axis = |p: f32, n: u32| -> (u32, f32) {
-            let x = (p * (n - 1) as f32).clamp(0.0, (n - 1) as f32);
+        let xy = self.chart_map(patch).to_chart(Vec2::new(s, t));
+        let axis = |x: f32, n: u32| -> (u32, f32) {
+            let x = x.clamp(0.0, (n - 1) as f32);
             let x0 = (x.floor() as u32).min(n - 2);
             (x0, x - x0 as f32)
         };
-        let ((a, fa), (b, fb)) = (axis(s, chart.w), axis(t, chart.h));
+        let ((a, fa), (b, fb)) = (axis(xy.x, chart.w), axis(xy.y, chart.h));
         // Elements are row-major within their chart.
         let at = |a: u32, b: u32| values[first + (b * chart.w + a) as usize];
         let top = at(a, b).lerp(at(a + 1, b), fa);
@@ -550,8 +784,13 @@ impl Atlas {
     /// atlas; uncovered texels are zero.
     pub fn to_image(&self, values: &[Vec3]) -> Vec<[f32; 3]> {
         let mut image = vec![[0.0; 3]; (self.width as usize) * (self.height as usize)];
-        for (e, value) in self.elements.iter().zip(values) {
-            image[(e.texel[1] * self.width + e.texel[0]) as usize] = value.to_array();
+        for (i, (e, value)) in self.elements.iter().zip(values).enumerate() {
+            let texel = (e.texel[1] * self.width + e.texel[0]) as usize;
+            // A texel of a mesh's own lightmap may hold several elements
+            // (`atlas/uv.rs`): it shows its owner.
+            if self.texel_element[texel] == i as u32 {
+                image[texel] = value.to_array();
+            }
         }
         image
     }
@@ -868,5 +1107,146 @@ mod tests {
         // The shared boundary is at least two cells long: eight spacings
         // or more at 2.48 texels per cell.
         assert!(checked >= 2 * 6, "{checked} texels on shared edges");
+    }
+
+    /// A floor of two triangles and a lone wall triangle of one mesh with
+    /// lightmap UVs (the floor in the left half of its lightmap, the wall in
+    /// the right), and a quad without.
+    const LIGHTMAP_UVS: &str = r#"{
+        "name": "t",
+        "lightmap": { "texel_density": 9.3 },
+        "materials": [ { "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] } ],
+        "surfaces": [
+            { "name": "room", "material": "m", "mesh": {
+                "positions": [[0, 0, 0], [2.1, 0, 0], [2.1, 0, -1.3], [0, 0, -1.3],
+                              [0, 0, -1.3], [2.1, 0, -1.3], [1.0, 1.7, -1.3]],
+                "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6],
+                "lightmap_uvs": [[0.03, 0.9], [0.47, 0.9], [0.47, 0.1], [0.03, 0.1],
+                                 [0.55, 0.9], [0.97, 0.9], [0.7, 0.2]] } },
+            { "name": "wall", "material": "m", "quad": {
+                "origin": [0, 0, 0], "u": [0, 0, -1.3], "v": [0, 1, 0] } }
+        ]
+    }"#;
+
+    fn lightmap_uv_scene(charts: crate::scene::Charts) -> Scene {
+        let options = crate::scene::LoadOptions {
+            density_scale: 1.0,
+            charts,
+        };
+        Scene::parse_with(LIGHTMAP_UVS, "test", options).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    #[test]
+    fn triangles_on_their_lightmap_uvs_cover_their_texels() {
+        use crate::scene::Charts;
+        // Other modes light the mesh on Lightwire's charts: the floor's two
+        // triangles become one quad.
+        let own = lightmap_uv_scene(Charts::Parallelograms);
+        assert_eq!(own.patches.len(), 3);
+        assert!(own.patches.iter().all(|p| p.lightmap.is_none()));
+        assert_eq!(own.uv_meshes.len(), 1);
+
+        let scene = lightmap_uv_scene(Charts::LightmapUvs);
+        assert_eq!(scene.patches.len(), 4, "three triangles and the quad");
+        check_areas(&scene);
+        let atlas = Atlas::build(&scene).expect("fits");
+        let block = atlas.blocks[0].expect("the mesh has a block");
+        let side = crate::atlas::uv::block_side(&scene, &scene.uv_meshes[0]);
+        assert_eq!((block.w, block.h), (side, side));
+        for (p, patch) in scene.patches.iter().enumerate() {
+            let chart = atlas.charts[p];
+            let Some(l) = patch.lightmap else {
+                assert!(!atlas.on_lightmap_uvs(p as u32));
+                // Lightwire's own chart stays clear of the block.
+                assert!(
+                    chart.x >= block.x + block.w + PADDING
+                        || chart.x + chart.w + PADDING <= block.x
+                        || chart.y >= block.y + block.h + PADDING
+                        || chart.y + chart.h + PADDING <= block.y
+                );
+                continue;
+            };
+            assert!(atlas.on_lightmap_uvs(p as u32));
+            assert!(chart.x >= block.x && chart.x + chart.w <= block.x + block.w);
+            assert!(chart.y >= block.y && chart.y + chart.h <= block.y + block.h);
+            // The chart map puts the triangle's corners at their UVs.
+            let map = atlas.chart_map(p as u32);
+            let corner = |st: Vec2| {
+                map.to_chart(st) + Vec2::new(chart.x as f32 + 0.5, chart.y as f32 + 0.5)
+                    - Vec2::new(block.x as f32, block.y as f32)
+            };
+            for (st, uv) in [Vec2::ZERO, Vec2::X, Vec2::ONE].into_iter().zip(l.uv) {
+                assert!((corner(st) - uv * side as f32).length() < 1e-3);
+            }
+            let (origin, u, v) = patch.shape.frame();
+            for i in atlas.elements_of(p as u32) {
+                let e = &atlas.elements[i];
+                let [s, t] = e.st;
+                assert!(
+                    (-1e-5..=1.0 + 1e-5).contains(&s) && (-1e-5..=s + 1e-5).contains(&t),
+                    "{}: sample ({s}, {t}) off the triangle",
+                    patch.name
+                );
+                assert!((e.position - (origin + u * s + v * t)).length() < 1e-5);
+                // A texel the triangle covers has an owner that covers at
+                // least as much of it, and shares a seam group with the
+                // other triangles covering it.
+                if e.covers_surface() {
+                    let owner = atlas.element_at(e.texel[0], e.texel[1]).expect("owned");
+                    assert!(atlas.elements[owner as usize].area >= e.area);
+                    let sharing = atlas
+                        .elements
+                        .iter()
+                        .filter(|o| o.texel == e.texel && o.covers_surface())
+                        .count();
+                    if sharing > 1 {
+                        assert!(
+                            atlas
+                                .seams
+                                .iter()
+                                .any(|g| g.contains(&(i as u32)) && g.len() == sharing),
+                            "a shared texel is one seam group"
+                        );
+                    }
+                }
+            }
+            // A point inside the triangle reads an element of it whose
+            // texel holds the point and covers surface.
+            for (s, t) in [(0.5, 0.25), (0.9, 0.1), (0.7, 0.6), (0.34, 0.3)] {
+                let i = atlas
+                    .element_of(p as u32, true, Vec2::new(s, t))
+                    .expect("inside");
+                let e = &atlas.elements[i];
+                assert_eq!(e.patch, p as u32);
+                assert!(e.covers_surface(), "{}: ({s}, {t})", patch.name);
+                let xy = map.to_chart(Vec2::new(s, t));
+                let texel = Vec2::new((e.texel[0] - chart.x) as f32, (e.texel[1] - chart.y) as f32);
+                assert!((xy - texel).abs().max_element() <= 0.5 + 1e-4);
+            }
+        }
+        // The floor's diagonal texels are shared by its two triangles.
+        let shared = atlas
+            .seams
+            .iter()
+            .filter(|g| {
+                g.iter().any(|&i| {
+                    atlas.elements[i as usize].patch != atlas.elements[g[0] as usize].patch
+                })
+            })
+            .count();
+        assert!(
+            shared >= 10,
+            "{shared} shared texels along the floor's diagonal"
+        );
+        // The image shows each texel's owner.
+        let values: Vec<Vec3> = (0..atlas.elements.len())
+            .map(|i| Vec3::splat(i as f32))
+            .collect();
+        let image = atlas.to_image(&values);
+        for (t, &owner) in atlas.texel_element.iter().enumerate() {
+            if owner != NO_ELEMENT {
+                assert_eq!(image[t][0], owner as f32);
+            }
+        }
     }
 }

@@ -237,12 +237,10 @@ pub fn element_at(caster: &Raycaster, atlas: &Atlas, patch: u32, x: DVec3) -> Op
         let m = 0.5 * (s + t);
         (s, t) = (m, m);
     }
-    let chart = atlas.charts.get(patch as usize)?;
-    // Rounding is monotonic, so `t <= s` gives row <= column.
-    let c = (s * f64::from(chart.w.saturating_sub(1))).round() as u32;
-    let r = (t * f64::from(chart.h.saturating_sub(1))).round() as u32;
-    let e = atlas.element_at(chart.x + c, chart.y + r)? as usize;
-    (atlas.elements[e].patch == patch).then_some(e)
+    // Rounding is monotonic, so `t <= s` gives row <= column on a
+    // triangle's own chart.
+    let e = atlas.element_of(patch, wp.is_triangle(), glam::Vec2::new(s as f32, t as f32))?;
+    (atlas.elements.get(e)?.patch == patch).then_some(e)
 }
 
 /// How [`gather`] reads the radiosity where a ray lands.

@@ -15,11 +15,12 @@
 //! mip-mapped, a level or two) read near a chart's border never blends in
 //! the empty space around it; the rest stay black.
 //!
-//! This is a resampling of the atlas's light, not a solve on the asset's
-//! texels: where the asset's texels are finer than the atlas's, they
-//! interpolate it. Wallner's system solves on the packed per-triangle
-//! lightmaps themselves (§2); building elements on the asset's charts is
-//! issue 18's open part.
+//! On Lightwire's own charts this is a resampling of the atlas's light,
+//! not a solve on the asset's texels: where the asset's texels are finer
+//! than the atlas's, they interpolate it. With `--charts lightmap-uvs` the
+//! mesh is solved on its own UVs (`atlas/uv.rs`, wallner §2), its block in
+//! the atlas the same size as this lightmap, and the resampling reads each
+//! pixel from the texel it stands for.
 
 use std::collections::HashMap;
 
@@ -32,9 +33,6 @@ use crate::scene::{Patch, Scene, UvMesh};
 /// point (the asset's own padding between charts may be smaller; a pixel
 /// goes to the nearest triangle).
 pub const PADDING: f32 = 2.0;
-
-/// The side of a mesh's lightmap: the largest size [`default_size`] picks.
-pub const MAX_SIZE: u32 = 4096;
 
 /// A mesh's lightmap in its own UVs: linear radiosity (W/m²), row-major
 /// from the image's first row, which is UV v = 0 (glTF's convention).
@@ -53,31 +51,10 @@ pub struct UvLightmap {
 }
 
 /// The side of a square lightmap for `mesh` that gives its surface about
-/// the texel density of its patches: `density × sqrt(surface area / UV
-/// area)`, rounded up to a multiple of 4, between 16 and [`MAX_SIZE`].
+/// the texel density of its patches (`atlas::uv::block_side`, the side of
+/// its block when it is lit on its own UVs).
 pub fn default_size(scene: &Scene, mesh: &UvMesh) -> u32 {
-    let area: f32 = mesh
-        .triangles
-        .iter()
-        .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
-        .sum();
-    let uv_area: f32 = mesh.uvs.iter().map(|t| uv_area(t).abs()).sum();
-    let density = scene
-        .patches
-        .iter()
-        .find(|p| p.object == mesh.object && p.surface_index == mesh.surface_index)
-        .map_or(scene.texel_density, |p| p.texel_density);
-    let side = density * (area / uv_area.max(1e-12)).sqrt();
-    let side = if side.is_finite() {
-        side.ceil() as u32
-    } else {
-        MAX_SIZE
-    };
-    side.div_ceil(4).saturating_mul(4).clamp(16, MAX_SIZE)
-}
-
-fn uv_area([a, b, c]: &[Vec2; 3]) -> f32 {
-    0.5 * (*b - *a).perp_dot(*c - *a)
+    crate::atlas::uv::block_side(scene, mesh)
 }
 
 /// Patches by object, surface and a coarse grid of object space, to find
@@ -302,10 +279,11 @@ pub fn resample(
         };
         let chart = &atlas.charts[k];
         // Atlas pixel coordinates of the corners (`bake::chart_uvs`: the
-        // chart's corner texels' centres are the patch's corners).
-        let span = Vec2::new(chart.w as f32 - 1.0, chart.h as f32 - 1.0);
+        // chart's corner texels' centres are the patch's corners; on a
+        // mesh's own lightmap, its chart map, `atlas/uv.rs`).
+        let map = atlas.chart_map(k as u32);
         let base = Vec2::new(chart.x as f32 + 0.5, chart.y as f32 + 0.5);
-        let at = st.map(|p| base + p * span);
+        let at = st.map(|p| base + map.to_chart(p));
         let q = uv.map(|c| c * scale);
         let lo = q[0].min(q[1]).min(q[2]) - Vec2::splat(PADDING);
         let hi = q[0].max(q[1]).max(q[2]) + Vec2::splat(PADDING);

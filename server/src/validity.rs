@@ -274,6 +274,10 @@ impl Validity {
             return;
         }
         for (patch, chart) in atlas.charts.iter().enumerate() {
+            if atlas.on_lightmap_uvs(patch as u32) {
+                // No diagonal: its texels are its mesh's (`atlas/uv.rs`).
+                continue;
+            }
             let first = atlas.patch_elements[patch] as usize;
             let w = chart.w as usize;
             let at = |a: usize, b: usize| first + b * w + a;

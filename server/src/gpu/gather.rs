@@ -430,6 +430,7 @@ impl GatherSolver {
             ];
             for &i in corner_order(wp.triangle) {
                 let (c, st) = corners[i];
+                let st = wp.vertex_st(st);
                 vertices.push(GatherVertex {
                     pos: v4(c, f32::from_bits(p as u32)),
                     normal: v4(wp.normal, 0.0),

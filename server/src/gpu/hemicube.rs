@@ -16,6 +16,7 @@ use bytemuck::{Pod, Zeroable};
 
 use super::binding::{Kind, Pass, Slot};
 use super::buffers::v4;
+use crate::atlas::ChartMap;
 use crate::scene::PatchShape;
 
 /// Hemicube faces per shooter: top and four sides.
@@ -93,9 +94,18 @@ pub(super) const ELEMENT_IDS: Pass = Pass {
 /// patch's one), with the patch id, the patch parameters of each corner and
 /// the object id; `triangle_vertices` is the count to draw (the buffer is
 /// padded to one vertex when there is none).
-pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<GpuVertex>, u32) {
+///
+/// A triangle on its mesh's own lightmap UVs (`maps[p]`, `atlas/uv.rs`)
+/// carries its corners' chart coordinates instead of patch parameters, for
+/// `element_at` (common.wgsl).
+pub(super) fn patch_vertices(
+    shapes: &[PatchShape],
+    objects: &[u32],
+    maps: &[Option<ChartMap>],
+) -> (Vec<GpuVertex>, u32) {
     let mut vertices: Vec<GpuVertex> = Vec::with_capacity(shapes.len() * 6);
     for (p, shape) in shapes.iter().enumerate() {
+        let map = maps.get(p).copied().flatten();
         let (origin, u, v) = shape.frame();
         let corners = [
             (origin, [0.0, 0.0]),
@@ -106,6 +116,7 @@ pub(super) fn patch_vertices(shapes: &[PatchShape], objects: &[u32]) -> (Vec<Gpu
         let object = f32::from_bits(objects[p]);
         for &i in corner_order(shape.is_triangle()) {
             let (c, st) = corners[i];
+            let st = map.map_or(st, |m| m.to_chart(glam::Vec2::from(st)).to_array());
             vertices.push(GpuVertex {
                 pos: v4(c, f32::from_bits(p as u32)),
                 st: [st[0], st[1], object, 0.0],

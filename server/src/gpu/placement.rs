@@ -10,7 +10,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use crate::atlas::Atlas;
+use crate::atlas::{Atlas, ChartMap};
 use crate::scene::{PatchShape, Pose, Scene};
 use crate::validity::Validity;
 
@@ -49,8 +49,12 @@ pub(super) fn invalid_flag(invalid: bool) -> f32 {
 
 /// One patch's elements as the shaders find them (`PatchRange` in
 /// common.wgsl): first element, element count, chart size, and whether
-/// the patch is a triangle (the half `t <= s` of its chart, whose texels
-/// above the diagonal stand for no surface).
+/// the patch is a triangle: [`TRIANGLE`] (the half `t <= s` of its chart,
+/// whose texels above the diagonal stand for no surface) or
+/// [`TRIANGLE_ON_LIGHTMAP`] (lit on its mesh's own lightmap UVs,
+/// `atlas/uv.rs`: its hemicube vertices carry chart coordinates rather than
+/// patch parameters, and its frame in object space is `frame`, which the
+/// receiving shaders cannot rebuild from its corner texels).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug, PartialEq)]
 pub(super) struct PatchRange {
@@ -59,8 +63,15 @@ pub(super) struct PatchRange {
     pub(super) w: u32,
     pub(super) h: u32,
     pub(super) triangle: u32,
+    /// Origin, `u` and `v` in object space ([`TRIANGLE_ON_LIGHTMAP`] only).
+    pub(super) frame: [f32; 9],
 }
-const _: () = assert!(std::mem::size_of::<PatchRange>() == 20);
+const _: () = assert!(std::mem::size_of::<PatchRange>() == 56);
+
+/// `PatchRange::triangle` of a triangle on a chart of Lightwire's own.
+pub(super) const TRIANGLE: u32 = 1;
+/// `PatchRange::triangle` of a triangle on its mesh's lightmap UVs.
+pub(super) const TRIANGLE_ON_LIGHTMAP: u32 = 2;
 
 /// A patch placed in the world, as the CPU needs it to place shooters:
 /// the frame `origin + s u + t v` of its shape (a quad covers `s, t ∈
@@ -75,6 +86,9 @@ pub(super) struct WorldPatch {
     pub(super) w: u32,
     pub(super) h: u32,
     pub(super) triangle: bool,
+    /// Its chart's map from patch parameters to texel coordinates when it
+    /// is a triangle on its mesh's own lightmap UVs (`atlas/uv.rs`).
+    pub(super) lightmap: Option<ChartMap>,
 }
 
 impl WorldPatch {
@@ -92,6 +106,17 @@ impl WorldPatch {
     pub(super) fn centre(&self) -> Vec3 {
         let [s, t] = centre_param(self.triangle);
         self.origin + self.u * s + self.v * t
+    }
+
+    /// What a hemicube vertex at patch parameters `st` carries for the
+    /// texel lookup (`element_at` in common.wgsl): `st` itself, or on a
+    /// triangle on its mesh's lightmap its chart coordinates (an affine
+    /// function of `st`, which interpolation across the triangle keeps).
+    pub(super) fn vertex_st(&self, st: [f32; 2]) -> [f32; 2] {
+        match self.lightmap {
+            Some(map) => map.to_chart(glam::Vec2::from(st)).to_array(),
+            None => st,
+        }
     }
 
     /// The corners (four, or a triangle's three).
@@ -126,6 +151,8 @@ pub(super) struct PatchTable {
     layout: Vec<[u32; 3]>,
     /// One past the last element of every patch.
     ends: Vec<u32>,
+    /// Chart maps of the triangles on their meshes' own lightmap UVs.
+    maps: Vec<Option<ChartMap>>,
 }
 
 impl PatchTable {
@@ -142,12 +169,19 @@ impl PatchTable {
             ends: (0..atlas.charts.len())
                 .map(|p| atlas.patch_elements[p + 1])
                 .collect(),
+            maps: atlas.lightmap_maps.clone(),
         }
+    }
+
+    /// Chart maps of the triangles on their meshes' own lightmap UVs
+    /// (`Atlas::lightmap_maps`).
+    pub(super) fn maps(&self) -> &[Option<ChartMap>] {
+        &self.maps
     }
 
     /// Every patch placed at its object's pose.
     pub(super) fn place(&self, poses: &[Pose]) -> Vec<WorldPatch> {
-        place_patches(&self.shapes, &self.objects, &self.layout, poses)
+        place_patches(&self.shapes, &self.objects, &self.layout, &self.maps, poses)
     }
 
     /// First element, element count, chart size and shape of every patch
@@ -157,12 +191,25 @@ impl PatchTable {
             .iter()
             .zip(&self.ends)
             .zip(&self.shapes)
-            .map(|((&[first, w, h], end), shape)| PatchRange {
-                first,
-                count: end - first,
-                w,
-                h,
-                triangle: u32::from(shape.is_triangle()),
+            .zip(&self.maps)
+            .map(|(((&[first, w, h], end), shape), map)| {
+                let (o, u, v) = shape.frame();
+                PatchRange {
+                    first,
+                    count: end - first,
+                    w,
+                    h,
+                    triangle: match (shape.is_triangle(), map.is_some()) {
+                        (false, _) => 0,
+                        (true, false) => TRIANGLE,
+                        (true, true) => TRIANGLE_ON_LIGHTMAP,
+                    },
+                    frame: if map.is_some() {
+                        [o.x, o.y, o.z, u.x, u.y, u.z, v.x, v.y, v.z]
+                    } else {
+                        [0.0; 9]
+                    },
+                }
             })
             .collect()
     }
@@ -174,6 +221,7 @@ fn place_patches(
     shapes: &[PatchShape],
     objects: &[u32],
     layout: &[[u32; 3]],
+    maps: &[Option<ChartMap>],
     poses: &[Pose],
 ) -> Vec<WorldPatch> {
     shapes
@@ -191,6 +239,7 @@ fn place_patches(
                 w,
                 h,
                 triangle: shape.is_triangle(),
+                lightmap: maps.get(p).copied().flatten(),
             }
         })
         .collect()
@@ -278,8 +327,18 @@ pub(super) fn local_elements(
             // neighbour sharing the edge; on a triangle that includes its
             // diagonal edge `t = s` (the neighbour across it is the other
             // half of a quad, or another triangle of a mesh).
-            let quarter = |cells: u32| 0.25 / (cells.max(2) - 1) as f32;
-            let (qs, qt) = (quarter(chart.w), quarter(chart.h));
+            // (A quarter texel in patch parameters: on Lightwire's own
+            // charts `0.25 / (w - 1)`, on a mesh's lightmap by its map.)
+            let (qs, qt) = match atlas.lightmap_maps[p] {
+                Some(map) => (
+                    0.25 / map.ds.length().max(1.0),
+                    0.25 / map.dt.length().max(1.0),
+                ),
+                None => {
+                    let quarter = |cells: u32| 0.25 / (cells.max(2) - 1) as f32;
+                    (quarter(chart.w), quarter(chart.h))
+                }
+            };
             let (ls, lt) = if shape.is_triangle() {
                 let ls = s.clamp(qs + qt, 1.0 - qs);
                 (ls, t.clamp(qt, (ls - qs).max(qt)))

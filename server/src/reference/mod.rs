@@ -169,8 +169,9 @@ struct Region {
     size: f64,
 }
 
-/// A box clipped by one line has at most five corners.
-const MAX_REGION_CORNERS: usize = 5;
+/// A box clipped by one line has at most five corners, a texel's square
+/// clipped by a triangle (`atlas/uv.rs`) at most seven.
+const MAX_REGION_CORNERS: usize = 7;
 
 impl Region {
     /// The region `[s0, s1] × [t0, t1]` of a patch with frame `(o, u, v)`,
@@ -191,7 +192,7 @@ impl Region {
             for (c, p) in corners.iter_mut().zip(square) {
                 *c = at(p);
             }
-            let [p0, p1, p2, p3, _] = corners;
+            let [p0, p1, p2, p3, ..] = corners;
             return Region {
                 corners,
                 count: 4,
@@ -226,6 +227,41 @@ impl Region {
         }
     }
 
+    /// The polygon `corners` (patch parameters, counter-clockwise) of a
+    /// patch with frame `(o, u, v)`: an element of a triangle lit on its
+    /// mesh's own lightmap, the part of its texel the triangle covers;
+    /// `sample` stands in for the centre of an empty one.
+    fn from_polygon(
+        polygon: &[glam::Vec2],
+        (o, u, v): (DVec3, DVec3, DVec3),
+        sample: DVec3,
+    ) -> Region {
+        let mut corners = [DVec3::ZERO; MAX_REGION_CORNERS];
+        let count = polygon.len().min(MAX_REGION_CORNERS);
+        if count < 3 {
+            return Region {
+                corners,
+                count: 0,
+                parallelogram: false,
+                centre: sample,
+                size: 0.0,
+            };
+        }
+        for (c, p) in corners.iter_mut().zip(polygon) {
+            *c = o + u * f64::from(p.x) + v * f64::from(p.y);
+        }
+        let polygon = &corners[..count];
+        Region {
+            corners,
+            count,
+            parallelogram: false,
+            centre: polygon.iter().copied().sum::<DVec3>() / count as f64,
+            size: (0..count)
+                .map(|k| (polygon[(k + 1) % count] - polygon[k]).length())
+                .fold(0.0, f64::max),
+        }
+    }
+
     fn polygon(&self) -> &[DVec3] {
         &self.corners[..self.count]
     }
@@ -247,7 +283,7 @@ impl Region {
         let kf = k as f64;
         let cell = 1.0 / (kf * kf);
         if self.parallelogram {
-            let [o, p, _, q, _] = self.corners;
+            let [o, p, _, q, ..] = self.corners;
             for b in 0..k {
                 for a in 0..k {
                     let (s, t) = ((a as f64 + 0.5) / kf, (b as f64 + 0.5) / kf);
@@ -444,7 +480,8 @@ impl ReferenceSolver {
         let elements: Vec<WorldElement> = atlas
             .elements
             .iter()
-            .map(|e| {
+            .enumerate()
+            .map(|(i, e)| {
                 let wp = &patches[e.patch as usize];
                 let (o, u, v) = (wp.shape.origin, wp.shape.u, wp.shape.v);
                 let at = |s: f64, t: f64| o + u * s + v * t;
@@ -454,7 +491,9 @@ impl ReferenceSolver {
                 let sample = at(s, t);
                 let inward = (wp.centre - sample).normalize_or_zero();
                 let x = sample + inward * SURFACE_OFFSET + wp.normal * SURFACE_OFFSET;
-                let region = if e.covers_surface() {
+                let region = if let Some(polygon) = atlas.lightmap_region(i) {
+                    Region::from_polygon(&polygon, (o, u, v), sample)
+                } else if e.covers_surface() {
                     Region::new(
                         e.region.map(f64::from),
                         (o, u, v),

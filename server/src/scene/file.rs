@@ -188,6 +188,9 @@ pub struct MeshJson {
     pub positions: Vec<Vec3Json>,
     #[serde(default)]
     pub indices: Option<Vec<u32>>,
+    /// Lightmap UVs, one `[u, v]` per position (as glTF's `TEXCOORD_1`).
+    #[serde(default)]
+    pub lightmap_uvs: Option<Vec<[f32; 2]>>,
 }
 
 /// A parallelogram, written either as `origin` plus edges `u` and `v`

@@ -237,6 +237,22 @@ pub struct Patch {
     /// fall on the same points and are stitched as a seam (unless a cell
     /// is shorter than a texel spacing, `atlas::chart_size`).
     pub cells: [u32; 2],
+    /// A triangle of a glTF mesh that brought its own lightmap UVs
+    /// (`TEXCOORD_1`), lit on them (`--charts lightmap-uvs`): which of
+    /// [`Scene::uv_meshes`] and its UVs at `origin`, `origin + u`,
+    /// `origin + u + v`. `None` everywhere else, and for every patch under
+    /// the other [`Charts`] modes, whose charts are Lightwire's own.
+    pub lightmap: Option<PatchLightmap>,
+}
+
+/// Where a triangle lies in its mesh's own lightmap (`Patch::lightmap`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PatchLightmap {
+    /// Index into [`Scene::uv_meshes`].
+    pub mesh: u32,
+    /// `TEXCOORD_1` at the triangle's corners, in the order of
+    /// [`PatchShape::triangle`]'s corners.
+    pub uv: [Vec2; 3],
 }
 
 impl Patch {
@@ -425,6 +441,12 @@ pub enum Charts {
     /// wall is one chart, as a hand-written quad is.
     #[default]
     Parallelograms,
+    /// Parallelograms, except that the triangles of a glTF mesh with its
+    /// own lightmap UVs (`TEXCOORD_1`) are lit on those UVs: its lightmap
+    /// is one block of the atlas, each texel an element of every triangle
+    /// it overlaps (`atlas.rs`).
+    #[serde(rename = "lightmap-uvs")]
+    LightmapUvs,
 }
 
 /// Options applied while loading, for tests and benchmarks that want a
@@ -693,5 +715,44 @@ mod tests {
                  "quad": { "origin": [0, 0, 0], "u": [1, 0, 0], "v": [0, 1, 0] } }"#,
         );
         assert!(!quad.closed_objects()[1], "a single quad");
+    }
+
+    #[test]
+    fn bad_lightmap_uvs_of_a_mesh_are_reported_where_they_are() {
+        let problems = |uvs: &str| -> String {
+            let text = format!(
+                r#"{{ "name": "t", "lightmap": {{ "texel_density": 4 }},
+                    "materials": [{{ "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] }}],
+                    "surfaces": [{{ "name": "floor", "material": "m", "mesh": {{
+                        "positions": [[0, 0, 0], [2, 0, 0], [2, 0, -2], [0, 0, -2]],
+                        "indices": [0, 1, 2, 0, 2, 3], "lightmap_uvs": {uvs} }} }}] }}"#
+            );
+            match Scene::parse(&text, "t.json") {
+                Ok(_) => String::new(),
+                Err(e) => e.to_string(),
+            }
+        };
+        let fine = problems("[[0, 1], [1, 1], [1, 0], [0, 0]]");
+        assert!(fine.is_empty(), "{fine}");
+        let count = problems("[[0, 1], [1, 1], [1, 0]]");
+        assert!(
+            count.contains("surface #0 \"floor\"") && count.contains("3 entries for 4 positions"),
+            "{count}"
+        );
+        let outside = problems("[[0, 1], [1.5, 1], [1, 0], [0, 0]]");
+        assert!(
+            outside.contains("mesh.lightmap_uvs[1] is [1.5, 1.0]: lightmap UVs must lie in [0, 1]"),
+            "{outside}"
+        );
+        let zero = problems("[[0, 1], [0.5, 0.5], [1, 0], [0, 0]]");
+        assert!(
+            zero.contains("mesh triangle 0 has zero area in mesh.lightmap_uvs"),
+            "{zero}"
+        );
+        let overlap = problems("[[0, 1], [1, 1], [1, 0], [0.2, 0.9]]");
+        assert!(
+            overlap.contains("mesh triangle 0 overlaps triangle 1 in mesh.lightmap_uvs"),
+            "{overlap}"
+        );
     }
 }

@@ -121,6 +121,9 @@ fn group(p: &Patch) -> Group {
 /// A triangle's corners counter-clockwise from the front, with the texture
 /// coordinates at each (`AlbedoMap::uv` is in the same order).
 fn corners(p: &Patch) -> Option<([Vec3; 3], Option<[Vec2; 3]>)> {
+    if p.lightmap.is_some() {
+        return None;
+    }
     match p.shape {
         PatchShape::Triangle { origin, u, v } => Some((
             [origin, origin + u, origin + u + v],
@@ -463,11 +466,21 @@ pub fn merge_parallelograms(patches: Vec<Patch>) -> Vec<Patch> {
 
 /// The patches of a scene with its meshes' triangles given charts as
 /// `charts` asks.
-pub fn charts(patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
+pub fn charts(mut patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
+    // Only the static world is lit on its meshes' own lightmaps: a moving
+    // object's cross tiles follow the rows of Lightwire's own charts.
+    for p in &mut patches {
+        if charts != Charts::LightmapUvs || p.object != super::STATIC_OBJECT {
+            p.lightmap = None;
+        }
+    }
     match charts {
         Charts::Triangles => patches,
         Charts::Pairs => pair_triangles(patches),
-        Charts::Parallelograms => merge_parallelograms(pair_triangles(patches)),
+        // Triangles on their own lightmap UVs pair with nothing (`corners`).
+        Charts::Parallelograms | Charts::LightmapUvs => {
+            merge_parallelograms(pair_triangles(patches))
+        }
     }
 }
 
@@ -487,6 +500,7 @@ mod tests {
             albedo_map: None,
             mesh: true,
             cells: [1, 1],
+            lightmap: None,
         }
     }
 

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::{Quat, Vec3};
+use glam::{Quat, Vec2, Vec3};
 
 use super::file::{
     BoxJson, Facing, ImportJson, MeshJson, PoseJson, QuadJson, SceneFile, SolverJson, Vec3Json,
@@ -16,7 +16,8 @@ use super::file::{
 use super::gltf::{ImportOptions, ImportedScene};
 use super::texture::AlbedoMap;
 use super::{
-    LoadOptions, Material, Object, Patch, PatchShape, Pose, Scene, SceneIssue, SolverHints, UvMesh,
+    LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene, SceneIssue,
+    SolverHints, UvMesh,
 };
 
 /// Largest atlas edge a scene may ask for.
@@ -253,6 +254,8 @@ pub fn validate(
             s.mesh.is_some().then_some("mesh"),
         ];
         let given: Vec<&str> = given.into_iter().flatten().collect();
+        // A mesh's lightmap UVs per triangle, in its patches' corner order.
+        let mut lightmap_uvs: Option<TriangleUvs> = None;
         let shapes: Vec<(String, PatchShape)> = match (&s.quad, &s.box_, &s.mesh) {
             _ if given.len() > 1 => {
                 c.report(
@@ -273,7 +276,11 @@ pub fn validate(
                 .map(|q| vec![(s.name.clone(), q)])
                 .unwrap_or_default(),
             (_, Some(b), _) => boxed(&mut c, &loc, &s.name, b),
-            (_, _, Some(m)) => mesh(&mut c, &loc, &s.name, m),
+            (_, _, Some(m)) => {
+                let (shapes, uvs) = mesh(&mut c, &loc, &s.name, m);
+                lightmap_uvs = uvs;
+                shapes
+            }
             (None, None, None) => {
                 c.report(&loc, "has no shape; give \"quad\", \"box\" or \"mesh\"");
                 Vec::new()
@@ -281,7 +288,26 @@ pub fn validate(
         };
         let from_mesh = s.mesh.is_some();
         if let (Some(material), Some(object), Some(density)) = (material, object, density) {
-            for (name, shape) in shapes {
+            let uv_mesh = lightmap_uvs.as_ref().map(|uvs| {
+                uv_meshes.push(UvMesh {
+                    name: s.name.clone(),
+                    object,
+                    surface_index: i,
+                    triangles: shapes
+                        .iter()
+                        .map(|(_, shape)| {
+                            let (o, u, v) = shape.frame();
+                            [o, o + u, o + u + v]
+                        })
+                        .collect(),
+                    uvs: uvs.clone(),
+                });
+                (uv_meshes.len() - 1) as u32
+            });
+            for (k, (name, shape)) in shapes.into_iter().enumerate() {
+                let lightmap = uv_mesh
+                    .zip(lightmap_uvs.as_ref().and_then(|u| u.get(k)))
+                    .map(|(mesh, &uv)| PatchLightmap { mesh, uv });
                 patches.push(Patch {
                     name,
                     surface_index: i,
@@ -292,6 +318,7 @@ pub fn validate(
                     albedo_map: None,
                     mesh: from_mesh,
                     cells: [1, 1],
+                    lightmap,
                 });
             }
         }
@@ -525,6 +552,9 @@ fn boxed(c: &mut Checker, loc: &str, name: &str, b: &BoxJson) -> Vec<(String, Pa
         .collect()
 }
 
+/// A mesh's lightmap UVs per triangle, in its patches' corner order.
+type TriangleUvs = Vec<[Vec2; 3]>;
+
 /// Triangles listed per mesh before the rest are only counted.
 const MAX_LISTED_TRIANGLES: usize = 8;
 
@@ -534,7 +564,114 @@ const MAX_LISTED_TRIANGLES: usize = 8;
 /// the area at most [`super::gltf::DEGENERATE_RATIO`] times the longest edge
 /// squared: the corners lie on a line to within f32 precision, the glTF
 /// importer's rule).
-fn mesh(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(String, PatchShape)> {
+///
+/// With `lightmap_uvs` (one per position, as glTF's `TEXCOORD_1`), also
+/// each triangle's UVs in its patch's corner order; reports UVs outside
+/// [0, 1], triangles of zero UV area and overlapping ones, as the glTF
+/// importer does.
+fn mesh(
+    c: &mut Checker,
+    loc: &str,
+    name: &str,
+    m: &MeshJson,
+) -> (Vec<(String, PatchShape)>, Option<TriangleUvs>) {
+    let shapes = mesh_shapes(c, loc, name, m);
+    let Some(uvs) = &m.lightmap_uvs else {
+        return (shapes, None);
+    };
+    if uvs.len() != m.positions.len() {
+        c.report(
+            loc,
+            format!(
+                "mesh.lightmap_uvs has {} entries for {} positions: give one [u, v] per position",
+                uvs.len(),
+                m.positions.len()
+            ),
+        );
+        return (shapes, None);
+    }
+    let (lo, hi) = (
+        -super::gltf::UV_RANGE_SLACK,
+        1.0 + super::gltf::UV_RANGE_SLACK,
+    );
+    let outside: Vec<usize> = (0..uvs.len())
+        .filter(|&k| !uvs[k].iter().all(|x| (lo..=hi).contains(x)))
+        .collect();
+    for &k in outside.iter().take(MAX_LISTED_TRIANGLES) {
+        c.report(
+            loc,
+            format!(
+                "mesh.lightmap_uvs[{k}] is {:?}: lightmap UVs must lie in [0, 1]",
+                uvs[k]
+            ),
+        );
+    }
+    if shapes.is_empty() || !outside.is_empty() {
+        return (shapes, None);
+    }
+    let sequential: Vec<u32> = (0..m.positions.len() as u32).collect();
+    let indices = m.indices.as_deref().unwrap_or(&sequential);
+    let positions: Vec<Vec3> = m
+        .positions
+        .iter()
+        .map(|p| glam::DVec3::from_array(*p).as_vec3())
+        .collect();
+    let tris: Vec<[Vec2; 3]> = indices
+        .chunks_exact(3)
+        .map(|t| {
+            let [a, b, d] = [0, 1, 2].map(|j| positions[t[j] as usize]);
+            let order = PatchShape::triangle_order(a, b, d);
+            order.map(|j| Vec2::from_array(uvs[t[j] as usize]))
+        })
+        .collect();
+    let zero: Vec<usize> = (0..tris.len())
+        .filter(|&k| crate::atlas::uv::uv_area(&tris[k]).abs() * 2.0 <= 1e-12)
+        .collect();
+    for &k in zero.iter().take(MAX_LISTED_TRIANGLES) {
+        c.report(
+            loc,
+            format!(
+                "mesh triangle {k} has zero area in mesh.lightmap_uvs ({:?}): it would get no lightmap texels",
+                tris[k]
+            ),
+        );
+    }
+    match super::gltf::find_uv_overlaps(&tris, MAX_LISTED_TRIANGLES) {
+        Ok(overlaps) => {
+            for o in &overlaps {
+                c.report(
+                    loc,
+                    format!(
+                        "mesh triangle {} overlaps triangle {} in mesh.lightmap_uvs by {:.3e} (UV units², {:.1}% of the smaller): lightmap UVs must not overlap",
+                        o.a,
+                        o.b,
+                        o.area,
+                        100.0 * o.fraction
+                    ),
+                );
+            }
+            if !overlaps.is_empty() {
+                return (shapes, None);
+            }
+        }
+        Err(work) => {
+            c.report(
+                loc,
+                format!(
+                    "mesh.lightmap_uvs of its {} triangles cannot be checked for overlaps: the layout needs {work} grid entries or candidate pairs, over the limit",
+                    tris.len()
+                ),
+            );
+            return (shapes, None);
+        }
+    }
+    if !zero.is_empty() || tris.len() != shapes.len() {
+        return (shapes, None);
+    }
+    (shapes, Some(tris))
+}
+
+fn mesh_shapes(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(String, PatchShape)> {
     let mut positions = Vec::with_capacity(m.positions.len());
     let mut ok = true;
     for (k, p) in m.positions.iter().enumerate() {
@@ -737,6 +874,19 @@ fn merge_import(
                 let set = m.base_color_texture.as_ref()?.tex_coord;
                 Some((m.texture.clone()?, inst.uvs(set)?))
             });
+        // The primitives of one node's mesh share its lightmap space.
+        let uv_mesh = inst.lightmap_uvs.as_ref().map(|_| {
+            *uv_mesh_of.entry((inst.node, inst.mesh)).or_insert_with(|| {
+                into.uv_meshes.push(UvMesh {
+                    name: format!("{node}/{mesh}"),
+                    object,
+                    surface_index,
+                    triangles: Vec::new(),
+                    uvs: Vec::new(),
+                });
+                into.uv_meshes.len() - 1
+            })
+        });
         for (k, tri) in inst.indices.iter().enumerate() {
             let [a, b, d] = tri.map(|i| inst.positions.get(i as usize).copied());
             let (Some(a), Some(b), Some(d)) = (a, b, d) else {
@@ -756,6 +906,16 @@ fn merge_import(
                     uv: [uv[0]?, uv[1]?, uv[2]?],
                 })
             });
+            // Its own lightmap UVs, in the same order.
+            let lightmap = uv_mesh
+                .zip(inst.lightmap_uvs.as_ref())
+                .and_then(|(m, uvs)| {
+                    let uv = order.map(|j| uvs.get(tri[j] as usize).copied());
+                    Some(PatchLightmap {
+                        mesh: m as u32,
+                        uv: [uv[0]?, uv[1]?, uv[2]?],
+                    })
+                });
             into.patches.push(Patch {
                 name: format!("{node}/{mesh}/{}/{k}", inst.primitive),
                 surface_index,
@@ -766,20 +926,11 @@ fn merge_import(
                 albedo_map,
                 mesh: true,
                 cells: [1, 1],
+                lightmap,
             });
         }
         // The primitives of one node's mesh share its lightmap space.
-        if let Some(uvs) = &inst.lightmap_uvs {
-            let k = *uv_mesh_of.entry((inst.node, inst.mesh)).or_insert_with(|| {
-                into.uv_meshes.push(UvMesh {
-                    name: format!("{node}/{mesh}"),
-                    object,
-                    surface_index,
-                    triangles: Vec::new(),
-                    uvs: Vec::new(),
-                });
-                into.uv_meshes.len() - 1
-            });
+        if let (Some(uvs), Some(k)) = (&inst.lightmap_uvs, uv_mesh) {
             let m = &mut into.uv_meshes[k];
             for tri in &inst.indices {
                 let corner = |j: usize| {

@@ -51,7 +51,9 @@ enum Command {
         density_scale: f32,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`).
+        /// into the largest parallelograms they tile (`parallelograms`); or,
+        /// for the static meshes that have them, their own lightmap UVs
+        /// (`lightmap-uvs`, else parallelograms).
         #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
         charts: Charts,
         /// Reference: stop when one sweep adds less than this fraction of
@@ -141,7 +143,9 @@ enum BenchCommand {
         no_clusters: bool,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`).
+        /// into the largest parallelograms they tile (`parallelograms`); or,
+        /// for the static meshes that have them, their own lightmap UVs
+        /// (`lightmap-uvs`, else parallelograms).
         #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
         charts: Charts,
     },
@@ -228,7 +232,9 @@ enum BenchCommand {
         corrections: Option<u32>,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`).
+        /// into the largest parallelograms they tile (`parallelograms`); or,
+        /// for the static meshes that have them, their own lightmap UVs
+        /// (`lightmap-uvs`, else parallelograms).
         #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
         charts: Charts,
     },
@@ -267,7 +273,9 @@ enum BenchCommand {
         no_clusters: bool,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`).
+        /// into the largest parallelograms they tile (`parallelograms`); or,
+        /// for the static meshes that have them, their own lightmap UVs
+        /// (`lightmap-uvs`, else parallelograms).
         #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
         charts: Charts,
     },

@@ -36,8 +36,9 @@ pub(crate) struct ServeFlags {
     #[arg(long)]
     density_scale: Option<f32>,
     /// How a mesh's triangles get charts: each its own (`triangles`), two
-    /// that form a parallelogram one (`pairs`), or pairs merged into the
-    /// parallelograms they tile [default: parallelograms].
+    /// that form a parallelogram one (`pairs`), pairs merged into the
+    /// parallelograms they tile, or, for the static meshes that have them,
+    /// their own lightmap UVs (`lightmap-uvs`) [default: parallelograms].
     #[arg(long, value_enum)]
     charts: Option<lightwire_server::scene::Charts>,
     /// Solver per scene [default: progressive].

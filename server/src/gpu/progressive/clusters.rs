@@ -394,6 +394,7 @@ mod tests {
             w: 2,
             h: 2,
             triangle: true,
+            lightmap: None,
         };
         for j in 0..k {
             for i in 0..k {

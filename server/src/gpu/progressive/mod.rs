@@ -397,7 +397,8 @@ impl ProgressiveSolver {
         let patches = table.place(poses);
         // Scene extent at the given poses, for depth ranges and offsets.
         let extent = placement::extent(&patches);
-        let (vertices, triangle_vertices) = patch_vertices(&table.shapes, &table.objects);
+        let (vertices, triangle_vertices) =
+            patch_vertices(&table.shapes, &table.objects, table.maps());
 
         let validity = Validity::compute(scene, atlas, poses);
         let locals = non_empty(placement::local_elements(

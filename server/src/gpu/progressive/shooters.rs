@@ -13,9 +13,9 @@
 //! form factors integrate over the part of its rectangle on the triangle.
 
 use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
-use crate::atlas::Atlas;
+use crate::atlas::{Atlas, ChartMap};
 use crate::gpu::buffers::v4;
 use crate::gpu::placement::WorldPatch;
 use crate::validity::Validity;
@@ -210,8 +210,13 @@ impl Tiling<'_> {
             return;
         }
         let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
-        // A texel of the tile lies above the diagonal (b > a).
-        let crossed = |t: &[u32; 4]| t[3] - 1 > t[0];
+        // On its own chart, a texel of the tile lies above the diagonal
+        // (b > a); on a mesh's own lightmap, an edge of the triangle
+        // crosses the tile (`atlas/uv.rs`).
+        let crossed = |t: &[u32; 4]| match patch.lightmap {
+            Some(map) => !lightmap_edges(&map, *t).is_empty(),
+            None => t[3] - 1 > t[0],
+        };
         while tiles.len() < limit {
             let Some(k) = (0..tiles.len())
                 .filter(|&k| size(&tiles[k]) > 1 && crossed(&tiles[k]))
@@ -316,18 +321,40 @@ impl Tiling<'_> {
         let normal = patch.normal;
         let t1 = patch.u.normalize();
         let t2 = normal.cross(t1);
-        let (s0, s1) = (param(a0, patch.w), param(a1, patch.w));
-        let (u0, u1) = (param(b0, patch.h), param(b1, patch.h));
-        let corner = patch.origin + patch.u * s0 + patch.v * u0;
-        let su = patch.u * (s1 - s0);
-        let sv = patch.v * (u1 - u0);
-        // On a triangle, a tile the diagonal crosses keeps its part with
-        // t <= s: at (x, y) of the tile, s = s0 + x (s1 - s0) and
-        // t = u0 + y (u1 - u0). Tiles wholly below it are uncut.
-        let cut = if patch.triangle && u1 > s0 {
-            [s1 - s0, -(u1 - u0), s0 - u0]
-        } else {
-            [0.0; 3]
+        let (corner, su, sv, cut) = match patch.lightmap {
+            Some(map) => {
+                // The tile's texels' footprints, a parallelogram in patch
+                // parameters, cut by the triangle edge that crosses it
+                // (`lightmap_edges`).
+                let (c, ex, ey) = lightmap_tile(&map, [a0, b0, a1, b1]);
+                let at = |p: Vec2| patch.u * p.x + patch.v * p.y;
+                let cut = lightmap_edges(&map, [a0, b0, a1, b1])
+                    .into_iter()
+                    .min_by(|a, b| {
+                        let kept = |c: &[f32; 3]| cut_cell(*c, [0.0, 0.0], [1.0, 1.0]).0;
+                        kept(a).total_cmp(&kept(b))
+                    })
+                    .unwrap_or([0.0; 3]);
+                (patch.origin + at(c), at(ex), at(ey), cut)
+            }
+            None => {
+                let (s0, s1) = (param(a0, patch.w), param(a1, patch.w));
+                let (u0, u1) = (param(b0, patch.h), param(b1, patch.h));
+                // On a triangle, a tile the diagonal crosses keeps its part
+                // with t <= s: at (x, y) of the tile, s = s0 + x (s1 - s0)
+                // and t = u0 + y (u1 - u0). Tiles wholly below it are uncut.
+                let cut = if patch.triangle && u1 > s0 {
+                    [s1 - s0, -(u1 - u0), s0 - u0]
+                } else {
+                    [0.0; 3]
+                };
+                (
+                    patch.origin + patch.u * s0 + patch.v * u0,
+                    patch.u * (s1 - s0),
+                    patch.v * (u1 - u0),
+                    cut,
+                )
+            }
         };
         let mut area = 0.0;
         // The hemicube eye sits over the area-weighted centroid of the
@@ -484,6 +511,53 @@ impl Tiling<'_> {
 /// Most tiles a grid of `gx` x `gy` shooters may become once the tiles at
 /// contacts are split ([`Tiling::split_contacts`]): one and a half times
 /// the grid, within `capacity`.
+/// A tile `[a0, b0, a1, b1)` of a chart on a mesh's own lightmap
+/// (`atlas/uv.rs`): its texels' footprints `[a0 - 1/2, a1 - 1/2] x [b0 -
+/// 1/2, b1 - 1/2]` in chart coordinates as a parallelogram in patch
+/// parameters, `corner + x ex + y ey` for `x, y` in `[0, 1]`.
+fn lightmap_tile(map: &ChartMap, [a0, b0, a1, b1]: [u32; 4]) -> (Vec2, Vec2, Vec2) {
+    let param = |a: u32, b: u32| {
+        map.to_param(Vec2::new(a as f32 - 0.5, b as f32 - 0.5))
+            .unwrap_or(Vec2::ZERO)
+    };
+    let c = param(a0, b0);
+    (c, param(a1, b0) - c, param(a0, b1) - c)
+}
+
+/// The edges of the triangle (the half `t <= s` of its frame, `s <= 1`,
+/// `t >= 0`) that cross tile `tile` of a chart on a mesh's own lightmap,
+/// each as the cut `(a, b, c)` in the tile's coordinates that keeps the
+/// triangle's side (`a x + b y + c >= 0`). A shooter takes one cut
+/// (`Shooter` in common.wgsl): tiles an edge crosses are split first, down
+/// to single texels as far as the shooter count allows, and a tile that two
+/// edges cross (at a corner of the triangle) keeps the cut that leaves the
+/// least of it: its region then reaches a little beyond the triangle (its
+/// power is its elements', exact either way).
+fn lightmap_edges(map: &ChartMap, tile: [u32; 4]) -> Vec<[f32; 3]> {
+    let (c, ex, ey) = lightmap_tile(map, tile);
+    // h(s, t) = α s + β t + γ >= 0 on the triangle.
+    let edges = [[1.0, -1.0, 0.0], [-1.0, 0.0, 1.0], [0.0, 1.0, 0.0f32]];
+    edges
+        .into_iter()
+        .map(|[al, be, ga]| {
+            [
+                al * ex.x + be * ex.y,
+                al * ey.x + be * ey.y,
+                al * c.x + be * c.y + ga,
+            ]
+        })
+        .filter(|&[a, b, k]| {
+            let h = [k, a + k, a + b + k, b + k];
+            let (lo, hi) = h
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                    (lo.min(v), hi.max(v))
+                });
+            lo < 0.0 && hi > 0.0 && (a != 0.0 || b != 0.0)
+        })
+        .collect()
+}
+
 pub(super) fn contact_limit((gx, gy): (u32, u32), capacity: u32) -> usize {
     ((3 * gx * gy).div_ceil(2)).min(capacity) as usize
 }

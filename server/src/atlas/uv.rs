@@ -1,0 +1,264 @@
+//! Triangles lit on their mesh's own lightmap UVs (`TEXCOORD_1`,
+//! `Charts::LightmapUvs`; wallner §2 solves on per-triangle lightmaps packed
+//! into an atlas, here the packing is the asset's).
+//!
+//! A mesh's lightmap `[0, 1]²` is one square block of the atlas, `side`
+//! texels a side ([`block_side`]: the density of its patches over its
+//! surface). A triangle's chart is the rectangle of the block's texels whose
+//! footprint overlaps its UV triangle, grown by one texel on every side (so
+//! that a bilinear read anywhere on the triangle finds filled texels), and
+//! each of those texels is an element of the triangle: its area is the part
+//! of the footprint the triangle covers (zero for the padding, which
+//! validity marks invalid and dilation fills), its sample point the point
+//! of the triangle nearest to the texel's centre (the centre itself when it
+//! lies on the triangle). A texel that two triangles both cover is an
+//! element of each, sampled on its own triangle; they form a group that is
+//! stitched (set to its mean) on publication as a seam's texels are, and
+//! the texel shows that mean ([`super::Atlas::to_image`] writes the one
+//! element that owns it, the one covering most of it).
+//!
+//! Patch parameters `(s, t)` map to a chart's texel coordinates (centres at
+//! integers) by an affine [`ChartMap`]; on Lightwire's own charts that is
+//! `(s (w - 1), t (h - 1))`.
+
+use glam::{DVec2, Vec2};
+
+use crate::scene::{Scene, UvMesh};
+
+/// The side of a mesh's lightmap block is at most this many texels.
+pub const MAX_SIDE: u32 = 4096;
+
+/// Affine map from patch parameters `(s, t)` to a chart's texel
+/// coordinates, texel `(a, b)`'s centre at `(a, b)`: `origin + s ds + t dt`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChartMap {
+    pub origin: Vec2,
+    pub ds: Vec2,
+    pub dt: Vec2,
+}
+
+impl ChartMap {
+    /// Lightwire's own chart of `w x h` texels: `s = a / (w - 1)`.
+    pub fn native(w: u32, h: u32) -> Self {
+        Self {
+            origin: Vec2::ZERO,
+            ds: Vec2::new(w.saturating_sub(1) as f32, 0.0),
+            dt: Vec2::new(0.0, h.saturating_sub(1) as f32),
+        }
+    }
+
+    /// Texel coordinates of the point at patch parameters `st`.
+    pub fn to_chart(&self, st: Vec2) -> Vec2 {
+        self.origin + self.ds * st.x + self.dt * st.y
+    }
+
+    /// Patch parameters of texel coordinates `xy` (the inverse map), or
+    /// `None` for a degenerate map.
+    pub fn to_param(&self, xy: Vec2) -> Option<Vec2> {
+        let det = f64::from(self.ds.perp_dot(self.dt));
+        if det.abs() <= 1e-12 {
+            return None;
+        }
+        let d = (xy - self.origin).as_dvec2();
+        let (ds, dt) = (self.ds.as_dvec2(), self.dt.as_dvec2());
+        Some(DVec2::new(d.perp_dot(dt) / det, ds.perp_dot(d) / det).as_vec2())
+    }
+}
+
+/// The side of the square lightmap block that gives `mesh` about the texel
+/// density of its patches: `density × sqrt(surface area / UV area)`, rounded
+/// up to a multiple of 4, between 16 and [`MAX_SIDE`]. `lightwire bake`'s
+/// resampled lightmaps (`crate::uvmap`) take the same size.
+pub fn block_side(scene: &Scene, mesh: &UvMesh) -> u32 {
+    let area: f32 = mesh
+        .triangles
+        .iter()
+        .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
+        .sum();
+    let uv_area: f32 = mesh.uvs.iter().map(|t| uv_area(t).abs()).sum();
+    let density = scene
+        .patches
+        .iter()
+        .find(|p| p.object == mesh.object && p.surface_index == mesh.surface_index)
+        .map_or(scene.texel_density, |p| p.texel_density);
+    let side = density * (area / uv_area.max(1e-12)).sqrt();
+    let side = if side.is_finite() {
+        side.ceil() as u32
+    } else {
+        MAX_SIDE
+    };
+    side.div_ceil(4).saturating_mul(4).clamp(16, MAX_SIDE)
+}
+
+/// Signed area of a UV triangle (positive counter-clockwise).
+pub fn uv_area([a, b, c]: &[Vec2; 3]) -> f32 {
+    0.5 * (*b - *a).perp_dot(*c - *a)
+}
+
+/// The chart of a triangle whose corners lie at `q` (texel coordinates of
+/// its block, texel `(i, j)` covering `[i, i + 1] x [j, j + 1]`): the first
+/// texel and the size of the rectangle of texels its footprint overlaps,
+/// grown by one on every side, inside the block's `side` x `side`, at least
+/// 2 x 2.
+pub fn triangle_chart(q: &[Vec2; 3], side: u32) -> ([u32; 2], [u32; 2]) {
+    let last = side.saturating_sub(1) as f32;
+    let axis = |k: usize| {
+        let lo = q.iter().map(|p| p[k]).fold(f32::INFINITY, f32::min);
+        let hi = q.iter().map(|p| p[k]).fold(f32::NEG_INFINITY, f32::max);
+        let first = (lo.floor() - 1.0).clamp(0.0, last) as u32;
+        let end = ((hi.ceil() - 1.0) + 1.0).clamp(0.0, last) as u32;
+        let end = end.max(first + 1).min(side.saturating_sub(1));
+        let first = first.min(end.saturating_sub(1));
+        (first, end - first + 1)
+    };
+    let (x, w) = axis(0);
+    let (y, h) = axis(1);
+    ([x, y], [w, h])
+}
+
+/// The part of texel `(i, j)`'s footprint that the triangle `q` (texel
+/// coordinates, either winding) covers: its area in texels² and its
+/// corners (empty when it covers none).
+pub fn covered(q: &[Vec2; 3], i: u32, j: u32) -> (f64, Vec<DVec2>) {
+    let (x0, y0) = (f64::from(i), f64::from(j));
+    let mut poly: Vec<DVec2> = q.iter().map(|p| p.as_dvec2()).collect();
+    if uv_area(q) < 0.0 {
+        poly.reverse();
+    }
+    // Sutherland–Hodgman against the footprint's four sides: keep
+    // `sign * (p[axis] - bound) >= 0`.
+    for (axis, bound, sign) in [
+        (0, x0, 1.0),
+        (0, x0 + 1.0, -1.0),
+        (1, y0, 1.0),
+        (1, y0 + 1.0, -1.0),
+    ] {
+        if poly.is_empty() {
+            break;
+        }
+        let inside = |p: DVec2| sign * (p[axis] - bound) >= 0.0;
+        let mut out = Vec::with_capacity(poly.len() + 2);
+        for k in 0..poly.len() {
+            let (p, r) = (poly[k], poly[(k + 1) % poly.len()]);
+            if inside(p) {
+                out.push(p);
+            }
+            if inside(p) != inside(r) {
+                let f = (bound - p[axis]) / (r[axis] - p[axis]);
+                out.push(p + (r - p) * f);
+            }
+        }
+        poly = out;
+    }
+    let mut twice = 0.0;
+    for k in 0..poly.len() {
+        twice += poly[k].perp_dot(poly[(k + 1) % poly.len()]);
+    }
+    let area = 0.5 * twice.abs();
+    if poly.len() < 3 || area <= 1e-12 {
+        return (0.0, Vec::new());
+    }
+    (area, poly)
+}
+
+/// The point of triangle `q` nearest to `p` (`p` itself when inside).
+pub fn nearest_on_triangle(q: &[Vec2; 3], p: Vec2) -> Vec2 {
+    let q = q.map(|c| c.as_dvec2());
+    let p = p.as_dvec2();
+    let orientation = (q[1] - q[0]).perp_dot(q[2] - q[0]).signum();
+    let inside = (0..3).all(|k| {
+        let (a, b) = (q[k], q[(k + 1) % 3]);
+        orientation * (b - a).perp_dot(p - a) >= 0.0
+    });
+    if inside || orientation == 0.0 && (q[0] - p).length() == 0.0 {
+        return p.as_vec2();
+    }
+    let on_edge = |a: DVec2, b: DVec2| {
+        let d = b - a;
+        let f = if d.length_squared() > 0.0 {
+            ((p - a).dot(d) / d.length_squared()).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        a + d * f
+    };
+    (0..3)
+        .map(|k| on_edge(q[k], q[(k + 1) % 3]))
+        .min_by(|a, b| {
+            (*a - p)
+                .length_squared()
+                .total_cmp(&(*b - p).length_squared())
+        })
+        .unwrap_or(q[0])
+        .as_vec2()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chart_maps_invert() {
+        let map = ChartMap {
+            origin: Vec2::new(1.5, -0.5),
+            ds: Vec2::new(3.0, 1.0),
+            dt: Vec2::new(-0.5, 2.0),
+        };
+        for st in [Vec2::ZERO, Vec2::new(1.0, 0.0), Vec2::new(0.3, 0.7)] {
+            let back = map.to_param(map.to_chart(st)).expect("invertible");
+            assert!((back - st).length() < 1e-5, "{st} -> {back}");
+        }
+        let native = ChartMap::native(5, 3);
+        assert_eq!(native.to_chart(Vec2::new(1.0, 1.0)), Vec2::new(4.0, 2.0));
+    }
+
+    #[test]
+    fn covered_parts_of_texels_sum_to_the_triangle() {
+        let q = [
+            Vec2::new(0.3, 0.2),
+            Vec2::new(5.7, 1.1),
+            Vec2::new(2.2, 4.9),
+        ];
+        let ([x, y], [w, h]) = triangle_chart(&q, 16);
+        let mut sum = 0.0;
+        for j in y..y + h {
+            for i in x..x + w {
+                sum += covered(&q, i, j).0;
+            }
+        }
+        assert!((sum - f64::from(uv_area(&q))).abs() < 1e-5, "{sum}");
+        // The padding: every texel around the footprint's rectangle is empty.
+        assert_eq!([x, y], [0, 0]);
+        assert_eq!([w, h], [7, 6]);
+        assert_eq!(covered(&q, 6, 0).0, 0.0);
+        // Clockwise the same.
+        let r = [q[0], q[2], q[1]];
+        assert!((covered(&r, 2, 2).0 - covered(&q, 2, 2).0).abs() < 1e-12);
+        assert!(
+            (covered(&q, 2, 2).0 - 1.0).abs() < 1e-12,
+            "an inner texel is whole"
+        );
+    }
+
+    #[test]
+    fn nearest_points_lie_on_the_triangle() {
+        let q = [
+            Vec2::new(0.0, 0.0),
+            Vec2::new(4.0, 0.0),
+            Vec2::new(0.0, 4.0),
+        ];
+        assert_eq!(
+            nearest_on_triangle(&q, Vec2::new(1.0, 1.0)),
+            Vec2::new(1.0, 1.0)
+        );
+        assert_eq!(
+            nearest_on_triangle(&q, Vec2::new(1.0, -2.0)),
+            Vec2::new(1.0, 0.0)
+        );
+        assert_eq!(
+            nearest_on_triangle(&q, Vec2::new(3.0, 3.0)),
+            Vec2::new(2.0, 2.0)
+        );
+        assert_eq!(nearest_on_triangle(&q, Vec2::new(-1.0, -1.0)), Vec2::ZERO);
+    }
+}
