@@ -53,6 +53,7 @@ fn scene() -> SceneInfo {
                 [0.0, 0.0, 1.0],
             ],
             rect: [0, 0, 10, 9],
+            uvs: Vec::new(),
         }],
     }
 }

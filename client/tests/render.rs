@@ -43,6 +43,7 @@ fn quad(name: &str, object: u32, origin: Vec3, u: Vec3, v: Vec3, rect: [u32; 4])
         material: 0,
         corners: [origin, origin + u, origin + u + v, origin + v].map(|c| c.to_array()),
         rect,
+        uvs: Vec::new(),
     }
 }
 
@@ -487,4 +488,49 @@ fn bad_input_is_refused_with_a_reason() {
     let err = Renderer::new(Some("no-such-adapter-name")).unwrap_err();
     assert!(matches!(err, RenderError::NoMatchingAdapter { .. }));
     assert!(err.to_string().contains("available: \""), "{err}");
+}
+
+/// Protocol 3: a surface with `uvs` is drawn with them, not with its
+/// `rect`. A quad whose lightmap coordinates are its chart turned a
+/// quarter and sheared (an affine map, as a mesh's own lightmap UVs are
+/// over each of its triangles) over a poisoned atlas: the GPU image matches
+/// the reference, which reads the atlas at the coordinates `uvs` give.
+#[test]
+fn a_surface_with_its_own_lightmap_coordinates_is_drawn_with_them() {
+    let mut renderer = Renderer::new(None).unwrap();
+    let (aw, ah) = (16u32, 16u32);
+    let mut surface = quad(
+        "q",
+        0,
+        Vec3::new(-0.6, -0.5, 0.0),
+        Vec3::X * 1.2,
+        Vec3::Y,
+        [2, 2, 10, 10],
+    );
+    // Texel coordinates of the corners (centres at +0.5), then normalized:
+    // u runs down the atlas, v runs right and a little down.
+    let corners = [[3.5, 3.5], [3.5, 10.5], [9.5, 12.5], [9.5, 5.5]];
+    surface.uvs = corners
+        .iter()
+        .map(|[x, y]: &[f32; 2]| [x / aw as f32, y / ah as f32])
+        .collect();
+    let s = scene(
+        (aw, ah),
+        vec![object("static", Pose::IDENTITY)],
+        vec![surface],
+    );
+    let mut texels = vec![POISON; (aw * ah) as usize];
+    for y in 2..14 {
+        for x in 2..12 {
+            let v = 0.05 + 0.07 * x as f32 + 0.011 * (y * y) as f32;
+            texels[(y * aw + x) as usize] = [v, 0.3 + 0.02 * y as f32, 1.0 / v];
+        }
+    }
+    let cam = camera("eye=0.4,0.3,2;target=0,0,0;fov=50");
+    let (compared, worst, _, _) = compare(&mut renderer, &s, &texels, &cam, (96, 72), 1.0);
+    assert!(
+        compared > 1000,
+        "the quad is large in the frame: {compared}"
+    );
+    eprintln!("own lightmap coordinates: {compared} pixels, max difference {worst} levels");
 }

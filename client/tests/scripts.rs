@@ -71,6 +71,7 @@ fn scene_info(path: &Path) -> SceneInfo {
                 material: 0,
                 corners,
                 rect: [0; 4],
+                uvs: Vec::new(),
             });
         }
     }

@@ -92,6 +92,95 @@ pub fn encode_server(msg: &ServerMessage) -> Vec<u8> {
     encode(msg)
 }
 
+/// Encodes a `Welcome` for a peer that announced protocol `version`: the
+/// message as it is for [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION); for
+/// version 2 with its `protocol_version` set to 2 and every `SurfaceInfo`
+/// without `uvs`, which version 2 does not have, or `None` when a surface
+/// needs them (the client could not draw it) or `msg` is no `Welcome`.
+pub fn encode_welcome_for(version: u16, msg: &ServerMessage) -> Option<Vec<u8>> {
+    let ServerMessage::Welcome {
+        server,
+        role,
+        capabilities,
+        scene,
+        ..
+    } = msg
+    else {
+        return None;
+    };
+    if version == crate::PROTOCOL_VERSION {
+        return Some(encode(msg));
+    }
+    if version != 2 || scene.surfaces.iter().any(|s| !s.uvs.is_empty()) {
+        return None;
+    }
+    let welcome = v2::ServerMessage::Welcome {
+        protocol_version: 2,
+        server: server.clone(),
+        role: *role,
+        capabilities: *capabilities,
+        scene: v2::SceneInfo {
+            id: scene.id.clone(),
+            atlas_width: scene.atlas_width,
+            atlas_height: scene.atlas_height,
+            tile_size: scene.tile_size,
+            format: scene.format,
+            objects: scene.objects.clone(),
+            materials: scene.materials.clone(),
+            surfaces: scene
+                .surfaces
+                .iter()
+                .map(|s| v2::SurfaceInfo {
+                    name: s.name.clone(),
+                    object: s.object,
+                    material: s.material,
+                    corners: s.corners,
+                    rect: s.rect,
+                })
+                .collect(),
+        },
+    };
+    Some(encode(&welcome))
+}
+
+/// Version 2's `Welcome`, for [`encode_welcome_for`]: `SurfaceInfo` without
+/// `uvs`. `Welcome` is variant 0 of `ServerMessage` in both versions.
+mod v2 {
+    use crate::messages::{MaterialInfo, ObjectInfo, PixelFormat, Role};
+
+    #[derive(bincode::Encode)]
+    pub enum ServerMessage {
+        Welcome {
+            protocol_version: u16,
+            server: String,
+            role: Role,
+            capabilities: u32,
+            scene: SceneInfo,
+        },
+    }
+
+    #[derive(bincode::Encode)]
+    pub struct SceneInfo {
+        pub id: String,
+        pub atlas_width: u32,
+        pub atlas_height: u32,
+        pub tile_size: u16,
+        pub format: PixelFormat,
+        pub objects: Vec<ObjectInfo>,
+        pub materials: Vec<MaterialInfo>,
+        pub surfaces: Vec<SurfaceInfo>,
+    }
+
+    #[derive(bincode::Encode)]
+    pub struct SurfaceInfo {
+        pub name: String,
+        pub object: u32,
+        pub material: u32,
+        pub corners: [[f32; 3]; 4],
+        pub rect: [u32; 4],
+    }
+}
+
 /// Decodes one client frame. Never panics, whatever the bytes.
 pub fn decode_client(bytes: &[u8]) -> Result<ClientMessage, DecodeError> {
     decode(bytes, "ClientMessage")

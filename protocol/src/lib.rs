@@ -46,7 +46,9 @@ pub mod messages;
 pub mod script;
 pub mod tone;
 
-pub use codec::{DecodeError, decode_client, decode_server, encode_client, encode_server};
+pub use codec::{
+    DecodeError, decode_client, decode_server, encode_client, encode_server, encode_welcome_for,
+};
 pub use error_code::ErrorCode;
 pub use messages::{
     ClientMessage, Delta, Keyframe, MaterialInfo, ObjectInfo, ObjectPose, ObjectSeq, PixelFormat,
@@ -59,7 +61,17 @@ pub use messages::{
 /// Version 2 (from 1): `Delta` tiles are residuals onto the tile a receiver
 /// holds instead of the tile's new texels (PROTOCOL.md §5); no message
 /// layout changed.
-pub const PROTOCOL_VERSION: u16 = 2;
+///
+/// Version 3 (from 2): `SurfaceInfo` ends with `uvs`, its corners'
+/// lightmap coordinates where they do not follow from its rectangle (a
+/// triangle lit on its mesh's own lightmap UVs). A server still answers a
+/// version 2 client ([`MIN_PROTOCOL_VERSION`], [`encode_welcome_for`]) on
+/// every scene that has no such surface.
+pub const PROTOCOL_VERSION: u16 = 3;
+
+/// The oldest version a server answers: version 2 clients get a version 2
+/// `Welcome` (without `SurfaceInfo::uvs`), on scenes that need none.
+pub const MIN_PROTOCOL_VERSION: u16 = 2;
 
 /// `Welcome.capabilities` bit: the server serves the scene's geometry as
 /// glTF binary at `/api/scenes/{id}/scene.glb` on the host and port of the
@@ -101,8 +113,10 @@ pub fn scene_glb_path(id: &str) -> String {
 /// The `UnsupportedVersion` message for a peer that announced `theirs`:
 /// what this side speaks and what to do about it.
 pub fn version_mismatch(theirs: u16) -> String {
-    let what = if theirs < PROTOCOL_VERSION {
+    let what = if theirs < MIN_PROTOCOL_VERSION {
         "the client is older than this server: since version 2, delta tiles are residuals onto the tile the client holds, which a version 1 client would draw as texels; upgrade the client"
+    } else if theirs < PROTOCOL_VERSION {
+        "this scene has triangles lit on their mesh's own lightmap UVs, whose texture coordinates only version 3's SurfaceInfo carries; upgrade the client"
     } else {
         "the client is newer than this server; upgrade the server or use a client that speaks this version"
     };

@@ -294,6 +294,33 @@ pub struct SurfaceInfo {
     pub corners: [[f32; 3]; 4],
     /// Atlas rectangle: x, y, width, height in texels.
     pub rect: [u32; 4],
+    /// Lightmap coordinates of the four corners, normalized (`u = x /
+    /// atlas_width`, `v = y / atlas_height`, v = 0 the atlas's first row),
+    /// when they do not follow from `rect` (a triangle lit on its mesh's
+    /// own lightmap UVs); empty otherwise. Since version 3.
+    pub uvs: Vec<[f32; 2]>,
+}
+
+impl SurfaceInfo {
+    /// The lightmap coordinates of the four corners as a client draws
+    /// them: `uvs` when it holds four, else corner 0 at the centre of texel
+    /// (x, y) of `rect`, corner 1 of (x + w - 1, y), corner 2 of (x + w - 1,
+    /// y + h - 1), corner 3 of (x, y + h - 1) (PROTOCOL.md §3).
+    pub fn corner_uvs(&self, atlas_width: u32, atlas_height: u32) -> [[f32; 2]; 4] {
+        if let [a, b, c, d] = self.uvs[..] {
+            return [a, b, c, d];
+        }
+        let [x, y, w, h] = self.rect.map(f64::from);
+        let (aw, ah) = (
+            f64::from(atlas_width.max(1)),
+            f64::from(atlas_height.max(1)),
+        );
+        let u0 = ((x + 0.5) / aw) as f32;
+        let u1 = ((x + w - 0.5) / aw) as f32;
+        let v0 = ((y + 0.5) / ah) as f32;
+        let v1 = ((y + h - 0.5) / ah) as f32;
+        [[u0, v0], [u1, v0], [u1, v1], [u0, v1]]
+    }
 }
 
 /// How a texel is stored in a tile payload.

@@ -78,13 +78,19 @@ fn layout_by_hand() {
     assert_eq!(read_vector("client_ping"), hex("03fcefbeadde"));
     // Resync: variant 2, Option tag 1, 42.
     assert_eq!(read_vector("client_resync_some"), hex("02012a"));
-    // Hello: variant 0, version 2, "lw/1", Some("t0k"), capabilities 0.
+    // Hello: variant 0, version 3, "lw/1", Some("t0k"), capabilities 0.
     assert_eq!(
         read_vector("client_hello"),
         hex(concat!(
-            "00", "02", "04", "6c772f31", "01", "03", "74306b", "00"
+            "00", "03", "04", "6c772f31", "01", "03", "74306b", "00"
         ))
     );
+    // A surface's uvs: vector length 4, then (u, v) as two f32 LE each.
+    let uvs = concat!(
+        "04", "0000803e", "0000403f", "0000403f", "0000403f", "0000003f", "0000803e", "0000003f",
+        "0000803e"
+    );
+    assert!(to_hex(&read_vector("server_welcome_uvs")).ends_with(uvs));
     // Error: variant 4, code 1000 as varint 0xFB + u16 LE, "future".
     assert_eq!(
         read_vector("server_error_unknown_code"),
@@ -163,4 +169,41 @@ fn recorded_sequences_reconstruct_their_final_state() {
         merged.apply_delta(&m).expect("the merge applies");
         assert_eq!(merged.texels, final_texels, "{}: through the merge", e.name);
     }
+}
+
+/// A version 3 server answers a version 2 client with version 2's
+/// `Welcome` (`SurfaceInfo` without `uvs`): `tests/vectors/v2/` holds the
+/// bytes version 2 committed, which it must reproduce, and it refuses when a
+/// surface needs `uvs`.
+#[test]
+fn a_version_2_client_gets_version_2_s_welcome() {
+    let welcome = |capabilities: u32, scene: SceneInfo| ServerMessage::Welcome {
+        protocol_version: PROTOCOL_VERSION,
+        server: "lightwire/0.1".into(),
+        role: Role::Driver,
+        capabilities,
+        scene,
+    };
+    for (name, capabilities) in [
+        ("server_welcome", 0),
+        ("server_welcome_poses", CAP_SCENE_GLB | CAP_POSES),
+    ] {
+        let path = vector_dir().join("v2").join(format!("{name}.bin"));
+        let committed = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let bytes = encode_welcome_for(2, &welcome(capabilities, vectors::scene()))
+            .unwrap_or_else(|| panic!("{name}: no surface needs uvs"));
+        assert_eq!(to_hex(&bytes), to_hex(&committed), "{name}");
+        // The version 3 bytes are the same plus `uvs` (an empty vector, one
+        // byte) and the version.
+        let v3 = encode_welcome_for(PROTOCOL_VERSION, &welcome(capabilities, vectors::scene()))
+            .expect("a Welcome");
+        assert_eq!(v3, read_vector(name));
+        assert_eq!(v3.len(), bytes.len() + 1);
+    }
+    assert!(
+        encode_welcome_for(2, &welcome(0, vectors::scene_with_uvs())).is_none(),
+        "a surface with uvs cannot be described to a version 2 client"
+    );
+    assert!(encode_welcome_for(1, &welcome(0, vectors::scene())).is_none());
+    assert!(encode_welcome_for(2, &ServerMessage::Pong { nonce: 1 }).is_none());
 }

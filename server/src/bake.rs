@@ -44,6 +44,27 @@ pub struct AtlasSurface {
     /// World-space corners at the baked poses: origin, origin+u,
     /// origin+u+v, origin+v (a triangle repeats its third corner).
     pub corners: [[f32; 3]; 4],
+    /// The corners' lightmap coordinates when they do not follow from
+    /// `rect` (a triangle lit on its mesh's own lightmap UVs), as the
+    /// wire's `SurfaceInfo::uvs`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub uvs: Vec<[f32; 2]>,
+}
+
+/// The lightmap coordinates of patch `p`'s four corners (as
+/// `PatchShape::quad_corners` lists them) when it is a triangle lit on its
+/// mesh's own lightmap UVs, normalized as the wire's `SurfaceInfo::uvs`;
+/// empty otherwise (they follow from its chart's rectangle).
+pub fn corner_uvs(atlas: &Atlas, p: usize) -> Vec<[f32; 2]> {
+    let Some(map) = atlas.lightmap_maps.get(p).copied().flatten() else {
+        return Vec::new();
+    };
+    let c = atlas.charts[p];
+    let size = Vec2::new(atlas.width as f32, atlas.height as f32);
+    let base = Vec2::new(c.x as f32 + 0.5, c.y as f32 + 0.5);
+    [Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::ONE]
+        .map(|st| ((base + map.to_chart(st)) / size).to_array())
+        .to_vec()
 }
 
 /// `atlas.json`.
@@ -58,6 +79,26 @@ pub struct AtlasFile {
     /// instance with `TEXCOORD_1`; absent when there are none.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub uv_lightmaps: Vec<UvLightmapEntry>,
+    /// The meshes lit on their own lightmap UVs (`--charts lightmap-uvs`):
+    /// where each one's `[0, 1]²` lies in the atlas (an engine drawing its
+    /// own mesh maps `TEXCOORD_1` into it, as Bevy's `Lightmap::uv_rect`
+    /// does); absent when there are none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lightmap_blocks: Vec<LightmapBlock>,
+}
+
+/// A mesh's lightmap block in the atlas, in `atlas.json`.
+#[derive(Debug, Serialize)]
+pub struct LightmapBlock {
+    /// `node/mesh` (`scene::UvMesh::name`), or the scene file's surface.
+    pub mesh: String,
+    /// The block in atlas texels: its `[0, 1]²` spans `[x, x + size] x [y,
+    /// y + size]` (texel edges, not centres).
+    pub x: u32,
+    pub y: u32,
+    pub size: u32,
+    /// The same as normalized atlas coordinates: `[u0, v0, u1, v1]`.
+    pub uv_rect: [f32; 4],
 }
 
 /// Per glTF mesh instance with its own lightmap UVs, in `atlas.json`.
@@ -139,7 +180,8 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
             .patches
             .iter()
             .zip(&atlas.charts)
-            .map(|(p, chart)| AtlasSurface {
+            .enumerate()
+            .map(|(k, (p, chart))| AtlasSurface {
                 name: p.name.clone(),
                 object: scene.objects[p.object as usize].name.clone(),
                 material: scene.materials[p.material as usize].name.clone(),
@@ -149,9 +191,31 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
                     .transformed(&poses[p.object as usize])
                     .quad_corners()
                     .map(|c| c.to_array()),
+                uvs: corner_uvs(atlas, k),
             })
             .collect(),
         uv_lightmaps: Vec::new(),
+        lightmap_blocks: scene
+            .uv_meshes
+            .iter()
+            .zip(&atlas.blocks)
+            .filter_map(|(mesh, block)| {
+                let b = (*block)?;
+                let (w, h) = (atlas.width as f32, atlas.height as f32);
+                Some(LightmapBlock {
+                    mesh: mesh.name.clone(),
+                    x: b.x,
+                    y: b.y,
+                    size: b.w,
+                    uv_rect: [
+                        b.x as f32 / w,
+                        b.y as f32 / h,
+                        (b.x + b.w) as f32 / w,
+                        (b.y + b.h) as f32 / h,
+                    ],
+                })
+            })
+            .collect(),
     }
 }
 
@@ -354,36 +418,17 @@ pub fn describe(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> SceneInfo {
             .patches
             .iter()
             .zip(&atlas.charts)
-            .map(|(p, c)| SurfaceInfo {
+            .enumerate()
+            .map(|(k, (p, c))| SurfaceInfo {
                 name: p.name.clone(),
                 object: p.object,
                 material: p.material,
                 corners: p.shape.quad_corners().map(|c| c.to_array()),
                 rect: [c.x, c.y, c.w, c.h],
+                uvs: corner_uvs(atlas, k),
             })
             .collect(),
     }
-}
-
-/// The lightmap coordinates of a chart's four corners as every client
-/// draws them (PROTOCOL.md §3; `client/src/render/geometry.rs`
-/// `chart_uvs`, `view3d.js`): corner 0 at the centre of texel (x, y),
-/// corner 1 of (x + w - 1, y), corner 2 of (x + w - 1, y + h - 1), corner 3
-/// of (x, y + h - 1). glTF's UV origin is the image's first row, as the
-/// atlas's, so v is not flipped.
-pub fn chart_uvs(rect: [u32; 4], atlas_width: u32, atlas_height: u32) -> [Vec2; 4] {
-    let [x, y, w, h] = rect.map(f64::from);
-    let (aw, ah) = (f64::from(atlas_width), f64::from(atlas_height));
-    let u0 = ((x + 0.5) / aw) as f32;
-    let u1 = ((x + w - 0.5) / aw) as f32;
-    let v0 = ((y + 0.5) / ah) as f32;
-    let v1 = ((y + h - 0.5) / ah) as f32;
-    [
-        Vec2::new(u0, v0),
-        Vec2::new(u1, v0),
-        Vec2::new(u1, v1),
-        Vec2::new(u0, v1),
-    ]
 }
 
 /// `scene.glb`: the scene described by `info` with the lightmap `rgb`
@@ -404,7 +449,7 @@ pub fn chart_uvs(rect: [u32; 4], atlas_width: u32, atlas_height: u32) -> [Vec2; 
 ///   Per vertex: POSITION (object space), NORMAL (the surface's),
 ///   `TEXCOORD_0` (metres along the surface's first and second edge, for an
 ///   engine's own textures) and `TEXCOORD_1`, the chart's corner texel
-///   centres ([`chart_uvs`]), so the lightmap lines up exactly as in the
+///   centres (`SurfaceInfo::corner_uvs`), so the lightmap lines up exactly as in the
 ///   clients.
 /// - The light: every material is `KHR_materials_unlit` with the
 ///   tone-mapped lightmap (the one tone curve, [`tone_map`]) as its base
@@ -458,6 +503,15 @@ pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Re
         if !corners.iter().all(|c| c.is_finite()) {
             bail!("{} has a corner that is not a finite number", what());
         }
+        if !(s.uvs.is_empty()
+            || s.uvs.len() == 4 && s.uvs.iter().flatten().all(|x| (0.0..=1.0).contains(x)))
+        {
+            bail!(
+                "{} has {} lightmap coordinates: give none or four, each in [0, 1]",
+                what(),
+                s.uvs.len()
+            );
+        }
         // PROTOCOL.md §3: a triangle is a quad with its third corner repeated.
         let triangle = corners[2] == corners[3];
         let normal = (corners[1] - corners[0])
@@ -473,7 +527,9 @@ pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Re
             Vec2::new(a, b),
             Vec2::new(0.0, b),
         ];
-        let uvs = chart_uvs(s.rect, aw, ah);
+        // PROTOCOL.md §3; glTF's UV origin is the image's first row, as
+        // the atlas's, so v is not flipped.
+        let uvs = s.corner_uvs(aw, ah).map(Vec2::from);
         let p = parts[s.object as usize]
             .entry(s.material)
             .or_insert_with(|| GlbPrimitive {

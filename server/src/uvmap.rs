@@ -10,7 +10,7 @@
 //! takes the solved light at the surface point that centre stands for,
 //! read from the atlas bilinearly between texel centres exactly as a
 //! client reads the atlas through the charts' corner UVs
-//! (`bake::chart_uvs`). Pixels within [`PADDING`] pixels of a triangle
+//! (`SurfaceInfo::corner_uvs`). Pixels within [`PADDING`] pixels of a triangle
 //! take the light at its nearest point, so that a bilinear (or
 //! mip-mapped, a level or two) read near a chart's border never blends in
 //! the empty space around it; the rest stay black.
@@ -278,7 +278,7 @@ pub fn resample(
             continue;
         };
         let chart = &atlas.charts[k];
-        // Atlas pixel coordinates of the corners (`bake::chart_uvs`: the
+        // Atlas pixel coordinates of the corners (`SurfaceInfo::corner_uvs`: the
         // chart's corner texels' centres are the patch's corners; on a
         // mesh's own lightmap, its chart map, `atlas/uv.rs`).
         let map = atlas.chart_map(k as u32);

@@ -303,6 +303,12 @@ fn a_description_that_does_not_fit_is_an_error() {
     let mut bad = info.clone();
     bad.surfaces[2].corners[1][0] = f32::NAN;
     assert!(error(&bad, &rgb).contains("finite"));
+    let mut bad = info.clone();
+    bad.surfaces[0].uvs = vec![[0.5, 0.5]; 3];
+    assert!(error(&bad, &rgb).contains("3 lightmap coordinates"));
+    let mut bad = info.clone();
+    bad.surfaces[0].uvs = vec![[0.5, 1.5]; 4];
+    assert!(error(&bad, &rgb).contains("each in [0, 1]"));
     let mut bad = info;
     bad.objects[1].pose.scale = 0.0;
     assert!(error(&bad, &rgb).contains("pose"));
@@ -433,4 +439,105 @@ fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
         "the validator accepted an undeclared extension: {text}"
     );
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Issue 18, items 2 and 6: a mesh lit on its own lightmap UVs is exported
+/// with them. `bake --charts lightmap-uvs` on a floor and a wall whose
+/// `lightmap_uvs` share one lightmap: the Khronos validator accepts the
+/// `scene.glb`, `atlas.json` names the mesh's block, and every exported
+/// `TEXCOORD_1` is the asset's UV placed in that block.
+#[test]
+fn a_mesh_baked_on_its_own_lightmap_uvs_exports_them() {
+    const UVS: &str = r#"{
+      "name": "uv-room",
+      "lightmap": { "texel_density": 6 },
+      "materials": [
+        { "name": "white", "albedo": [0.7, 0.7, 0.7] },
+        { "name": "light", "albedo": [0.5, 0.5, 0.5], "emission": [10, 10, 10] }
+      ],
+      "surfaces": [
+        { "name": "room", "material": "white", "mesh": {
+            "positions": [[0, 0, 0], [2, 0, 0], [2, 0, -2], [0, 0, -2],
+                          [0, 0, -2], [2, 0, -2], [2, 1.5, -2], [0, 1.5, -2]],
+            "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7],
+            "lightmap_uvs": [[0.05, 0.95], [0.55, 0.95], [0.55, 0.45], [0.05, 0.45],
+                             [0.05, 0.4], [0.95, 0.4], [0.95, 0.05], [0.05, 0.05]] } },
+        { "name": "lamp", "material": "light",
+          "quad": { "origin": [0.5, 1.4, -0.5], "u": [1, 0, 0], "v": [0, 0, -1] } }
+      ]
+    }"#;
+    let dir = temp_dir("uvs");
+    let scene_file = dir.join("uv-room.json");
+    std::fs::write(&scene_file, UVS).expect("write scene");
+    let out_dir = dir.join("out");
+    let out = lightwire_testkit::lightwire!()
+        .command()
+        .args(["bake", "--charts", "lightmap-uvs", "--scene"])
+        .arg(&scene_file)
+        .args(["--solver", "reference", "--out"])
+        .arg(&out_dir)
+        .output()
+        .expect("lightwire runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let path = out_dir.join(bake::SCENE_GLB);
+    let (ok, text) = khronos_validate(&path);
+    assert!(ok && text.contains(" errors 0 "), "{text}");
+
+    let atlas: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("atlas.json")).expect("atlas.json"),
+    )
+    .expect("JSON");
+    let blocks = atlas["lightmap_blocks"]
+        .as_array()
+        .expect("lightmap_blocks");
+    assert_eq!(blocks.len(), 1, "{blocks:?}");
+    assert_eq!(blocks[0]["mesh"], "room");
+    let rect: Vec<f32> = blocks[0]["uv_rect"]
+        .as_array()
+        .expect("uv_rect")
+        .iter()
+        .map(|v| v.as_f64().expect("number") as f32)
+        .collect();
+    // Each TEXCOORD_1 of the room's triangles, taken back into the block,
+    // is one of the asset's UVs.
+    let asset: Vec<[f32; 2]> = vec![
+        [0.05, 0.95],
+        [0.55, 0.95],
+        [0.55, 0.45],
+        [0.05, 0.45],
+        [0.05, 0.4],
+        [0.95, 0.4],
+        [0.95, 0.05],
+        [0.05, 0.05],
+    ];
+    let glb = std::fs::read(&path).expect("scene.glb");
+    let imported = import_slice(&glb, None, "scene.glb", &ImportOptions::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut checked = 0;
+    for inst in &imported.instances {
+        let Some(uvs) = &inst.lightmap_uvs else {
+            continue;
+        };
+        for (uv, p) in uvs.iter().zip(&inst.positions) {
+            // The lamp (at y = 1.4, a quad on Lightwire's own chart) lies
+            // outside the block.
+            if (p.y - 1.4).abs() < 1e-4 {
+                continue;
+            }
+            let local = [
+                (uv.x - rect[0]) / (rect[2] - rect[0]),
+                (uv.y - rect[1]) / (rect[3] - rect[1]),
+            ];
+            assert!(
+                asset
+                    .iter()
+                    .any(|a| (a[0] - local[0]).abs() < 1e-4 && (a[1] - local[1]).abs() < 1e-4),
+                "TEXCOORD_1 {uv:?} at {p:?} is {local:?} in the block, not one of the asset's UVs"
+            );
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 4 * 3, "the room's four triangles");
+    let _ = std::fs::remove_dir_all(&dir);
 }

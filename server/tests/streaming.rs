@@ -968,3 +968,111 @@ async fn an_old_client_is_refused_with_a_message_that_says_why() {
         assert!(old.role.is_none(), "never welcomed");
     }
 }
+
+/// PROTOCOL.md §1 and §9: a version 2 client still gets version 2's
+/// `Welcome` (no `SurfaceInfo::uvs`) and the same lightmap frames, except on
+/// a scene with a triangle lit on its mesh's own lightmap UVs, which only
+/// version 3 can describe: it is refused with a message that says so, and a
+/// version 3 client gets the triangle's lightmap coordinates.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_version_2_client_is_answered_in_version_2_where_the_scene_allows() {
+    let hello = |version: u16| ClientMessage::Hello {
+        protocol_version: version,
+        client: "lw/2".into(),
+        token: None,
+        capabilities: 0,
+    };
+    let first_frame = |url: String, version: u16| async move {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .expect("connects");
+        ws.send(Message::Binary(encode_client(&hello(version)).into()))
+            .await
+            .expect("hello");
+        let mut frames = Vec::new();
+        while let Ok(Some(Ok(m))) = tokio::time::timeout(Duration::from_secs(20), ws.next()).await {
+            match m {
+                Message::Binary(bytes) => frames.push(bytes.to_vec()),
+                Message::Close(_) => break,
+                _ => {}
+            }
+            if frames.len() == 2 {
+                break;
+            }
+        }
+        frames
+    };
+
+    // Quads only: version 2's Welcome, then a keyframe either version reads.
+    let dir = std::env::temp_dir().join(format!("lightwire-v2-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let quads = dir.join("quads.json");
+    let uvs = dir.join("uvs.json");
+    let scene = |name: &str, extra: &str| {
+        format!(
+            r#"{{ "name": "{name}", "lightmap": {{ "texel_density": 3 }},
+                "materials": [{{ "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] }}],
+                "surfaces": [{{ "name": "floor", "material": "m", "mesh": {{
+                    "positions": [[0, 0, 0], [2, 0, 0], [2, 0, -2], [0, 0, -2]],
+                    "indices": [0, 1, 2, 0, 2, 3]{extra} }} }}] }}"#
+        )
+    };
+    std::fs::write(&quads, scene("quads", "")).expect("write");
+    std::fs::write(
+        &uvs,
+        scene(
+            "uvs",
+            r#", "lightmap_uvs": [[0.1, 0.9], [0.9, 0.9], [0.9, 0.1], [0.1, 0.1]]"#,
+        ),
+    )
+    .expect("write");
+    for (path, name, on_uvs) in [(&quads, "quads", false), (&uvs, "uvs", true)] {
+        let server = lightwire!().serve_dev(&[
+            "--solver",
+            "reference",
+            "--charts",
+            "lightmap-uvs",
+            "--scene",
+            &path.display().to_string(),
+        ]);
+        server.ready().await;
+        let url = format!("ws://{}/ws/scenes/{name}", server.addr);
+        let old = first_frame(url.clone(), 2).await;
+        if on_uvs {
+            assert_eq!(old.len(), 1, "an Error, then the close");
+            let Ok(ServerMessage::Error { code, message }) = decode_server(&old[0]) else {
+                panic!("not an Error")
+            };
+            assert_eq!(code, ErrorCode::UnsupportedVersion);
+            assert!(message.contains("upgrade the client"), "{message}");
+        } else {
+            assert_eq!(old.len(), 2, "a Welcome and a keyframe");
+            // Variant 0 (Welcome), protocol_version 2; it is not a version
+            // 3 Welcome (no uvs), and what follows is the same in both.
+            assert_eq!(&old[0][..2], &[0, 2]);
+            assert!(decode_server(&old[0]).is_err());
+            assert!(matches!(
+                decode_server(&old[1]),
+                Ok(ServerMessage::Keyframe(_))
+            ));
+        }
+        let new = first_frame(url, PROTOCOL_VERSION).await;
+        let Ok(ServerMessage::Welcome {
+            scene,
+            protocol_version,
+            ..
+        }) = decode_server(&new[0])
+        else {
+            panic!("a version 3 client is welcomed")
+        };
+        assert_eq!(protocol_version, PROTOCOL_VERSION);
+        let with_uvs = scene.surfaces.iter().filter(|s| s.uvs.len() == 4).count();
+        assert_eq!(with_uvs, if on_uvs { 2 } else { 0 }, "{:?}", scene.surfaces);
+        for s in scene.surfaces.iter().filter(|s| !s.uvs.is_empty()) {
+            // The floor's lightmap is a block of the atlas; its triangles'
+            // corners lie at 0.1 and 0.9 of it.
+            assert!(s.uvs.iter().flatten().all(|x| (0.0..=1.0).contains(x)));
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -235,16 +235,20 @@ fn check(name: &str, charts: Charts) {
 fn the_triangulated_cornell_box_reads_its_light_in_its_own_uvs() {
     check("meshes/cornell-large.glb", Charts::Parallelograms);
     check("meshes/cornell-large.glb", Charts::Triangles);
+    // Lit on those UVs (`atlas/uv.rs`): the exported scene.glb carries them.
+    check("meshes/cornell-large.glb", Charts::LightmapUvs);
 }
 
 #[test]
 fn a_dynamic_mesh_reads_its_light_in_its_own_uvs() {
     check("meshes/cornell-dynamic.glb", Charts::Parallelograms);
+    check("meshes/cornell-dynamic.glb", Charts::LightmapUvs);
 }
 
 #[test]
 fn the_atrium_reads_its_light_in_its_own_uvs() {
     check("meshes/atrium.glb", Charts::Parallelograms);
+    check("meshes/atrium.glb", Charts::LightmapUvs);
 }
 
 /// `lightwire serve` serves the same lightmaps for its newest version:

@@ -31,29 +31,6 @@ pub struct Mesh {
     pub indices: Vec<u32>,
 }
 
-/// The UVs (in [0, 1], texture space: v grows downwards like atlas rows) of
-/// a surface's four corners, in the order of `SurfaceInfo::corners`
-/// (origin, origin + u, origin + u + v, origin + v).
-///
-/// Each corner maps to the *centre* of its chart's corner texel: the atlas
-/// places texel `(a, b)` of a `w x h` chart at patch parameters
-/// `(a / (w - 1), b / (h - 1))`, so the chart's outermost texel centres lie
-/// on the quad's edges (thesis §4.1), and `u` runs along atlas columns,
-/// `v` along rows. Bilinear filtering then interpolates between samples
-/// that lie exactly where the solver put them and reads nothing outside the
-/// chart; the neighbouring quad's chart holds samples at the same edge
-/// points, so light is continuous across the seam. This is the mapping of
-/// the dashboard's `view3d.js`, on purpose.
-pub fn chart_uvs(rect: [u32; 4], atlas_width: u32, atlas_height: u32) -> [[f32; 2]; 4] {
-    let [x, y, w, h] = rect.map(|v| v as f64);
-    let (aw, ah) = (f64::from(atlas_width), f64::from(atlas_height));
-    let u0 = ((x + 0.5) / aw) as f32;
-    let u1 = ((x + w - 0.5) / aw) as f32;
-    let v0 = ((y + 0.5) / ah) as f32;
-    let v1 = ((y + h - 0.5) / ah) as f32;
-    [[u0, v0], [u1, v0], [u1, v1], [u0, v1]]
-}
-
 /// Checks a scene description and builds its mesh.
 pub fn mesh(scene: &SceneInfo) -> Result<Mesh, RenderError> {
     if scene.atlas_width == 0 || scene.atlas_height == 0 {
@@ -94,7 +71,17 @@ pub fn mesh(scene: &SceneInfo) -> Result<Mesh, RenderError> {
             )));
         }
         let base = mesh.vertices.len() as u32;
-        let uvs = chart_uvs(s.rect, scene.atlas_width, scene.atlas_height);
+        if !(s.uvs.is_empty()
+            || s.uvs.len() == 4 && s.uvs.iter().flatten().all(|x| (0.0..=1.0).contains(x)))
+        {
+            return Err(RenderError::Scene(format!(
+                "{} has {} lightmap coordinates: give none or four, each in [0, 1]",
+                name(),
+                s.uvs.len()
+            )));
+        }
+        // PROTOCOL.md §3: the rectangle's corner texel centres, or `uvs`.
+        let uvs = s.corner_uvs(scene.atlas_width, scene.atlas_height);
         for (corner, uv) in s.corners.iter().zip(uvs) {
             mesh.vertices.push(Vertex {
                 position: *corner,
@@ -190,6 +177,7 @@ mod tests {
                 [0.0, 1.0, 0.0],
             ],
             rect,
+            uvs: Vec::new(),
         }
     }
 
@@ -197,11 +185,20 @@ mod tests {
     fn corners_map_to_corner_texel_centres() {
         // A 5x3 chart at (10, 4) of a 64x16 atlas: corner texels are
         // columns 10 and 14, rows 4 and 6; their centres +0.5.
-        let uv = chart_uvs([10, 4, 5, 3], 64, 16);
+        let mut s = quad("q", [10, 4, 5, 3]);
+        let uv = s.corner_uvs(64, 16);
         assert_eq!(uv[0], [10.5 / 64.0, 4.5 / 16.0]);
         assert_eq!(uv[1], [14.5 / 64.0, 4.5 / 16.0]);
         assert_eq!(uv[2], [14.5 / 64.0, 6.5 / 16.0]);
         assert_eq!(uv[3], [10.5 / 64.0, 6.5 / 16.0]);
+        // A surface on its mesh's own lightmap UVs carries them.
+        s.uvs = vec![[0.1, 0.2], [0.3, 0.2], [0.3, 0.4], [0.3, 0.4]];
+        assert_eq!(s.corner_uvs(64, 16)[2], [0.3, 0.4]);
+        let vertices = mesh(&scene(vec![s.clone()])).expect("valid").vertices;
+        assert_eq!(vertices[1].uv, [0.3, 0.2]);
+        s.uvs.pop();
+        let err = mesh(&scene(vec![s])).expect_err("three uvs");
+        assert!(err.to_string().contains("3 lightmap coordinates"), "{err}");
     }
 
     #[test]

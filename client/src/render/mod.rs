@@ -19,7 +19,7 @@
 //! chart *on* the quad's edges (server `atlas.rs`, thesis §4.1), so two
 //! quads meeting at an edge hold samples at the same points along it. A
 //! quad's corners therefore map to the centres of its chart's corner texels
-//! ([`geometry::chart_uvs`], the same mapping as the dashboard's
+//! (`SurfaceInfo::corner_uvs`, the same mapping as the dashboard's
 //! `view3d.js`): bilinear filtering inside the quad reads only its own
 //! chart, never the gutter, and light is continuous across seams.
 //!

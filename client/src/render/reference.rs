@@ -3,11 +3,13 @@
 //!
 //! It exists so that tests can check the GPU image against something that
 //! shares none of its machinery: no rasterizer, no projection matrix, no
-//! texture unit, no UV mapping ([`super::geometry::chart_uvs`] is not
-//! used). A hit on surface `k` at patch parameters `(s, t)` reads the
-//! chart's texel coordinates `(x + s (w - 1), y + t (h - 1))` directly, with
-//! texel centres at integer coordinates (texel `(a, b)` of a chart sits at
-//! `(a / (w - 1), b / (h - 1))`, server `atlas.rs`). It is slow (every ray
+//! texture unit, no UV mapping (`SurfaceInfo::corner_uvs` is not used). A
+//! hit on surface `k` at patch parameters `(s, t)` reads the chart's texel
+//! coordinates `(x + s (w - 1), y + t (h - 1))` directly, with texel
+//! centres at integer coordinates (texel `(a, b)` of a chart sits at `(a /
+//! (w - 1), b / (h - 1))`, server `atlas.rs`); a surface on its mesh's own
+//! lightmap UVs (`SurfaceInfo::uvs`) reads the atlas at the coordinates
+//! they give, affine over it. It is slow (every ray
 //! tests every surface) and meant for small images.
 
 use glam::{DVec3, Vec3};
@@ -76,10 +78,34 @@ pub fn sample(
     s: f64,
     t: f64,
 ) -> [f64; 3] {
-    let [x, y, w, h] = scene.surfaces[surface].rect;
+    let info = &scene.surfaces[surface];
+    let [x, y, w, h] = info.rect;
     let texel = |a: u32, b: u32| {
         lightmap[(b as usize) * scene.atlas_width as usize + a as usize].map(f64::from)
     };
+    if let [u0, u1, _, u3] = info.uvs[..] {
+        // On its mesh's own lightmap UVs: the atlas's texel coordinates at
+        // (s, t), affine over the surface, read between any texels.
+        let at = |k: usize| {
+            f64::from(u0[k]) + s * f64::from(u1[k] - u0[k]) + t * f64::from(u3[k] - u0[k])
+        };
+        let size = [f64::from(scene.atlas_width), f64::from(scene.atlas_height)];
+        let (fx, fy) = (
+            (at(0) * size[0] - 0.5).clamp(0.0, size[0] - 1.0),
+            (at(1) * size[1] - 0.5).clamp(0.0, size[1] - 1.0),
+        );
+        let (a0, b0) = (fx.floor() as u32, fy.floor() as u32);
+        let (a1, b1) = (
+            (a0 + 1).min(scene.atlas_width - 1),
+            (b0 + 1).min(scene.atlas_height - 1),
+        );
+        let (wa, wb) = (fx - f64::from(a0), fy - f64::from(b0));
+        let (t00, t10, t01, t11) = (texel(a0, b0), texel(a1, b0), texel(a0, b1), texel(a1, b1));
+        return std::array::from_fn(|c| {
+            (t00[c] * (1.0 - wa) + t10[c] * wa) * (1.0 - wb)
+                + (t01[c] * (1.0 - wa) + t11[c] * wa) * wb
+        });
+    }
     // Chart texel coordinates: centres at integers, edges on the quad's edges.
     let fa = s.clamp(0.0, 1.0) * f64::from(w - 1);
     let fb = t.clamp(0.0, 1.0) * f64::from(h - 1);

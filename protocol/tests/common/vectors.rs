@@ -163,8 +163,30 @@ pub fn scene() -> SceneInfo {
                 [0.0, 1.0, 1.0],
             ],
             rect: [0, 0, 3, 2],
+            uvs: Vec::new(),
         }],
     }
+}
+
+/// [`scene`] with a second surface: a triangle lit on its mesh's own
+/// lightmap UVs, whose corners' lightmap coordinates travel in `uvs`
+/// (version 3).
+pub fn scene_with_uvs() -> SceneInfo {
+    let mut scene = scene();
+    scene.surfaces.push(SurfaceInfo {
+        name: "floor/0".into(),
+        object: 0,
+        material: 0,
+        corners: [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 0.0, -1.0],
+            [1.0, 0.0, -1.0],
+        ],
+        rect: [0, 0, 3, 2],
+        uvs: vec![[0.25, 0.75], [0.75, 0.75], [0.5, 0.25], [0.5, 0.25]],
+    });
+    scene
 }
 
 pub fn all() -> Vec<Vector> {
@@ -173,7 +195,7 @@ pub fn all() -> Vec<Vector> {
     vec![
         Vector {
             name: "client_hello",
-            description: "Hello with a token: protocol 2, client \"lw/1\", token \"t0k\", no capabilities",
+            description: "Hello with a token: protocol 3, client \"lw/1\", token \"t0k\", no capabilities",
             msg: Msg::Client(C::Hello {
                 protocol_version: PROTOCOL_VERSION,
                 client: "lw/1".into(),
@@ -318,6 +340,17 @@ pub fn all() -> Vec<Vector> {
                         scale: 1.0,
                     },
                 }],
+            }),
+        },
+        Vector {
+            name: "server_welcome_uvs",
+            description: "Welcome as server_welcome_poses, with a second surface: a triangle (third corner repeated) lit on its mesh's own lightmap UVs, its corners' lightmap coordinates in uvs (u, v) = (0.25, 0.75), (0.75, 0.75), (0.5, 0.25), (0.5, 0.25)",
+            msg: Msg::Server(S::Welcome {
+                protocol_version: PROTOCOL_VERSION,
+                server: "lightwire/0.1".into(),
+                role: Role::Driver,
+                capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
+                scene: scene_with_uvs(),
             }),
         },
         Vector {

@@ -19,7 +19,7 @@
 // (`server/dashboard/test/protocol.test.mjs`).
 
 /** The protocol version this code speaks (`Hello.protocol_version`). */
-export const PROTOCOL_VERSION = 2;
+export const PROTOCOL_VERSION = 3;
 
 /**
  * `Welcome.capabilities` bit: the server serves the scene as glTF binary at
@@ -404,6 +404,9 @@ const SurfaceInfo = struct([
   ['material', T.u32],
   ['corners', array(array(T.f32, 3), 4)],
   ['rect', array(T.u32, 4)],
+  // Version 3: the corners' lightmap coordinates when they do not follow
+  // from `rect` (a triangle on its mesh's own lightmap UVs), else empty.
+  ['uvs', vec(array(T.f32, 2))],
 ]);
 const SceneInfo = struct([
   ['id', T.string],

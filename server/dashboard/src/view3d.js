@@ -168,6 +168,27 @@ function compile(gl, vertex, fragment) {
   return program;
 }
 
+
+/**
+ * The lightmap coordinates of a surface's four corners (PROTOCOL.md §3):
+ * `uvs` when it carries four (a triangle on its mesh's own lightmap UVs,
+ * version 3), else the centres of its chart's corner texels, in [0, 1].
+ */
+export function cornerUvs(s, W, H) {
+  if (s.uvs && s.uvs.length === 4) return s.uvs.map((uv) => [uv[0], uv[1]]);
+  const [x, y, w, h] = s.rect;
+  const u0 = (x + 0.5) / W;
+  const u1 = (x + w - 0.5) / W;
+  const v0 = (y + 0.5) / H;
+  const v1 = (y + h - 0.5) / H;
+  return [
+    [u0, v0],
+    [u1, v0],
+    [u1, v1],
+    [u0, v1],
+  ];
+}
+
 export class View3D {
   /**
    * @param {HTMLCanvasElement} canvas
@@ -237,18 +258,7 @@ export class View3D {
       const hi = [-Infinity, -Infinity, -Infinity];
       let reach = 0; // farthest corner from the local y axis
       surfaces.forEach((s, k) => {
-        const [x, y, w, h] = s.rect;
-        // Corner -> centre of the chart's corner texel, in [0, 1] UVs.
-        const u0 = (x + 0.5) / W;
-        const u1 = (x + w - 0.5) / W;
-        const v0 = (y + 0.5) / H;
-        const v1 = (y + h - 0.5) / H;
-        const uvs = [
-          [u0, v0],
-          [u1, v0],
-          [u1, v1],
-          [u0, v1],
-        ];
+        const uvs = cornerUvs(s, W, H);
         s.corners.forEach((c, i) => {
           vertices.push(...c, ...uvs[i]);
           reach = Math.max(reach, Math.hypot(c[0], c[2]));

@@ -30,6 +30,7 @@ import {
 } from '../src/protocol.js';
 import { ApplyError, Lightmap, applyResidual, halfToFloat, rgb9e5Decode, zstdFrameProblem } from '../src/lightmap.js';
 import { decompress } from '../src/vendor/fzstd.js';
+import { cornerUvs } from '../src/view3d.js';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const vectors = path.resolve(here, '../../../protocol/tests/vectors');
@@ -643,3 +644,26 @@ for (const seq of sequences.sequences) {
     assert.deepEqual(map.rgb, decodeAll(seq.format, map.bytes));
   });
 }
+
+test('a surface on its own lightmap UVs is drawn with them, any other with its rect (version 3)', () => {
+  const welcome = decodeServer(bin('server_welcome_uvs'));
+  assert.equal(welcome.type, 'Welcome');
+  const { scene } = welcome;
+  const [quad, triangle] = scene.surfaces;
+  assert.deepEqual(quad.uvs, []);
+  const W = scene.atlas_width;
+  const H = scene.atlas_height;
+  // The 3x2 chart's corner texel centres.
+  assert.deepEqual(cornerUvs(quad, W, H), [
+    [0.5 / W, 0.5 / H],
+    [2.5 / W, 0.5 / H],
+    [2.5 / W, 1.5 / H],
+    [0.5 / W, 1.5 / H],
+  ]);
+  assert.deepEqual(cornerUvs(triangle, W, H), [
+    [0.25, 0.75],
+    [0.75, 0.75],
+    [0.5, 0.25],
+    [0.5, 0.25],
+  ]);
+});

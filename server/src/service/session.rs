@@ -39,8 +39,8 @@ use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, HELLO_POSES, ObjectPose, PROTOCOL_VERSION, Role, SceneInfo,
-    ServerMessage, decode_client, encode_server,
+    ClientMessage, ErrorCode, HELLO_POSES, MIN_PROTOCOL_VERSION, ObjectPose, PROTOCOL_VERSION,
+    Role, SceneInfo, ServerMessage, decode_client, encode_server, encode_welcome_for,
 };
 use tokio::sync::{mpsc, watch};
 
@@ -149,10 +149,10 @@ pub async fn run(
     let (mut sink, mut stream) = socket.split();
     let metrics = state.metrics.clone();
 
-    // Handshake: the first frame must be a Hello with our version.
+    // Handshake: the first frame must be a Hello with a version we speak.
     let hello_timeout = Duration::from_secs_f64(state.config.hello_timeout_secs);
     let first = tokio::time::timeout(hello_timeout, stream.next()).await;
-    let (token, client_name, wants_poses) = match first {
+    let (token, client_name, wants_poses, version) = match first {
         Ok(Some(Ok(Message::Binary(bytes)))) => match decode_client(&bytes) {
             Ok(ClientMessage::Hello {
                 protocol_version,
@@ -160,7 +160,7 @@ pub async fn run(
                 token,
                 capabilities,
             }) => {
-                if protocol_version != PROTOCOL_VERSION {
+                if !(MIN_PROTOCOL_VERSION..=PROTOCOL_VERSION).contains(&protocol_version) {
                     metrics.bad_frame("unsupported_version");
                     let frame = error_frame(
                         ErrorCode::UnsupportedVersion,
@@ -174,6 +174,7 @@ pub async fn run(
                     token.or(header_token),
                     client,
                     capabilities & HELLO_POSES != 0,
+                    protocol_version,
                 )
             }
             Ok(_) => {
@@ -235,7 +236,7 @@ pub async fn run(
         close(&mut sink, CLOSE_TRY_AGAIN, "scene not available yet").await;
         return;
     };
-    let welcome = encode_server(&ServerMessage::Welcome {
+    let welcome = ServerMessage::Welcome {
         protocol_version: PROTOCOL_VERSION,
         server: if state.auth.dev_mode() {
             format!("{SERVER_NAME} (DEVELOPMENT MODE: no authentication)")
@@ -248,7 +249,19 @@ pub async fn run(
         // its upstream gives them).
         capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
         scene: (*info).clone(),
-    });
+    };
+    // In the client's version: a version 2 client gets version 2's
+    // `Welcome`, unless a surface needs what only version 3 describes.
+    let Some(welcome) = encode_welcome_for(version, &welcome) else {
+        metrics.bad_frame("unsupported_version");
+        let frame = error_frame(
+            ErrorCode::UnsupportedVersion,
+            lightwire_protocol::version_mismatch(version),
+        );
+        let _ = sink.send(Message::Binary(frame)).await;
+        close(&mut sink, CLOSE_PROTOCOL, "unsupported protocol version").await;
+        return;
+    };
     if sink
         .send(Message::Binary(Bytes::from(welcome)))
         .await
