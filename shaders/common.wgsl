@@ -160,8 +160,8 @@ struct Batch {
 // A patch's elements: first element, element count, chart width, chart
 // height, and whether the patch is a triangle: 0 a quad, 1 a triangle (the
 // half t <= s of its chart, server/src/scene/mod.rs), 2 a triangle on its
-// mesh's own lightmap UVs (server/src/atlas/uv.rs), whose frame in object
-// space (origin, u, v) follows, since its corner texels do not lie on its
+// mesh's own lightmap UVs (server/src/atlas/uv.rs), whose frame is its
+// `PatchFrame` (receive.wgsl), since its corner texels do not lie on its
 // corners. Mirrors `PatchRange` in server/src/gpu/placement.rs.
 struct PatchRange {
     first: u32,
@@ -169,9 +169,6 @@ struct PatchRange {
     w: u32,
     h: u32,
     triangle: u32,
-    ox: f32, oy: f32, oz: f32,
-    ux: f32, uy: f32, uz: f32,
-    vx: f32, vy: f32, vz: f32,
 };
 
 const TRIANGLE_ON_LIGHTMAP: u32 = 2u;

@@ -12,6 +12,16 @@
 // Object matrices: the current set, then the old set (see hemicube.wgsl).
 @group(0) @binding(12) var<storage, read> poses: array<mat4x4<f32>>;
 
+// A patch's frame in object space (`PatchFrame` in
+// server/src/gpu/placement.rs): only a triangle on its mesh's own lightmap
+// UVs has one (`TRIANGLE_ON_LIGHTMAP`).
+struct PatchFrame {
+    origin: vec4<f32>,
+    u: vec4<f32>,
+    v: vec4<f32>,
+};
+@group(0) @binding(34) var<storage, read> patch_frames: array<PatchFrame>;
+
 const PI: f32 = 3.14159265358979;
 // Inward offset of corner samples in cells (atlas::CORNER_OFFSET).
 const CORNER_OFFSET: f32 = 0.05;
@@ -77,9 +87,10 @@ fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     var v: vec3<f32>;
     if (r.triangle == TRIANGLE_ON_LIGHTMAP) {
         // Its frame is stored: its corner texels are not on its corners.
-        o = (m * vec4<f32>(r.ox, r.oy, r.oz, 1.0)).xyz;
-        u = (m * vec4<f32>(r.ux, r.uy, r.uz, 0.0)).xyz;
-        v = (m * vec4<f32>(r.vx, r.vy, r.vz, 0.0)).xyz;
+        let f = patch_frames[p];
+        o = (m * f.origin).xyz;
+        u = (m * f.u).xyz;
+        v = (m * f.v).xyz;
     } else {
         let e00 = (m * vec4<f32>(first.position.xyz, 1.0)).xyz;
         let e10 = (m * vec4<f32>(local_elements[r.first + r.w - 1u].position.xyz, 1.0)).xyz;

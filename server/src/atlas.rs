@@ -792,7 +792,42 @@ impl Atlas {
                 image[texel] = value.to_array();
             }
         }
+        self.fill_block_gutters(&mut image);
         image
+    }
+
+    /// In every mesh's lightmap block (`atlas/uv.rs`), the texels no chart
+    /// holds but next to one that does take the mean of those neighbours
+    /// (8-connected): the gutter bilinear filtering reads at an island's
+    /// border.
+    fn fill_block_gutters(&self, image: &mut [[f32; 3]]) {
+        let w = self.width as i64;
+        for block in self.blocks.iter().flatten() {
+            let (x0, y0) = (i64::from(block.x), i64::from(block.y));
+            let (x1, y1) = (x0 + i64::from(block.w), y0 + i64::from(block.h));
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    if self.texel_element[(y * w + x) as usize] != NO_ELEMENT {
+                        continue;
+                    }
+                    let (mut sum, mut n) = (Vec3::ZERO, 0.0f32);
+                    for (dx, dy) in (-1..=1).flat_map(|dy| (-1..=1).map(move |dx| (dx, dy))) {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if nx < x0 || ny < y0 || nx >= x1 || ny >= y1 {
+                            continue;
+                        }
+                        let t = (ny * w + nx) as usize;
+                        if self.texel_element[t] != NO_ELEMENT {
+                            sum += Vec3::from_array(image[t]);
+                            n += 1.0;
+                        }
+                    }
+                    if n > 0.0 {
+                        image[(y * w + x) as usize] = (sum / n).to_array();
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -1248,5 +1283,40 @@ mod tests {
                 assert_eq!(image[t][0], owner as f32);
             }
         }
+        // Texels of the block beside an island take their held neighbours'
+        // mean; those farther out stay black.
+        let (mut gutter, mut empty) = (0, 0);
+        for y in block.y..block.y + block.h {
+            for x in block.x..block.x + block.w {
+                let t = (y * atlas.width + x) as usize;
+                if atlas.texel_element[t] != NO_ELEMENT {
+                    continue;
+                }
+                let held: Vec<f32> = (-1i64..=1)
+                    .flat_map(|dy| (-1i64..=1).map(move |dx| (dx, dy)))
+                    .filter_map(|(dx, dy)| {
+                        let (nx, ny) = (i64::from(x) + dx, i64::from(y) + dy);
+                        let inside = nx >= i64::from(block.x)
+                            && ny >= i64::from(block.y)
+                            && nx < i64::from(block.x + block.w)
+                            && ny < i64::from(block.y + block.h);
+                        let o = atlas.element_at(nx as u32, ny as u32).filter(|_| inside)?;
+                        Some(o as f32)
+                    })
+                    .collect();
+                if held.is_empty() {
+                    assert_eq!(image[t], [0.0; 3]);
+                    empty += 1;
+                } else {
+                    let mean = held.iter().sum::<f32>() / held.len() as f32;
+                    assert!((image[t][0] - mean).abs() <= 1e-3 * mean.max(1.0));
+                    gutter += 1;
+                }
+            }
+        }
+        assert!(
+            gutter > 20 && empty > 20,
+            "{gutter} gutter texels, {empty} empty"
+        );
     }
 }

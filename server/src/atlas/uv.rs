@@ -5,13 +5,15 @@
 //! A mesh's lightmap `[0, 1]²` is one square block of the atlas, `side`
 //! texels a side ([`block_side`]: the density of its patches over its
 //! surface). A triangle's chart is the rectangle of the block's texels whose
-//! footprint overlaps its UV triangle, grown by one texel on every side (so
-//! that a bilinear read anywhere on the triangle finds filled texels), and
-//! each of those texels is an element of the triangle: its area is the part
-//! of the footprint the triangle covers (zero for the padding, which
-//! validity marks invalid and dilation fills), its sample point the point
-//! of the triangle nearest to the texel's centre (the centre itself when it
-//! lies on the triangle). A texel that two triangles both cover is an
+//! footprint overlaps its UV triangle (at least 2 x 2), and each of those
+//! texels is an element of the triangle: its area is the part of the
+//! footprint the triangle covers (zero for a texel of the rectangle it
+//! misses, which validity marks invalid and dilation fills), its sample
+//! point the point of the triangle nearest to the texel's centre (the centre
+//! itself when it lies on the triangle). Texels of the block that no chart
+//! holds take the mean of their neighbours that one does when the lightmap
+//! is published ([`super::Atlas::to_image`]), so that bilinear filtering at
+//! an island's border reads its light, not black. A texel that two triangles both cover is an
 //! element of each, sampled on its own triangle; they form a group that is
 //! stitched (set to its mean) on publication as a seam's texels are, and
 //! the texel shows that mean ([`super::Atlas::to_image`] writes the one
@@ -98,15 +100,15 @@ pub fn uv_area([a, b, c]: &[Vec2; 3]) -> f32 {
 /// The chart of a triangle whose corners lie at `q` (texel coordinates of
 /// its block, texel `(i, j)` covering `[i, i + 1] x [j, j + 1]`): the first
 /// texel and the size of the rectangle of texels its footprint overlaps,
-/// grown by one on every side, inside the block's `side` x `side`, at least
-/// 2 x 2.
+/// inside the block's `side` x `side`, at least 2 x 2 (grown inside the
+/// block where it is narrower).
 pub fn triangle_chart(q: &[Vec2; 3], side: u32) -> ([u32; 2], [u32; 2]) {
     let last = side.saturating_sub(1) as f32;
     let axis = |k: usize| {
         let lo = q.iter().map(|p| p[k]).fold(f32::INFINITY, f32::min);
         let hi = q.iter().map(|p| p[k]).fold(f32::NEG_INFINITY, f32::max);
-        let first = (lo.floor() - 1.0).clamp(0.0, last) as u32;
-        let end = ((hi.ceil() - 1.0) + 1.0).clamp(0.0, last) as u32;
+        let first = lo.floor().clamp(0.0, last) as u32;
+        let end = (hi.ceil() - 1.0).clamp(0.0, last) as u32;
         let end = end.max(first + 1).min(side.saturating_sub(1));
         let first = first.min(end.saturating_sub(1));
         (first, end - first + 1)
@@ -227,10 +229,21 @@ mod tests {
             }
         }
         assert!((sum - f64::from(uv_area(&q))).abs() < 1e-5, "{sum}");
-        // The padding: every texel around the footprint's rectangle is empty.
+        // The texels it overlaps: columns 0 to 5, rows 0 to 4.
         assert_eq!([x, y], [0, 0]);
-        assert_eq!([w, h], [7, 6]);
-        assert_eq!(covered(&q, 6, 0).0, 0.0);
+        assert_eq!([w, h], [6, 5]);
+        assert!(covered(&q, 5, 1).0 > 0.0 && covered(&q, 2, 4).0 > 0.0);
+        // One within a single texel still gets 2 x 2.
+        let tiny = [
+            Vec2::new(3.2, 7.1),
+            Vec2::new(3.8, 7.2),
+            Vec2::new(3.5, 7.9),
+        ];
+        assert_eq!(triangle_chart(&tiny, 16), ([3, 7], [2, 2]));
+        assert_eq!(
+            triangle_chart(&tiny.map(|p| p + Vec2::new(12.0, 8.0)), 16),
+            ([14, 14], [2, 2])
+        );
         // Clockwise the same.
         let r = [q[0], q[2], q[1]];
         assert!((covered(&r, 2, 2).0 - covered(&q, 2, 2).0).abs() < 1e-12);

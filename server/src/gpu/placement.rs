@@ -53,8 +53,9 @@ pub(super) fn invalid_flag(invalid: bool) -> f32 {
 /// whose texels above the diagonal stand for no surface) or
 /// [`TRIANGLE_ON_LIGHTMAP`] (lit on its mesh's own lightmap UVs,
 /// `atlas/uv.rs`: its hemicube vertices carry chart coordinates rather than
-/// patch parameters, and its frame in object space is `frame`, which the
-/// receiving shaders cannot rebuild from its corner texels).
+/// patch parameters, and its frame, which the receiving shaders cannot
+/// rebuild from its corner texels, is its [`PatchFrame`]). Kept at 20
+/// bytes: every hemicube vertex reads its patch's.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug, PartialEq)]
 pub(super) struct PatchRange {
@@ -63,10 +64,20 @@ pub(super) struct PatchRange {
     pub(super) w: u32,
     pub(super) h: u32,
     pub(super) triangle: u32,
-    /// Origin, `u` and `v` in object space ([`TRIANGLE_ON_LIGHTMAP`] only).
-    pub(super) frame: [f32; 9],
 }
-const _: () = assert!(std::mem::size_of::<PatchRange>() == 56);
+const _: () = assert!(std::mem::size_of::<PatchRange>() == 20);
+
+/// A patch's frame in object space, `origin`, `u`, `v` (`PatchFrame` in
+/// receive.wgsl): read by the occlusion test for the triangles on their
+/// mesh's own lightmap UVs only; zero for every other patch.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug, PartialEq)]
+pub(super) struct PatchFrame {
+    pub(super) origin: [f32; 4],
+    pub(super) u: [f32; 4],
+    pub(super) v: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<PatchFrame>() == 48);
 
 /// `PatchRange::triangle` of a triangle on a chart of Lightwire's own.
 pub(super) const TRIANGLE: u32 = 1;
@@ -192,26 +203,43 @@ impl PatchTable {
             .zip(&self.ends)
             .zip(&self.shapes)
             .zip(&self.maps)
-            .map(|(((&[first, w, h], end), shape), map)| {
-                let (o, u, v) = shape.frame();
-                PatchRange {
-                    first,
-                    count: end - first,
-                    w,
-                    h,
-                    triangle: match (shape.is_triangle(), map.is_some()) {
-                        (false, _) => 0,
-                        (true, false) => TRIANGLE,
-                        (true, true) => TRIANGLE_ON_LIGHTMAP,
-                    },
-                    frame: if map.is_some() {
-                        [o.x, o.y, o.z, u.x, u.y, u.z, v.x, v.y, v.z]
-                    } else {
-                        [0.0; 9]
-                    },
-                }
+            .map(|(((&[first, w, h], end), shape), map)| PatchRange {
+                first,
+                count: end - first,
+                w,
+                h,
+                triangle: match (shape.is_triangle(), map.is_some()) {
+                    (false, _) => 0,
+                    (true, false) => TRIANGLE,
+                    (true, true) => TRIANGLE_ON_LIGHTMAP,
+                },
             })
             .collect()
+    }
+
+    /// Every patch's [`PatchFrame`] (zero where the shaders do not read
+    /// it), at least one.
+    pub(super) fn frames(&self) -> Vec<PatchFrame> {
+        let mut frames: Vec<PatchFrame> = self
+            .shapes
+            .iter()
+            .zip(&self.maps)
+            .map(|(shape, map)| match map {
+                Some(_) => {
+                    let (o, u, v) = shape.frame();
+                    PatchFrame {
+                        origin: v4(o, 1.0),
+                        u: v4(u, 0.0),
+                        v: v4(v, 0.0),
+                    }
+                }
+                None => PatchFrame::zeroed(),
+            })
+            .collect();
+        if frames.is_empty() {
+            frames.push(PatchFrame::zeroed());
+        }
+        frames
     }
 }
 

@@ -161,7 +161,7 @@ mod tests {
     use super::super::binding::{Pass, check};
     use super::super::gather::{self, GatherElement, GatherParams, GatherVertex};
     use super::super::hemicube::{self, GpuVertex};
-    use super::super::placement::{ELEMENT_BYTES, LocalElement, PatchRange};
+    use super::super::placement::{ELEMENT_BYTES, LocalElement, PatchFrame, PatchRange};
     use super::super::progressive::{self, BatchUniform, GpuShooter, Selection};
     use super::*;
 
@@ -256,10 +256,11 @@ mod tests {
     #[test]
     fn structs_shared_with_rust_have_the_same_size_on_both_sides() {
         use std::mem::size_of;
-        let shared: [(&str, usize); 10] = [
+        let shared: [(&str, usize); 11] = [
             ("Shooter", size_of::<GpuShooter>()),
             ("Batch", size_of::<BatchUniform>()),
             ("PatchRange", size_of::<PatchRange>()),
+            ("PatchFrame", size_of::<PatchFrame>()),
             ("Element", ELEMENT_BYTES as usize),
             ("LocalElement", size_of::<LocalElement>()),
             ("Selection", size_of::<Selection>()),

@@ -419,6 +419,7 @@ impl ProgressiveSolver {
             .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
             .sum();
         let patch_ranges = table.ranges();
+        let patch_frames = table.frames();
         // Absent objects start dark: they neither hold nor shoot light.
         let start: Vec<[f32; 4]> = emission
             .iter()
@@ -453,6 +454,7 @@ impl ProgressiveSolver {
                 emission: &emission,
                 start: &start,
                 patch_ranges: &patch_ranges,
+                patch_frames: &patch_frames,
                 vertices: &vertices,
                 objects: poses.len(),
                 capacity: batch_capacity,

@@ -9,8 +9,9 @@ use crate::gpu::hemicube::{self, Draws};
 use crate::gpu::shaders;
 
 /// The bindings of the two compute modules: elements.wgsl declares 0, 1,
-/// 2, 4, 11 and 13 and receive.wgsl 7-10 and 12 for both; progressive.wgsl
-/// adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26 and 28-33.
+/// 2, 4, 11 and 13 and receive.wgsl 7-10, 12 and 34 for both;
+/// progressive.wgsl adds 3, 5, 6, 14 and 27, redistribute.wgsl 15-26 and
+/// 28-33.
 pub(in crate::gpu) mod slot {
     use super::{Kind, Slot};
 
@@ -65,6 +66,7 @@ pub(in crate::gpu) mod slot {
     pub(in crate::gpu) const SHOWN_BACK: Slot =
         Slot::new("shown_back", 32, Kind::FloatTexture { filterable: false });
     pub(in crate::gpu) const MARKS: Slot = Slot::new("marks", 33, Kind::Storage);
+    pub(in crate::gpu) const PATCH_FRAMES: Slot = Slot::new("patch_frames", 34, Kind::StorageRead);
 }
 
 use slot::*;
@@ -92,6 +94,7 @@ pub(in crate::gpu) const RECONSTRUCT: Pass = Pass {
         OBJECT_FLAGS,
         POSES,
         LOCAL_ELEMENTS,
+        PATCH_FRAMES,
     ],
 };
 
@@ -239,6 +242,7 @@ pub(in crate::gpu) const RECONSTRUCT_DYN: Pass = Pass {
         BACK_SHOOTERS,
         BACK,
         MARKS,
+        PATCH_FRAMES,
     ],
 };
 

@@ -9,7 +9,7 @@ use super::shoot::{BatchUniform, Selection};
 use crate::gpu::binding::Resources;
 use crate::gpu::buffers::texture;
 use crate::gpu::hemicube::{self, FACES, GpuVertex};
-use crate::gpu::placement::{ELEMENT_BYTES, LocalElement, PatchRange};
+use crate::gpu::placement::{ELEMENT_BYTES, LocalElement, PatchFrame, PatchRange};
 
 /// What the buffers start with, prepared on the CPU.
 pub(super) struct Upload<'a> {
@@ -20,6 +20,8 @@ pub(super) struct Upload<'a> {
     pub(super) start: &'a [[f32; 4]],
     /// First element, element count and chart size of every patch.
     pub(super) patch_ranges: &'a [PatchRange],
+    /// Every patch's frame for the occlusion test (`PatchTable::frames`).
+    pub(super) patch_frames: &'a [PatchFrame],
     /// Patch ids of the triangle clusters, each cluster's contiguous
     /// (`clusters.rs`; may be empty).
     pub(super) members: &'a [u32],
@@ -48,6 +50,8 @@ pub(super) struct Buffers {
     /// Irradiance received so far, for the energy bookkeeping.
     pub(super) irradiance: wgpu::Buffer,
     pub(super) patches: wgpu::Buffer,
+    /// Every patch's `PatchFrame` (receive.wgsl's `patch_frames`).
+    pub(super) patch_frames: wgpu::Buffer,
     /// What a cluster shooter's range names: patch ids (`clusters.rs`).
     pub(super) members: wgpu::Buffer,
     pub(super) patch_power: wgpu::Buffer,
@@ -120,6 +124,11 @@ impl Buffers {
                 storage | copy_src,
             ),
             patches: init("patches", bytemuck::cast_slice(up.patch_ranges), storage),
+            patch_frames: init(
+                "patch frames",
+                bytemuck::cast_slice(up.patch_frames),
+                storage,
+            ),
             members: init(
                 "cluster members",
                 bytemuck::cast_slice(&non_empty(up.members.to_vec())),
@@ -200,6 +209,7 @@ impl Buffers {
             .buffer(slot::EMISSION, &self.emission)
             .buffer(slot::IRRADIANCE, &self.irradiance)
             .buffer(slot::PATCHES, &self.patches)
+            .buffer(slot::PATCH_FRAMES, &self.patch_frames)
             .buffer(slot::MEMBERS, &self.members)
             .buffer(slot::PATCH_POWER, &self.patch_power)
             .buffer(slot::SELECTION, &self.selection)
