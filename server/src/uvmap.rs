@@ -27,6 +27,7 @@ use std::collections::HashMap;
 use glam::{Vec2, Vec3};
 
 use crate::atlas::Atlas;
+use crate::atlas::uv::nearest;
 use crate::scene::{Patch, Scene, UvMesh};
 
 /// Pixels around every UV triangle that take the light of its nearest
@@ -206,32 +207,6 @@ fn bilinear(image: &[[f32; 3]], width: u32, height: u32, q: Vec2) -> [f32; 3] {
     let top = at(x0, y0) * (1.0 - fx) + at(x0 + 1.0, y0) * fx;
     let bottom = at(x0, y0 + 1.0) * (1.0 - fx) + at(x0 + 1.0, y0 + 1.0) * fx;
     (top * (1.0 - fy) + bottom * fy).to_array()
-}
-
-/// Barycentric coordinates of `p` in the triangle `q` (2D), and of the
-/// triangle's nearest point to `p` with the distance to it.
-fn nearest(q: &[Vec2; 3], p: Vec2) -> (Vec3, f32) {
-    let area = (q[1] - q[0]).perp_dot(q[2] - q[0]);
-    let b1 = (p - q[0]).perp_dot(q[2] - q[0]) / area;
-    let b2 = (q[1] - q[0]).perp_dot(p - q[0]) / area;
-    let b = Vec3::new(1.0 - b1 - b2, b1, b2);
-    if b.min_element() >= 0.0 {
-        return (b, 0.0);
-    }
-    // Outside: the nearest point lies on an edge.
-    let mut best = (Vec3::ZERO, f32::INFINITY);
-    for (i, j) in [(0, 1), (1, 2), (2, 0)] {
-        let e = q[j] - q[i];
-        let s = ((p - q[i]).dot(e) / e.length_squared().max(1e-30)).clamp(0.0, 1.0);
-        let d = (q[i] + e * s).distance(p);
-        if d < best.1 {
-            let mut b = Vec3::ZERO;
-            b[i] = 1.0 - s;
-            b[j] = s;
-            best = (b, d);
-        }
-    }
-    best
 }
 
 /// Every [`Scene::uv_meshes`] entry's lightmap from the atlas light

@@ -23,7 +23,7 @@
 //! integers) by an affine [`ChartMap`]; on Lightwire's own charts that is
 //! `(s (w - 1), t (h - 1))`.
 
-use glam::{DVec2, Vec2};
+use glam::{DVec2, Vec2, Vec3};
 
 use crate::scene::{Scene, UvMesh};
 
@@ -163,36 +163,39 @@ pub fn covered(q: &[Vec2; 3], i: u32, j: u32) -> (f64, Vec<DVec2>) {
     (area, poly)
 }
 
+/// Barycentric coordinates of `p` in the triangle `q` (2D), and of the
+/// triangle's nearest point to `p` with the distance to it.
+pub fn nearest(q: &[Vec2; 3], p: Vec2) -> (Vec3, f32) {
+    let area = (q[1] - q[0]).perp_dot(q[2] - q[0]);
+    let b1 = (p - q[0]).perp_dot(q[2] - q[0]) / area;
+    let b2 = (q[1] - q[0]).perp_dot(p - q[0]) / area;
+    let b = Vec3::new(1.0 - b1 - b2, b1, b2);
+    if b.min_element() >= 0.0 {
+        return (b, 0.0);
+    }
+    // Outside: the nearest point lies on an edge.
+    let mut best = (Vec3::ZERO, f32::INFINITY);
+    for (i, j) in [(0, 1), (1, 2), (2, 0)] {
+        let e = q[j] - q[i];
+        let s = ((p - q[i]).dot(e) / e.length_squared().max(1e-30)).clamp(0.0, 1.0);
+        let d = (q[i] + e * s).distance(p);
+        if d < best.1 {
+            let mut b = Vec3::ZERO;
+            b[i] = 1.0 - s;
+            b[j] = s;
+            best = (b, d);
+        }
+    }
+    best
+}
+
 /// The point of triangle `q` nearest to `p` (`p` itself when inside).
 pub fn nearest_on_triangle(q: &[Vec2; 3], p: Vec2) -> Vec2 {
-    let q = q.map(|c| c.as_dvec2());
-    let p = p.as_dvec2();
-    let orientation = (q[1] - q[0]).perp_dot(q[2] - q[0]).signum();
-    let inside = (0..3).all(|k| {
-        let (a, b) = (q[k], q[(k + 1) % 3]);
-        orientation * (b - a).perp_dot(p - a) >= 0.0
-    });
-    if inside || orientation == 0.0 && (q[0] - p).length() == 0.0 {
-        return p.as_vec2();
+    let (b, d) = nearest(q, p);
+    if d == 0.0 {
+        return p;
     }
-    let on_edge = |a: DVec2, b: DVec2| {
-        let d = b - a;
-        let f = if d.length_squared() > 0.0 {
-            ((p - a).dot(d) / d.length_squared()).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        a + d * f
-    };
-    (0..3)
-        .map(|k| on_edge(q[k], q[(k + 1) % 3]))
-        .min_by(|a, b| {
-            (*a - p)
-                .length_squared()
-                .total_cmp(&(*b - p).length_squared())
-        })
-        .unwrap_or(q[0])
-        .as_vec2()
+    q[0] * b.x + q[1] * b.y + q[2] * b.z
 }
 
 #[cfg(test)]

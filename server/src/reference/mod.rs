@@ -201,8 +201,19 @@ impl Region {
                 size: (p1 - p0).length().max((p3 - p0).length()),
             };
         }
-        let clipped = crate::atlas::clip_below_diagonal(&square);
-        let count = clipped.len();
+        let clipped: Vec<DVec3> = crate::atlas::clip_below_diagonal(&square)
+            .into_iter()
+            .map(at)
+            .collect();
+        Region::polygon_in_world(&clipped, sample)
+    }
+
+    /// The region with corners `polygon` (world space, counter-clockwise),
+    /// at most [`MAX_REGION_CORNERS`] of them; `sample` stands in for the
+    /// centre of an empty one (fewer than three corners).
+    fn polygon_in_world(polygon: &[DVec3], sample: DVec3) -> Region {
+        let mut corners = [DVec3::ZERO; MAX_REGION_CORNERS];
+        let count = polygon.len().min(MAX_REGION_CORNERS);
         if count < 3 {
             return Region {
                 corners,
@@ -212,9 +223,7 @@ impl Region {
                 size: 0.0,
             };
         }
-        for (c, p) in corners.iter_mut().zip(&clipped) {
-            *c = at(*p);
-        }
+        corners[..count].copy_from_slice(&polygon[..count]);
         let polygon = &corners[..count];
         Region {
             corners,
@@ -236,30 +245,11 @@ impl Region {
         (o, u, v): (DVec3, DVec3, DVec3),
         sample: DVec3,
     ) -> Region {
-        let mut corners = [DVec3::ZERO; MAX_REGION_CORNERS];
-        let count = polygon.len().min(MAX_REGION_CORNERS);
-        if count < 3 {
-            return Region {
-                corners,
-                count: 0,
-                parallelogram: false,
-                centre: sample,
-                size: 0.0,
-            };
-        }
-        for (c, p) in corners.iter_mut().zip(polygon) {
-            *c = o + u * f64::from(p.x) + v * f64::from(p.y);
-        }
-        let polygon = &corners[..count];
-        Region {
-            corners,
-            count,
-            parallelogram: false,
-            centre: polygon.iter().copied().sum::<DVec3>() / count as f64,
-            size: (0..count)
-                .map(|k| (polygon[(k + 1) % count] - polygon[k]).length())
-                .fold(0.0, f64::max),
-        }
+        let world: Vec<DVec3> = polygon
+            .iter()
+            .map(|p| o + u * f64::from(p.x) + v * f64::from(p.y))
+            .collect();
+        Region::polygon_in_world(&world, sample)
     }
 
     fn polygon(&self) -> &[DVec3] {
