@@ -162,7 +162,8 @@ struct Batch {
 // half t <= s of its chart, server/src/scene/mod.rs), 2 a triangle on its
 // mesh's own lightmap UVs (server/src/atlas/uv.rs), whose frame is its
 // `PatchFrame` (receive.wgsl), since its corner texels do not lie on its
-// corners. Mirrors `PatchRange` in server/src/gpu/placement.rs.
+// corners, 3 a parallelogram on its mesh's lightmap UVs (the same, whole).
+// Mirrors `PatchRange` in server/src/gpu/placement.rs.
 struct PatchRange {
     first: u32,
     count: u32,
@@ -171,7 +172,15 @@ struct PatchRange {
     triangle: u32,
 };
 
+const ON_OWN_CHART_TRIANGLE: u32 = 1u;
 const TRIANGLE_ON_LIGHTMAP: u32 = 2u;
+const QUAD_ON_LIGHTMAP: u32 = 3u;
+
+// Whether a patch's `PatchRange::triangle` says it lies on its mesh's own
+// lightmap UVs (its hemicube vertices carry chart coordinates).
+fn on_lightmap(triangle: u32) -> bool {
+    return triangle == TRIANGLE_ON_LIGHTMAP || triangle == QUAD_ON_LIGHTMAP;
+}
 
 // The element of patch `p` nearest to patch parameters `st` on its chart
 // (`element_in_chart`).
@@ -185,19 +194,19 @@ fn element_at(p: PatchRange, st: vec2<f32>) -> u32 {
 // (b > a) stand for no surface and hold no light (server/src/atlas.rs), so
 // a fragment that interpolation put a hair above the diagonal edge reads
 // the diagonal texel of its column instead (wallner §2: a triangle's texels
-// are those its footprint covers). On a triangle on its mesh's lightmap,
+// are those its footprint covers). On a patch on its mesh's lightmap,
 // `st` is already in chart coordinates (its hemicube vertices carry them,
 // server/src/gpu/hemicube.rs `patch_vertices`), and the texel a point of
-// the triangle rounds to overlaps the triangle.
+// the patch rounds to overlaps the patch.
 fn element_in_chart(first: u32, w: u32, h: u32, triangle: u32, st: vec2<f32>) -> u32 {
-    if (triangle == TRIANGLE_ON_LIGHTMAP) {
+    if (on_lightmap(triangle)) {
         let c = clamp(round(st), vec2<f32>(0.0), vec2<f32>(f32(w - 1u), f32(h - 1u)));
         return first + u32(c.y) * w + u32(c.x);
     }
     let c = clamp(st, vec2<f32>(0.0), vec2<f32>(1.0));
     let a = u32(round(c.x * f32(w - 1u)));
     var b = u32(round(c.y * f32(h - 1u)));
-    if (triangle != 0u) {
+    if (triangle == ON_OWN_CHART_TRIANGLE) {
         b = min(b, a);
     }
     return first + b * w + a;

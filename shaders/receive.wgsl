@@ -77,7 +77,8 @@ fn visibility(slot: u32, s: Shooter, d: vec3<f32>, x: vec3<f32>, id: u32) -> f32
 // stands for no surface, so its `v` comes from (w-1, 0) and (w-1, h-1),
 // and it occludes only on its half t <= s (the texels the item buffer
 // shows for it are the triangle's; its parallelogram would also shadow
-// through the neighbouring triangle's side).
+// through the neighbouring triangle's side). A patch on its mesh's own
+// lightmap (a triangle, or a parallelogram of them) reads its stored frame.
 fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     let r = patches[p];
     let first = local_elements[r.first];
@@ -85,7 +86,7 @@ fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     var o: vec3<f32>;
     var u: vec3<f32>;
     var v: vec3<f32>;
-    if (r.triangle == TRIANGLE_ON_LIGHTMAP) {
+    if (on_lightmap(r.triangle)) {
         // Its frame is stored: its corner texels are not on its corners.
         let f = patch_frames[p];
         o = (m * f.origin).xyz;
@@ -120,7 +121,7 @@ fn crosses(p: u32, pose_base: u32, a: vec3<f32>, b: vec3<f32>) -> bool {
     let nn = dot(n, n);
     let su = dot(q, cross(v, n)) / nn;
     let sv = dot(q, cross(n, u)) / nn;
-    let upper = select(1.0, su, r.triangle != 0u);
+    let upper = select(1.0, su, r.triangle == ON_OWN_CHART_TRIANGLE || r.triangle == TRIANGLE_ON_LIGHTMAP);
     return su > 0.0 && su < 1.0 && sv > 0.0 && sv < upper;
 }
 

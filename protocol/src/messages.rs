@@ -296,8 +296,9 @@ pub struct SurfaceInfo {
     pub rect: [u32; 4],
     /// Lightmap coordinates of the four corners, normalized (`u = x /
     /// atlas_width`, `v = y / atlas_height`, v = 0 the atlas's first row),
-    /// when they do not follow from `rect` (a triangle lit on its mesh's
-    /// own lightmap UVs); empty otherwise. Since version 3.
+    /// when they do not follow from `rect` (a triangle, or a parallelogram
+    /// of triangles, lit on its mesh's own lightmap UVs); empty otherwise.
+    /// Since version 3.
     pub uvs: Vec<[f32; 2]>,
 }
 

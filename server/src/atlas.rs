@@ -113,9 +113,12 @@ pub struct Atlas {
     /// (`atlas/uv.rs`).
     pub seams: Vec<Vec<u32>>,
     /// Per patch, the map from its parameters to its chart's texels when
-    /// it is a triangle lit on its mesh's own lightmap UVs (`atlas/uv.rs`);
-    /// `None` on Lightwire's own charts ([`ChartMap::native`]).
+    /// it is lit on its mesh's own lightmap UVs (a triangle, or a
+    /// parallelogram of triangles, `atlas/uv.rs`); `None` on Lightwire's
+    /// own charts ([`ChartMap::native`]).
     pub lightmap_maps: Vec<Option<ChartMap>>,
+    /// Per patch, whether it is a triangle (else a parallelogram).
+    pub triangles: Vec<bool>,
     /// Per entry of [`Scene::uv_meshes`], its lightmap's block in the atlas
     /// when its triangles are lit on it (a square chart of `w = h` texels).
     pub blocks: Vec<Option<Chart>>,
@@ -230,8 +233,9 @@ fn elements_area(elements: &[Element], i: u32) -> f32 {
     elements.get(i as usize).map_or(0.0, |e| e.area)
 }
 
-/// The elements of a triangle lit on its mesh's own lightmap: every texel
-/// of its chart, row-major, as `atlas/uv.rs` says.
+/// The elements of a patch lit on its mesh's own lightmap (a triangle or
+/// a parallelogram of them): every texel of its chart, row-major, as
+/// `atlas/uv.rs` says.
 fn uv_elements(
     patch: &Patch,
     p: u32,
@@ -241,14 +245,10 @@ fn uv_elements(
 ) -> Vec<Element> {
     let (origin, u, v) = patch.shape.frame();
     let normal = patch.shape.normal();
-    // The triangle's corners in chart coordinates, and world area per
+    // The patch's corners in chart coordinates, and world area per
     // texel² of the chart.
-    let q = [
-        map.to_chart(Vec2::new(0.0, 0.0)),
-        map.to_chart(Vec2::new(1.0, 0.0)),
-        map.to_chart(Vec2::new(1.0, 1.0)),
-    ];
-    let texels = f64::from(uv::uv_area(&q).abs());
+    let q = uv::chart_corners(map, patch.shape.is_triangle());
+    let texels = f64::from(uv::polygon_area(&q).abs());
     let scale = if texels > 0.0 {
         f64::from(patch.shape.area()) / texels
     } else {
@@ -257,14 +257,15 @@ fn uv_elements(
     // Chart coordinates put texel (a, b)'s footprint at [a - 0.5, a + 0.5]:
     // shift by half a texel for `uv::covered`, whose texel (i, j) covers
     // [i, i + 1].
-    let shifted = q.map(|c| c + Vec2::splat(0.5));
-    let param = |xy: Vec2| map.to_param(xy).unwrap_or(Vec2::new(2.0 / 3.0, 1.0 / 3.0));
+    let shifted: Vec<Vec2> = q.iter().map(|&c| c + Vec2::splat(0.5)).collect();
+    let centre = Vec2::from(patch.shape.centre_param());
+    let param = |xy: Vec2| map.to_param(xy).unwrap_or(centre);
     let mut out = Vec::with_capacity((chart.w * chart.h) as usize);
     for b in 0..chart.h {
         for a in 0..chart.w {
             let centre = Vec2::new(a as f32, b as f32);
             let (covered, poly) = uv::covered(&shifted, a, b);
-            let st = param(uv::nearest_on_triangle(&q, centre));
+            let st = param(uv::nearest_on_polygon(&q, centre));
             // The bounds of the covered part in patch parameters (the
             // texel's sample alone when it covers none).
             let mut region = [st.x, st.y, st.x, st.y];
@@ -449,7 +450,12 @@ pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
                         continue;
                     };
                     let q = l.uv.map(|c| c * block.w as f32);
-                    let ([x, y], [w, h]) = uv::triangle_chart(&q, block.w);
+                    // A parallelogram's fourth corner is affine.
+                    let mut corners = q.to_vec();
+                    if !patch.shape.is_triangle() {
+                        corners.push(q[0] + q[2] - q[1]);
+                    }
+                    let ([x, y], [w, h]) = uv::polygon_chart(&corners, block.w);
                     charts[p] = Chart {
                         x: block.x + x,
                         y: block.y + y,
@@ -645,6 +651,11 @@ impl Atlas {
             texel_element,
             seams,
             lightmap_maps: layout.lightmap_maps,
+            triangles: scene
+                .patches
+                .iter()
+                .map(|p| p.shape.is_triangle())
+                .collect(),
             blocks: layout.blocks,
         })
     }
@@ -660,9 +671,9 @@ impl Atlas {
         }
     }
 
-    /// The part of element `e`'s texel footprint its triangle covers, in
-    /// patch parameters, when the element is of a triangle lit on its
-    /// mesh's own lightmap UVs (`atlas/uv.rs`; empty when it covers none).
+    /// The part of element `e`'s texel footprint its patch covers, in patch
+    /// parameters, when the element is of a patch lit on its mesh's own
+    /// lightmap UVs (`atlas/uv.rs`; empty when it covers none).
     pub fn lightmap_region(&self, e: usize) -> Option<Vec<Vec2>> {
         let el = self.elements.get(e)?;
         let map = self
@@ -671,7 +682,15 @@ impl Atlas {
             .copied()
             .flatten()?;
         let chart = self.charts[el.patch as usize];
-        let q = [Vec2::ZERO, Vec2::X, Vec2::ONE].map(|st| map.to_chart(st) + Vec2::splat(0.5));
+        let triangle = self
+            .triangles
+            .get(el.patch as usize)
+            .copied()
+            .unwrap_or(true);
+        let q: Vec<Vec2> = uv::chart_corners(&map, triangle)
+            .into_iter()
+            .map(|c| c + Vec2::splat(0.5))
+            .collect();
         let (_, polygon) = uv::covered(&q, el.texel[0] - chart.x, el.texel[1] - chart.y);
         Some(
             polygon
@@ -681,7 +700,8 @@ impl Atlas {
         )
     }
 
-    /// Whether `patch` is a triangle lit on its mesh's own lightmap UVs.
+    /// Whether `patch` is lit on its mesh's own lightmap UVs (a triangle or
+    /// a parallelogram of them).
     pub fn on_lightmap_uvs(&self, patch: u32) -> bool {
         self.lightmap_maps
             .get(patch as usize)
@@ -1144,9 +1164,11 @@ mod tests {
         assert!(checked >= 2 * 6, "{checked} texels on shared edges");
     }
 
-    /// A floor of two triangles and a lone wall triangle of one mesh with
-    /// lightmap UVs (the floor in the left half of its lightmap, the wall in
-    /// the right), and a quad without.
+    /// One mesh with lightmap UVs: a floor of two triangles whose UVs are
+    /// affine over it (one parallelogram on the lightmap, `pairs.rs`) in
+    /// the left half of its lightmap, and a wall of two whose UVs are not
+    /// (a trapezoid: two triangles sharing their diagonal's texels) in the
+    /// right; and a quad without.
     const LIGHTMAP_UVS: &str = r#"{
         "name": "t",
         "lightmap": { "texel_density": 9.3 },
@@ -1154,10 +1176,10 @@ mod tests {
         "surfaces": [
             { "name": "room", "material": "m", "mesh": {
                 "positions": [[0, 0, 0], [2.1, 0, 0], [2.1, 0, -1.3], [0, 0, -1.3],
-                              [0, 0, -1.3], [2.1, 0, -1.3], [1.0, 1.7, -1.3]],
-                "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6],
+                              [0, 0, -1.3], [2.1, 0, -1.3], [2.1, 1.7, -1.3], [0, 1.7, -1.3]],
+                "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7],
                 "lightmap_uvs": [[0.03, 0.9], [0.47, 0.9], [0.47, 0.1], [0.03, 0.1],
-                                 [0.55, 0.9], [0.97, 0.9], [0.7, 0.2]] } },
+                                 [0.55, 0.9], [0.97, 0.9], [0.9, 0.2], [0.62, 0.2]] } },
             { "name": "wall", "material": "m", "quad": {
                 "origin": [0, 0, 0], "u": [0, 0, -1.3], "v": [0, 1, 0] } }
         ]
@@ -1174,15 +1196,24 @@ mod tests {
     #[test]
     fn triangles_on_their_lightmap_uvs_cover_their_texels() {
         use crate::scene::Charts;
-        // Other modes light the mesh on Lightwire's charts: the floor's two
-        // triangles become one quad.
+        // Other modes light the mesh on Lightwire's charts: the floor's and
+        // the wall's two triangles become one quad each.
         let own = lightmap_uv_scene(Charts::Parallelograms);
         assert_eq!(own.patches.len(), 3);
         assert!(own.patches.iter().all(|p| p.lightmap.is_none()));
         assert_eq!(own.uv_meshes.len(), 1);
 
+        // On the lightmap the floor is one parallelogram, the wall's UVs
+        // (a trapezoid) keep its triangles apart.
         let scene = lightmap_uv_scene(Charts::LightmapUvs);
-        assert_eq!(scene.patches.len(), 4, "three triangles and the quad");
+        assert_eq!(scene.patches.len(), 4, "the floor, two triangles, the quad");
+        let on_uvs: Vec<bool> = scene
+            .patches
+            .iter()
+            .filter(|p| p.lightmap.is_some())
+            .map(|p| p.shape.is_triangle())
+            .collect();
+        assert_eq!(on_uvs, [false, true, true]);
         check_areas(&scene);
         let atlas = Atlas::build(&scene).expect("fits");
         let block = atlas.blocks[0].expect("the mesh has a block");
@@ -1204,7 +1235,9 @@ mod tests {
             assert!(atlas.on_lightmap_uvs(p as u32));
             assert!(chart.x >= block.x && chart.x + chart.w <= block.x + block.w);
             assert!(chart.y >= block.y && chart.y + chart.h <= block.y + block.h);
-            // The chart map puts the triangle's corners at their UVs.
+            // The chart map puts the patch's corners at their UVs (a
+            // parallelogram's fourth where the mesh has it).
+            let triangle = patch.shape.is_triangle();
             let map = atlas.chart_map(p as u32);
             let corner = |st: Vec2| {
                 map.to_chart(st) + Vec2::new(chart.x as f32 + 0.5, chart.y as f32 + 0.5)
@@ -1213,13 +1246,24 @@ mod tests {
             for (st, uv) in [Vec2::ZERO, Vec2::X, Vec2::ONE].into_iter().zip(l.uv) {
                 assert!((corner(st) - uv * side as f32).length() < 1e-3);
             }
+            if !triangle {
+                let fourth = corner(Vec2::Y);
+                assert!(
+                    scene.uv_meshes[0].uvs[..2]
+                        .iter()
+                        .flatten()
+                        .any(|uv| (fourth - *uv * side as f32).length() < 1e-3),
+                    "the floor's fourth corner at {fourth} is one of its UVs"
+                );
+            }
             let (origin, u, v) = patch.shape.frame();
             for i in atlas.elements_of(p as u32) {
                 let e = &atlas.elements[i];
                 let [s, t] = e.st;
+                let top = if triangle { s } else { 1.0 };
                 assert!(
-                    (-1e-5..=1.0 + 1e-5).contains(&s) && (-1e-5..=s + 1e-5).contains(&t),
-                    "{}: sample ({s}, {t}) off the triangle",
+                    (-1e-5..=1.0 + 1e-5).contains(&s) && (-1e-5..=top + 1e-5).contains(&t),
+                    "{}: sample ({s}, {t}) off the patch",
                     patch.name
                 );
                 assert!((e.position - (origin + u * s + v * t)).length() < 1e-5);
@@ -1245,11 +1289,11 @@ mod tests {
                     }
                 }
             }
-            // A point inside the triangle reads an element of it whose
-            // texel holds the point and covers surface.
+            // A point inside the patch reads an element of it whose texel
+            // holds the point and covers surface.
             for (s, t) in [(0.5, 0.25), (0.9, 0.1), (0.7, 0.6), (0.34, 0.3)] {
                 let i = atlas
-                    .element_of(p as u32, true, Vec2::new(s, t))
+                    .element_of(p as u32, triangle, Vec2::new(s, t))
                     .expect("inside");
                 let e = &atlas.elements[i];
                 assert_eq!(e.patch, p as u32);
@@ -1259,7 +1303,7 @@ mod tests {
                 assert!((xy - texel).abs().max_element() <= 0.5 + 1e-4);
             }
         }
-        // The floor's diagonal texels are shared by its two triangles.
+        // The wall's diagonal texels are shared by its two triangles.
         let shared = atlas
             .seams
             .iter()
@@ -1271,7 +1315,7 @@ mod tests {
             .count();
         assert!(
             shared >= 10,
-            "{shared} shared texels along the floor's diagonal"
+            "{shared} shared texels along the wall's diagonal"
         );
         // The image shows each texel's owner.
         let values: Vec<Vec3> = (0..atlas.elements.len())

@@ -45,16 +45,17 @@ pub struct AtlasSurface {
     /// origin+u+v, origin+v (a triangle repeats its third corner).
     pub corners: [[f32; 3]; 4],
     /// The corners' lightmap coordinates when they do not follow from
-    /// `rect` (a triangle lit on its mesh's own lightmap UVs), as the
+    /// `rect` (a patch lit on its mesh's own lightmap UVs), as the
     /// wire's `SurfaceInfo::uvs`.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub uvs: Vec<[f32; 2]>,
 }
 
 /// The lightmap coordinates of patch `p`'s four corners (as
-/// `PatchShape::quad_corners` lists them) when it is a triangle lit on its
-/// mesh's own lightmap UVs, normalized as the wire's `SurfaceInfo::uvs`;
-/// empty otherwise (they follow from its chart's rectangle).
+/// `PatchShape::quad_corners` lists them: a triangle's third repeated) when
+/// it is lit on its mesh's own lightmap UVs, normalized as the wire's
+/// `SurfaceInfo::uvs`; empty otherwise (they follow from its chart's
+/// rectangle).
 pub fn corner_uvs(atlas: &Atlas, p: usize) -> Vec<[f32; 2]> {
     let Some(map) = atlas.lightmap_maps.get(p).copied().flatten() else {
         return Vec::new();
@@ -62,7 +63,12 @@ pub fn corner_uvs(atlas: &Atlas, p: usize) -> Vec<[f32; 2]> {
     let c = atlas.charts[p];
     let size = Vec2::new(atlas.width as f32, atlas.height as f32);
     let base = Vec2::new(c.x as f32 + 0.5, c.y as f32 + 0.5);
-    [Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::ONE]
+    let last = if atlas.triangles.get(p).copied().unwrap_or(true) {
+        Vec2::ONE
+    } else {
+        Vec2::Y
+    };
+    [Vec2::ZERO, Vec2::X, Vec2::ONE, last]
         .map(|st| ((base + map.to_chart(st)) / size).to_array())
         .to_vec()
 }

@@ -320,7 +320,14 @@ pub fn gather_cached(
     let seen = |patch: u32, x: DVec3| -> Option<Vec3> {
         let wp = caster.patches().get(patch as usize)?;
         let chart = atlas.charts.get(patch as usize)?;
-        if lookup == Lookup::Bilinear && !wp.is_triangle() && chart.w >= 2 && chart.h >= 2 {
+        // A chart on a mesh's own lightmap holds texels beyond its patch
+        // (`atlas/uv.rs`): nearest there, as on a triangle's chart.
+        if lookup == Lookup::Bilinear
+            && !wp.is_triangle()
+            && !atlas.on_lightmap_uvs(patch)
+            && chart.w >= 2
+            && chart.h >= 2
+        {
             if wp.area.is_nan() || wp.area <= 0.0 {
                 return None;
             }

@@ -19,6 +19,13 @@
 //! the texel shows that mean ([`super::Atlas::to_image`] writes the one
 //! element that owns it, the one covering most of it).
 //!
+//! Where the UVs are affine over a flat grid of triangles (an island
+//! unwrapped by a planar projection), the grid is one parallelogram patch
+//! (`scene/pairs.rs`) and everything above holds for it as for a triangle:
+//! its chart is the rectangle its UV parallelogram overlaps, its elements
+//! the texels of that rectangle, each covering the part of its footprint
+//! inside the parallelogram.
+//!
 //! Patch parameters `(s, t)` map to a chart's texel coordinates (centres at
 //! integers) by an affine [`ChartMap`]; on Lightwire's own charts that is
 //! `(s (w - 1), t (h - 1))`.
@@ -97,12 +104,33 @@ pub fn uv_area([a, b, c]: &[Vec2; 3]) -> f32 {
     0.5 * (*b - *a).perp_dot(*c - *a)
 }
 
-/// The chart of a triangle whose corners lie at `q` (texel coordinates of
-/// its block, texel `(i, j)` covering `[i, i + 1] x [j, j + 1]`): the first
-/// texel and the size of the rectangle of texels its footprint overlaps,
-/// inside the block's `side` x `side`, at least 2 x 2 (grown inside the
-/// block where it is narrower).
-pub fn triangle_chart(q: &[Vec2; 3], side: u32) -> ([u32; 2], [u32; 2]) {
+/// Signed area of a polygon (positive counter-clockwise).
+pub fn polygon_area(q: &[Vec2]) -> f32 {
+    let mut twice = 0.0;
+    for k in 0..q.len() {
+        twice += q[k].perp_dot(q[(k + 1) % q.len()]);
+    }
+    0.5 * twice
+}
+
+/// The corners of a patch on its mesh's lightmap in its chart's texel
+/// coordinates: a triangle's three (patch parameters (0, 0), (1, 0),
+/// (1, 1)), or a parallelogram's four (and (0, 1)), in patch order.
+pub fn chart_corners(map: &ChartMap, triangle: bool) -> Vec<Vec2> {
+    let params: &[Vec2] = if triangle {
+        &[Vec2::ZERO, Vec2::X, Vec2::ONE]
+    } else {
+        &[Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y]
+    };
+    params.iter().map(|&st| map.to_chart(st)).collect()
+}
+
+/// The chart of a convex polygon (a triangle, a parallelogram) whose
+/// corners lie at `q` (texel coordinates of its block, texel `(i, j)`
+/// covering `[i, i + 1] x [j, j + 1]`): the first texel and the size of the
+/// rectangle of texels its footprint overlaps, inside the block's `side` x
+/// `side`, at least 2 x 2 (grown inside the block where it is narrower).
+pub fn polygon_chart(q: &[Vec2], side: u32) -> ([u32; 2], [u32; 2]) {
     let last = side.saturating_sub(1) as f32;
     let axis = |k: usize| {
         let lo = q.iter().map(|p| p[k]).fold(f32::INFINITY, f32::min);
@@ -118,13 +146,13 @@ pub fn triangle_chart(q: &[Vec2; 3], side: u32) -> ([u32; 2], [u32; 2]) {
     ([x, y], [w, h])
 }
 
-/// The part of texel `(i, j)`'s footprint that the triangle `q` (texel
-/// coordinates, either winding) covers: its area in texels² and its
+/// The part of texel `(i, j)`'s footprint that the convex polygon `q`
+/// (texel coordinates, either winding) covers: its area in texels² and its
 /// corners (empty when it covers none).
-pub fn covered(q: &[Vec2; 3], i: u32, j: u32) -> (f64, Vec<DVec2>) {
+pub fn covered(q: &[Vec2], i: u32, j: u32) -> (f64, Vec<DVec2>) {
     let (x0, y0) = (f64::from(i), f64::from(j));
     let mut poly: Vec<DVec2> = q.iter().map(|p| p.as_dvec2()).collect();
-    if uv_area(q) < 0.0 {
+    if polygon_area(q) < 0.0 {
         poly.reverse();
     }
     // Sutherland–Hodgman against the footprint's four sides: keep
@@ -191,11 +219,25 @@ pub fn nearest(q: &[Vec2; 3], p: Vec2) -> (Vec3, f32) {
 
 /// The point of triangle `q` nearest to `p` (`p` itself when inside).
 pub fn nearest_on_triangle(q: &[Vec2; 3], p: Vec2) -> Vec2 {
-    let (b, d) = nearest(q, p);
-    if d == 0.0 {
-        return p;
+    nearest_on_polygon(q, p)
+}
+
+/// The point of the convex polygon `q` (three or more corners) nearest to
+/// `p` (`p` itself when inside): the nearest over the triangles of its fan
+/// from `q[0]`.
+pub fn nearest_on_polygon(q: &[Vec2], p: Vec2) -> Vec2 {
+    let mut best = (p, f32::INFINITY);
+    for k in 1..q.len().saturating_sub(1) {
+        let t = [q[0], q[k], q[k + 1]];
+        let (b, d) = nearest(&t, p);
+        if d == 0.0 {
+            return p;
+        }
+        if d < best.1 {
+            best = (t[0] * b.x + t[1] * b.y + t[2] * b.z, d);
+        }
     }
-    q[0] * b.x + q[1] * b.y + q[2] * b.z
+    best.0
 }
 
 #[cfg(test)]
@@ -224,7 +266,7 @@ mod tests {
             Vec2::new(5.7, 1.1),
             Vec2::new(2.2, 4.9),
         ];
-        let ([x, y], [w, h]) = triangle_chart(&q, 16);
+        let ([x, y], [w, h]) = polygon_chart(&q, 16);
         let mut sum = 0.0;
         for j in y..y + h {
             for i in x..x + w {
@@ -242,9 +284,9 @@ mod tests {
             Vec2::new(3.8, 7.2),
             Vec2::new(3.5, 7.9),
         ];
-        assert_eq!(triangle_chart(&tiny, 16), ([3, 7], [2, 2]));
+        assert_eq!(polygon_chart(&tiny, 16), ([3, 7], [2, 2]));
         assert_eq!(
-            triangle_chart(&tiny.map(|p| p + Vec2::new(12.0, 8.0)), 16),
+            polygon_chart(&tiny.map(|p| p + Vec2::new(12.0, 8.0)), 16),
             ([14, 14], [2, 2])
         );
         // Clockwise the same.
@@ -254,6 +296,42 @@ mod tests {
             (covered(&q, 2, 2).0 - 1.0).abs() < 1e-12,
             "an inner texel is whole"
         );
+    }
+
+    #[test]
+    fn covered_parts_of_texels_sum_to_a_parallelogram() {
+        // A skewed parallelogram, clockwise, as a chart map gives one.
+        let map = ChartMap {
+            origin: Vec2::new(2.3, 0.7),
+            ds: Vec2::new(6.2, 1.1),
+            dt: Vec2::new(-1.4, 4.3),
+        };
+        let q: Vec<Vec2> = chart_corners(&map, false).into_iter().rev().collect();
+        assert_eq!(q.len(), 4);
+        let area = polygon_area(&q).abs();
+        assert!((area - map.ds.perp_dot(map.dt).abs()).abs() < 1e-4);
+        let ([x, y], [w, h]) = polygon_chart(&q, 32);
+        let mut sum = 0.0;
+        for j in y..y + h {
+            for i in x..x + w {
+                sum += covered(&q, i, j).0;
+            }
+        }
+        assert!((sum - f64::from(area)).abs() < 1e-4, "{sum} vs {area}");
+        // Its fourth corner (patch parameters (0, 1)) widens the chart
+        // beyond the triangle's.
+        let triangle = chart_corners(&map, true);
+        assert_eq!(triangle.len(), 3);
+        let (_, [tw, _]) = polygon_chart(&triangle, 32);
+        assert!(w > tw, "{w} vs {tw}");
+        // The nearest point of a point outside lies on its boundary, inside
+        // it is the point itself.
+        let inside = map.to_chart(Vec2::new(0.2, 0.9));
+        assert_eq!(nearest_on_polygon(&q, inside), inside);
+        let beyond = map.to_chart(Vec2::new(-0.1, 0.9));
+        let on = nearest_on_polygon(&q, beyond);
+        let st = map.to_param(on).expect("invertible");
+        assert!(st.x.abs() < 1e-4 && (0.0..=1.0).contains(&st.y), "{st}");
     }
 
     #[test]

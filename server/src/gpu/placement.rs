@@ -54,8 +54,9 @@ pub(super) fn invalid_flag(invalid: bool) -> f32 {
 /// [`TRIANGLE_ON_LIGHTMAP`] (lit on its mesh's own lightmap UVs,
 /// `atlas/uv.rs`: its hemicube vertices carry chart coordinates rather than
 /// patch parameters, and its frame, which the receiving shaders cannot
-/// rebuild from its corner texels, is its [`PatchFrame`]). Kept at 20
-/// bytes: every hemicube vertex reads its patch's.
+/// rebuild from its corner texels, is its [`PatchFrame`]); a
+/// parallelogram on its mesh's lightmap is [`QUAD_ON_LIGHTMAP`], the same
+/// but whole. Kept at 20 bytes: every hemicube vertex reads its patch's.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug, PartialEq)]
 pub(super) struct PatchRange {
@@ -83,6 +84,8 @@ const _: () = assert!(std::mem::size_of::<PatchFrame>() == 48);
 pub(super) const TRIANGLE: u32 = 1;
 /// `PatchRange::triangle` of a triangle on its mesh's lightmap UVs.
 pub(super) const TRIANGLE_ON_LIGHTMAP: u32 = 2;
+/// `PatchRange::triangle` of a parallelogram on its mesh's lightmap UVs.
+pub(super) const QUAD_ON_LIGHTMAP: u32 = 3;
 
 /// A patch placed in the world, as the CPU needs it to place shooters:
 /// the frame `origin + s u + t v` of its shape (a quad covers `s, t ∈
@@ -98,7 +101,7 @@ pub(super) struct WorldPatch {
     pub(super) h: u32,
     pub(super) triangle: bool,
     /// Its chart's map from patch parameters to texel coordinates when it
-    /// is a triangle on its mesh's own lightmap UVs (`atlas/uv.rs`).
+    /// is lit on its mesh's own lightmap UVs (`atlas/uv.rs`).
     pub(super) lightmap: Option<ChartMap>,
 }
 
@@ -209,9 +212,10 @@ impl PatchTable {
                 w,
                 h,
                 triangle: match (shape.is_triangle(), map.is_some()) {
-                    (false, _) => 0,
+                    (false, false) => 0,
                     (true, false) => TRIANGLE,
                     (true, true) => TRIANGLE_ON_LIGHTMAP,
+                    (false, true) => QUAD_ON_LIGHTMAP,
                 },
             })
             .collect()

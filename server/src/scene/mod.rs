@@ -238,20 +238,23 @@ pub struct Patch {
     /// is shorter than a texel spacing, `atlas::chart_size`).
     pub cells: [u32; 2],
     /// A triangle of a glTF mesh that brought its own lightmap UVs
-    /// (`TEXCOORD_1`), lit on them (`--charts lightmap-uvs`): which of
-    /// [`Scene::uv_meshes`] and its UVs at `origin`, `origin + u`,
-    /// `origin + u + v`. `None` everywhere else, and for every patch under
+    /// (`TEXCOORD_1`), lit on them (`--charts lightmap-uvs`), or a
+    /// parallelogram of such triangles over which they are affine
+    /// (`pairs.rs`): which of [`Scene::uv_meshes`] and its UVs at
+    /// `origin`, `origin + u`, `origin + u + v`. `None` everywhere else, and for every patch under
     /// the other [`Charts`] modes, whose charts are Lightwire's own.
     pub lightmap: Option<PatchLightmap>,
 }
 
-/// Where a triangle lies in its mesh's own lightmap (`Patch::lightmap`).
+/// Where a triangle (or a parallelogram of them) lies in its mesh's own
+/// lightmap (`Patch::lightmap`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PatchLightmap {
     /// Index into [`Scene::uv_meshes`].
     pub mesh: u32,
-    /// `TEXCOORD_1` at the triangle's corners, in the order of
-    /// [`PatchShape::triangle`]'s corners.
+    /// `TEXCOORD_1` at patch parameters (0, 0), (1, 0) and (1, 1): the
+    /// triangle's corners in the order of [`PatchShape::triangle`]'s, or
+    /// three of a quad's (the fourth is affine, `uv[0] + uv[2] - uv[1]`).
     pub uv: [Vec2; 3],
 }
 

@@ -17,7 +17,7 @@
 //! every cell's own chart repeats along its edges and without a patch
 //! (and a shot, and triangles drawn into every hemicube) per cell. Charts
 //! of triangles that tile no parallelogram (near-planar regions in
-//! general, an asset's own `TEXCOORD_1`) are not built.
+//! general) are not built.
 //!
 //! Pairs through an edge that is the longest of both triangles (a quad
 //! cut along its diagonal) are taken first, so that a grid of cells
@@ -25,7 +25,13 @@
 //! shared edge. A texture pairs only when its coordinates are affine
 //! over the parallelogram (the fourth corner's coordinates are what the
 //! other three give), since `AlbedoMap` interpolates linearly over the
-//! patch.
+//! patch. The same holds for triangles lit on their mesh's own lightmap
+//! UVs (`Patch::lightmap`, `--charts lightmap-uvs`): where an island of
+//! the asset's lightmap maps a flat grid of cells affinely (a wall or a
+//! floor unwrapped by a planar projection, as lightmap unwrappers do), the
+//! grid becomes one patch on that island, its texels the island's, shot
+//! in tiles like any chart: a patch, a shot and hemicube triangles per
+//! parallelogram rather than per triangle.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -33,7 +39,7 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3};
 
 use super::texture::AlbedoMap;
-use super::{Charts, Patch, PatchShape};
+use super::{Charts, Patch, PatchLightmap, PatchShape};
 
 /// The fourth corner lies within this fraction of the shared edge's length
 /// of where the parallelogram puts it (or within the f32 rounding of the
@@ -103,6 +109,7 @@ struct Group {
     surface_index: usize,
     density: u32,
     texture: Option<usize>,
+    lightmap: Option<u32>,
 }
 
 fn group(p: &Patch) -> Group {
@@ -115,22 +122,49 @@ fn group(p: &Patch) -> Group {
             .albedo_map
             .as_ref()
             .map(|m| Arc::as_ptr(&m.texture) as usize),
+        lightmap: p.lightmap.map(|l| l.mesh),
     }
 }
 
-/// A triangle's corners counter-clockwise from the front, with the texture
-/// coordinates at each (`AlbedoMap::uv` is in the same order).
-fn corners(p: &Patch) -> Option<([Vec3; 3], Option<[Vec2; 3]>)> {
-    if p.lightmap.is_some() {
-        return None;
-    }
+/// A triangle's corners counter-clockwise from the front (`AlbedoMap::uv`
+/// and `PatchLightmap::uv` are in the same order).
+fn corners(p: &Patch) -> Option<[Vec3; 3]> {
     match p.shape {
-        PatchShape::Triangle { origin, u, v } => Some((
-            [origin, origin + u, origin + u + v],
-            p.albedo_map.as_ref().map(|m| m.uv),
-        )),
+        PatchShape::Triangle { origin, u, v } => Some([origin, origin + u, origin + u + v]),
         PatchShape::Quad { .. } => None,
     }
+}
+
+/// Coordinates given at patch parameters (0, 0), (1, 0) and (1, 1) (a
+/// triangle's corners, three of a quad's), at `(s, t)`: affine over the
+/// patch, as `AlbedoMap::uv_at` and the atlas's `ChartMap` are.
+fn affine_uv([a, b, c]: [Vec2; 3], s: f32, t: f32) -> Vec2 {
+    a + (b - a) * s + (c - b) * t
+}
+
+/// Both or neither of two patches' coordinates `a` and `b` (textures or
+/// lightmap UVs) and, when both, the joined patch's from `join_uv` (`None`
+/// when they do not join).
+fn both<T>(
+    a: Option<T>,
+    b: Option<T>,
+    join_uv: impl FnOnce(T, T) -> Option<[Vec2; 3]>,
+) -> Option<Option<[Vec2; 3]>> {
+    match (a, b) {
+        (None, None) => Some(None),
+        (Some(a), Some(b)) => join_uv(a, b).map(Some),
+        _ => None,
+    }
+}
+
+/// The quad's coordinates when triangles with coordinates `uva` and `uvb`
+/// join through `a`'s edge `ka` (`b`'s `kb`) into the quad with corners
+/// x, d0, y of `join`: only when they agree on the shared edge and are
+/// affine over the quad.
+fn join_uvs(uva: [Vec2; 3], uvb: [Vec2; 3], ka: usize, kb: usize) -> Option<[Vec2; 3]> {
+    let (t0, t1, tx) = (uva[ka], uva[(ka + 1) % 3], uva[(ka + 2) % 3]);
+    let (s1, s0, ty) = (uvb[kb], uvb[(kb + 1) % 3], uvb[(kb + 2) % 3]);
+    (close_uv(t0, s0) && close_uv(t1, s1) && close_uv(tx + ty, t0 + t1)).then_some([tx, t0, ty])
 }
 
 fn close_uv(a: Vec2, b: Vec2) -> bool {
@@ -141,8 +175,8 @@ fn close_uv(a: Vec2, b: Vec2) -> bool {
 /// (corners `ka`, `ka + 1`) as a diagonal of a parallelogram with
 /// consistent texture coordinates.
 fn join(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
-    let (ca, uva) = corners(a)?;
-    let (cb, uvb) = corners(b)?;
+    let ca = corners(a)?;
+    let cb = corners(b)?;
     let (d0, d1, x) = (ca[ka], ca[(ka + 1) % 3], ca[(ka + 2) % 3]);
     // `b` runs the shared edge the other way: d1, d0, then its third corner.
     let kb = (0..3).find(|&k| grid.same(cb[k], d1) && grid.same(cb[(k + 1) % 3], d0))?;
@@ -158,22 +192,21 @@ fn join(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
     if (x + y - d0 - d1).length() > tolerance {
         return None;
     }
-    let albedo_map = match (&a.albedo_map, uva, uvb) {
-        (None, None, None) => None,
-        (Some(map), Some(uva), Some(uvb)) => {
-            let (t0, t1, tx) = (uva[ka], uva[(ka + 1) % 3], uva[(ka + 2) % 3]);
-            let (s1, s0, ty) = (uvb[kb], uvb[(kb + 1) % 3], uvb[(kb + 2) % 3]);
-            if !(close_uv(t0, s0) && close_uv(t1, s1) && close_uv(tx + ty, t0 + t1)) {
-                return None;
-            }
-            // The quad's frame below: corners x, d0, y (s, t = 0,0 / 1,0 / 1,1).
-            Some(AlbedoMap {
-                texture: Arc::clone(&map.texture),
-                uv: [tx, t0, ty],
-            })
-        }
-        _ => return None,
+    // The quad's frame below: corners x, d0, y (s, t = 0,0 / 1,0 / 1,1).
+    let albedo_map = match both(a.albedo_map.as_ref(), b.albedo_map.as_ref(), |ma, mb| {
+        join_uvs(ma.uv, mb.uv, ka, kb)
+    })? {
+        Some(uv) => Some(AlbedoMap {
+            texture: Arc::clone(&a.albedo_map.as_ref()?.texture),
+            uv,
+        }),
+        None => None,
     };
+    let lightmap = both(a.lightmap, b.lightmap, |la, lb| {
+        join_uvs(la.uv, lb.uv, ka, kb)
+    })?
+    .zip(a.lightmap)
+    .map(|(uv, l)| PatchLightmap { uv, ..l });
     let suffix = b.name.rsplit('/').next().unwrap_or(&b.name);
     Some(Patch {
         name: format!("{}+{suffix}", a.name),
@@ -185,6 +218,7 @@ fn join(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
             v: y - d0,
         },
         albedo_map,
+        lightmap,
         ..a.clone()
     })
 }
@@ -197,7 +231,7 @@ pub fn pair_triangles(patches: Vec<Patch>) -> Vec<Patch> {
     let (lo, hi) = patches
         .iter()
         .filter_map(corners)
-        .flat_map(|(c, _)| c)
+        .flatten()
         .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
             (lo.min(c), hi.max(c))
         });
@@ -206,7 +240,7 @@ pub fn pair_triangles(patches: Vec<Patch>) -> Vec<Patch> {
     // Directed edges of every triangle: (group, from, to) -> (patch, edge).
     let mut edges: HashMap<(Group, Key, Key), Vec<(usize, usize)>> = HashMap::new();
     for (i, p) in patches.iter().enumerate() {
-        if let Some((c, _)) = corners(p) {
+        if let Some(c) = corners(p) {
             let g = group(p);
             for k in 0..3 {
                 edges
@@ -217,7 +251,7 @@ pub fn pair_triangles(patches: Vec<Patch>) -> Vec<Patch> {
         }
     }
     let longest = |p: &Patch, k: usize| -> bool {
-        let Some((c, _)) = corners(p) else {
+        let Some(c) = corners(p) else {
             return false;
         };
         let len = |k: usize| (c[(k + 1) % 3] - c[k]).length_squared();
@@ -227,7 +261,7 @@ pub fn pair_triangles(patches: Vec<Patch>) -> Vec<Patch> {
     let mut used = vec![false; patches.len()];
     for diagonal_only in [true, false] {
         for (i, a) in patches.iter().enumerate() {
-            let Some((c, _)) = corners(a) else {
+            let Some(c) = corners(a) else {
                 continue;
             };
             if used[i] {
@@ -312,34 +346,25 @@ fn extend(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
     if (w_b - along * w_b.dot(along)).length() > tolerance {
         return None;
     }
-    let albedo_map = match (&a.albedo_map, &b.albedo_map) {
-        (None, None) => None,
-        (Some(ma), Some(mb)) if Arc::ptr_eq(&ma.texture, &mb.texture) => {
-            let uv_a = |k: usize| {
-                let (s, t) = QUAD_ST[k % 4];
-                ma.uv_at(s, t)
-            };
-            let uv_b = |k: usize| {
-                let (s, t) = QUAD_ST[k % 4];
-                mb.uv_at(s, t)
-            };
-            // Agree on the edge, and change across it at one rate.
-            let c = w_b.length() / w_a.length();
-            let across_a = uv_a(ka + 3) - uv_a(ka);
-            let across_b = uv_b(kb + 2) - uv_b(kb + 1);
-            if !(close_uv(uv_a(ka), uv_b(kb + 1))
-                && close_uv(uv_a(ka + 1), uv_b(kb))
-                && close_uv(across_b + uv_a(ka), uv_a(ka) - across_a * c))
-            {
-                return None;
-            }
-            Some(AlbedoMap {
-                texture: Arc::clone(&ma.texture),
-                uv: [uv_b(kb + 2), uv_b(kb + 3), uv_a(ka + 2)],
-            })
+    // Agree on the edge, and change across it at one rate.
+    let c = w_b.length() / w_a.length();
+    let albedo_map = match both(a.albedo_map.as_ref(), b.albedo_map.as_ref(), |ma, mb| {
+        if !Arc::ptr_eq(&ma.texture, &mb.texture) {
+            return None;
         }
-        _ => return None,
+        extend_uvs(ma.uv, mb.uv, ka, kb, c)
+    })? {
+        Some(uv) => Some(AlbedoMap {
+            texture: Arc::clone(&a.albedo_map.as_ref()?.texture),
+            uv,
+        }),
+        None => None,
     };
+    let lightmap = both(a.lightmap, b.lightmap, |la, lb| {
+        extend_uvs(la.uv, lb.uv, ka, kb, c)
+    })?
+    .zip(a.lightmap)
+    .map(|(uv, l)| PatchLightmap { uv, ..l });
     // Cells: `a`'s and `b`'s along the edge must match in number (then in
     // size) and be as deep across it for the union to be a grid of equal
     // cells; otherwise the union counts as one cell.
@@ -365,8 +390,26 @@ fn extend(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
             v: w_a - w_b,
         },
         albedo_map,
+        lightmap,
         ..a.clone()
     })
+}
+
+/// The union's coordinates when quad `b` extends quad `a` across `a`'s
+/// edge `ka` (`b`'s `kb`), `b` being `c` times as deep across it (the
+/// union's corners as `extend` orders them): only when they agree on the
+/// edge and change across it at one rate.
+fn extend_uvs(uv_a: [Vec2; 3], uv_b: [Vec2; 3], ka: usize, kb: usize, c: f32) -> Option<[Vec2; 3]> {
+    let at = |uv: [Vec2; 3], k: usize| {
+        let (s, t) = QUAD_ST[k % 4];
+        affine_uv(uv, s, t)
+    };
+    let across_a = at(uv_a, ka + 3) - at(uv_a, ka);
+    let across_b = at(uv_b, kb + 2) - at(uv_b, kb + 1);
+    (close_uv(at(uv_a, ka), at(uv_b, kb + 1))
+        && close_uv(at(uv_a, ka + 1), at(uv_b, kb))
+        && close_uv(across_b + at(uv_a, ka), at(uv_a, ka) - across_a * c))
+    .then(|| [at(uv_b, kb + 2), at(uv_b, kb + 3), at(uv_a, ka + 2)])
 }
 
 /// Joins mesh quads (pairs from [`pair_triangles`]) of one surface that
@@ -469,6 +512,8 @@ pub fn merge_parallelograms(patches: Vec<Patch>) -> Vec<Patch> {
 pub fn charts(mut patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
     // Only the static world is lit on its meshes' own lightmaps: a moving
     // object's cross tiles follow the rows of Lightwire's own charts.
+    // Triangles on their lightmap pair and merge where their UVs are affine
+    // over the union (`join_uvs`, `extend_uvs`).
     for p in &mut patches {
         if charts != Charts::LightmapUvs || p.object != super::STATIC_OBJECT {
             p.lightmap = None;
@@ -477,7 +522,6 @@ pub fn charts(mut patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
     match charts {
         Charts::Triangles => patches,
         Charts::Pairs => pair_triangles(patches),
-        // Triangles on their own lightmap UVs pair with nothing (`corners`).
         Charts::Parallelograms | Charts::LightmapUvs => {
             merge_parallelograms(pair_triangles(patches))
         }
@@ -718,6 +762,89 @@ mod tests {
             super::charts(triangles.clone(), Charts::Triangles),
             triangles
         );
+    }
+
+    /// `triangles` (of `grid`) on a lightmap whose UVs are `uv_of` their
+    /// corners' positions.
+    fn on_lightmap(triangles: &[Patch], uv_of: impl Fn(Vec3) -> Vec2) -> Vec<Patch> {
+        triangles
+            .iter()
+            .map(|t| {
+                let c = corners(t).expect("a triangle");
+                Patch {
+                    lightmap: Some(PatchLightmap {
+                        mesh: 0,
+                        uv: c.map(&uv_of),
+                    }),
+                    ..t.clone()
+                }
+            })
+            .collect()
+    }
+
+    /// Where a merged patch on the lightmap puts world point `x` of it.
+    fn lightmap_uv_at(q: &Patch, x: Vec3) -> Vec2 {
+        let (s, t) = st(q, x);
+        affine_uv(q.lightmap.expect("on the lightmap").uv, s, t)
+    }
+
+    #[test]
+    fn triangles_on_their_lightmap_merge_only_where_their_uvs_are_affine() {
+        let triangles = grid(4);
+        // A planar projection, as an unwrapper gives a flat island.
+        let planar = |p: Vec3| Vec2::new(0.1 + 0.2 * p.x, 0.9 + 0.15 * p.z);
+        let flat = on_lightmap(&triangles, planar);
+        let charts = super::charts(flat.clone(), Charts::LightmapUvs);
+        assert_eq!(charts.len(), 1, "one island, one parallelogram");
+        let q = &charts[0];
+        assert!(!q.shape.is_triangle());
+        for t in &flat {
+            for c in corners(t).expect("a triangle") {
+                assert!((lightmap_uv_at(q, c) - planar(c)).length() < 1e-5);
+            }
+        }
+        // Not on the lightmap under the other modes.
+        let own = super::charts(flat.clone(), Charts::Parallelograms);
+        assert!(own.iter().all(|p| p.lightmap.is_none()));
+        // The grid's middle corner moved in the lightmap (two islands'
+        // worth of distortion): the UVs are not affine over the cells around
+        // it, which stay apart; whatever merges keeps every corner's UV.
+        let middle = Vec3::new(2.0, 0.0, -2.0);
+        let bent_uv = |p: Vec3| {
+            planar(p)
+                + if (p - middle).length() < 1e-6 {
+                    Vec2::new(0.03, 0.0)
+                } else {
+                    Vec2::ZERO
+                }
+        };
+        let bent = on_lightmap(&triangles, bent_uv);
+        let charts = super::charts(bent.clone(), Charts::LightmapUvs);
+        assert!(charts.len() > 4, "{} patches", charts.len());
+        assert!(charts.iter().any(|p| p.shape.is_triangle()));
+        covered_once(&charts, &bent);
+        for q in &charts {
+            for t in bent.iter().filter(|t| {
+                let (s, w) = st(q, t.shape.centre());
+                q.shape.contains(s, w)
+            }) {
+                for c in corners(t).expect("a triangle") {
+                    assert!(
+                        (lightmap_uv_at(q, c) - bent_uv(c)).length() < 1e-5,
+                        "{} reads {} at {c}, the mesh says {}",
+                        q.name,
+                        lightmap_uv_at(q, c),
+                        bent_uv(c)
+                    );
+                }
+            }
+        }
+        // Another mesh's lightmap: no merge across.
+        let mut two = flat;
+        for t in &mut two[16..] {
+            t.lightmap = t.lightmap.map(|l| PatchLightmap { mesh: 1, ..l });
+        }
+        assert_eq!(super::charts(two, Charts::LightmapUvs).len(), 2);
     }
 
     #[test]

@@ -206,15 +206,15 @@ impl Tiling<'_> {
     /// just across the edge (on a mesh, every edge may be a crease) take
     /// most of their light from.
     fn split_diagonal(&self, patch: &WorldPatch, tiles: &mut Vec<[u32; 4]>, limit: usize) {
-        if !patch.triangle {
+        if !patch.triangle && patch.lightmap.is_none() {
             return;
         }
         let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
         // On its own chart, a texel of the tile lies above the diagonal
-        // (b > a); on a mesh's own lightmap, an edge of the triangle
-        // crosses the tile (`atlas/uv.rs`).
+        // (b > a); on a mesh's own lightmap, an edge of the triangle (or of
+        // the parallelogram) crosses the tile (`atlas/uv.rs`).
         let crossed = |t: &[u32; 4]| match patch.lightmap {
-            Some(map) => !lightmap_edges(&map, *t).is_empty(),
+            Some(map) => !lightmap_edges(&map, patch.triangle, *t).is_empty(),
             None => t[3] - 1 > t[0],
         };
         while tiles.len() < limit {
@@ -324,11 +324,11 @@ impl Tiling<'_> {
         let (corner, su, sv, cut) = match patch.lightmap {
             Some(map) => {
                 // The tile's texels' footprints, a parallelogram in patch
-                // parameters, cut by the triangle edge that crosses it
+                // parameters, cut by the patch edge that crosses it
                 // (`lightmap_edges`).
                 let (c, ex, ey) = lightmap_tile(&map, [a0, b0, a1, b1]);
                 let at = |p: Vec2| patch.u * p.x + patch.v * p.y;
-                let cut = lightmap_edges(&map, [a0, b0, a1, b1])
+                let cut = lightmap_edges(&map, patch.triangle, [a0, b0, a1, b1])
                     .into_iter()
                     .min_by(|a, b| {
                         let kept = |c: &[f32; 3]| cut_cell(*c, [0.0, 0.0], [1.0, 1.0]).0;
@@ -525,20 +525,28 @@ fn lightmap_tile(map: &ChartMap, [a0, b0, a1, b1]: [u32; 4]) -> (Vec2, Vec2, Vec
 }
 
 /// The edges of the triangle (the half `t <= s` of its frame, `s <= 1`,
-/// `t >= 0`) that cross tile `tile` of a chart on a mesh's own lightmap,
-/// each as the cut `(a, b, c)` in the tile's coordinates that keeps the
-/// triangle's side (`a x + b y + c >= 0`). A shooter takes one cut
-/// (`Shooter` in common.wgsl): tiles an edge crosses are split first, down
-/// to single texels as far as the shooter count allows, and a tile that two
-/// edges cross (at a corner of the triangle) keeps the cut that leaves the
-/// least of it: its region then reaches a little beyond the triangle (its
-/// power is its elements', exact either way).
-fn lightmap_edges(map: &ChartMap, tile: [u32; 4]) -> Vec<[f32; 3]> {
+/// `t >= 0`) or of the parallelogram (`0 <= s, t <= 1`) that cross tile
+/// `tile` of a chart on a mesh's own lightmap, each as the cut `(a, b, c)`
+/// in the tile's coordinates that keeps the patch's side (`a x + b y + c >=
+/// 0`). A shooter takes one cut (`Shooter` in common.wgsl): tiles an edge
+/// crosses are split first, down to single texels as far as the shooter
+/// count allows, and a tile that two edges cross (at a corner of the patch)
+/// keeps the cut that leaves the least of it: its region then reaches a
+/// little beyond the patch (its power is its elements', exact either way).
+fn lightmap_edges(map: &ChartMap, triangle: bool, tile: [u32; 4]) -> Vec<[f32; 3]> {
     let (c, ex, ey) = lightmap_tile(map, tile);
-    // h(s, t) = α s + β t + γ >= 0 on the triangle.
-    let edges = [[1.0, -1.0, 0.0], [-1.0, 0.0, 1.0], [0.0, 1.0, 0.0f32]];
+    // h(s, t) = α s + β t + γ >= 0 on the patch.
+    const TRIANGLE: [[f32; 3]; 3] = [[1.0, -1.0, 0.0], [-1.0, 0.0, 1.0], [0.0, 1.0, 0.0]];
+    const QUAD: [[f32; 3]; 4] = [
+        [1.0, 0.0, 0.0],
+        [-1.0, 0.0, 1.0],
+        [0.0, 1.0, 0.0],
+        [0.0, -1.0, 1.0],
+    ];
+    let edges: &[[f32; 3]] = if triangle { &TRIANGLE } else { &QUAD };
     edges
-        .into_iter()
+        .iter()
+        .copied()
         .map(|[al, be, ga]| {
             [
                 al * ex.x + be * ex.y,
@@ -632,6 +640,76 @@ mod tests {
                 assert!(cut > 0, "some tile straddles the diagonal");
             }
         }
+    }
+
+    /// Patches on a mesh's own lightmap UVs: a parallelogram (the floor,
+    /// whose UVs are affine over its two triangles) and two triangles.
+    /// Every tile holds the power of the elements it covers, which sum to
+    /// the patch's area; an edge that crosses a tile cuts it, so that its
+    /// region is the part of its texels' footprint on the patch (a tile at
+    /// a corner, where two edges cross it, keeps one cut and reaches a
+    /// little beyond).
+    #[test]
+    fn shooters_on_a_meshs_lightmap_cover_their_patch() {
+        const MESH: &str = r#"{
+            "name": "t",
+            "lightmap": { "texel_density": 9.3 },
+            "materials": [ { "name": "m", "albedo": [0.5, 0.5, 0.5], "emission": [1, 1, 1] } ],
+            "surfaces": [ { "name": "room", "material": "m", "mesh": {
+                "positions": [[0, 0, 0], [2.1, 0, 0], [2.1, 0, -1.3], [0, 0, -1.3],
+                              [0, 0, -1.3], [2.1, 0, -1.3], [2.1, 1.7, -1.3], [0, 1.7, -1.3]],
+                "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7],
+                "lightmap_uvs": [[0.03, 0.9], [0.41, 0.95], [0.47, 0.1], [0.09, 0.05],
+                                 [0.55, 0.9], [0.97, 0.9], [0.9, 0.2], [0.62, 0.2]] } } ]
+        }"#;
+        let options = crate::scene::LoadOptions {
+            density_scale: 1.0,
+            charts: crate::scene::Charts::LightmapUvs,
+        };
+        let scene = Scene::parse_with(MESH, "inline", options).expect("valid");
+        assert_eq!(scene.patches.len(), 3, "the floor and two triangles");
+        let atlas = Atlas::build(&scene).expect("fits");
+        let validity = Validity::all_valid(&atlas);
+        let poses = scene.initial_poses();
+        let patches = PatchTable::new(&scene, &atlas).place(&poses);
+        let areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
+        let tiling = Tiling {
+            emitted: 1.0,
+            validity: &validity,
+            atlas: &atlas,
+            lift: 1e-4,
+        };
+        let mut quads = 0;
+        for (p, wp) in patches.iter().enumerate() {
+            assert!(wp.lightmap.is_some());
+            quads += usize::from(!wp.triangle);
+            let area = scene.patches[p].shape.area();
+            for grid in [(1, 1), (3, 2), (4, 4), (6, 5)] {
+                let shooters = tiling.shooters(p as u32, wp, &areas, grid, 256);
+                let (mut power, mut region, mut cut) = (0.0, 0.0, 0);
+                for s in &shooters {
+                    let su = Vec3::from_slice(&s.su[..3]);
+                    let sv = Vec3::from_slice(&s.sv[..3]);
+                    let (share, _) = cut_cell(s.cut(), [0.0, 0.0], [1.0, 1.0]);
+                    power += s.corner[3];
+                    region += su.cross(sv).length() * share;
+                    cut += usize::from(share < 1.0);
+                    assert!(s.corner[3] > 0.0, "{grid:?}: tile {:?} has no area", s.tile);
+                }
+                assert!(
+                    (power - area).abs() <= 1e-4 * area,
+                    "patch {p} {grid:?}: elements {power}, patch {area}"
+                );
+                // The corners' overreach: under a few texels' worth.
+                let texel = area / atlas.elements_of(p as u32).len() as f32;
+                assert!(
+                    region >= area * (1.0 - 1e-4) && region <= area + 8.0 * texel,
+                    "patch {p} {grid:?}: regions {region}, patch {area}"
+                );
+                assert!(cut > 0, "the patch's edges cut tiles");
+            }
+        }
+        assert_eq!(quads, 1);
     }
 
     /// The cut keeps the triangle's side and puts the centroid there: a
