@@ -28,7 +28,9 @@ use glam::{Vec2, Vec3};
 
 use crate::scene::{Patch, PatchShape, Scene, SceneIssue};
 
+pub mod stitch;
 pub mod uv;
+pub use stitch::IslandSeams;
 pub use uv::ChartMap;
 
 /// Empty texels between neighbouring charts (a gutter for filtering).
@@ -122,6 +124,10 @@ pub struct Atlas {
     /// Per entry of [`Scene::uv_meshes`], its lightmap's block in the atlas
     /// when its triangles are lit on it (a square chart of `w = h` texels).
     pub blocks: Vec<Option<Chart>>,
+    /// The seams between islands of the meshes' own lightmaps (and between
+    /// those and Lightwire's charts), which [`Atlas::to_image`] makes read
+    /// alike on both sides (`atlas/stitch.rs`).
+    pub island_seams: IslandSeams,
 }
 
 /// Chart sizes and positions without elements: enough to know whether a
@@ -642,6 +648,16 @@ impl Atlas {
         let mut seams = find_seams(scene, &layout.charts, &elements);
         seams.extend(shared_texels(&layout.lightmap_maps, &elements));
         seams.sort_unstable();
+        let island_seams = IslandSeams::find(
+            scene,
+            &stitch::Charts {
+                charts: &layout.charts,
+                maps: &layout.lightmap_maps,
+                texel_element: &texel_element,
+                width,
+                height,
+            },
+        );
         Ok(Atlas {
             width,
             height,
@@ -657,6 +673,7 @@ impl Atlas {
                 .map(|p| p.shape.is_triangle())
                 .collect(),
             blocks: layout.blocks,
+            island_seams,
         })
     }
 
@@ -801,7 +818,10 @@ impl Atlas {
     }
 
     /// Scatters one value per element into a row-major RGB image of the
-    /// atlas; uncovered texels are zero.
+    /// atlas; uncovered texels are zero, but for the gutters of the meshes'
+    /// own lightmap blocks ([`Atlas::fill_block_gutters`]), and the texels
+    /// around the seams between their islands are adjusted so that both
+    /// sides read alike ([`IslandSeams::apply`]).
     pub fn to_image(&self, values: &[Vec3]) -> Vec<[f32; 3]> {
         let mut image = vec![[0.0; 3]; (self.width as usize) * (self.height as usize)];
         for (i, (e, value)) in self.elements.iter().zip(values).enumerate() {
@@ -813,6 +833,7 @@ impl Atlas {
             }
         }
         self.fill_block_gutters(&mut image);
+        self.island_seams.apply(&mut image);
         image
     }
 

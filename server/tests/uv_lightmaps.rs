@@ -342,3 +342,131 @@ async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
         assert_eq!(r.status, 404, "{bad}: {}", r.text());
     }
 }
+
+/// A floor of two islands of its own lightmap: the left half of the floor
+/// in the lower left of its `[0, 1]²`, the right half in the upper right,
+/// turned a quarter (its `x` along `v`), so that the seam between them (the
+/// line `x = 1`) is read from two unrelated rows of texels. A small lamp
+/// just off the seam lights the floor steeply across it.
+const TWO_ISLANDS: &str = r#"{
+    "name": "two-islands",
+    "lightmap": { "texel_density": 10 },
+    "materials": [
+        { "name": "white", "albedo": [0.7, 0.7, 0.7] },
+        { "name": "lamp", "albedo": [0.5, 0.5, 0.5], "emission": [10, 10, 10] }
+    ],
+    "surfaces": [
+        { "name": "floor", "material": "white", "mesh": {
+            "positions": [[0, 0, 0], [1, 0, 0], [1, 0, -1], [0, 0, -1],
+                          [1, 0, 0], [2, 0, 0], [2, 0, -1], [1, 0, -1]],
+            "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7],
+            "lightmap_uvs": [[0.05, 0.05], [0.45, 0.05], [0.45, 0.45], [0.05, 0.45],
+                             [0.55, 0.55], [0.55, 0.95], [0.95, 0.95], [0.95, 0.55]] } },
+        { "name": "lamp", "material": "lamp", "quad": {
+            "origin": [1.1, 0.3, -0.2], "u": [0, 0, -0.5], "v": [0.3, 0, 0] } }
+    ]
+}"#;
+
+/// Issue 18, item 3: texels on either side of a seam between two islands
+/// of a mesh's own lightmap agree. The floor of [`TWO_ISLANDS`], solved by
+/// the reference solver on its own UVs, is read as an engine reads it on
+/// its own mesh (bilinearly, at each side's `TEXCOORD_1` placed in the
+/// mesh's block of the atlas) at 64 points along the seam. Published
+/// (`Atlas::to_image`), the two sides agree within 1% of the brighter (or
+/// of 2% of the image's 95th percentile, where both are darker); without
+/// the seam's least-squares adjustment (`atlas/stitch.rs`) they differ by
+/// more than 5% somewhere, so the test fails without it. Only the texels the
+/// seam's equations read change.
+#[test]
+fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
+    use lightwire_server::atlas::IslandSeams;
+    use lightwire_server::solver::{self, SolverKind, SolverSettings};
+    let options = LoadOptions {
+        charts: Charts::LightmapUvs,
+        ..LoadOptions::scaled(1.0)
+    };
+    let scene = Scene::parse_with(TWO_ISLANDS, "inline", options).unwrap_or_else(|e| panic!("{e}"));
+    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
+    let on_uvs = scene
+        .patches
+        .iter()
+        .filter(|p| p.lightmap.is_some())
+        .count();
+    assert_eq!(on_uvs, 2, "each island one parallelogram");
+    assert!(
+        atlas.island_seams.len() >= 20,
+        "{} seam points",
+        atlas.island_seams.len()
+    );
+    let poses = scene.initial_poses();
+    let mut solver = solver::build(
+        SolverKind::Reference,
+        &scene,
+        &atlas,
+        &poses,
+        &SolverSettings::default(),
+        &solver::Silent,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let mut values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    lightwire_server::validity::Validity::compute(&scene, &atlas, &poses).fill(&atlas, &mut values);
+
+    let stitched = atlas.to_image(&values);
+    let raw = {
+        let mut plain = atlas.clone();
+        plain.island_seams = IslandSeams::default();
+        plain.to_image(&values)
+    };
+    let block = atlas.blocks[0].unwrap_or_else(|| panic!("the floor's block"));
+    let in_atlas = |uv: Vec2| {
+        (Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32)
+            / Vec2::new(atlas.width as f32, atlas.height as f32)
+    };
+    let mut lum: Vec<f32> = stitched.iter().map(|p| p[0].max(p[1]).max(p[2])).collect();
+    lum.sort_by(f32::total_cmp);
+    let floor = 0.02 * lum[lum.len() * 95 / 100];
+    let worst = |image: &[[f32; 3]]| {
+        (0..64)
+            .map(|k| {
+                let along = (k as f32 + 0.5) / 64.0;
+                // The point (1, 0, -along) on either island.
+                let left = filtered(image, &atlas, in_atlas(Vec2::new(0.45, 0.05 + 0.4 * along)));
+                let right = filtered(image, &atlas, in_atlas(Vec2::new(0.55 + 0.4 * along, 0.55)));
+                let scale = left.max_element().max(right.max_element()).max(floor);
+                (
+                    (left - right).abs().max_element() / scale,
+                    along,
+                    left,
+                    right,
+                )
+            })
+            .fold((0.0f32, 0.0, Vec3::ZERO, Vec3::ZERO), |a, b| {
+                if b.0 > a.0 { b } else { a }
+            })
+    };
+    let (before, ..) = worst(&raw);
+    let (after, along, left, right) = worst(&stitched);
+    eprintln!(
+        "seam between two islands: worst {:.2}% unstitched, {:.2}% published (at {along}: {left} vs {right}), {} equations over {} texels",
+        before * 100.0,
+        after * 100.0,
+        atlas.island_seams.len(),
+        atlas.island_seams.texels().len()
+    );
+    assert!(before > 0.05, "unstitched the sides differ: {before}");
+    assert!(
+        after <= 0.01,
+        "published they agree: {after} at {along}: {left} vs {right}"
+    );
+    let touched: std::collections::HashSet<u32> =
+        atlas.island_seams.texels().iter().copied().collect();
+    for (t, (a, b)) in stitched.iter().zip(&raw).enumerate() {
+        if a != b {
+            assert!(
+                touched.contains(&(t as u32)),
+                "texel {t} changed but no seam reads it"
+            );
+        }
+    }
+}
