@@ -35,6 +35,9 @@ pub use uv::ChartMap;
 
 /// Empty texels between neighbouring charts (a gutter for filtering).
 pub const PADDING: u32 = 1;
+/// Texels around a mesh's lightmap block that belong to it (filled as its
+/// gutter on publication, [`Atlas::to_image`]), besides [`PADDING`].
+pub const BLOCK_RING: u32 = 1;
 /// Atlas height is rounded up to a multiple of this (the tile size used by
 /// the lightmap codec).
 pub const HEIGHT_ALIGN: u32 = 8;
@@ -407,7 +410,17 @@ pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
         .zip(&used)
         .map(|(mesh, &used)| if used { uv::block_side(scene, mesh) } else { 0 })
         .collect();
-    sizes.extend(sides.iter().map(|&n| (n, n)));
+    // A block is packed with a ring of [`BLOCK_RING`] texels around it,
+    // which publication fills as its gutter: an island that reaches its
+    // lightmap's border is read bilinearly there from its own light, never
+    // from the chart packed next to it.
+    sizes.extend(sides.iter().map(|&n| {
+        if n > 0 {
+            (n + 2 * BLOCK_RING, n + 2 * BLOCK_RING)
+        } else {
+            (0, 0)
+        }
+    }));
     let max = scene.max_atlas_size;
     let location = "lightmap".to_string();
     if let Some((i, (w, h))) = sizes
@@ -447,7 +460,14 @@ pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
                     .split_off(scene.patches.len())
                     .into_iter()
                     .zip(&used)
-                    .map(|(b, &used)| used.then_some(b))
+                    .map(|(b, &used)| {
+                        used.then(|| Chart {
+                            x: b.x + BLOCK_RING,
+                            y: b.y + BLOCK_RING,
+                            w: b.w - 2 * BLOCK_RING,
+                            h: b.h - 2 * BLOCK_RING,
+                        })
+                    })
                     .collect();
                 let mut lightmap_maps = vec![None; scene.patches.len()];
                 for (p, patch) in scene.patches.iter().enumerate() {
@@ -837,15 +857,20 @@ impl Atlas {
         image
     }
 
-    /// In every mesh's lightmap block (`atlas/uv.rs`), the texels no chart
-    /// holds but next to one that does take the mean of those neighbours
-    /// (8-connected): the gutter bilinear filtering reads at an island's
-    /// border.
+    /// In every mesh's lightmap block (`atlas/uv.rs`) and the ring of
+    /// [`BLOCK_RING`] texels around it, the texels no chart holds but next
+    /// to one that does take the mean of those neighbours (8-connected):
+    /// the gutter bilinear filtering reads at an island's border.
     fn fill_block_gutters(&self, image: &mut [[f32; 3]]) {
         let w = self.width as i64;
+        let ring = i64::from(BLOCK_RING);
         for block in self.blocks.iter().flatten() {
-            let (x0, y0) = (i64::from(block.x), i64::from(block.y));
-            let (x1, y1) = (x0 + i64::from(block.w), y0 + i64::from(block.h));
+            let (x0, y0) = (i64::from(block.x) - ring, i64::from(block.y) - ring);
+            let (x1, y1) = (
+                (x0 + i64::from(block.w) + 2 * ring).min(w),
+                (y0 + i64::from(block.h) + 2 * ring).min(i64::from(self.height)),
+            );
+            let (x0, y0) = (x0.max(0), y0.max(0));
             for y in y0..y1 {
                 for x in x0..x1 {
                     if self.texel_element[(y * w + x) as usize] != NO_ELEMENT {
@@ -1189,7 +1214,7 @@ mod tests {
     /// affine over it (one parallelogram on the lightmap, `pairs.rs`) in
     /// the left half of its lightmap, and a wall of two whose UVs are not
     /// (a trapezoid: two triangles sharing their diagonal's texels) in the
-    /// right; and a quad without.
+    /// right, one corner on the lightmap's border; and a quad without.
     const LIGHTMAP_UVS: &str = r#"{
         "name": "t",
         "lightmap": { "texel_density": 9.3 },
@@ -1200,7 +1225,7 @@ mod tests {
                               [0, 0, -1.3], [2.1, 0, -1.3], [2.1, 1.7, -1.3], [0, 1.7, -1.3]],
                 "indices": [0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7],
                 "lightmap_uvs": [[0.03, 0.9], [0.47, 0.9], [0.47, 0.1], [0.03, 0.1],
-                                 [0.55, 0.9], [0.97, 0.9], [0.9, 0.2], [0.62, 0.2]] } },
+                                 [0.55, 0.9], [1.0, 0.9], [0.9, 0.2], [0.62, 0.2]] } },
             { "name": "wall", "material": "m", "quad": {
                 "origin": [0, 0, 0], "u": [0, 0, -1.3], "v": [0, 1, 0] } }
         ]
@@ -1348,11 +1373,15 @@ mod tests {
                 assert_eq!(image[t][0], owner as f32);
             }
         }
-        // Texels of the block beside an island take their held neighbours'
-        // mean; those farther out stay black.
-        let (mut gutter, mut empty) = (0, 0);
-        for y in block.y..block.y + block.h {
-            for x in block.x..block.x + block.w {
+        // Texels of the block and of the ring around it beside an island
+        // take their held neighbours' mean; those farther out stay black.
+        // The wall's corner at u = 1 reaches the block's border: the ring
+        // beyond it is its gutter.
+        let (mut gutter, mut empty, mut ring) = (0, 0, 0);
+        let (lo, hi) = (block.x - BLOCK_RING, block.x + block.w + BLOCK_RING);
+        let (top, bottom) = (block.y - BLOCK_RING, block.y + block.h + BLOCK_RING);
+        for y in top..bottom {
+            for x in lo..hi {
                 let t = (y * atlas.width + x) as usize;
                 if atlas.texel_element[t] != NO_ELEMENT {
                     continue;
@@ -1361,10 +1390,10 @@ mod tests {
                     .flat_map(|dy| (-1i64..=1).map(move |dx| (dx, dy)))
                     .filter_map(|(dx, dy)| {
                         let (nx, ny) = (i64::from(x) + dx, i64::from(y) + dy);
-                        let inside = nx >= i64::from(block.x)
-                            && ny >= i64::from(block.y)
-                            && nx < i64::from(block.x + block.w)
-                            && ny < i64::from(block.y + block.h);
+                        let inside = nx >= i64::from(lo)
+                            && ny >= i64::from(top)
+                            && nx < i64::from(hi)
+                            && ny < i64::from(bottom);
                         let o = atlas.element_at(nx as u32, ny as u32).filter(|_| inside)?;
                         Some(o as f32)
                     })
@@ -1376,12 +1405,17 @@ mod tests {
                     let mean = held.iter().sum::<f32>() / held.len() as f32;
                     assert!((image[t][0] - mean).abs() <= 1e-3 * mean.max(1.0));
                     gutter += 1;
+                    let in_block = x >= block.x
+                        && y >= block.y
+                        && x < block.x + block.w
+                        && y < block.y + block.h;
+                    ring += usize::from(!in_block);
                 }
             }
         }
         assert!(
-            gutter > 20 && empty > 20,
-            "{gutter} gutter texels, {empty} empty"
+            gutter > 20 && empty > 20 && ring > 0,
+            "{gutter} gutter texels ({ring} in the ring), {empty} empty"
         );
     }
 }

@@ -1066,12 +1066,18 @@ async fn a_version_2_client_is_answered_in_version_2_where_the_scene_allows() {
             panic!("a version 3 client is welcomed")
         };
         assert_eq!(protocol_version, PROTOCOL_VERSION);
-        let with_uvs = scene.surfaces.iter().filter(|s| s.uvs.len() == 4).count();
-        assert_eq!(with_uvs, if on_uvs { 2 } else { 0 }, "{:?}", scene.surfaces);
-        for s in scene.surfaces.iter().filter(|s| !s.uvs.is_empty()) {
-            // The floor's lightmap is a block of the atlas; its triangles'
-            // corners lie at 0.1 and 0.9 of it.
+        // The floor's two triangles, their UVs affine over it, are one
+        // parallelogram on its lightmap: one surface with four distinct
+        // corners.
+        let with_uvs: Vec<_> = scene.surfaces.iter().filter(|s| s.uvs.len() == 4).collect();
+        assert_eq!(with_uvs.len(), usize::from(on_uvs), "{:?}", scene.surfaces);
+        for s in with_uvs {
+            // The floor's lightmap is a block of the atlas; its corners lie
+            // at 0.1 and 0.9 of it.
             assert!(s.uvs.iter().flatten().all(|x| (0.0..=1.0).contains(x)));
+            for (i, a) in s.uvs.iter().enumerate() {
+                assert!(s.uvs[..i].iter().all(|b| a != b), "{:?}", s.uvs);
+            }
         }
     }
     let _ = std::fs::remove_dir_all(&dir);

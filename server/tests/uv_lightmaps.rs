@@ -28,7 +28,7 @@ use lightwire_server::scene::{Charts, LoadOptions, Scene};
 use lightwire_server::uvmap::{self, PADDING};
 use lightwire_testkit::scene_path;
 
-use common::gradient;
+use common::{filtered, gradient};
 
 /// Barycentric coordinates of `p` in the 2D triangle `q`.
 fn barycentric(q: &[Vec2; 3], p: Vec2) -> Vec3 {
@@ -57,21 +57,6 @@ fn nearest_point(q: &[Vec2; 3], p: Vec2) -> (f32, Vec3) {
         }
     }
     best
-}
-
-/// The atlas read as a client's bilinear filter reads it at `uv`.
-fn filtered(image: &[[f32; 3]], atlas: &Atlas, uv: Vec2) -> Vec3 {
-    let (w, h) = (atlas.width as i64, atlas.height as i64);
-    let f = uv * Vec2::new(w as f32, h as f32) - Vec2::splat(0.5);
-    let (x, y) = (f.x.floor(), f.y.floor());
-    let (fx, fy) = (f.x - x, f.y - y);
-    let texel = |dx: i64, dy: i64| {
-        let xx = (x as i64 + dx).clamp(0, w - 1);
-        let yy = (y as i64 + dy).clamp(0, h - 1);
-        Vec3::from(image[(yy * w + xx) as usize])
-    };
-    (texel(0, 0) * (1.0 - fx) + texel(1, 0) * fx) * (1.0 - fy)
-        + (texel(0, 1) * (1.0 - fx) + texel(1, 1) * fx) * fy
 }
 
 /// A triangle of the re-imported `scene.glb`: object-space corners and

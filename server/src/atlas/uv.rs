@@ -13,7 +13,9 @@
 //! itself when it lies on the triangle). Texels of the block that no chart
 //! holds take the mean of their neighbours that one does when the lightmap
 //! is published ([`super::Atlas::to_image`]), so that bilinear filtering at
-//! an island's border reads its light, not black. A texel that two triangles both cover is an
+//! an island's border reads its light, not black; so do those of a ring of
+//! [`super::BLOCK_RING`] texels packed around the block, so that an island
+//! reaching the lightmap's border never reads the chart packed beside it. A texel that two triangles both cover is an
 //! element of each, sampled on its own triangle; they form a group that is
 //! stitched (set to its mean) on publication as a seam's texels are, and
 //! the texel shows that mean ([`super::Atlas::to_image`] writes the one

@@ -6,7 +6,7 @@
 // Each test binary compiles this module and uses only some helpers.
 #![allow(dead_code)]
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use lightwire_server::atlas::Atlas;
 use lightwire_server::scene::{LoadOptions, Scene};
 
@@ -21,6 +21,23 @@ pub fn gradient(atlas: &Atlas) -> Vec<[f32; 3]> {
             [x as f32 * 0.01, y as f32 * 0.02, 0.5]
         })
         .collect()
+}
+
+/// The atlas image read as a client's bilinear filter reads it at
+/// normalized lightmap coordinates `uv` (texel `(x, y)`'s centre at
+/// `((x + 0.5) / width, (y + 0.5) / height)`, clamped at the borders).
+pub fn filtered(image: &[[f32; 3]], atlas: &Atlas, uv: Vec2) -> Vec3 {
+    let (w, h) = (atlas.width as i64, atlas.height as i64);
+    let f = uv * Vec2::new(w as f32, h as f32) - Vec2::splat(0.5);
+    let (x, y) = (f.x.floor(), f.y.floor());
+    let (fx, fy) = (f.x - x, f.y - y);
+    let texel = |dx: i64, dy: i64| {
+        let xx = (x as i64 + dx).clamp(0, w - 1);
+        let yy = (y as i64 + dy).clamp(0, h - 1);
+        Vec3::from(image[(yy * w + xx) as usize])
+    };
+    (texel(0, 0) * (1.0 - fx) + texel(1, 0) * fx) * (1.0 - fy)
+        + (texel(0, 1) * (1.0 - fx) + texel(1, 1) * fx) * fy
 }
 
 /// Loads a scene from `scenes/` at a density scale, with its atlas.
