@@ -442,12 +442,15 @@ pub enum Charts {
     /// Pairs, and then quads of one surface that extend each other into a
     /// larger parallelogram merge, as long as any two do: a tessellated
     /// wall is one chart, as a hand-written quad is.
-    #[default]
     Parallelograms,
-    /// Parallelograms, except that the triangles of a glTF mesh with its
-    /// own lightmap UVs (`TEXCOORD_1`) are lit on those UVs: its lightmap
-    /// is one block of the atlas, each texel an element of every triangle
-    /// it overlaps (`atlas.rs`).
+    /// Parallelograms, except that the static triangles of a mesh with its
+    /// own lightmap UVs (glTF `TEXCOORD_1`, a scene file's `lightmap_uvs`)
+    /// are lit on those UVs: its lightmap is one block of the atlas, each
+    /// texel an element of every patch it overlaps (`atlas/uv.rs`), and
+    /// triangles over which the UVs are affine merge into parallelograms
+    /// there too (`pairs.rs`). The default: an engine puts the streamed
+    /// light on its own mesh.
+    #[default]
     #[serde(rename = "lightmap-uvs")]
     LightmapUvs,
 }

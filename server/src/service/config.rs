@@ -17,7 +17,7 @@
 //! epsilon = 0.015625                  # error budget of the stream (PROTOCOL.md §5)
 //! settle_ms = 500                     # idle time before waiting texels are sent
 //! density_scale = 1.0
-//! charts = "parallelograms"           # a mesh's charts: triangles | pairs | parallelograms | lightmap-uvs
+//! charts = "lightmap-uvs"             # a mesh's charts: triangles | pairs | parallelograms | lightmap-uvs
 //! dev_mode = false                    # no tokens: everyone is admin (loud)
 //! allowed_origins = ["https://dash.example"]
 //! max_message_bytes = 4096
@@ -536,9 +536,9 @@ mod tests {
     }
 
     #[test]
-    fn charts_are_parallelograms_by_default_and_set_by_name() {
+    fn charts_are_lightmap_uvs_by_default_and_set_by_name() {
         use crate::scene::Charts;
-        assert_eq!(Config::default().charts, Charts::Parallelograms);
+        assert_eq!(Config::default().charts, Charts::LightmapUvs);
         for (name, charts) in [
             ("triangles", Charts::Triangles),
             ("pairs", Charts::Pairs),

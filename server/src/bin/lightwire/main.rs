@@ -53,8 +53,8 @@ enum Command {
         /// two that form a parallelogram one (`pairs`), or pairs merged
         /// into the largest parallelograms they tile (`parallelograms`); or,
         /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms).
-        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        /// (`lightmap-uvs`, else parallelograms; the default).
+        #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
         /// Reference: stop when one sweep adds less than this fraction of
         /// the emitted power. Progressive: stop when the unshot power is
@@ -145,8 +145,8 @@ enum BenchCommand {
         /// two that form a parallelogram one (`pairs`), or pairs merged
         /// into the largest parallelograms they tile (`parallelograms`); or,
         /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms).
-        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        /// (`lightmap-uvs`, else parallelograms; the default).
+        #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
     },
     /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
@@ -234,8 +234,8 @@ enum BenchCommand {
         /// two that form a parallelogram one (`pairs`), or pairs merged
         /// into the largest parallelograms they tile (`parallelograms`); or,
         /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms).
-        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        /// (`lightmap-uvs`, else parallelograms; the default).
+        #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
     },
     /// Triangle meshes of growing size (wallner Table 1): tessellated
@@ -275,8 +275,8 @@ enum BenchCommand {
         /// two that form a parallelogram one (`pairs`), or pairs merged
         /// into the largest parallelograms they tile (`parallelograms`); or,
         /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms).
-        #[arg(long, value_enum, default_value_t = Charts::Parallelograms)]
+        /// (`lightmap-uvs`, else parallelograms; the default).
+        #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
     },
     /// Per scene and transform script: records the solver's lightmap at

@@ -38,7 +38,7 @@ pub(crate) struct ServeFlags {
     /// How a mesh's triangles get charts: each its own (`triangles`), two
     /// that form a parallelogram one (`pairs`), pairs merged into the
     /// parallelograms they tile, or, for the static meshes that have them,
-    /// their own lightmap UVs (`lightmap-uvs`) [default: parallelograms].
+    /// their own lightmap UVs (`lightmap-uvs`) [default: lightmap-uvs].
     #[arg(long, value_enum)]
     charts: Option<lightwire_server::scene::Charts>,
     /// Solver per scene [default: progressive].
