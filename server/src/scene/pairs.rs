@@ -145,16 +145,39 @@ fn affine_uv([a, b, c]: [Vec2; 3], s: f32, t: f32) -> Vec2 {
 /// Both or neither of two patches' coordinates `a` and `b` (textures or
 /// lightmap UVs) and, when both, the joined patch's from `join_uv` (`None`
 /// when they do not join).
-fn both<T>(
+fn both<T, U>(
     a: Option<T>,
     b: Option<T>,
-    join_uv: impl FnOnce(T, T) -> Option<[Vec2; 3]>,
-) -> Option<Option<[Vec2; 3]>> {
+    join_uv: impl FnOnce(T, T) -> Option<U>,
+) -> Option<Option<U>> {
     match (a, b) {
         (None, None) => Some(None),
         (Some(a), Some(b)) => join_uv(a, b).map(Some),
         _ => None,
     }
+}
+
+/// The texture and lightmap coordinates of the patch that joins `a` and
+/// `b`, each from `join_uv` of theirs (both or neither must have one, a
+/// texture the same one); `None` when they do not join.
+fn joined_maps(
+    a: &Patch,
+    b: &Patch,
+    join_uv: impl Fn([Vec2; 3], [Vec2; 3]) -> Option<[Vec2; 3]>,
+) -> Option<(Option<AlbedoMap>, Option<PatchLightmap>)> {
+    let albedo_map = both(a.albedo_map.as_ref(), b.albedo_map.as_ref(), |ma, mb| {
+        Arc::ptr_eq(&ma.texture, &mb.texture)
+            .then(|| join_uv(ma.uv, mb.uv))
+            .flatten()
+            .map(|uv| AlbedoMap {
+                texture: Arc::clone(&ma.texture),
+                uv,
+            })
+    })?;
+    let lightmap = both(a.lightmap, b.lightmap, |la, lb| {
+        join_uv(la.uv, lb.uv).map(|uv| PatchLightmap { uv, ..la })
+    })?;
+    Some((albedo_map, lightmap))
 }
 
 /// The quad's coordinates when triangles with coordinates `uva` and `uvb`
@@ -193,20 +216,7 @@ fn join(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
         return None;
     }
     // The quad's frame below: corners x, d0, y (s, t = 0,0 / 1,0 / 1,1).
-    let albedo_map = match both(a.albedo_map.as_ref(), b.albedo_map.as_ref(), |ma, mb| {
-        join_uvs(ma.uv, mb.uv, ka, kb)
-    })? {
-        Some(uv) => Some(AlbedoMap {
-            texture: Arc::clone(&a.albedo_map.as_ref()?.texture),
-            uv,
-        }),
-        None => None,
-    };
-    let lightmap = both(a.lightmap, b.lightmap, |la, lb| {
-        join_uvs(la.uv, lb.uv, ka, kb)
-    })?
-    .zip(a.lightmap)
-    .map(|(uv, l)| PatchLightmap { uv, ..l });
+    let (albedo_map, lightmap) = joined_maps(a, b, |ua, ub| join_uvs(ua, ub, ka, kb))?;
     let suffix = b.name.rsplit('/').next().unwrap_or(&b.name);
     Some(Patch {
         name: format!("{}+{suffix}", a.name),
@@ -348,23 +358,7 @@ fn extend(a: &Patch, ka: usize, b: &Patch, grid: &Grid) -> Option<Patch> {
     }
     // Agree on the edge, and change across it at one rate.
     let c = w_b.length() / w_a.length();
-    let albedo_map = match both(a.albedo_map.as_ref(), b.albedo_map.as_ref(), |ma, mb| {
-        if !Arc::ptr_eq(&ma.texture, &mb.texture) {
-            return None;
-        }
-        extend_uvs(ma.uv, mb.uv, ka, kb, c)
-    })? {
-        Some(uv) => Some(AlbedoMap {
-            texture: Arc::clone(&a.albedo_map.as_ref()?.texture),
-            uv,
-        }),
-        None => None,
-    };
-    let lightmap = both(a.lightmap, b.lightmap, |la, lb| {
-        extend_uvs(la.uv, lb.uv, ka, kb, c)
-    })?
-    .zip(a.lightmap)
-    .map(|(uv, l)| PatchLightmap { uv, ..l });
+    let (albedo_map, lightmap) = joined_maps(a, b, |ua, ub| extend_uvs(ua, ub, ka, kb, c))?;
     // Cells: `a`'s and `b`'s along the edge must match in number (then in
     // size) and be as deep across it for the union to be a grid of equal
     // cells; otherwise the union counts as one cell.

@@ -595,22 +595,32 @@ mod tests {
     /// tile lies wholly above the diagonal, each shooter's region (cut by
     /// the diagonal where it crosses the tile) has the area of its
     /// elements, and the regions add up to the triangle.
+    /// A scene's atlas, all of it valid, its patches at their initial
+    /// poses and its element areas.
+    fn placed(scene: &Scene) -> (Atlas, Validity, Vec<WorldPatch>, Vec<f32>) {
+        let atlas = Atlas::build(scene).expect("fits");
+        let validity = Validity::all_valid(&atlas);
+        let patches = PatchTable::new(scene, &atlas).place(&scene.initial_poses());
+        let areas = atlas.elements.iter().map(|e| e.area).collect();
+        (atlas, validity, patches, areas)
+    }
+
+    fn tiling<'a>(atlas: &'a Atlas, validity: &'a Validity) -> Tiling<'a> {
+        Tiling {
+            emitted: 1.0,
+            validity,
+            atlas,
+            lift: 1e-4,
+        }
+    }
+
     #[test]
     fn triangle_shooters_cover_exactly_the_triangle() {
         // Unpaired: the floor's two triangles would otherwise be one quad.
         let options = crate::scene::LoadOptions::unpaired(1.0);
         let scene = Scene::parse_with(TRIANGLES, "inline", options).expect("valid");
-        let atlas = Atlas::build(&scene).expect("fits");
-        let validity = Validity::all_valid(&atlas);
-        let poses = scene.initial_poses();
-        let patches = PatchTable::new(&scene, &atlas).place(&poses);
-        let areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
-        let tiling = Tiling {
-            emitted: 1.0,
-            validity: &validity,
-            atlas: &atlas,
-            lift: 1e-4,
-        };
+        let (atlas, validity, patches, areas) = placed(&scene);
+        let tiling = tiling(&atlas, &validity);
         for (p, wp) in patches.iter().enumerate() {
             assert!(wp.triangle);
             let area = scene.patches[p].shape.area();
@@ -668,17 +678,8 @@ mod tests {
         };
         let scene = Scene::parse_with(MESH, "inline", options).expect("valid");
         assert_eq!(scene.patches.len(), 3, "the floor and two triangles");
-        let atlas = Atlas::build(&scene).expect("fits");
-        let validity = Validity::all_valid(&atlas);
-        let poses = scene.initial_poses();
-        let patches = PatchTable::new(&scene, &atlas).place(&poses);
-        let areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
-        let tiling = Tiling {
-            emitted: 1.0,
-            validity: &validity,
-            atlas: &atlas,
-            lift: 1e-4,
-        };
+        let (atlas, validity, patches, areas) = placed(&scene);
+        let tiling = tiling(&atlas, &validity);
         let mut quads = 0;
         for (p, wp) in patches.iter().enumerate() {
             assert!(wp.lightmap.is_some());
