@@ -200,6 +200,84 @@ fn polygon_form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
     return abs(acc.sum) / (2.0 * PI);
 }
 
+// Exact unoccluded form factor from the point `x` (normal `nx`) to the
+// part of shooter `s`'s region that lies on its patch `p`, a triangle or a
+// parallelogram on its mesh's own lightmap. Such a tile is its texels'
+// footprint, cut by at most one of the patch's edges
+// (server/src/gpu/progressive/shooters.rs); a small triangle's other edges
+// may cross it too, and the region beyond them is not the patch. On a
+// concave crease (the inside of a sphere) that part lies behind a near
+// receiver's horizon and would take light away; on a flat one it would
+// add light the patch does not have. So the unit square of the region is
+// clipped by every edge of the patch (Sutherland-Hodgman, in the region's
+// coordinates, from the patch's stored frame), then integrated as
+// `polygon_form_factor` does. Only near receivers take this branch.
+fn lightmap_form_factor(s: Shooter, p: u32, x: vec3<f32>, nx: vec3<f32>) -> f32 {
+    let r = patches[p];
+    let m = poses[bitcast<u32>(local_elements[r.first].lookup.w)];
+    let f = patch_frames[p];
+    let o = (m * f.origin).xyz;
+    let u = (m * f.u).xyz;
+    let v = (m * f.v).xyz;
+    let n = cross(u, v);
+    let nn = max(dot(n, n), 1e-30);
+    let du = cross(v, n) / nn;
+    let dv = cross(n, u) / nn;
+    // Patch parameters of the region's corner and of its two edges.
+    let c = vec2<f32>(dot(s.corner.xyz - o, du), dot(s.corner.xyz - o, dv));
+    let eu = vec2<f32>(dot(s.su.xyz, du), dot(s.su.xyz, dv));
+    let ev = vec2<f32>(dot(s.sv.xyz, du), dot(s.sv.xyz, dv));
+    // The patch as half-planes a x + b y + c >= 0 over the region's (x, y):
+    // t >= 0 and s <= 1, then t <= s (a triangle) or s >= 0 and t <= 1.
+    var lines = array<vec3<f32>, 4>(
+        vec3<f32>(eu.y, ev.y, c.y),
+        vec3<f32>(-eu.x, -ev.x, 1.0 - c.x),
+        vec3<f32>(eu.x - eu.y, ev.x - ev.y, c.x - c.y),
+        vec3<f32>(0.0, 0.0, 1.0),
+    );
+    if (r.triangle == QUAD_ON_LIGHTMAP) {
+        lines[2] = vec3<f32>(eu.x, ev.x, c.x);
+        lines[3] = vec3<f32>(-eu.y, -ev.y, 1.0 - c.y);
+    }
+    var poly = array<vec2<f32>, 8>(
+        vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 0.0), vec2<f32>(1.0, 1.0), vec2<f32>(0.0, 1.0),
+        vec2<f32>(0.0), vec2<f32>(0.0), vec2<f32>(0.0), vec2<f32>(0.0),
+    );
+    var count = 4u;
+    for (var l = 0u; l < 4u; l++) {
+        let line = lines[l];
+        var next = array<vec2<f32>, 8>();
+        var k = 0u;
+        for (var i = 0u; i < count; i++) {
+            let a = poly[i];
+            let b = poly[(i + 1u) % count];
+            let ha = dot(line.xy, a) + line.z;
+            let hb = dot(line.xy, b) + line.z;
+            if (ha >= 0.0 && k < 8u) {
+                next[k] = a;
+                k++;
+            }
+            if ((ha >= 0.0) != (hb >= 0.0) && k < 8u) {
+                next[k] = a + (b - a) * (ha / (ha - hb));
+                k++;
+            }
+        }
+        poly = next;
+        count = k;
+        if (count < 3u) {
+            return 0.0;
+        }
+    }
+    var acc = Contour(0.0, vec3<f32>(0.0), vec3<f32>(0.0));
+    for (var i = 0u; i < count; i++) {
+        let a = poly[i];
+        let b = poly[(i + 1u) % count];
+        horizon_edge(&acc, s.corner.xyz + s.su.xyz * a.x + s.sv.xyz * a.y - x, s.corner.xyz + s.su.xyz * b.x + s.sv.xyz * b.y - x, nx);
+    }
+    contour_edge(&acc, acc.exit, acc.entry, nx);
+    return abs(acc.sum) / (2.0 * PI);
+}
+
 // Disk-approximation form factor from shooter `s` to a receiving point `x`
 // with normal `nx` (thesis eq. 2.2.7, in the receiver form of eq. 2.2.8
 // without ρ and B^u): A_s (1/m) Σ_k cos φ_s cos φ_x / (π r_k² + A_s/m).
@@ -229,6 +307,8 @@ fn form_factor(s: Shooter, x: vec3<f32>, nx: vec3<f32>) -> f32 {
         var cover = 1.0;
         if (bitcast<u32>(s.su.w) == 0u) {
             cover = min(area / max(length(cross(s.su.xyz, s.sv.xyz)), 1e-30), 1.0);
+        } else if (on_lightmap(patches[bitcast<u32>(s.n.w)].triangle)) {
+            return lightmap_form_factor(s, bitcast<u32>(s.n.w), x, nx);
         }
         return polygon_form_factor(s, x, nx) * cover;
     }

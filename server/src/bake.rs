@@ -254,7 +254,7 @@ fn write_uv_lightmaps(
     atlas: &Atlas,
     image: &[[f32; 3]],
 ) -> Result<Vec<UvLightmapEntry>> {
-    if scene.uv_meshes.is_empty() {
+    if scene.uv_meshes.iter().all(|m| m.generated) {
         return Ok(Vec::new());
     }
     let sub = dir.join(UV_LIGHTMAPS);
@@ -263,6 +263,10 @@ fn write_uv_lightmaps(
     let white = white_point(image);
     let mut entries = Vec::with_capacity(scene.uv_meshes.len());
     for (k, mesh) in scene.uv_meshes.iter().enumerate() {
+        if mesh.generated {
+            // No asset holds these UVs: `scene.glb` carries the light.
+            continue;
+        }
         let size = crate::uvmap::default_size(scene, mesh);
         let map = crate::uvmap::resample(&locator, atlas, image, mesh, size);
         if map.unplaced > 0 {

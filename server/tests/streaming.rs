@@ -1026,12 +1026,17 @@ async fn a_version_2_client_is_answered_in_version_2_where_the_scene_allows() {
         ),
     )
     .expect("write");
-    for (path, name, on_uvs) in [(&quads, "quads", false), (&uvs, "uvs", true)] {
+    // The mesh without lightmap UVs on Lightwire's own charts (by default
+    // it would be lit on generated UVs, which version 2 cannot describe).
+    for (path, name, on_uvs, charts) in [
+        (&quads, "quads", false, "parallelograms"),
+        (&uvs, "uvs", true, "lightmap-uvs"),
+    ] {
         let server = lightwire!().serve_dev(&[
             "--solver",
             "reference",
             "--charts",
-            "lightmap-uvs",
+            charts,
             "--scene",
             &path.display().to_string(),
         ]);

@@ -242,6 +242,20 @@ pub fn nearest_on_polygon(q: &[Vec2], p: Vec2) -> Vec2 {
     best.0
 }
 
+/// `p` moved [`super::CORNER_OFFSET`] of a texel towards the centroid of
+/// the convex polygon `q` when it lies on one of its corners (at most half
+/// way there), else `p`: as on Lightwire's charts, no element samples the
+/// corner itself, where the fan of a mesh vertex's triangles meets, every
+/// one of them at distance zero.
+pub fn inward_of_corners(q: &[Vec2], p: Vec2) -> Vec2 {
+    let Some(corner) = q.iter().find(|c| c.distance(p) < 1e-4) else {
+        return p;
+    };
+    let centroid = q.iter().copied().sum::<Vec2>() / q.len().max(1) as f32;
+    let to = centroid - *corner;
+    *corner + to.normalize_or_zero() * super::CORNER_OFFSET.min(0.5 * to.length())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -20,6 +20,7 @@ pub mod file;
 pub mod gltf;
 mod pairs;
 pub mod texture;
+pub mod unwrap;
 mod validate;
 
 use std::path::Path;
@@ -137,6 +138,10 @@ pub struct UvMesh {
     pub triangles: Vec<[Vec3; 3]>,
     /// Their lightmap UVs, corner by corner.
     pub uvs: Vec<[Vec2; 3]>,
+    /// Whether Lightwire generated these UVs (`unwrap.rs`) for a mesh that
+    /// brought none, or `--charts generated` asked: no asset holds them,
+    /// so no lightmap is resampled into them for a client.
+    pub generated: bool,
 }
 
 /// A Lambertian material.
@@ -453,6 +458,11 @@ pub enum Charts {
     #[default]
     #[serde(rename = "lightmap-uvs")]
     LightmapUvs,
+    /// As `lightmap-uvs`, but every static mesh is lit on lightmap UVs
+    /// Lightwire generates (`unwrap.rs`: near-planar charts cut by normal,
+    /// packed with gaps), its own `TEXCOORD_1` ignored (an asset whose
+    /// lightmap UVs overlap or are too coarse).
+    Generated,
 }
 
 /// Options applied while loading, for tests and benchmarks that want a

@@ -509,14 +509,16 @@ pub fn charts(mut patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
     // Triangles on their lightmap pair and merge where their UVs are affine
     // over the union (`join_uvs`, `extend_uvs`).
     for p in &mut patches {
-        if charts != Charts::LightmapUvs || p.object != super::STATIC_OBJECT {
+        if !matches!(charts, Charts::LightmapUvs | Charts::Generated)
+            || p.object != super::STATIC_OBJECT
+        {
             p.lightmap = None;
         }
     }
     match charts {
         Charts::Triangles => patches,
         Charts::Pairs => pair_triangles(patches),
-        Charts::Parallelograms | Charts::LightmapUvs => {
+        Charts::Parallelograms | Charts::LightmapUvs | Charts::Generated => {
             merge_parallelograms(pair_triangles(patches))
         }
     }

@@ -16,8 +16,8 @@ use super::file::{
 use super::gltf::{ImportOptions, ImportedScene};
 use super::texture::AlbedoMap;
 use super::{
-    LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene, SceneIssue,
-    SolverHints, UvMesh,
+    Charts, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene,
+    SceneIssue, SolverHints, UvMesh,
 };
 
 /// Largest atlas edge a scene may ask for.
@@ -288,19 +288,30 @@ pub fn validate(
         };
         let from_mesh = s.mesh.is_some();
         if let (Some(material), Some(object), Some(density)) = (material, object, density) {
+            let generate = from_mesh
+                && !shapes.is_empty()
+                && generates_uvs(options.charts, object, lightmap_uvs.is_some());
+            let triangles = || -> Vec<[Vec3; 3]> {
+                shapes
+                    .iter()
+                    .map(|(_, shape)| {
+                        let (o, u, v) = shape.frame();
+                        [o, o + u, o + u + v]
+                    })
+                    .collect()
+            };
+            if generate {
+                // In the patches' corner order, as given ones are.
+                lightmap_uvs = Some(super::unwrap::unwrap(&triangles(), density).uvs);
+            }
             let uv_mesh = lightmap_uvs.as_ref().map(|uvs| {
                 uv_meshes.push(UvMesh {
                     name: s.name.clone(),
                     object,
                     surface_index: i,
-                    triangles: shapes
-                        .iter()
-                        .map(|(_, shape)| {
-                            let (o, u, v) = shape.frame();
-                            [o, o + u, o + u + v]
-                        })
-                        .collect(),
+                    triangles: triangles(),
                     uvs: uvs.clone(),
+                    generated: generate,
                 });
                 (uv_meshes.len() - 1) as u32
             });
@@ -364,6 +375,7 @@ pub fn validate(
             into,
             density,
             raw.surfaces.len() + i,
+            options.charts,
         );
     }
 
@@ -795,6 +807,7 @@ fn merge_import(
     into: Parts<'_>,
     density: f32,
     surface_index: usize,
+    charts: Charts,
 ) {
     let mut material_ids = Vec::with_capacity(imported.materials.len());
     for m in &imported.materials {
@@ -846,7 +859,15 @@ fn merge_import(
         object_ids.push((into.objects.len() - 1) as u32);
     }
     let mut uv_mesh_of: HashMap<(usize, usize), usize> = HashMap::new();
-    for inst in &imported.instances {
+    let generated = generate_import_uvs(
+        imported,
+        &object_ids,
+        charts,
+        density,
+        surface_index,
+        into.uv_meshes,
+    );
+    for (n, inst) in imported.instances.iter().enumerate() {
         let node = inst
             .node_name
             .clone()
@@ -883,6 +904,7 @@ fn merge_import(
                     surface_index,
                     triangles: Vec::new(),
                     uvs: Vec::new(),
+                    generated: false,
                 });
                 into.uv_meshes.len() - 1
             })
@@ -906,16 +928,22 @@ fn merge_import(
                     uv: [uv[0]?, uv[1]?, uv[2]?],
                 })
             });
-            // Its own lightmap UVs, in the same order.
-            let lightmap = uv_mesh
-                .zip(inst.lightmap_uvs.as_ref())
-                .and_then(|(m, uvs)| {
-                    let uv = order.map(|j| uvs.get(tri[j] as usize).copied());
-                    Some(PatchLightmap {
-                        mesh: m as u32,
-                        uv: [uv[0]?, uv[1]?, uv[2]?],
-                    })
-                });
+            // Its lightmap UVs, generated or its own, in the same order.
+            let lightmap = match &generated[n] {
+                Some((m, uvs)) => uvs.get(k).map(|uv| PatchLightmap {
+                    mesh: *m as u32,
+                    uv: order.map(|j| uv[j]),
+                }),
+                None => uv_mesh
+                    .zip(inst.lightmap_uvs.as_ref())
+                    .and_then(|(m, uvs)| {
+                        let uv = order.map(|j| uvs.get(tri[j] as usize).copied());
+                        Some(PatchLightmap {
+                            mesh: m as u32,
+                            uv: [uv[0]?, uv[1]?, uv[2]?],
+                        })
+                    }),
+            };
             into.patches.push(Patch {
                 name: format!("{node}/{mesh}/{}/{k}", inst.primitive),
                 surface_index,
@@ -944,6 +972,87 @@ fn merge_import(
             }
         }
     }
+}
+
+/// Whether a mesh surface of `object` gets generated lightmap UVs
+/// (`scene/unwrap.rs`) under `charts`: a static one without its own under
+/// `lightmap-uvs`, every static one under `generated`.
+fn generates_uvs(charts: Charts, object: u32, has_own: bool) -> bool {
+    object == super::STATIC_OBJECT
+        && match charts {
+            Charts::LightmapUvs => !has_own,
+            Charts::Generated => true,
+            Charts::Triangles | Charts::Pairs | Charts::Parallelograms => false,
+        }
+}
+
+/// Generated lightmap UVs for the static meshes of an import that
+/// [`generates_uvs`] picks: one [`UvMesh`] per node's mesh (its primitives
+/// share it), pushed onto `uv_meshes`; per instance, that mesh's index and
+/// the instance's triangles' UVs in their index order.
+fn generate_import_uvs(
+    imported: &ImportedScene,
+    object_ids: &[u32],
+    charts: Charts,
+    density: f32,
+    surface_index: usize,
+    uv_meshes: &mut Vec<UvMesh>,
+) -> Vec<Option<(usize, Vec<[Vec2; 3]>)>> {
+    let mut out = vec![None; imported.instances.len()];
+    // Instances by node and mesh, in order.
+    let mut groups: Vec<((usize, usize), Vec<usize>)> = Vec::new();
+    for (n, inst) in imported.instances.iter().enumerate() {
+        let object = object_ids.get(inst.object as usize).copied();
+        if !object.is_some_and(|o| generates_uvs(charts, o, inst.lightmap_uvs.is_some())) {
+            continue;
+        }
+        match groups
+            .iter_mut()
+            .find(|(key, _)| *key == (inst.node, inst.mesh))
+        {
+            Some((_, members)) => members.push(n),
+            None => groups.push(((inst.node, inst.mesh), vec![n])),
+        }
+    }
+    for (_, members) in groups {
+        let mut triangles = Vec::new();
+        let mut ranges = Vec::with_capacity(members.len());
+        for &n in &members {
+            let inst = &imported.instances[n];
+            let start = triangles.len();
+            // The importer has checked every index against its positions.
+            triangles.extend(inst.indices.iter().filter_map(|tri| {
+                let [a, b, d] = tri.map(|i| inst.positions.get(i as usize).copied());
+                Some([a?, b?, d?])
+            }));
+            ranges.push(start..triangles.len());
+        }
+        let first = &imported.instances[members[0]];
+        let unwrap = super::unwrap::unwrap(&triangles, density);
+        let m = uv_meshes.len();
+        for (&n, range) in members.iter().zip(ranges) {
+            out[n] = Some((m, unwrap.uvs[range].to_vec()));
+        }
+        uv_meshes.push(UvMesh {
+            name: format!(
+                "{}/{}",
+                first
+                    .node_name
+                    .clone()
+                    .unwrap_or_else(|| format!("node#{}", first.node)),
+                first
+                    .mesh_name
+                    .clone()
+                    .unwrap_or_else(|| format!("mesh#{}", first.mesh))
+            ),
+            object: object_ids.get(first.object as usize).copied().unwrap_or(0),
+            surface_index,
+            triangles,
+            uvs: unwrap.uvs,
+            generated: true,
+        });
+    }
+    out
 }
 
 /// Texels on the surface a glTF opened on its own gets by default
@@ -1009,7 +1118,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         patches: &mut scene.patches,
         uv_meshes: &mut scene.uv_meshes,
     };
-    merge_import(&mut c, &loc, &imported, into, density, 0);
+    merge_import(&mut c, &loc, &imported, into, density, 0, options.charts);
     if scene.patches.is_empty() {
         c.report(&loc, "has no triangles");
     } else if !scene

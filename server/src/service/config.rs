@@ -17,7 +17,7 @@
 //! epsilon = 0.015625                  # error budget of the stream (PROTOCOL.md §5)
 //! settle_ms = 500                     # idle time before waiting texels are sent
 //! density_scale = 1.0
-//! charts = "lightmap-uvs"             # a mesh's charts: triangles | pairs | parallelograms | lightmap-uvs
+//! charts = "lightmap-uvs"             # a mesh's charts: triangles | pairs | parallelograms | lightmap-uvs | generated
 //! dev_mode = false                    # no tokens: everyone is admin (loud)
 //! allowed_origins = ["https://dash.example"]
 //! max_message_bytes = 4096
@@ -544,6 +544,7 @@ mod tests {
             ("pairs", Charts::Pairs),
             ("parallelograms", Charts::Parallelograms),
             ("lightmap-uvs", Charts::LightmapUvs),
+            ("generated", Charts::Generated),
         ] {
             let c: Config = toml::from_str(&format!("charts = \"{name}\"")).expect(name);
             assert_eq!(c.charts, charts);

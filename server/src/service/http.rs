@@ -510,6 +510,7 @@ fn uv_lightmap_list<S: Scenes>(scenes: &S, id: &str) -> Response {
         .uv_meshes
         .iter()
         .enumerate()
+        .filter(|(_, mesh)| !mesh.generated)
         .map(|(k, mesh)| {
             let stem = crate::bake::uv_lightmap_stem(k, &mesh.name);
             let size = crate::uvmap::default_size(scene, mesh);
@@ -538,16 +539,14 @@ async fn uv_lightmap_file<S: Scenes>(
         Err(r) => return *r,
     };
     let (stem, extension) = file.rsplit_once('.').unwrap_or((file.as_str(), ""));
-    let index = stem
-        .split_once('-')
-        .and_then(|(k, _)| k.parse::<usize>().ok())
-        .filter(|&k| {
-            runtime
-                .scene
-                .uv_meshes
-                .get(k)
-                .is_some_and(|m| crate::bake::uv_lightmap_stem(k, &m.name) == stem)
-        });
+    let index =
+        stem.split_once('-')
+            .and_then(|(k, _)| k.parse::<usize>().ok())
+            .filter(|&k| {
+                runtime.scene.uv_meshes.get(k).is_some_and(|m| {
+                    !m.generated && crate::bake::uv_lightmap_stem(k, &m.name) == stem
+                })
+            });
     let (Some(k), Some((format, mime))) = (
         index,
         match extension {

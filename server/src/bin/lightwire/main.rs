@@ -51,9 +51,9 @@ enum Command {
         density_scale: f32,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`); or,
-        /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms; the default).
+        /// into the largest parallelograms they tile (`parallelograms`); or
+        /// the static meshes on lightmap UVs: their own, else generated ones
+        /// (`lightmap-uvs`, the default), or always generated (`generated`).
         #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
         /// Reference: stop when one sweep adds less than this fraction of
@@ -143,9 +143,9 @@ enum BenchCommand {
         no_clusters: bool,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`); or,
-        /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms; the default).
+        /// into the largest parallelograms they tile (`parallelograms`); or
+        /// the static meshes on lightmap UVs: their own, else generated ones
+        /// (`lightmap-uvs`, the default), or always generated (`generated`).
         #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
     },
@@ -232,9 +232,9 @@ enum BenchCommand {
         corrections: Option<u32>,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`); or,
-        /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms; the default).
+        /// into the largest parallelograms they tile (`parallelograms`); or
+        /// the static meshes on lightmap UVs: their own, else generated ones
+        /// (`lightmap-uvs`, the default), or always generated (`generated`).
         #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
     },
@@ -273,9 +273,9 @@ enum BenchCommand {
         no_clusters: bool,
         /// How a mesh's triangles get charts: each its own (`triangles`),
         /// two that form a parallelogram one (`pairs`), or pairs merged
-        /// into the largest parallelograms they tile (`parallelograms`); or,
-        /// for the static meshes that have them, their own lightmap UVs
-        /// (`lightmap-uvs`, else parallelograms; the default).
+        /// into the largest parallelograms they tile (`parallelograms`); or
+        /// the static meshes on lightmap UVs: their own, else generated ones
+        /// (`lightmap-uvs`, the default), or always generated (`generated`).
         #[arg(long, value_enum, default_value_t = Charts::default())]
         charts: Charts,
     },

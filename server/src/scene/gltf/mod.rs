@@ -58,6 +58,7 @@ use super::texture::{Filter, Texture, Wrap};
 use super::{Pose, SceneError, SceneIssue};
 
 pub use overlap::{UvOverlap, find_uv_overlaps};
+pub(crate) use overlap::{intersection_area, signed_area};
 
 /// Albedo channels above this are clamped (with a warning): a surface that
 /// reflects everything makes the radiosity system singular in a closed room.

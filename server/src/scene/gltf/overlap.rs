@@ -30,7 +30,7 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
     a.x * b.y - a.y * b.x
 }
 
-fn signed_area(p: &[DVec2]) -> f64 {
+pub(crate) fn signed_area(p: &[DVec2]) -> f64 {
     let mut s = 0.0;
     for i in 0..p.len() {
         s += cross(p[i], p[(i + 1) % p.len()]);
@@ -39,7 +39,7 @@ fn signed_area(p: &[DVec2]) -> f64 {
 }
 
 /// Area of the intersection of two counter-clockwise triangles.
-fn intersection_area(a: &[DVec2; 3], b: &[DVec2; 3]) -> f64 {
+pub(crate) fn intersection_area(a: &[DVec2; 3], b: &[DVec2; 3]) -> f64 {
     let mut poly: Vec<DVec2> = a.to_vec();
     for i in 0..3 {
         let (e0, e1) = (b[i], b[(i + 1) % 3]);
