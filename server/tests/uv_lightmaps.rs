@@ -455,3 +455,77 @@ fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
         }
     }
 }
+
+/// Generated lightmap UVs (`scene/unwrap.rs`, issue 18 item 2): a static
+/// mesh without `TEXCOORD_1` is lit on UVs Lightwire makes by default, and
+/// they pass the checks an asset's `TEXCOORD_1` gets (inside [0, 1], no
+/// overlap, no zero area); `--charts parallelograms` keeps Lightwire's own
+/// charts; `--charts generated` lights every static mesh on generated UVs
+/// while the asset's own stay for `uv-lightmaps/`, marked apart.
+#[test]
+fn meshes_without_lightmap_uvs_are_lit_on_generated_ones() {
+    use lightwire_server::scene::gltf::find_uv_overlaps;
+    let load = |name: &str, charts: Charts, scale: f32| {
+        let options = LoadOptions {
+            charts,
+            ..LoadOptions::scaled(scale)
+        };
+        Scene::load_with(&scene_path(name), options).unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+
+    let sphere = load("meshes/furnace-sphere.glb", Charts::LightmapUvs, 0.1);
+    assert_eq!(sphere.uv_meshes.len(), 1);
+    let mesh = &sphere.uv_meshes[0];
+    assert!(mesh.generated);
+    assert_eq!(mesh.uvs.len(), 960);
+    assert!(
+        sphere
+            .patches
+            .iter()
+            .all(|p| p.lightmap.is_some_and(|l| l.mesh == 0))
+    );
+    for uv in mesh.uvs.iter().flatten() {
+        assert!(
+            (0.0..=1.0).contains(&uv.x) && (0.0..=1.0).contains(&uv.y),
+            "{uv}"
+        );
+    }
+    for t in &mesh.uvs {
+        let twice = (t[1] - t[0]).perp_dot(t[2] - t[0]).abs();
+        assert!(twice > 1e-9, "{t:?}");
+    }
+    let overlaps = find_uv_overlaps(&mesh.uvs, 4).expect("checkable");
+    assert!(overlaps.is_empty(), "{overlaps:?}");
+    let atlas = Atlas::build(&sphere).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        atlas.blocks[0].is_some(),
+        "the generated lightmap is a block"
+    );
+
+    let own = load("meshes/furnace-sphere.glb", Charts::Parallelograms, 0.1);
+    assert!(own.patches.iter().all(|p| p.lightmap.is_none()));
+
+    // The atrium brings TEXCOORD_1 on every mesh: by default it is lit on
+    // those, with `generated` on new ones.
+    let atrium = load("meshes/atrium.glb", Charts::LightmapUvs, 0.3);
+    assert!(atrium.uv_meshes.iter().all(|m| !m.generated));
+    let generated = load("meshes/atrium.glb", Charts::Generated, 0.3);
+    let lit: Vec<usize> = generated
+        .patches
+        .iter()
+        .filter(|p| p.object == 0)
+        .map(|p| p.lightmap.expect("every static patch on a lightmap").mesh as usize)
+        .collect();
+    assert!(lit.iter().all(|&m| generated.uv_meshes[m].generated));
+    let own_meshes = generated.uv_meshes.iter().filter(|m| !m.generated).count();
+    assert_eq!(
+        own_meshes,
+        atrium.uv_meshes.len(),
+        "the asset's own UVs are kept"
+    );
+    for m in generated.uv_meshes.iter().filter(|m| m.generated) {
+        let overlaps = find_uv_overlaps(&m.uvs, 4).expect("checkable");
+        assert!(overlaps.is_empty(), "{}: {overlaps:?}", m.name);
+    }
+    Atlas::build(&generated).unwrap_or_else(|e| panic!("{e}"));
+}
