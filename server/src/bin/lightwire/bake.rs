@@ -174,13 +174,14 @@ pub(crate) fn bake_command(
         out.display(),
         stats.seconds
     );
-    if !scene.uv_meshes.is_empty() {
+    // Generated UVs are in no asset: nothing is resampled into them.
+    let own = scene.uv_meshes.iter().filter(|m| !m.generated).count();
+    if own > 0 {
         eprintln!(
-            "  and {}/{}/: the light in the asset's own TEXCOORD_1 of {} mesh{} (listed in atlas.json)",
+            "  and {}/{}/: the light in the asset's own TEXCOORD_1 of {own} mesh{} (listed in atlas.json)",
             out.display(),
             bake::UV_LIGHTMAPS,
-            scene.uv_meshes.len(),
-            if scene.uv_meshes.len() == 1 { "" } else { "es" }
+            if own == 1 { "" } else { "es" }
         );
     }
     Ok(())
