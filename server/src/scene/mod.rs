@@ -448,13 +448,13 @@ pub enum Charts {
     /// larger parallelogram merge, as long as any two do: a tessellated
     /// wall is one chart, as a hand-written quad is.
     Parallelograms,
-    /// Parallelograms, except that the static triangles of a mesh with its
-    /// own lightmap UVs (glTF `TEXCOORD_1`, a scene file's `lightmap_uvs`)
-    /// are lit on those UVs: its lightmap is one block of the atlas, each
-    /// texel an element of every patch it overlaps (`atlas/uv.rs`), and
-    /// triangles over which the UVs are affine merge into parallelograms
-    /// there too (`pairs.rs`). The default: an engine puts the streamed
-    /// light on its own mesh.
+    /// Parallelograms, except that the static triangles of a mesh are lit
+    /// on its lightmap UVs: its own (glTF `TEXCOORD_1`, a scene file's
+    /// `lightmap_uvs`), else generated ones (`unwrap.rs`). Its lightmap is
+    /// one block of the atlas, each texel an element of every patch it
+    /// overlaps (`atlas/uv.rs`), and triangles over which the UVs are
+    /// affine merge into parallelograms there too (`pairs.rs`). The
+    /// default: an engine puts the streamed light on its own mesh.
     #[default]
     #[serde(rename = "lightmap-uvs")]
     LightmapUvs,
