@@ -136,6 +136,22 @@ fn a_triangle_of_a_quad_that_is_not_square_has_a_finer_grid() {
     assert!(!same_grids("cornell-large.json", 0.35));
 }
 
+/// A furnace (one material) solved by the progressive solver to `stop`
+/// unshot: every surface element within 1% of E/(1-ρ)
+/// ([`assert_uniform_on_surface`]); the largest error and the report.
+fn progressive_furnace(scene: &Scene, atlas: &Atlas, stop: f64) -> (f32, StepReport) {
+    let material = &scene.materials[0];
+    let expected = material.emission / (Vec3::ONE - material.albedo);
+    let poses = scene.initial_poses();
+    let mut solver =
+        ProgressiveSolver::new(gpu(), scene, atlas, &poses, ProgressiveOptions::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+    let report = solver.solve(stop).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.unshot_fraction <= stop, "{report:?}");
+    let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    (assert_uniform_on_surface(atlas, &b, expected, 0.01), report)
+}
+
 /// Every element of `b` that stands for surface within `tolerance`
 /// (relative, per channel) of `expected`; returns the largest relative
 /// error. (The texels above a triangle's diagonal hold whatever they
@@ -178,20 +194,7 @@ fn triangulated_furnace_progressive_every_texel_within_one_percent() {
     let tri = scene.triangulated();
     assert!(tri.patches.iter().all(|p| p.shape.is_triangle()));
     let atlas = Atlas::build(&tri).unwrap_or_else(|e| panic!("furnace triangulated: {e}"));
-    let material = &tri.materials[0];
-    let expected = material.emission / (Vec3::ONE - material.albedo);
-    let mut solver = ProgressiveSolver::new(
-        gpu(),
-        &tri,
-        &atlas,
-        &tri.initial_poses(),
-        ProgressiveOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-    assert!(report.unshot_fraction <= 1e-4, "{report:?}");
-    let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    let worst = assert_uniform_on_surface(&atlas, &b, expected, 0.01);
+    let (worst, report) = progressive_furnace(&tri, &atlas, 1e-4);
     eprintln!(
         "triangulated furnace, progressive: max relative error {worst:.5} after {} shots",
         report.shots
@@ -265,16 +268,7 @@ fn uv_sphere_furnace_every_texel_within_one_percent() {
                 0
             }
         );
-        let material = &scene.materials[0];
-        let expected = material.emission / (Vec3::ONE - material.albedo);
-        let poses = scene.initial_poses();
-        let mut solver =
-            ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, ProgressiveOptions::default())
-                .unwrap_or_else(|e| panic!("{e}"));
-        let report = solver.solve(1e-3).unwrap_or_else(|e| panic!("{e}"));
-        assert!(report.unshot_fraction <= 1e-3, "{report:?}");
-        let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-        let worst = assert_uniform_on_surface(&atlas, &b, expected, 0.01);
+        let (worst, report) = progressive_furnace(&scene, &atlas, 1e-3);
         eprintln!(
             "UV-sphere furnace, {charts:?}, progressive: {} elements, max relative error {worst:.5} after {} shots",
             atlas.elements.len(),

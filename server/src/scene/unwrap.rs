@@ -350,15 +350,11 @@ fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     if p.len() < 3 {
         return p;
     }
+    // The lower chain left to right, then the upper right to left.
     let mut hull: Vec<DVec2> = Vec::with_capacity(2 * p.len());
-    for pass in 0..2 {
+    for chain in [p.clone(), p.iter().rev().copied().collect()] {
         let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &DVec2>> = if pass == 0 {
-            Box::new(p.iter())
-        } else {
-            Box::new(p.iter().rev())
-        };
-        for &q in iter {
+        for q in chain {
             while hull.len() >= start + 2 {
                 let (a, b) = (hull[hull.len() - 2], hull[hull.len() - 1]);
                 if (b - a).perp_dot(q - a) > 0.0 {

@@ -868,14 +868,7 @@ fn merge_import(
         into.uv_meshes,
     );
     for (n, inst) in imported.instances.iter().enumerate() {
-        let node = inst
-            .node_name
-            .clone()
-            .unwrap_or_else(|| format!("node#{}", inst.node));
-        let mesh = inst
-            .mesh_name
-            .clone()
-            .unwrap_or_else(|| format!("mesh#{}", inst.mesh));
+        let (node, mesh) = names(inst);
         let (Some(&material), Some(&object)) = (
             material_ids.get(inst.material as usize),
             object_ids.get(inst.object as usize),
@@ -974,6 +967,20 @@ fn merge_import(
     }
 }
 
+/// An instance's node and mesh names, or `node#i`, `mesh#j` when the glTF
+/// has none.
+fn names(inst: &super::gltf::MeshInstance) -> (String, String) {
+    let node = inst
+        .node_name
+        .clone()
+        .unwrap_or_else(|| format!("node#{}", inst.node));
+    let mesh = inst
+        .mesh_name
+        .clone()
+        .unwrap_or_else(|| format!("mesh#{}", inst.mesh));
+    (node, mesh)
+}
+
 /// Whether a mesh surface of `object` gets generated lightmap UVs
 /// (`scene/unwrap.rs`) under `charts`: a static one without its own under
 /// `lightmap-uvs`, every static one under `generated`.
@@ -1034,17 +1041,10 @@ fn generate_import_uvs(
             out[n] = Some((m, unwrap.uvs[range].to_vec()));
         }
         uv_meshes.push(UvMesh {
-            name: format!(
-                "{}/{}",
-                first
-                    .node_name
-                    .clone()
-                    .unwrap_or_else(|| format!("node#{}", first.node)),
-                first
-                    .mesh_name
-                    .clone()
-                    .unwrap_or_else(|| format!("mesh#{}", first.mesh))
-            ),
+            name: {
+                let (node, mesh) = names(first);
+                format!("{node}/{mesh}")
+            },
             object: object_ids.get(first.object as usize).copied().unwrap_or(0),
             surface_index,
             triangles,
