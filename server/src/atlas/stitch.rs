@@ -25,12 +25,16 @@
 //! every publication
 //! ([`super::Atlas::to_image`]); no other texel changes.
 //!
-//! A pair of patches is a seam when both belong to one object, their
-//! normals are within 1° ([`super::SEAM_COS`]; a crease's light differs
-//! for real), at least one lies on its mesh's lightmap, and a point of
-//! their shared edge falls on different places of the atlas on the two
-//! sides (more than [`SAME_PLACE`] texels apart: otherwise it is an edge
-//! inside an island, whose texels are shared and already stitched).
+//! A pair of patches is a seam when both belong to one object, they face
+//! the same way within 1° ([`super::SEAM_COS`]) or meet where the asset's
+//! vertex normals say the surface is smooth (`UvMesh::smooth_edges`: a
+//! faceted column or sphere, whose facets' flat light differs but which an
+//! engine shades as one curved surface; a crease the asset keeps sharp is
+//! left alone, its light differs for real), at least one lies on its
+//! mesh's lightmap, and a point of their shared edge falls on different
+//! places of the atlas on the two sides (more than [`SAME_PLACE`] texels
+//! apart: otherwise it is an edge inside an island, whose texels are shared
+//! and already bilinearly continuous).
 
 use std::collections::HashMap;
 
@@ -47,8 +51,12 @@ pub const SAMPLES_PER_TEXEL: f32 = 2.0;
 /// such texels keeps `KEEP_HELD / (KEEP_HELD + 2)` of their difference
 /// (2.4%).
 pub const KEEP_HELD: f64 = 0.05;
-/// How strongly a gutter texel (no element) keeps its filled value.
-pub const KEEP_GUTTER: f64 = 1e-3;
+/// How strongly a gutter texel (no element) keeps its filled value: a
+/// tenth of a held texel's. Much less, and a steep seam (a crease between a
+/// lit and an unlit facet, `UvMesh::smooth_edges`) is met by pulling the
+/// gutter below zero, which no light can be (a 30% step stayed on the
+/// octagonal prism of `tests/uv_lightmaps.rs` at 1e-3).
+pub const KEEP_GUTTER: f64 = 5e-3;
 /// The two sides' points of a shared edge closer than this (texels) are
 /// one place: the edge lies inside an island.
 pub const SAME_PLACE: f32 = 1e-2;
@@ -131,7 +139,16 @@ fn corner_params(triangle: bool) -> &'static [Vec2] {
     }
 }
 
-/// One edge of a patch, in object space and in patch parameters.
+/// Edges by object and grid cell.
+type Grid = HashMap<(u32, [i32; 3]), Vec<u32>>;
+
+/// The 27 cells around and including a cell, as offsets.
+fn neighbourhood() -> impl Iterator<Item = (i32, i32, i32)> {
+    (-1..=1).flat_map(|dx| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| (dx, dy, dz))))
+}
+
+/// One edge of a patch (or, for a smooth edge, of an object: `patch` holds
+/// the object), in object space and in patch parameters.
 #[derive(Clone, Copy)]
 struct Edge {
     patch: u32,
@@ -198,22 +215,59 @@ impl IslandSeams {
         let cell = lengths[lengths.len() / 2].max(extent * 1e-4);
         let tolerance = extent * 1e-5;
         let key = |x: Vec3| ((x - lo) / cell).floor().as_ivec3().to_array();
-        let mut grid: HashMap<(u32, [i32; 3]), Vec<u32>> = HashMap::new();
-        for (i, e) in edges.iter().enumerate() {
-            let object = scene.patches[e.patch as usize].object;
+        // Enters edge `i` of `object` in `grid`, in the cells of points half a
+        // cell apart along it.
+        let enter = |grid: &mut Grid, object: u32, e: &Edge, i: u32| {
             let steps = (((e.b - e.a).length() / (0.5 * cell)).ceil() as usize).max(1);
-            let mut last = None;
             for k in 0..=steps {
-                let at = key(e.a.lerp(e.b, k as f32 / steps as f32));
-                if last != Some(at) {
-                    let list = grid.entry((object, at)).or_default();
-                    if list.last() != Some(&(i as u32)) {
-                        list.push(i as u32);
-                    }
-                    last = Some(at);
+                let list = grid
+                    .entry((object, key(e.a.lerp(e.b, k as f32 / steps as f32))))
+                    .or_default();
+                if list.last() != Some(&i) {
+                    list.push(i);
                 }
             }
+        };
+        let mut grid = Grid::new();
+        for (i, e) in edges.iter().enumerate() {
+            enter(
+                &mut grid,
+                scene.patches[e.patch as usize].object,
+                e,
+                i as u32,
+            );
         }
+        // Edges where an asset's vertex normals say its surface is smooth
+        // (`UvMesh::smooth_edges`), on a grid of their own.
+        let smooth: Vec<Edge> = scene
+            .uv_meshes
+            .iter()
+            .flat_map(|m| {
+                m.smooth_edges.iter().map(|&[a, b]| Edge {
+                    patch: m.object,
+                    a,
+                    b,
+                    st_a: Vec2::ZERO,
+                    st_b: Vec2::ZERO,
+                })
+            })
+            .collect();
+        let mut smooth_grid = Grid::new();
+        for (i, e) in smooth.iter().enumerate() {
+            enter(&mut smooth_grid, e.patch, e, i as u32);
+        }
+        let smooth_at = |object: u32, x: Vec3| {
+            let [cx, cy, cz] = key(x);
+            neighbourhood().any(|(dx, dy, dz)| {
+                smooth_grid
+                    .get(&(object, [cx + dx, cy + dy, cz + dz]))
+                    .is_some_and(|list| {
+                        list.iter()
+                            .any(|&i| smooth[i as usize].locate(x, tolerance).is_some())
+                    })
+            })
+        };
+        let smooth_cos = crate::scene::unwrap::SMOOTH_MAX_DEG.to_radians().cos();
 
         let mut seams = IslandSeams::default();
         let mut slot: HashMap<u32, u32> = HashMap::new();
@@ -245,9 +299,7 @@ impl IslandSeams {
                 let here = pa.lerp(pb, f);
                 let [cx, cy, cz] = key(x);
                 let mut seen: Vec<u32> = Vec::new();
-                for (dx, dy, dz) in (-1..=1).flat_map(|dx| {
-                    (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| (dx, dy, dz)))
-                }) {
+                for (dx, dy, dz) in neighbourhood() {
                     let Some(list) = grid.get(&(patch.object, [cx + dx, cy + dy, cz + dz])) else {
                         continue;
                     };
@@ -257,7 +309,10 @@ impl IslandSeams {
                         if q == p || seen.contains(&other.patch) {
                             continue;
                         }
-                        if scene.patches[q].shape.normal().dot(normal) < SEAM_COS {
+                        // Facing the same way, or meeting at a crease the
+                        // asset shades smoothly.
+                        let cos = scene.patches[q].shape.normal().dot(normal);
+                        if cos < SEAM_COS && (cos < smooth_cos || !smooth_at(patch.object, x)) {
                             continue;
                         }
                         let Some(g) = other.locate(x, tolerance) else {

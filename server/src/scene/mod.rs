@@ -142,6 +142,12 @@ pub struct UvMesh {
     /// brought none, or `--charts generated` asked: no asset holds them,
     /// so no lightmap is resampled into them for a client.
     pub generated: bool,
+    /// Edges (object space, end to end) where the asset's vertex normals
+    /// say the surface is smooth (`unwrap::smooth_edges`): where such an
+    /// edge is a seam between two islands, its two sides are stitched
+    /// although their faces meet at an angle (`atlas/stitch.rs`). Empty for
+    /// a scene file's `mesh` (it has no normals).
+    pub smooth_edges: Vec<[Vec3; 2]>,
 }
 
 /// A Lambertian material.

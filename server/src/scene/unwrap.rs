@@ -167,9 +167,14 @@ pub fn unwrap(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
     }
 }
 
-/// Each triangle's neighbours across its edges (corners welded to [`WELD`]
-/// of the extent; an edge shared by more than two triangles joins none).
-fn neighbours(triangles: &[[Vec3; 3]]) -> Vec<Vec<u32>> {
+/// Per welded edge (its two vertex ids, smaller first), the triangles that
+/// have it.
+type EdgeTriangles = HashMap<(u32, u32), Vec<u32>>;
+
+/// The edges of a triangle soup after welding its corners (equal to
+/// [`WELD`] of the extent): per welded edge (its two vertex ids, smaller
+/// first), the triangles that have it, and per triangle its corners' ids.
+fn welded_edges(triangles: &[[Vec3; 3]]) -> (EdgeTriangles, Vec<[u32; 3]>) {
     let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     for t in triangles {
         for p in t {
@@ -185,9 +190,9 @@ fn neighbours(triangles: &[[Vec3; 3]]) -> Vec<Vec<u32>> {
         let next = ids.len() as u32;
         *ids.entry(key).or_insert(next)
     };
+    let corners: Vec<[u32; 3]> = triangles.iter().map(|tri| tri.map(&mut id)).collect();
     let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
-    for (t, tri) in triangles.iter().enumerate() {
-        let v = tri.map(&mut id);
+    for (t, v) in corners.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (v[k], v[(k + 1) % 3]);
             if a != b {
@@ -198,6 +203,13 @@ fn neighbours(triangles: &[[Vec3; 3]]) -> Vec<Vec<u32>> {
             }
         }
     }
+    (edges, corners)
+}
+
+/// Each triangle's neighbours across its edges (corners welded to [`WELD`]
+/// of the extent; an edge shared by more than two triangles joins none).
+fn neighbours(triangles: &[[Vec3; 3]]) -> Vec<Vec<u32>> {
+    let (edges, _) = welded_edges(triangles);
     let mut out = vec![Vec::new(); triangles.len()];
     for list in edges.values() {
         if let [a, b] = list[..]
@@ -208,6 +220,58 @@ fn neighbours(triangles: &[[Vec3; 3]]) -> Vec<Vec<u32>> {
         }
     }
     out
+}
+
+/// Two corners' vertex normals within this cosine (about 1.1°) are the
+/// same normal: the asset shades the surface smoothly across their edge.
+pub const SMOOTH_NORMAL_COS: f32 = 0.9998;
+/// Across an edge whose faces meet at more than this angle (degrees) the
+/// light is not made continuous, whatever the vertex normals say: a
+/// smoothed hard corner (a box exported with averaged normals) keeps its
+/// crease.
+pub const SMOOTH_MAX_DEG: f32 = 60.0;
+
+/// The edges where a mesh's own vertex normals say its surface is smooth:
+/// welded edges of exactly two triangles whose normals agree at both of
+/// the edge's ends (within [`SMOOTH_NORMAL_COS`]) and whose faces meet
+/// within [`SMOOTH_MAX_DEG`]. `normals` holds, per triangle, its corners'
+/// vertex normals in its corner order, or `None` where the asset gave none
+/// (glTF then asks for flat shading: no smooth edges). Coplanar
+/// neighbours count too (their seams are stitched anyway). Each edge is
+/// returned once, as its two end points.
+pub fn smooth_edges(triangles: &[[Vec3; 3]], normals: &[Option<[Vec3; 3]>]) -> Vec<[Vec3; 2]> {
+    let (edges, corners) = welded_edges(triangles);
+    let face = |t: usize| {
+        let [a, b, c] = triangles[t];
+        (b - a).cross(c - a).normalize_or_zero()
+    };
+    // Vertex normal of triangle `t` at welded vertex `v`.
+    let at = |t: usize, v: u32| -> Option<Vec3> {
+        let k = corners[t].iter().position(|&c| c == v)?;
+        Some(normals.get(t).copied().flatten()?[k].normalize_or_zero())
+    };
+    let max_cos = SMOOTH_MAX_DEG.to_radians().cos();
+    let mut out: Vec<(u32, [Vec3; 2])> = edges
+        .iter()
+        .filter_map(|(&(a, b), list)| {
+            let [s, t] = list[..] else { return None };
+            let (s, t) = (s as usize, t as usize);
+            if s == t || face(s).dot(face(t)) < max_cos {
+                return None;
+            }
+            for v in [a, b] {
+                if at(s, v)?.dot(at(t, v)?) < SMOOTH_NORMAL_COS {
+                    return None;
+                }
+            }
+            let k = corners[s].iter().position(|&c| c == a)?;
+            let l = corners[s].iter().position(|&c| c == b)?;
+            Some((s as u32 * 3 + k as u32, [triangles[s][k], triangles[s][l]]))
+        })
+        .collect();
+    // In triangle order (the map's order is not stable).
+    out.sort_unstable_by_key(|&(key, _)| key);
+    out.into_iter().map(|(_, e)| e).collect()
 }
 
 /// A chart's triangles projected so far, on a uniform grid of their
@@ -594,5 +658,73 @@ mod tests {
         let u = unwrap(&tris, 1000.0);
         assert!(u.side <= MAX_SIDE && u.side > MAX_SIDE * 0.9, "{}", u.side);
         assert_eq!(u.charts, 1);
+    }
+
+    /// Vertex normals per corner: the sphere's radial ones (smooth), or
+    /// each triangle's own face normal (flat).
+    fn normals_of(tris: &[[Vec3; 3]], smooth: bool) -> Vec<Option<[Vec3; 3]>> {
+        tris.iter()
+            .map(|t| {
+                let face = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+                Some(t.map(|p| if smooth { p.normalize() } else { face }))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn smooth_edges_are_where_vertex_normals_agree_and_faces_meet_gently() {
+        let (segments, rings) = (12, 6);
+        let tris = sphere(segments, rings);
+        // Every edge of a closed mesh joins two triangles: edges = 3/2 of
+        // the triangles, all of them smooth on radial normals.
+        let all = smooth_edges(&tris, &normals_of(&tris, true));
+        assert_eq!(all.len(), tris.len() * 3 / 2);
+        for [a, b] in &all {
+            assert!((a.length() - 1.0).abs() < 1e-5 && (b.length() - 1.0).abs() < 1e-5);
+        }
+        // Flat normals: only the diagonals inside the quads between two
+        // rings (their two triangles are coplanar); none: no smooth edge.
+        assert_eq!(
+            smooth_edges(&tris, &normals_of(&tris, false)).len(),
+            segments * (rings - 2)
+        );
+        assert!(smooth_edges(&tris, &vec![None; tris.len()]).is_empty());
+        // One triangle without normals: only its own edges drop out.
+        let mut some = normals_of(&tris, true);
+        some[7] = None;
+        assert_eq!(smooth_edges(&tris, &some).len(), all.len() - 3);
+        // A box whose corners carry averaged normals (every corner the same
+        // normal for all its faces) still meets at 90°: no smooth edge.
+        let cube: Vec<[Vec3; 3]> = {
+            let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+            let quad = |a: Vec3, b: Vec3, d: Vec3, e: Vec3| [[a, b, d], [a, d, e]];
+            [
+                quad(c(0., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(0., 1., 1.)),
+                quad(c(1., 0., 0.), c(0., 0., 0.), c(0., 1., 0.), c(1., 1., 0.)),
+                quad(c(1., 0., 1.), c(1., 0., 0.), c(1., 1., 0.), c(1., 1., 1.)),
+                quad(c(0., 0., 0.), c(0., 0., 1.), c(0., 1., 1.), c(0., 1., 0.)),
+                quad(c(0., 1., 1.), c(1., 1., 1.), c(1., 1., 0.), c(0., 1., 0.)),
+                quad(c(0., 0., 0.), c(1., 0., 0.), c(1., 0., 1.), c(0., 0., 1.)),
+            ]
+            .into_iter()
+            .flatten()
+            .collect()
+        };
+        let averaged: Vec<Option<[Vec3; 3]>> = cube
+            .iter()
+            .map(|t| Some(t.map(|p| (p - Vec3::splat(0.5)).normalize())))
+            .collect();
+        let kept = smooth_edges(&cube, &averaged);
+        // Only the faces' own diagonals (coplanar) are smooth.
+        assert_eq!(kept.len(), 6, "{kept:?}");
+        for [a, b] in kept {
+            let d = (b - a).abs();
+            assert!(d.min_element() < 1e-6 && (d.max_element() - 1.0).abs() < 1e-6);
+            assert_eq!(
+                d.cmpgt(Vec3::splat(0.5)).bitmask().count_ones(),
+                2,
+                "a diagonal"
+            );
+        }
     }
 }

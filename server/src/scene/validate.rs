@@ -312,6 +312,7 @@ pub fn validate(
                     triangles: triangles(),
                     uvs: uvs.clone(),
                     generated: generate,
+                    smooth_edges: Vec::new(),
                 });
                 (uv_meshes.len() - 1) as u32
             });
@@ -859,6 +860,9 @@ fn merge_import(
         object_ids.push((into.objects.len() - 1) as u32);
     }
     let mut uv_mesh_of: HashMap<(usize, usize), usize> = HashMap::new();
+    // Per own-UV mesh, its triangles' vertex normals (for its smooth edges).
+    let mut own_normals: std::collections::BTreeMap<usize, Vec<Option<[Vec3; 3]>>> =
+        std::collections::BTreeMap::new();
     let generated = generate_import_uvs(
         imported,
         &object_ids,
@@ -898,6 +902,7 @@ fn merge_import(
                     triangles: Vec::new(),
                     uvs: Vec::new(),
                     generated: false,
+                    smooth_edges: Vec::new(),
                 });
                 into.uv_meshes.len() - 1
             })
@@ -953,6 +958,7 @@ fn merge_import(
         // The primitives of one node's mesh share its lightmap space.
         if let (Some(uvs), Some(k)) = (&inst.lightmap_uvs, uv_mesh) {
             let m = &mut into.uv_meshes[k];
+            let normals = own_normals.entry(k).or_default();
             for tri in &inst.indices {
                 let corner = |j: usize| {
                     let i = tri[j] as usize;
@@ -961,10 +967,23 @@ fn merge_import(
                 if let (Some(a), Some(b), Some(d)) = (corner(0), corner(1), corner(2)) {
                     m.triangles.push([a.0, b.0, d.0]);
                     m.uvs.push([a.1, b.1, d.1]);
+                    normals.push(corner_normals(inst, tri));
                 }
             }
         }
     }
+    for (k, normals) in own_normals {
+        let m = &mut into.uv_meshes[k];
+        m.smooth_edges = super::unwrap::smooth_edges(&m.triangles, &normals);
+    }
+}
+
+/// Triangle `tri`'s vertex normals of `inst`, corner by corner, if it has
+/// them.
+fn corner_normals(inst: &super::gltf::MeshInstance, tri: &[u32; 3]) -> Option<[Vec3; 3]> {
+    let n = inst.normals.as_ref()?;
+    let [a, b, c] = tri.map(|i| n.get(i as usize).copied());
+    Some([a?, b?, c?])
 }
 
 /// An instance's node and mesh names, or `node#i`, `mesh#j` when the glTF
@@ -1023,15 +1042,19 @@ fn generate_import_uvs(
     }
     for (_, members) in groups {
         let mut triangles = Vec::new();
+        let mut normals = Vec::new();
         let mut ranges = Vec::with_capacity(members.len());
         for &n in &members {
             let inst = &imported.instances[n];
             let start = triangles.len();
             // The importer has checked every index against its positions.
-            triangles.extend(inst.indices.iter().filter_map(|tri| {
+            for tri in &inst.indices {
                 let [a, b, d] = tri.map(|i| inst.positions.get(i as usize).copied());
-                Some([a?, b?, d?])
-            }));
+                if let (Some(a), Some(b), Some(d)) = (a, b, d) {
+                    triangles.push([a, b, d]);
+                    normals.push(corner_normals(inst, tri));
+                }
+            }
             ranges.push(start..triangles.len());
         }
         let first = &imported.instances[members[0]];
@@ -1047,6 +1070,7 @@ fn generate_import_uvs(
             },
             object: object_ids.get(first.object as usize).copied().unwrap_or(0),
             surface_index,
+            smooth_edges: super::unwrap::smooth_edges(&triangles, &normals),
             triangles,
             uvs: unwrap.uvs,
             generated: true,
