@@ -773,3 +773,187 @@ fn on_quad(scene: &Scene, x: Vec3, normal: Vec3) -> Option<(u32, [f32; 2])> {
             .then_some((p as u32, [s.clamp(0.0, 1.0), t.clamp(0.0, 1.0)]))
     })
 }
+
+/// Issue 18, item 3, on lightmap UVs: texels on either side of every seam
+/// of the atrium's lightmap islands agree within 2% as a client reads them.
+/// Run on the asset's own `TEXCOORD_1` (the default: each column's side
+/// unrolled into one island, cut once at φ = 0) and on generated charts
+/// (every column and arch soffit cut into near-planar charts). Independently
+/// of `atlas/stitch.rs`'s seam search: every edge of a mesh's triangles is
+/// matched with the other triangle of the mesh that has it (same end
+/// points); where the two give the edge different lightmap UVs it is a seam,
+/// and a smooth one where their faces are within 1° or the edge is one of
+/// the mesh's smooth edges (the asset's normals agree, `UvMesh::smooth_edges`).
+/// At the quarter points of each, the published lightmap
+/// (`Validity::fill`, then `Atlas::to_image`) is read bilinearly at either
+/// side's UVs; they differ by at most 2% of the brighter (or of 2% of the
+/// 95th percentile, where both are darker). Points whose texel on either
+/// side is invalid (inside or under geometry: a column's foot) are left out.
+/// Unstitched (the same image without `Atlas::island_seams`), some seam
+/// differs by more than 2%, so the test sees what stitching does.
+#[test]
+fn atrium_lightmap_island_seams_agree_within_two_percent() {
+    atrium_island_seams(Charts::LightmapUvs, 8);
+    atrium_island_seams(Charts::Generated, 100);
+}
+
+fn atrium_island_seams(charts: Charts, min_seams: usize) {
+    atrium_island_seams_at(charts, min_seams, ATRIUM_DENSITY_SCALE)
+}
+
+fn atrium_island_seams_at(charts: Charts, min_seams: usize, density_scale: f32) {
+    use lightwire_server::atlas::IslandSeams;
+    let options = LoadOptions {
+        density_scale,
+        charts,
+    };
+    let scene = Scene::load_with(&common::scene_path("meshes/atrium.glb"), options)
+        .unwrap_or_else(|e| panic!("atrium must load: {e}"));
+    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("atrium must fit: {e}"));
+    let poses = scene.initial_poses();
+    let mut solver =
+        ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, ProgressiveOptions::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+    solver.solve(0.2).unwrap_or_else(|e| panic!("{e}"));
+    let mut b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let validity = Validity::compute(&scene, &atlas, &poses);
+    validity.fill(&atlas, &mut b);
+    let published = atlas.to_image(&b);
+    let unstitched = {
+        let mut plain = atlas.clone();
+        plain.island_seams = IslandSeams::default();
+        plain.to_image(&b)
+    };
+    let mut lum: Vec<f32> = published.iter().map(|p| p[0].max(p[1]).max(p[2])).collect();
+    lum.sort_by(f32::total_cmp);
+    let floor = 0.02 * lum[lum.len() * 95 / 100];
+    let key = |x: Vec3| (x * 1e4).round().as_ivec3().to_array();
+    let (mut seams, mut points) = (0usize, 0usize);
+    let (mut worst, mut worst_unstitched) = ((0.0f32, String::new()), 0.0f32);
+    let mut failures = Vec::new();
+    for (k, mesh) in scene.uv_meshes.iter().enumerate() {
+        let Some(block) = atlas.blocks.get(k).copied().flatten() else {
+            continue;
+        };
+        let pixel =
+            |uv: glam::Vec2| glam::Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32;
+        let in_atlas =
+            |uv: glam::Vec2| pixel(uv) / glam::Vec2::new(atlas.width as f32, atlas.height as f32);
+        // No texel the bilinear read at `uv` weighs is invalid.
+        let valid_at = |uv: glam::Vec2| {
+            let p = (pixel(uv) - glam::Vec2::splat(0.5)).floor();
+            (0..2).all(|dy| {
+                (0..2).all(|dx| {
+                    atlas
+                        .element_at(
+                            (p.x as i64 + dx).max(0) as u32,
+                            (p.y as i64 + dy).max(0) as u32,
+                        )
+                        .is_none_or(|e| !validity.is_invalid(e as usize))
+                })
+            })
+        };
+        let smooth: std::collections::HashSet<_> = mesh
+            .smooth_edges
+            .iter()
+            .flat_map(|&[a, b]| [(key(a), key(b)), (key(b), key(a))])
+            .collect();
+        // Each edge by its end points, with its triangle and corners.
+        let mut by_edge: std::collections::HashMap<_, Vec<(usize, usize)>> =
+            std::collections::HashMap::new();
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            for e in 0..3 {
+                let (a, b) = (key(tri[e]), key(tri[(e + 1) % 3]));
+                by_edge
+                    .entry((a.min(b), a.max(b)))
+                    .or_default()
+                    .push((t, e));
+            }
+        }
+        let normal = |t: usize| {
+            let [a, b, c] = mesh.triangles[t];
+            (b - a).cross(c - a).normalize()
+        };
+        // The UV of the point `f` of the way along edge `e` of `t`, from
+        // the end point `from`.
+        let uv_at = |t: usize, e: usize, from: Vec3, f: f32| {
+            let (i, j) = (e, (e + 1) % 3);
+            let (ua, ub) = (mesh.uvs[t][i], mesh.uvs[t][j]);
+            if key(mesh.triangles[t][i]) == key(from) {
+                ua.lerp(ub, f)
+            } else {
+                ub.lerp(ua, f)
+            }
+        };
+        for list in by_edge.values() {
+            let [(s, es), (t, et)] = list[..] else {
+                continue;
+            };
+            let from = mesh.triangles[s][es];
+            let to = mesh.triangles[s][(es + 1) % 3];
+            let coplanar = normal(s).dot(normal(t)) >= 1f32.to_radians().cos();
+            if !coplanar && !smooth.contains(&(key(from), key(to))) {
+                continue;
+            }
+            let apart = (pixel(uv_at(s, es, from, 0.5)) - pixel(uv_at(t, et, from, 0.5))).length();
+            if apart <= 0.01 {
+                continue;
+            }
+            seams += 1;
+            for q in 1..=3 {
+                let f = q as f32 / 4.0;
+                let (us, ut) = (uv_at(s, es, from, f), uv_at(t, et, from, f));
+                if !valid_at(us) || !valid_at(ut) {
+                    continue;
+                }
+                points += 1;
+                let read = |image: &[[f32; 3]]| {
+                    let (a, b) = (
+                        common::filtered(image, &atlas, in_atlas(us)),
+                        common::filtered(image, &atlas, in_atlas(ut)),
+                    );
+                    let scale = a.max_element().max(b.max_element()).max(floor);
+                    ((a - b).abs().max_element() / scale, a, b)
+                };
+                worst_unstitched = worst_unstitched.max(read(&unstitched).0);
+                let (diff, a, b) = read(&published);
+                let what = format!(
+                    "{} triangles {s}/{t} at {}: {a} vs {b}",
+                    mesh.name,
+                    from.lerp(to, f)
+                );
+                if diff > worst.0 {
+                    worst = (diff, what.clone());
+                }
+                if diff > 0.02 {
+                    let (unstitched, ..) = read(&unstitched);
+                    failures.push(format!(
+                        "{:.1}% (unstitched {:.1}%): {what}",
+                        diff * 100.0,
+                        unstitched * 100.0
+                    ));
+                }
+            }
+        }
+    }
+    eprintln!(
+        "atrium ({charts:?}): {seams} island seams, {points} points; worst {:.2}% published ({}), {:.2}% unstitched",
+        worst.0 * 100.0,
+        worst.1,
+        worst_unstitched * 100.0
+    );
+    assert!(
+        seams >= min_seams && points >= 2 * min_seams,
+        "{charts:?}: {seams} seams, {points} points"
+    );
+    assert!(
+        worst_unstitched > 0.02,
+        "{charts:?}: unstitched the seams already agree ({worst_unstitched})"
+    );
+    assert!(
+        failures.is_empty(),
+        "{charts:?}: {} of {points} seam points differ by more than 2%, e.g.\n{}",
+        failures.len(),
+        failures[..failures.len().min(12)].join("\n")
+    );
+}
