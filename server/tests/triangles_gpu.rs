@@ -316,7 +316,11 @@ fn atrium_chart_seams_agree_within_two_percent() {
     atrium_seams(Charts::Pairs, 1500);
 }
 
-fn atrium_seams(charts: Charts, min_seams: usize) {
+/// The atrium at [`ATRIUM_DENSITY_SCALE`] on `charts`, solved by the
+/// progressive solver to 20% unshot, its radiosity filled as a publication
+/// fills it (seams stitched, invalid texels filled), with the validity
+/// that filled it and the solve's report.
+fn atrium_published(charts: Charts) -> (Scene, Atlas, Validity, Vec<Vec3>, StepReport) {
     let options = LoadOptions {
         density_scale: ATRIUM_DENSITY_SCALE,
         charts,
@@ -330,9 +334,13 @@ fn atrium_seams(charts: Charts, min_seams: usize) {
             .unwrap_or_else(|e| panic!("{e}"));
     let report = solver.solve(0.2).unwrap_or_else(|e| panic!("{e}"));
     let mut b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    // As a publication fills it: seams stitched, invalid texels filled.
     let validity = Validity::compute(&scene, &atlas, &poses);
     validity.fill(&atlas, &mut b);
+    (scene, atlas, validity, b, report)
+}
+
+fn atrium_seams(charts: Charts, min_seams: usize) {
+    let (scene, atlas, validity, b, report) = atrium_published(charts);
 
     let mut lum: Vec<f32> = b.iter().map(|v| v.max_element()).collect();
     lum.sort_by(f32::total_cmp);
@@ -798,26 +806,8 @@ fn atrium_lightmap_island_seams_agree_within_two_percent() {
 }
 
 fn atrium_island_seams(charts: Charts, min_seams: usize) {
-    atrium_island_seams_at(charts, min_seams, ATRIUM_DENSITY_SCALE)
-}
-
-fn atrium_island_seams_at(charts: Charts, min_seams: usize, density_scale: f32) {
     use lightwire_server::atlas::IslandSeams;
-    let options = LoadOptions {
-        density_scale,
-        charts,
-    };
-    let scene = Scene::load_with(&common::scene_path("meshes/atrium.glb"), options)
-        .unwrap_or_else(|e| panic!("atrium must load: {e}"));
-    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("atrium must fit: {e}"));
-    let poses = scene.initial_poses();
-    let mut solver =
-        ProgressiveSolver::new(gpu(), &scene, &atlas, &poses, ProgressiveOptions::default())
-            .unwrap_or_else(|e| panic!("{e}"));
-    solver.solve(0.2).unwrap_or_else(|e| panic!("{e}"));
-    let mut b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    let validity = Validity::compute(&scene, &atlas, &poses);
-    validity.fill(&atlas, &mut b);
+    let (scene, atlas, validity, b, _) = atrium_published(charts);
     let published = atlas.to_image(&b);
     let unstitched = {
         let mut plain = atlas.clone();

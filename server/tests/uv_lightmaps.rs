@@ -328,6 +328,30 @@ async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
     }
 }
 
+/// `scene` solved by the reference solver to 1e-4 unshot and published
+/// (`Validity::fill`, `Atlas::to_image`), and the same image without the
+/// adjustment of the seams between lightmap islands.
+fn reference_images(scene: &Scene, atlas: &Atlas) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    use lightwire_server::atlas::IslandSeams;
+    use lightwire_server::solver::{self, SolverKind, SolverSettings};
+    let poses = scene.initial_poses();
+    let mut solver = solver::build(
+        SolverKind::Reference,
+        scene,
+        atlas,
+        &poses,
+        &SolverSettings::default(),
+        &solver::Silent,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let mut values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    lightwire_server::validity::Validity::compute(scene, atlas, &poses).fill(atlas, &mut values);
+    let mut plain = atlas.clone();
+    plain.island_seams = IslandSeams::default();
+    (atlas.to_image(&values), plain.to_image(&values))
+}
+
 /// A floor of two islands of its own lightmap: the left half of the floor
 /// in the lower left of its `[0, 1]²`, the right half in the upper right,
 /// turned a quarter (its `x` along `v`), so that the seam between them (the
@@ -364,8 +388,6 @@ const TWO_ISLANDS: &str = r#"{
 /// seam's equations read change.
 #[test]
 fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
-    use lightwire_server::atlas::IslandSeams;
-    use lightwire_server::solver::{self, SolverKind, SolverSettings};
     let options = LoadOptions {
         charts: Charts::LightmapUvs,
         ..LoadOptions::scaled(1.0)
@@ -383,26 +405,7 @@ fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
         "{} seam points",
         atlas.island_seams.len()
     );
-    let poses = scene.initial_poses();
-    let mut solver = solver::build(
-        SolverKind::Reference,
-        &scene,
-        &atlas,
-        &poses,
-        &SolverSettings::default(),
-        &solver::Silent,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-    let mut values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    lightwire_server::validity::Validity::compute(&scene, &atlas, &poses).fill(&atlas, &mut values);
-
-    let stitched = atlas.to_image(&values);
-    let raw = {
-        let mut plain = atlas.clone();
-        plain.island_seams = IslandSeams::default();
-        plain.to_image(&values)
-    };
+    let (stitched, raw) = reference_images(&scene, &atlas);
     let block = atlas.blocks[0].unwrap_or_else(|| panic!("the floor's block"));
     let in_atlas = |uv: Vec2| {
         (Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32)
@@ -665,8 +668,6 @@ fn prism_glb(smooth: bool) -> Vec<u8> {
 /// creases keep their step.
 #[test]
 fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
-    use lightwire_server::atlas::IslandSeams;
-    use lightwire_server::solver::{self, SolverKind, SolverSettings};
     let dir = std::env::temp_dir().join(format!("lightwire-prism-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
     let mut worst_of = Vec::new();
@@ -690,26 +691,7 @@ fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
         let expect = if smooth { 26 } else { 18 };
         assert_eq!(mesh.smooth_edges.len(), expect, "smooth: {smooth}");
         let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
-        let poses = scene.initial_poses();
-        let mut solver = solver::build(
-            SolverKind::Reference,
-            &scene,
-            &atlas,
-            &poses,
-            &SolverSettings::default(),
-            &solver::Silent,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
-        solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-        let mut values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-        lightwire_server::validity::Validity::compute(&scene, &atlas, &poses)
-            .fill(&atlas, &mut values);
-        let stitched = atlas.to_image(&values);
-        let raw = {
-            let mut plain = atlas.clone();
-            plain.island_seams = IslandSeams::default();
-            plain.to_image(&values)
-        };
+        let (stitched, raw) = reference_images(&scene, &atlas);
         let block = atlas.blocks[k].unwrap_or_else(|| panic!("the prism's block"));
         let in_atlas = |uv: Vec2| {
             (Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32)
