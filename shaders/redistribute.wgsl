@@ -29,6 +29,12 @@
 
 @group(0) @binding(15) var<storage, read> emission: array<vec4<f32>>;
 @group(0) @binding(16) var<storage, read_write> old_shot: array<vec4<f32>>;
+// Per static element under geometry: the shot radiosity it held when it
+// was covered, which it no longer shows nor shoots but which its light in
+// the room still stands for, so that the cross projection blocks and
+// unblocks it like any other shot radiosity (`held` in
+// gpu/progressive/regather.rs). Zero elsewhere.
+@group(0) @binding(35) var<storage, read> held: array<vec4<f32>>;
 // The element each pixel of a moving tile's gathering hemicube sees
 // (hemicube.wgsl `fs_element`; NO_PATCH: nothing), slot k in rows
 // k GATHER_RESOLUTION onwards, five faces a row.
@@ -188,7 +194,7 @@ fn shade_static(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let b = radiosity[e].rgb;
     let u = unshot[e].rgb;
-    textureStore(shown_back_out, at, vec4<f32>(b - u, 1.0));
+    textureStore(shown_back_out, at, vec4<f32>(b - u + held[e].rgb, 1.0));
     // Without the emission: each texel of a tile takes its direct light on
     // its own (`moving_direct`).
     textureStore(shown_front_out, at, vec4<f32>(b - emission[e].rgb - u, 1.0));
@@ -237,7 +243,7 @@ fn shade_total(@builtin(global_invocation_id) gid: vec3<u32>) {
     let reflected = radiosity[e].rgb - emission[e].rgb;
     var shown = max(reflected, vec3<f32>(0.0));
     if (is_invalid(el)) {
-        shown = reflected - unshot[e].rgb;
+        shown = reflected - unshot[e].rgb + held[e].rgb;
     }
     textureStore(shown_front_out, at, vec4<f32>(shown, 1.0));
 }

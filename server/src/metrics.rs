@@ -111,6 +111,103 @@ pub fn accuracy_where(
     })
 }
 
+/// How closely a lightmap agrees with another of the same scene, texel by
+/// texel: where [`Accuracy`] says how far from the truth, this says whether
+/// two states a viewer should not tell apart (a scene after moves and a
+/// fresh one, issue 57) are the same where it looks. Over the
+/// non-emitting elements that cover a surface, with `keep(i)`, and whose
+/// `|R_i|` is above [`P95_FLOOR`] of the area-weighted mean (lit).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Agreement {
+    /// Lit elements compared.
+    pub elements: usize,
+    /// Share of them more than 1%, 2% and 5% off (relative error
+    /// `|B_i − R_i| / |R_i|`).
+    pub over_1: f64,
+    pub over_2: f64,
+    pub over_5: f64,
+    /// 99th percentile (nearest rank) and largest relative error.
+    pub p99: f64,
+    pub worst: f64,
+    /// Total light `Σ A_i (B_i channels summed)` over the reference's,
+    /// minus one, over every compared non-emitting element (lit or not).
+    pub total: f64,
+}
+
+impl std::fmt::Display for Agreement {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} lit texels: {:.1}% > 1% off, {:.1}% > 2%, {:.1}% > 5%, p99 {:.2}%, worst {:.2}%, light {:+.2}%",
+            self.elements,
+            self.over_1 * 100.0,
+            self.over_2 * 100.0,
+            self.over_5 * 100.0,
+            self.p99 * 100.0,
+            self.worst * 100.0,
+            self.total * 100.0
+        )
+    }
+}
+
+/// [`Agreement`] of `values` with `reference` over the elements `i` with
+/// `keep(i)`. `None` when the lengths differ or nothing is lit.
+pub fn agreement(
+    atlas: &Atlas,
+    values: &[Vec3],
+    reference: &[Vec3],
+    keep: impl Fn(usize) -> bool,
+) -> Option<Agreement> {
+    let n = atlas.elements.len();
+    if values.len() != n || reference.len() != n {
+        return None;
+    }
+    let picked: Vec<usize> = (0..n)
+        .filter(|&i| {
+            let e = &atlas.elements[i];
+            e.emission.max_element() <= 0.0 && e.covers_surface() && keep(i)
+        })
+        .collect();
+    let area = |i: usize| f64::from(atlas.elements[i].area);
+    let total_area: f64 = picked.iter().map(|&i| area(i)).sum();
+    let magnitude: f64 = picked
+        .iter()
+        .map(|&i| area(i) * reference[i].as_dvec3().length())
+        .sum();
+    if total_area <= 0.0 || magnitude <= 0.0 {
+        return None;
+    }
+    let floor = P95_FLOOR * magnitude / total_area;
+    let mut relative: Vec<f64> = picked
+        .iter()
+        .filter_map(|&i| {
+            let r = reference[i].as_dvec3().length();
+            (r > floor).then(|| (values[i].as_dvec3() - reference[i].as_dvec3()).length() / r)
+        })
+        .collect();
+    relative.sort_by(f64::total_cmp);
+    let count = relative.len();
+    if count == 0 {
+        return None;
+    }
+    let share = |bound: f64| relative.iter().filter(|&&r| r > bound).count() as f64 / count as f64;
+    let light = |b: &[Vec3]| -> f64 {
+        picked
+            .iter()
+            .map(|&i| area(i) * f64::from(b[i].element_sum()))
+            .sum()
+    };
+    Some(Agreement {
+        elements: count,
+        over_1: share(0.01),
+        over_2: share(0.02),
+        over_5: share(0.05),
+        p99: relative[((0.99 * count as f64).ceil() as usize).clamp(1, count) - 1],
+        worst: relative[count - 1],
+        total: light(values) / light(reference) - 1.0,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

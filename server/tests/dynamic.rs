@@ -116,11 +116,15 @@ fn after_move_bound(method: Redistribution) -> f64 {
 /// incremental patches cut as finely as a progressive batch cuts them,
 /// incremental worst checkpoint 2.17%).
 /// That error must not grow with the number of moves is asserted
-/// separately (`last <= first + ...`).
+/// separately (`last <= first + ...`). On 2026-12-06 the path gained a
+/// jump of the teleport script every 100 moves and back (issue 57): cross
+/// worst checkpoint 4.95% (at move 599, the jump at 550 having landed the
+/// box elsewhere), first move 2.18%, last 2.67%; incremental worst 2.17%.
+/// Cross's bound is raised to 6% for the jumps.
 fn drift_bound(method: Redistribution) -> f64 {
     match method {
         Redistribution::Incremental => 0.05,
-        Redistribution::Cross => 0.05,
+        Redistribution::Cross => 0.06,
         Redistribution::Full => 0.02,
     }
 }
@@ -601,12 +605,27 @@ fn cross_after_a_move_matches_a_from_scratch_solve_within_its_bound() {
 
 /// No drift (thesis §3.1, §4.5.2): 1,000 redistributions along a closed
 /// path (the box turns a full circle about y in 1,000 steps while it
-/// wanders on a small loop) end at the start pose with an NRMSE against a
-/// from-scratch solve there of at most 2%, and no worse than after the
-/// first redistribution (plus 0.25 percentage points for the noise of a
-/// single move). On the way, every 100 moves, the state is compared with a
-/// from-scratch solve at its pose and must stay within 2%; the checkpoints
-/// sit just before an incremental re-anchoring (see
+/// wanders on a small loop), broken every 100 moves by a jump of
+/// `teleport-stress.json` (mid-air, against a wall, or landing elsewhere
+/// on the floor) and a jump back (issue 57: jumps, not small steps, lost a
+/// cross session its light), end at the start pose:
+///
+/// - with each move only refined (the next pose arrives before the scene
+///   holds still, so no gathered corrections run): NRMSE against a
+///   from-scratch solve there of at most [`drift_bound`], no worse than
+///   after the first redistribution plus 0.75 percentage points (jumps
+///   leave more local error than small steps: cross measured 2.18% after
+///   the first move and 2.67% after the last), and the room's total light
+///   within 1% of the from-scratch solve's (before issue 57's fix of the
+///   texels a box lands on, a cross session lost about 0.3% of the room's
+///   light at every landing: 5.3% after 19 jumps, `examples/round_trip.rs`);
+///   every 100 moves the state is compared with a from-scratch solve at
+///   its pose and must stay within the same bound;
+/// - then held still (its corrections run), texel by texel against a fresh
+///   session at the start (`metrics::agreement`): at most 1% of the lit
+///   texels more than 2% off, none beyond 5%, total light within 0.5%.
+///
+/// The checkpoints sit just before an incremental re-anchoring (see
 /// `DynamicOptions::reanchor_every`), where its error is largest. The
 /// incremental session's 1,000th move is itself a re-anchoring; the cross
 /// session never re-anchors. Cornell-low at a third of its density and
@@ -620,36 +639,68 @@ fn thousand_moves_do_not_drift(method: Redistribution) {
         hemicube_resolution: 32,
         ..ProgressiveOptions::default()
     };
-    let mut d = session_with(&scene, &atlas, method, options);
-    settle(&mut d);
+    let corrections = DynamicOptions::default().corrections;
+    let mut d = session_corrected(&scene, &atlas, method, options, corrections);
+    // Refined, not corrected: the moves start from the state a
+    // from-scratch progressive solve compares with.
+    let refine = |d: &mut Session| {
+        while !d.is_settled() {
+            d.step(Duration::from_millis(20))
+                .unwrap_or_else(|e| panic!("{e}"));
+        }
+    };
+    refine(&mut d);
+    let script = lightwire_protocol::script::Script::load(&common::scene_path(
+        "scripts/teleport-stress.json",
+    ))
+    .unwrap_or_else(|e| panic!("{e}"));
+    let o = scene.object_by_name("box").expect("the scene has a box") as usize;
+    let jump = |k: usize| {
+        let key = script.keys()[1 + (k / 100) % (script.keys().len() - 2)];
+        let mut poses = scene.initial_poses();
+        poses[o] = Pose {
+            translation: key.translation,
+            rotation: key.rotation,
+            scale: key.scale,
+        };
+        poses
+    };
     let pose_at = |k: usize| {
         if k == STEPS {
             return start.clone();
+        }
+        if k % 100 == 50 {
+            return jump(k);
         }
         let phase = k as f32 / STEPS as f32 * std::f32::consts::TAU;
         let shift = Vec3::new(phase.sin(), 0.0, 1.0 - phase.cos()) * 0.15;
         box_pose(&scene, 360.0 * k as f32 / STEPS as f32, shift)
     };
-    let error_at = |d: &Session, k: usize| {
-        common::visible_accuracy(
-            &scene,
-            &atlas,
-            &pose_at(k),
-            &radiosity(d),
-            &from_scratch_with(&scene, &atlas, &pose_at(k), options),
-        )
-        .nrmse
+    // NRMSE and texel agreement against a from-scratch solve at move k's
+    // pose, both read as published (invalid texels filled).
+    let compare = |d: &Session, k: usize| {
+        let poses = pose_at(k);
+        let valid = Validity::compute(&scene, &atlas, &poses);
+        let mut fresh = from_scratch_with(&scene, &atlas, &poses, options);
+        let mut got = radiosity(d);
+        let error = common::visible_accuracy(&scene, &atlas, &poses, &got, &fresh).nrmse;
+        valid.fill(&atlas, &mut fresh);
+        d.progressive().validity().fill(&atlas, &mut got);
+        let texels = lightwire_server::metrics::agreement(&atlas, &got, &fresh, valid.keep())
+            .expect("the from-scratch solve is lit");
+        (error, texels)
     };
     let mut first = 0.0;
     let mut worst = 0.0f64;
     let mut worst_negative = 0.0f32;
     for k in 1..=STEPS {
         d.set_poses(&pose_at(k), [k as u64]);
-        settle(&mut d);
+        refine(&mut d);
         if k == 1 {
-            first = error_at(&d, k);
+            first = compare(&d, k).0;
         } else if k % 100 == 99 {
-            let error = error_at(&d, k);
+            let (error, texels) = compare(&d, k);
+            eprintln!("{method}: NRMSE {error:.5} after {k} moves; {texels}");
             assert!(
                 error <= drift_bound(method),
                 "{method}: NRMSE {error} after {k} moves"
@@ -663,17 +714,38 @@ fn thousand_moves_do_not_drift(method: Redistribution) {
         }
     }
     assert_eq!(d.poses(), start.as_slice(), "back at the start pose");
-    let last = error_at(&d, STEPS);
+    let (last, refined) = compare(&d, STEPS);
     eprintln!(
-        "{method}: NRMSE after the first move {first:.5}, worst checkpoint {worst:.5}, after {STEPS} moves {last:.5}; most negative texel {worst_negative}"
+        "{method}: NRMSE after the first move {first:.5}, worst checkpoint {worst:.5}, after {STEPS} moves {last:.5}; most negative texel {worst_negative}; refined after {STEPS} moves: {refined}"
     );
     assert!(
         last <= drift_bound(method),
         "{method}: NRMSE {last} after {STEPS} moves"
     );
     assert!(
-        last <= first + 0.0025,
+        last <= first + 0.0075,
         "{method}: drifted from {first} after one move to {last} after {STEPS}"
+    );
+    assert!(
+        refined.total.abs() <= 0.01,
+        "{method}: after {STEPS} moves the room's light is {:+.2}% of a from-scratch solve's ({refined})",
+        refined.total * 100.0
+    );
+    // Held still: corrected, as a fresh session is.
+    settle(&mut d);
+    let mut got = radiosity(&d);
+    d.progressive().validity().fill(&atlas, &mut got);
+    let mut fresh = session_corrected(&scene, &atlas, method, options, corrections);
+    settle(&mut fresh);
+    let mut expected = radiosity(&fresh);
+    fresh.progressive().validity().fill(&atlas, &mut expected);
+    let valid = Validity::compute(&scene, &atlas, &start);
+    let texels = lightwire_server::metrics::agreement(&atlas, &got, &expected, valid.keep())
+        .expect("the fresh session is lit");
+    eprintln!("{method}: corrected after {STEPS} moves, against a fresh session: {texels}");
+    assert!(
+        texels.over_2 <= 0.01 && texels.over_5 == 0.0 && texels.total.abs() <= 0.005,
+        "{method}: corrected after {STEPS} moves, the light did not come back: {texels}"
     );
 }
 

@@ -188,6 +188,14 @@ pub struct MethodResult {
     /// method compared at another pose (gather with fewer frames) or when
     /// nothing changed.
     pub nrmse_changed: f64,
+    /// Milliseconds from the last frame's settled state until its
+    /// gathered corrections have run (the scene holding still,
+    /// `DynamicOptions::corrections`); 0 without corrections, NaN for
+    /// gather.
+    pub ms_to_corrected: f64,
+    /// NRMSE of the last frame against the reference once corrected (as
+    /// [`MethodResult::nrmse`]).
+    pub nrmse_corrected: f64,
     /// With `--profile`: where the frames' time went.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub profile: Option<MethodProfile>,
@@ -547,6 +555,8 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             nrmse,
             p95_rel,
             nrmse_changed,
+            ms_to_corrected: f64::NAN,
+            nrmse_corrected: nrmse,
             profile: None,
         });
         write_images("gather", &values, &against)?;
@@ -567,7 +577,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             ..DynamicOptions::default()
         };
         let mut session = DynamicSolver::new(gpu, &scene, &atlas, &start, 0, options)?;
-        settle(&mut session)?;
+        settle(&mut session, true)?;
         let profiler = settings
             .profile
             .map_or_else(Profiler::disabled, |clock| Profiler::new(gpu, clock));
@@ -584,7 +594,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             profiler.begin_frame();
             let started = Instant::now();
             session.set_poses(&pose_at(frame), frame);
-            let first = settle(&mut session)?;
+            let first = settle(&mut session, false)?;
             times.push(started.elapsed());
             to_state.push(first.unwrap_or_else(|| started.elapsed()));
             if let Some(p) = &mut publication {
@@ -602,6 +612,17 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             "  {name}: median {median:.1} ms per frame, {state_median:.1} ms to the first state"
         );
         let (nrmse, p95_rel) = judge(&values, &expected, &visible_last);
+        // The scene now holds still: its corrections run.
+        let started = Instant::now();
+        settle(&mut session, true)?;
+        let ms_to_corrected = started.elapsed().as_secs_f64() * 1e3;
+        let corrected = session.radiosity()?;
+        let (nrmse_corrected, _) = judge(&corrected, &expected, &visible_last);
+        eprintln!(
+            "  {name}: {ms_to_corrected:.0} ms from the last frame to its corrected state, NRMSE {:.2}% -> {:.2}%",
+            nrmse * 100.0,
+            nrmse_corrected * 100.0
+        );
         methods.push(MethodResult {
             name: name.into(),
             ms_per_frame: median,
@@ -612,6 +633,8 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             nrmse,
             p95_rel,
             nrmse_changed: judge_changed(&values),
+            ms_to_corrected,
+            nrmse_corrected,
             profile,
         });
         write_images(name, &values, &expected)?;
@@ -628,12 +651,18 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
     })
 }
 
-/// Runs the session until it is idle; returns how long it took to the
-/// first completed state, if there was one.
-fn settle(session: &mut DynamicSolver<u32>) -> Result<Option<Duration>> {
+/// Runs the session until it is settled (a frame: the move's states are
+/// complete and refined) or, with `corrected`, idle (its gathered
+/// corrections run too); returns how long it took to the first completed
+/// state, if there was one.
+fn settle(session: &mut DynamicSolver<u32>, corrected: bool) -> Result<Option<Duration>> {
     let started = Instant::now();
     let mut first = None;
-    while !session.is_idle() {
+    while !(if corrected {
+        session.is_idle()
+    } else {
+        session.is_settled()
+    }) {
         if session.step(Duration::from_millis(100))?.completed && first.is_none() {
             first = Some(started.elapsed());
         }

@@ -124,50 +124,84 @@ impl Correction {
         self.round_except(solver, threshold, &[])
     }
 
-    /// A round that leaves the elements of the objects flagged in `frozen`
-    /// as they are (no residual of their own; they still occlude and are
-    /// seen by the gather sweep). A cross session freezes its moving
-    /// objects: their light is each move's business, and refinement holds
-    /// them passive (`gpu::DynamicSolver`).
+    /// A round in which the elements of the objects flagged in `frozen`
+    /// shoot no residual of their own: they take theirs as shown light only
+    /// ([`ProgressiveSolver::add_shown`]; they still occlude and are seen
+    /// by the gather sweep). A cross session freezes its moving objects:
+    /// their light is each move's business, and refinement holds them
+    /// passive (`gpu::DynamicSolver`).
     pub fn round_except(
         &mut self,
         solver: &mut ProgressiveSolver,
         threshold: f64,
         frozen: &[bool],
     ) -> Result<CorrectionReport, GpuError> {
+        let b = self.begin(solver)?;
+        self.gather.bounce()?;
+        let residual_fraction = self.hand_over(solver, &b, frozen)?;
+        let report = solver.solve(threshold)?;
+        Ok(CorrectionReport {
+            residual_fraction,
+            shots: report.shots,
+            batches: report.batches,
+        })
+    }
+
+    /// The first part of a round cut into slices (`gpu::DynamicSolver`
+    /// runs rounds between moves, a pass at a time): the sweep starts from
+    /// `solver`'s radiosity, which is returned for [`Correction::hand_over`].
+    pub fn begin(&mut self, solver: &ProgressiveSolver) -> Result<Vec<Vec3>, GpuError> {
         let b = solver.total_radiosity()?;
         self.gather.start_from(&b);
-        self.gather.bounce()?;
+        Ok(b)
+    }
+
+    /// One pass of the sweep [`Correction::begin`] started; returns whether
+    /// the sweep is complete.
+    pub fn sweep_pass(&mut self) -> Result<bool, GpuError> {
+        let before = self.gather.total_bounces();
+        self.gather.step(std::time::Duration::ZERO)?;
+        Ok(self.gather.total_bounces() > before)
+    }
+
+    /// Hands the residual of the completed sweep from `b` (what
+    /// [`Correction::begin`] returned) to `solver` as unshot radiosity,
+    /// except on the elements of the objects flagged in `frozen`, which
+    /// show theirs without shooting it ([`ProgressiveSolver::add_shown`]);
+    /// returns the residual's power as a fraction of the emitted power.
+    /// Refinement (the solver's own steps) then spreads it.
+    pub fn hand_over(
+        &mut self,
+        solver: &mut ProgressiveSolver,
+        b: &[Vec3],
+        frozen: &[bool],
+    ) -> Result<f64, GpuError> {
         let gathered = self.gather.total_radiosity()?;
-        let residual: Vec<Vec3> = gathered
-            .iter()
-            .zip(&b)
-            .zip(&self.objects)
-            .map(|((g, b), &o)| {
-                if frozen.get(o as usize).copied().unwrap_or(false) {
-                    Vec3::ZERO
-                } else {
-                    *g - *b
-                }
-            })
-            .collect();
+        let is_frozen = |o: u32| frozen.get(o as usize).copied().unwrap_or(false);
+        let all: Vec<Vec3> = gathered.iter().zip(b).map(|(g, b)| *g - *b).collect();
         let valid = solver.validity();
-        let power: f64 = residual
+        let power: f64 = all
             .iter()
             .enumerate()
             .filter(|(i, _)| !valid.is_invalid(*i))
             .map(|(i, r)| f64::from(self.areas[i]) * f64::from(r.abs().element_sum()))
             .sum();
-        solver.add_unshot(&residual)?;
-        let report = solver.solve(threshold)?;
-        Ok(CorrectionReport {
-            residual_fraction: if self.emitted > 0.0 {
-                power / self.emitted
+        let (mut shot, mut shown) = (all.clone(), all);
+        for (i, &o) in self.objects.iter().enumerate() {
+            if is_frozen(o) {
+                shot[i] = Vec3::ZERO;
             } else {
-                0.0
-            },
-            shots: report.shots,
-            batches: report.batches,
+                shown[i] = Vec3::ZERO;
+            }
+        }
+        solver.add_unshot(&shot)?;
+        // Frozen objects show the corrected light without shooting it:
+        // their light is each move's business.
+        solver.add_shown(&shown, frozen)?;
+        Ok(if self.emitted > 0.0 {
+            power / self.emitted
+        } else {
+            0.0
         })
     }
 }

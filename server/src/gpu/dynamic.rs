@@ -39,11 +39,17 @@
 //!   shooter was blocked by the objects where they stood, so the next
 //!   move's removal unblocks all of its shot radiosity, as it does.
 //!
-//! - A cross session's first solve is corrected by gathering once the
-//!   moving objects are in ([`DynamicOptions::corrections`]): the static
-//!   light then starts at the gather solver's accuracy instead of
-//!   progressive refinement's, and moves carry only changes to it. The
-//!   first state is published before the rounds, the corrected one after.
+//! - Whenever the scene holds still at poses it was not corrected at (the
+//!   first solve, and every move once its state is complete and refined),
+//!   the session corrects its state by gathering
+//!   ([`DynamicOptions::corrections`], `gpu::correct`): the light then
+//!   comes to the gather solver's accuracy instead of progressive
+//!   refinement's, whatever error the moves before left (issue 57: a box
+//!   moved about and put back must show what a fresh session shows). The
+//!   rounds run a slice at a time, each ends in a published state, and
+//!   the next move cancels them; a benchmark of moves waits for
+//!   [`DynamicSolver::is_settled`], a viewer of a still scene for
+//!   [`DynamicSolver::is_idle`].
 //!
 //! Negative light. Redistribution shoots negative radiosity (thesis
 //! §2.2.5): shadows appear as negative deltas. Intermediate states can hold
@@ -85,18 +91,21 @@ pub struct DynamicOptions {
     /// re-anchoring every 10 moves keeps the error near its one-move level
     /// for about 10% more work.
     pub reanchor_every: u32,
-    /// Cross only: gathered correction rounds ([`Correction`]) after the
-    /// first solve, once the moving objects are in. Progressive refinement
-    /// alone leaves the static light 2-3.5% off the reference (NRMSE over
-    /// the non-emitting elements; its hemicubes see each shooter from one
-    /// eye with yes-or-no visibility), and cross redistribution only
-    /// carries changes, so a session kept that error for good. Two rounds
-    /// bring the static light to the gather solver's accuracy (about 1%)
-    /// once, at start; moves then redistribute the moving objects' share
-    /// of it as before (BENCHMARKS.md, "a corrected first solve"). The
-    /// moving objects are frozen during the rounds (their light is each
-    /// move's business) and the rounds run even when poses are waiting:
-    /// they happen once per session. 0: none.
+    /// Gathered correction rounds ([`Correction`]) whenever the scene
+    /// holds still at poses it was not corrected at: after the first solve
+    /// and after every move once its state is complete and refined.
+    /// Progressive refinement alone leaves the light 2-3.5% off the
+    /// reference (NRMSE over the non-emitting elements; its hemicubes see
+    /// each shooter from one eye with yes-or-no visibility), and the
+    /// redistribution methods carry that error, and their own, from move
+    /// to move. Rounds bring a state that holds still to the gather
+    /// solver's accuracy (about 1%), whatever moves came before, so a
+    /// scene put back where it was shows what a fresh session shows. They
+    /// run a slice at a time (a sweep pass, a refinement batch), each
+    /// round ends in a published state, rounds stop early once the
+    /// residual is below [`CORRECTED_RESIDUAL`], and the next move cancels
+    /// them. With cross the moving objects are frozen during the rounds
+    /// (their light is each move's business). 0: none.
     pub corrections: u32,
     /// The progressive solver underneath.
     pub progressive: ProgressiveOptions,
@@ -113,6 +122,12 @@ impl Default for DynamicOptions {
         }
     }
 }
+
+/// Residual (power over emitted power) below which a correction round
+/// ends the rounds at the current poses: the residual is then no larger
+/// than the unshot power refinement leaves (the last publication level,
+/// [`DynamicOptions::publish_at`]).
+pub const CORRECTED_RESIDUAL: f64 = 1e-3;
 
 /// What one [`DynamicSolver::step`] did.
 #[derive(Debug, Clone, Copy, Default)]
@@ -142,11 +157,28 @@ enum Phase {
     Refining { level: f64, after_move: bool },
     /// Cross: moving objects are being inserted again.
     Inserting(Move, bool),
-    /// Cross: gathered corrections of the first solve, `left` rounds to go
-    /// (the gather sweep is built for the first).
-    Correcting {
-        correction: Option<Box<Correction>>,
-        left: u32,
+    /// Gathered corrections at poses that hold still, `left` rounds to go
+    /// after the running one; see [`Round`].
+    Correcting { round: Round, left: u32 },
+}
+
+/// Where a correction round of [`Phase::Correcting`] is. Each stage runs a
+/// slice at a time (a sweep pass, a refinement batch), so that a move that
+/// arrives waits for one slice, not for a round.
+enum Round {
+    /// The gather sweep is being built for the current poses (the first
+    /// round at these poses).
+    Building,
+    /// The sweep runs a pass at a time from `from`, the radiosity it
+    /// started from.
+    Sweeping {
+        correction: Box<Correction>,
+        from: Vec<Vec3>,
+    },
+    /// The residual was handed over; refinement spreads it.
+    Spreading {
+        correction: Box<Correction>,
+        residual: f64,
     },
 }
 
@@ -171,6 +203,12 @@ pub struct DynamicSolver<T> {
     versions: u64,
     /// Incremental moves since the last full solve.
     since_anchor: u32,
+    /// Whether the state at the current poses has had its gathered
+    /// corrections (or needs none): a move clears it.
+    corrected: bool,
+    /// Residual of each correction round run at the current poses (power
+    /// over emitted power, before the round).
+    residuals: Vec<f64>,
     /// Where the time goes (disabled unless profiling, `gpu::profile`).
     profile: Profiler,
 }
@@ -228,6 +266,8 @@ impl<T: Clone> DynamicSolver<T> {
             next_level: 0,
             versions: 0,
             since_anchor: 0,
+            corrected: options.corrections == 0 || !super::corrections_affordable(scene, atlas),
+            residuals: Vec::new(),
             profile: Profiler::disabled(),
         })
     }
@@ -251,9 +291,25 @@ impl<T: Clone> DynamicSolver<T> {
     }
 
     /// Whether nothing is running or waiting (the solution is as refined as
-    /// it will get until poses change).
+    /// it will get until poses change): the last move's state is complete
+    /// and refined, and its gathered corrections have run.
     pub fn is_idle(&self) -> bool {
+        self.is_settled() && self.corrected
+    }
+
+    /// Whether the work poses caused is done: nothing waits, and the state
+    /// is complete and refined to the last publication level. Only the
+    /// gathered corrections of a scene that holds still may be left
+    /// ([`DynamicOptions::corrections`]); a benchmark of moves stops here.
+    pub fn is_settled(&self) -> bool {
         matches!(self.phase, Phase::Idle) && self.pending.is_none() && !self.wants_refinement()
+    }
+
+    /// Residual of each correction round run at the current poses, as a
+    /// fraction of the emitted power before the round (empty until a round
+    /// has run there).
+    pub fn correction_residuals(&self) -> &[f64] {
+        &self.residuals
     }
 
     /// Completed states so far.
@@ -361,6 +417,14 @@ impl<T: Clone> DynamicSolver<T> {
                     };
                     return Ok((true, false));
                 }
+                if !self.corrected {
+                    self.residuals.clear();
+                    self.phase = Phase::Correcting {
+                        round: Round::Building,
+                        left: self.options.corrections.saturating_sub(1),
+                    };
+                    return Ok((true, false));
+                }
                 Ok((false, false))
             }
             Phase::Converging { after_move } => {
@@ -452,46 +516,95 @@ impl<T: Clone> DynamicSolver<T> {
                 } else {
                     // The first state is published uncorrected: light
                     // reaches the clients seconds sooner, and the
-                    // corrected one follows.
+                    // corrected one follows once the scene holds still.
                     self.complete(report);
-                    if !after_move
-                        && self.options.corrections > 0
-                        && super::corrections_affordable(&self.scene, &self.atlas)
-                    {
-                        self.phase = Phase::Correcting {
-                            correction: None,
-                            left: self.options.corrections,
-                        };
-                    }
                 }
                 Ok((true, after_move))
             }
-            Phase::Correcting { correction, left } => {
-                let mut correction = match correction {
-                    Some(c) => c,
-                    None => Box::new(Correction::new(
-                        &self.gpu,
-                        &self.scene,
-                        &self.atlas,
-                        self.solver.poses(),
-                        GatherOptions::default(),
-                    )?),
-                };
-                let frozen: Vec<bool> = self.scene.objects.iter().map(|o| o.dynamic).collect();
-                let batches = self.profile.start();
-                correction.round_except(&mut self.solver, levels[1], &frozen)?;
-                self.profile.stop(batches, Stage::Batches);
-                if left > 1 {
-                    self.phase = Phase::Correcting {
-                        correction: Some(correction),
-                        left: left - 1,
-                    };
-                } else {
-                    self.complete(report);
+            Phase::Correcting { round, left } => {
+                // A move cancels the rounds: what a round already handed
+                // over stays unshot for refinement after the move, as any
+                // unshot light does (the residual is a change of the light
+                // like any other, thesis §2.2.5).
+                if self.pending.is_some() {
+                    return Ok((true, false));
                 }
+                let batches = self.profile.start();
+                self.correct(round, left, report)?;
+                self.profile.stop(batches, Stage::Batches);
                 Ok((true, false))
             }
         }
+    }
+
+    /// One slice of a correction round (see [`Round`]).
+    fn correct(
+        &mut self,
+        round: Round,
+        left: u32,
+        report: &mut DynamicStep,
+    ) -> Result<(), GpuError> {
+        // Cross holds the moving objects' light as each move left it (see
+        // the module doc): they are frozen, as in refinement.
+        let frozen: Vec<bool> = match self.options.method {
+            Redistribution::Cross => self.scene.objects.iter().map(|o| o.dynamic).collect(),
+            _ => Vec::new(),
+        };
+        let round = match round {
+            Round::Building => {
+                let mut correction = Box::new(Correction::new(
+                    &self.gpu,
+                    &self.scene,
+                    &self.atlas,
+                    self.solver.poses(),
+                    GatherOptions::default(),
+                )?);
+                let from = correction.begin(&self.solver)?;
+                Round::Sweeping { correction, from }
+            }
+            Round::Sweeping {
+                mut correction,
+                from,
+            } => {
+                if correction.sweep_pass()? {
+                    let residual = correction.hand_over(&mut self.solver, &from, &frozen)?;
+                    self.residuals.push(residual);
+                    Round::Spreading {
+                        correction,
+                        residual,
+                    }
+                } else {
+                    Round::Sweeping { correction, from }
+                }
+            }
+            Round::Spreading {
+                mut correction,
+                residual,
+            } => {
+                let shot = self.solver.step(Duration::ZERO)?;
+                if shot.batches > 0 && shot.unshot_fraction > self.options.publish_at[1] {
+                    Round::Spreading {
+                        correction,
+                        residual,
+                    }
+                } else {
+                    // A round is a complete state: publish it.
+                    self.complete(report);
+                    if left == 0 || residual <= CORRECTED_RESIDUAL {
+                        self.corrected = true;
+                        return Ok(());
+                    }
+                    let from = correction.begin(&self.solver)?;
+                    self.phase = Phase::Correcting {
+                        round: Round::Sweeping { correction, from },
+                        left: left - 1,
+                    };
+                    return Ok(());
+                }
+            }
+        };
+        self.phase = Phase::Correcting { round, left };
+        Ok(())
     }
 
     fn start_move(&mut self, poses: Vec<Pose>, tag: T) -> Result<(), GpuError> {
@@ -500,6 +613,9 @@ impl<T: Clone> DynamicSolver<T> {
             // Same poses: the state already reflects them.
             self.reflected = self.working.clone();
             return Ok(());
+        }
+        if self.options.corrections > 0 && super::corrections_affordable(&self.scene, &self.atlas) {
+            self.corrected = false;
         }
         let mut method = self.options.method;
         if method == Redistribution::Incremental {

@@ -68,7 +68,7 @@ mod shaders;
 
 pub use correct::{Correction, CorrectionReport, MAX_DEFAULT_SWEEP, corrections_affordable};
 pub use device::{Device, GpuError};
-pub use dynamic::{DynamicOptions, DynamicSolver, DynamicStep};
+pub use dynamic::{CORRECTED_RESIDUAL, DynamicOptions, DynamicSolver, DynamicStep};
 pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};
 pub use progressive::{
     EnergyBalance, Move, ProgressiveOptions, ProgressiveSolver, Redistribution, StepReport,

@@ -195,8 +195,9 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
 /// GPU batches that fit the tick budget (thesis §4.5.3). A state is read
 /// back and handed to the tick loop only when the session reports it
 /// complete (double buffering): at each of the publication levels of
-/// [`crate::gpu::DynamicOptions::publish_at`] and after each
-/// redistribution.
+/// [`crate::gpu::DynamicOptions::publish_at`], after each
+/// redistribution, and after each gathered correction round once the scene
+/// holds still ([`crate::gpu::DynamicOptions::corrections`]).
 ///
 /// Each step runs inside the device's error scopes
 /// ([`crate::gpu::Device::capture`]) and is followed by a check of the
@@ -239,8 +240,8 @@ impl<T: Clone> GpuLive<T> {
                 scene = %scene.name,
                 elements = atlas.elements.len(),
                 patches = scene.patches.len(),
-                "the first solve is published without gathered corrections: a gather sweep \
-                 over this many elements and patches is too slow (more than {} of their product)",
+                "states are published without gathered corrections: a gather sweep over this \
+                 many elements and patches is too slow (more than {} of their product)",
                 crate::gpu::MAX_DEFAULT_SWEEP
             );
         }

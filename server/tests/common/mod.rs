@@ -130,3 +130,14 @@ pub fn resample_triangulated(
         })
         .collect()
 }
+
+/// One GPU device shared by all tests of a test binary (lavapipe where
+/// there is no GPU).
+pub fn gpu() -> &'static lightwire_server::gpu::Device {
+    static DEVICE: std::sync::OnceLock<lightwire_server::gpu::Device> = std::sync::OnceLock::new();
+    DEVICE.get_or_init(|| {
+        let device = lightwire_server::gpu::Device::new(None).unwrap_or_else(|e| panic!("{e}"));
+        eprintln!("adapter: {}", device.describe());
+        device
+    })
+}

@@ -117,15 +117,15 @@ pub(crate) fn bench_dynamic_command(
     eprintln!("adapter: {}", gpu.describe());
     let mut results = Vec::new();
     println!(
-        "| scene | elements (dynamic) | method | ms/frame (median) | min | max | ms to first state | NRMSE | p95 rel | NRMSE where it changed (texels) | vs |"
+        "| scene | elements (dynamic) | method | ms/frame (median) | min | max | ms to first state | NRMSE | p95 rel | NRMSE where it changed (texels) | ms to corrected | NRMSE corrected | vs |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for path in &scenes {
         let result = bench::dynamic::dynamic_scene(&gpu, path, &settings)
             .with_context(|| format!("benchmarking {}", path.display()))?;
         for m in &result.methods {
             println!(
-                "| {} | {} ({}) | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2}% | {:.1}% | {:.2}% ({}) | {} |",
+                "| {} | {} ({}) | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2}% | {:.1}% | {:.2}% ({}) | {:.0} | {:.2}% | {} |",
                 result.scene,
                 result.elements,
                 result.dynamic_elements,
@@ -138,6 +138,8 @@ pub(crate) fn bench_dynamic_command(
                 m.p95_rel * 100.0,
                 m.nrmse_changed * 100.0,
                 result.changed_texels,
+                m.ms_to_corrected,
+                m.nrmse_corrected * 100.0,
                 result.reference
             );
         }

@@ -226,8 +226,9 @@ enum BenchCommand {
             i64::from(SolverHints::MIN_BACK_RESOLUTION)..=i64::from(SolverHints::MAX_BACK_RESOLUTION)
         ))]
         back_resolution: Option<u32>,
-        /// Cross redistribution: gathered correction rounds after the
-        /// first solve (0: none) [default: 2].
+        /// Gathered correction rounds whenever the session holds still
+        /// (0: none) [default: 2]; frames end before them, and the last
+        /// frame's corrected state is timed and judged apart.
         #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
         corrections: Option<u32>,
         /// How a mesh's triangles get charts: each its own (`triangles`),

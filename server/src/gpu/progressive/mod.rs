@@ -796,6 +796,56 @@ impl ProgressiveSolver {
         self.reselect()
     }
 
+    /// Adds `delta` (one value per element, atlas order) to the radiosity
+    /// the valid elements of the objects flagged in `shown_only` show,
+    /// without changing what they shot or will shoot: the addition is kept
+    /// apart like the smoothing of a cross move (`smooth_moving`), so the
+    /// next move takes back exactly what their tiles shot. For the passive
+    /// moving objects of a cross session, whose light is each move's
+    /// business: a gathered correction brings what they show to the
+    /// gather's accuracy (`gpu::Correction`). Elements of other objects are
+    /// left as they are; without a cross move so far (nothing kept apart
+    /// yet) nothing changes.
+    ///
+    /// # Panics
+    /// If `delta` does not hold one value per element.
+    pub fn add_shown(&mut self, delta: &[Vec3], shown_only: &[bool]) -> Result<(), GpuError> {
+        assert_eq!(
+            delta.len(),
+            self.element_count as usize,
+            "one value per element"
+        );
+        let Some(smoothed) = self.dynamic.as_ref().map(|d| d.smoothed.clone()) else {
+            return Ok(());
+        };
+        let which = |i: usize| {
+            !self.validity.is_invalid(i)
+                && shown_only
+                    .get(self.element_objects[i] as usize)
+                    .copied()
+                    .unwrap_or(false)
+        };
+        if !(0..delta.len()).any(|i| which(i) && delta[i] != Vec3::ZERO) {
+            return Ok(());
+        }
+        let mut b = self.read_vec4(&self.buffers.radiosity)?;
+        let mut s = self.read_vec4(&smoothed)?;
+        for (i, d) in delta.iter().enumerate() {
+            if !which(i) {
+                continue;
+            }
+            for c in 0..3 {
+                b[i][c] += d[c];
+                s[i][c] += d[c];
+            }
+        }
+        self.queue
+            .write_buffer(&self.buffers.radiosity, 0, bytemuck::cast_slice(&b));
+        self.queue
+            .write_buffer(&smoothed, 0, bytemuck::cast_slice(&s));
+        Ok(())
+    }
+
     /// Radiosity B per element (W/m² per channel), direct light included.
     pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
         Ok(self

@@ -67,6 +67,7 @@ pub(in crate::gpu) mod slot {
         Slot::new("shown_back", 32, Kind::FloatTexture { filterable: false });
     pub(in crate::gpu) const MARKS: Slot = Slot::new("marks", 33, Kind::Storage);
     pub(in crate::gpu) const PATCH_FRAMES: Slot = Slot::new("patch_frames", 34, Kind::StorageRead);
+    pub(in crate::gpu) const HELD: Slot = Slot::new("held", 35, Kind::StorageRead);
 }
 
 use slot::*;
@@ -179,6 +180,7 @@ pub(in crate::gpu) const SHADE_STATIC: Pass = Pass {
         BATCH,
         OBJECT_FLAGS,
         EMISSION,
+        HELD,
         SHOWN_BACK_OUT,
         SHOWN_FRONT_OUT,
     ],
@@ -195,6 +197,7 @@ pub(in crate::gpu) const SHADE_TOTAL: Pass = Pass {
         BATCH,
         OBJECT_FLAGS,
         EMISSION,
+        HELD,
         SHOWN_FRONT_OUT,
     ],
 };

@@ -243,6 +243,13 @@ pub(in crate::gpu) struct DynamicPasses {
     /// Direct light of M's elements at their new position (`moving_direct`
     /// in redistribute.wgsl), written per move.
     pub(super) moving_direct: wgpu::Buffer,
+    /// What M's elements show beyond what their tiles shot (the smoothing
+    /// between tile centres, gathered corrections: `add_shown`); kept out
+    /// of the old shot radiosity the next move takes back.
+    pub(super) smoothed: wgpu::Buffer,
+    /// The shot radiosity static elements held when they were covered
+    /// (`held` in redistribute.wgsl, `regather.rs`).
+    pub(super) held: wgpu::Buffer,
     front_view: wgpu::TextureView,
     /// The back hemicubes as drawn (`BACK_ELEMENTS`: element and distance
     /// per pixel); `shade_back` shades them for the projection into a
@@ -498,7 +505,19 @@ impl ProgressiveSolver {
         let smoothed = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("interpolation of moving tiles beyond their constant"),
             size: u64::from(self.element_count.max(1)) * 16,
-            usage: wgpu::BufferUsages::STORAGE,
+            // Read and written by `add_shown` (gathered corrections).
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let held = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shot radiosity held by covered static elements"),
+            size: u64::from(self.element_count.max(1)) * 16,
+            // Read and written by the regathering on the CPU.
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -530,6 +549,7 @@ impl ProgressiveSolver {
             .buffer(slot::REGATHERED, &regathered)
             .buffer(slot::MOVING_DIRECT, &moving_direct)
             .buffer(slot::SMOOTHED, &smoothed)
+            .buffer(slot::HELD, &held)
             .view(slot::FRONT_IDS, &front_view)
             .view(slot::SHOWN_FRONT, &shown_front)
             .view(slot::BACK_RAD, &back_view)
@@ -598,6 +618,8 @@ impl ProgressiveSolver {
             back_batch,
             back_poses,
             moving_direct,
+            smoothed,
+            held,
             front_view,
             back_ids_view,
             back_depth_view,
