@@ -227,7 +227,7 @@ enum BenchCommand {
         ))]
         back_resolution: Option<u32>,
         /// Gathered correction rounds whenever the session holds still
-        /// (0: none) [default: 2]; frames end before them, and the last
+        /// (0: none) [default: 3]; frames end before them, and the last
         /// frame's corrected state is timed and judged apart.
         #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
         corrections: Option<u32>,
