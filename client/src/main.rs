@@ -37,6 +37,8 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // SAFETY: first thing in main, before any thread starts.
+    unsafe { lightwire_adapter::quiet_device_select() };
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Watch(args) => cli::watch::run(args).map(|()| true),

@@ -113,6 +113,33 @@ pub fn pick(adapters: &[wgpu::AdapterInfo], name: Option<&str>) -> Result<usize,
         })
 }
 
+/// Turns off Mesa's Vulkan device-selection layer
+/// (`VK_LAYER_MESA_device_select`) where it can only print an error: the
+/// layer asks the display server which GPU drives the screen, and without
+/// a login session (`XDG_RUNTIME_DIR` unset, as on a server, in a
+/// container or in CI) libwayland prints `error: XDG_RUNTIME_DIR is invalid
+/// or not set in the environment.` at every Vulkan instance, though
+/// nothing is wrong. Lightwire ranks adapters itself ([`pick`]), so it
+/// loses nothing: the layer's own switch, `NODEVICE_SELECT=1`, is set
+/// unless the variable is already set (then the user's choice stands).
+/// Returns whether it set it. The workspace's `.cargo/config.toml` does the
+/// same for processes Cargo runs (tests).
+///
+/// # Safety
+/// Sets an environment variable: call it before any other thread of the
+/// process may read or write the environment (first thing in `main`).
+pub unsafe fn quiet_device_select() -> bool {
+    let session =
+        std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|dir| std::path::Path::new(&dir).is_dir());
+    if session || std::env::var_os("NODEVICE_SELECT").is_some() {
+        return false;
+    }
+    // SAFETY: the caller guarantees that no other thread touches the
+    // environment meanwhile.
+    unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    true
+}
+
 /// Enumerates the adapters of every backend the environment allows and
 /// returns the one [`pick`] chooses.
 pub async fn choose(name: Option<&str>) -> Result<wgpu::Adapter, AdapterError> {

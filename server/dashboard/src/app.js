@@ -18,7 +18,7 @@
 
 import { Chart } from './chart.js';
 import { Backoff, DASHBOARD_BACKOFF, Reconnector, posesToApply, sceneUrl } from './connection.js';
-import { poseProblem } from './protocol.js';
+import { PROTOCOL_VERSION, poseProblem } from './protocol.js';
 import { ToneTable, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
 
@@ -49,7 +49,12 @@ const ui = {
   reset: $('pose-reset'),
   log: $('log'),
   renderer: $('renderer'),
+  protocolVersion: $('protocol-version'),
 };
+
+// The footer names the version this page speaks, from the code that speaks
+// it (protocol.js, checked against the Rust crate's golden vectors).
+ui.protocolVersion.textContent = String(PROTOCOL_VERSION);
 
 const stat = (name) => document.querySelector(`[data-stat="${name}"]`);
 

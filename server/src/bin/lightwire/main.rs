@@ -306,6 +306,8 @@ fn form_factor_threshold(text: &str) -> Result<f32, String> {
 }
 
 fn main() -> ExitCode {
+    // SAFETY: first thing in main, before any thread starts.
+    unsafe { lightwire_adapter::quiet_device_select() };
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Bake {
