@@ -7,13 +7,12 @@
 
 mod common;
 
-use std::sync::OnceLock;
 use std::time::Duration;
 
 use glam::{Quat, Vec3};
 use lightwire_server::atlas::Atlas;
 use lightwire_server::gpu::{
-    Device, DynamicOptions, DynamicSolver, ProgressiveOptions, ProgressiveSolver, Redistribution,
+    DynamicOptions, DynamicSolver, ProgressiveOptions, ProgressiveSolver, Redistribution,
 };
 use lightwire_server::metrics::{accuracy, accuracy_where};
 use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
@@ -24,15 +23,8 @@ use lightwire_server::validity::Validity;
 /// object that moves).
 type Session = DynamicSolver<[u64; 1]>;
 
-/// One device shared by all tests of this binary.
-fn gpu() -> &'static Device {
-    static DEVICE: OnceLock<Device> = OnceLock::new();
-    DEVICE.get_or_init(|| {
-        let device = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
-        eprintln!("adapter: {}", device.describe());
-        device
-    })
-}
+/// The device every GPU test of this binary shares.
+use common::gpu;
 
 /// The scene's poses with the box turned `degrees` about y and shifted.
 fn box_pose(scene: &Scene, degrees: f32, shift: Vec3) -> Vec<Pose> {

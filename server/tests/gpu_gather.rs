@@ -5,24 +5,16 @@
 
 mod common;
 
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use glam::Vec3;
 use lightwire_server::atlas::Atlas;
-use lightwire_server::gpu::{Device, GatherOptions, GatherSolver};
+use lightwire_server::gpu::{GatherOptions, GatherSolver};
 use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
 use lightwire_server::scene::Scene;
 
-/// One device shared by all tests of this binary.
-fn gpu() -> &'static Device {
-    static DEVICE: OnceLock<Device> = OnceLock::new();
-    DEVICE.get_or_init(|| {
-        let device = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
-        eprintln!("adapter: {}", device.describe());
-        device
-    })
-}
+/// The device every GPU test of this binary shares.
+use common::gpu;
 
 fn solver(scene: &Scene, atlas: &Atlas, options: GatherOptions) -> GatherSolver {
     GatherSolver::new(gpu(), scene, atlas, &scene.initial_poses(), options)

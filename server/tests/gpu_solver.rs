@@ -5,7 +5,6 @@
 
 mod common;
 
-use std::sync::OnceLock;
 use std::time::Duration;
 
 use glam::Vec3;
@@ -14,15 +13,8 @@ use lightwire_server::gpu::{Device, GpuError, ProgressiveOptions, ProgressiveSol
 use lightwire_server::reference::{ReferenceSolver, Silent, SolveOptions};
 use lightwire_server::scene::Scene;
 
-/// One device shared by all tests of this binary.
-fn gpu() -> &'static Device {
-    static DEVICE: OnceLock<Device> = OnceLock::new();
-    DEVICE.get_or_init(|| {
-        let device = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
-        eprintln!("adapter: {}", device.describe());
-        device
-    })
-}
+/// The device every GPU test of this binary shares.
+use common::gpu;
 
 fn solver(scene: &Scene, atlas: &Atlas) -> ProgressiveSolver {
     ProgressiveSolver::new(

@@ -13,26 +13,17 @@
 
 mod common;
 
-use std::sync::OnceLock;
-
 use glam::Vec3;
 use lightwire_server::atlas::Atlas;
-use lightwire_server::gpu::{Correction, Device, GatherOptions, GatherSolver, ProgressiveOptions};
+use lightwire_server::gpu::{Correction, GatherOptions, GatherSolver, ProgressiveOptions};
 use lightwire_server::gpu::{ProgressiveSolver, StepReport};
 use lightwire_server::metrics::{self, Accuracy};
 use lightwire_server::scene::{Charts, LoadOptions, Patch, PatchLightmap, PatchShape, Scene};
 use lightwire_server::solver::{self, SolverKind, SolverSettings};
 use lightwire_server::validity::Validity;
 
-/// One device shared by all tests of this binary.
-fn gpu() -> &'static Device {
-    static DEVICE: OnceLock<Device> = OnceLock::new();
-    DEVICE.get_or_init(|| {
-        let device = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
-        eprintln!("adapter: {}", device.describe());
-        device
-    })
-}
+/// The device every GPU test of this binary shares.
+use common::gpu;
 
 /// `kind` as `lightwire bake` runs it (the progressive solver with its
 /// gathered corrections), solved to 1e-4; the radiosity with the invalid
