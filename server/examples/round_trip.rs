@@ -119,11 +119,7 @@ fn main() -> Result<()> {
         .iter()
         .map(|k| {
             let mut poses = scene.initial_poses();
-            poses[object] = Pose {
-                translation: k.translation,
-                rotation: k.rotation,
-                scale: k.scale,
-            };
+            poses[object] = Pose::from(k);
             poses
         })
         .filter(|poses| *poses != start)

@@ -59,6 +59,30 @@ pub fn accuracy(atlas: &Atlas, values: &[Vec3], reference: &[Vec3]) -> Option<Ac
     accuracy_where(atlas, values, reference, |_| true)
 }
 
+/// The elements both metrics compare: non-emitting, standing for a surface
+/// (texels of a triangle's chart above its diagonal weigh nothing and must
+/// not count in a percentile), and `keep(i)`. `None` when `values` or
+/// `reference` does not hold one value per element.
+fn compared(
+    atlas: &Atlas,
+    values: &[Vec3],
+    reference: &[Vec3],
+    keep: impl Fn(usize) -> bool,
+) -> Option<Vec<usize>> {
+    let n = atlas.elements.len();
+    if values.len() != n || reference.len() != n {
+        return None;
+    }
+    Some(
+        (0..n)
+            .filter(|&i| {
+                let e = &atlas.elements[i];
+                e.emission.max_element() <= 0.0 && e.covers_surface() && keep(i)
+            })
+            .collect(),
+    )
+}
+
 /// [`accuracy`] over the non-emitting elements `i` for which `keep(i)`
 /// (elements that stand for no surface are always left out).
 pub fn accuracy_where(
@@ -67,18 +91,7 @@ pub fn accuracy_where(
     reference: &[Vec3],
     keep: impl Fn(usize) -> bool,
 ) -> Option<Accuracy> {
-    let n = atlas.elements.len();
-    if values.len() != n || reference.len() != n {
-        return None;
-    }
-    let picked: Vec<usize> = (0..n)
-        .filter(|&i| {
-            let e = &atlas.elements[i];
-            // Texels of a triangle's chart that stand for no surface weigh
-            // nothing in the NRMSE and must not count in the percentile.
-            e.emission.max_element() <= 0.0 && e.covers_surface() && keep(i)
-        })
-        .collect();
+    let picked = compared(atlas, values, reference, keep)?;
     let area = |i: usize| f64::from(atlas.elements[i].area);
     let (mut diff, mut norm, mut magnitude, mut total_area) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for &i in &picked {
@@ -158,16 +171,7 @@ pub fn agreement(
     reference: &[Vec3],
     keep: impl Fn(usize) -> bool,
 ) -> Option<Agreement> {
-    let n = atlas.elements.len();
-    if values.len() != n || reference.len() != n {
-        return None;
-    }
-    let picked: Vec<usize> = (0..n)
-        .filter(|&i| {
-            let e = &atlas.elements[i];
-            e.emission.max_element() <= 0.0 && e.covers_surface() && keep(i)
-        })
-        .collect();
+    let picked = compared(atlas, values, reference, keep)?;
     let area = |i: usize| f64::from(atlas.elements[i].area);
     let total_area: f64 = picked.iter().map(|&i| area(i)).sum();
     let magnitude: f64 = picked

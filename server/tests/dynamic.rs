@@ -648,13 +648,9 @@ fn thousand_moves_do_not_drift(method: Redistribution) {
     .unwrap_or_else(|e| panic!("{e}"));
     let o = scene.object_by_name("box").expect("the scene has a box") as usize;
     let jump = |k: usize| {
-        let key = script.keys()[1 + (k / 100) % (script.keys().len() - 2)];
+        let key = &script.keys()[1 + (k / 100) % (script.keys().len() - 2)];
         let mut poses = scene.initial_poses();
-        poses[o] = Pose {
-            translation: key.translation,
-            rotation: key.rotation,
-            scale: key.scale,
-        };
+        poses[o] = Pose::from(key);
         poses
     };
     let pose_at = |k: usize| {

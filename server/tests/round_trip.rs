@@ -76,11 +76,7 @@ fn jumps(scene: &Scene) -> Vec<Vec<Pose>> {
         .iter()
         .map(|k| {
             let mut poses = scene.initial_poses();
-            poses[o] = Pose {
-                translation: k.translation,
-                rotation: k.rotation,
-                scale: k.scale,
-            };
+            poses[o] = Pose::from(k);
             poses
         })
         .take(16)

@@ -187,6 +187,18 @@ pub struct Pose {
     pub scale: f32,
 }
 
+/// A transform script's key as a pose (scripts drive objects: `lightwire
+/// bench`, the round-trip example and tests).
+impl From<&lightwire_protocol::script::Key> for Pose {
+    fn from(key: &lightwire_protocol::script::Key) -> Self {
+        Self {
+            translation: key.translation,
+            rotation: key.rotation,
+            scale: key.scale,
+        }
+    }
+}
+
 impl Default for Pose {
     fn default() -> Self {
         Self::IDENTITY
