@@ -63,7 +63,7 @@ dashboard-deps: deps
 # The Khronos glTF validator (npm `gltf-validator`, pinned by its
 # package-lock.json) that server/tests/gltf_import.rs runs on the generated
 # meshes; installed like the dashboard's packages.
-GLTF_VALIDATOR := server/tests/gltf-validator
+GLTF_VALIDATOR := scene/tests/gltf-validator
 gltf-validator-deps: deps
 	@cd $(GLTF_VALIDATOR) && if [ ! node_modules/.package-lock.json -nt package-lock.json ]; then \
 	  npm ci --no-audit --no-fund; \

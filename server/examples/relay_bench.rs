@@ -367,8 +367,8 @@ fn synthetic_image(width: u32, height: u32, pose: &Pose) -> Vec<[f32; 3]> {
 
 /// Starts the synthetic solver; returns its address.
 async fn synthetic_solver() -> String {
-    use lightwire_server::atlas::Atlas;
-    use lightwire_server::scene::Scene;
+    use lightwire_scene::Scene;
+    use lightwire_scene::atlas::Atlas;
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-low.json");
     let scene = Scene::load_with(&path, Default::default()).expect("scene");
     let atlas = Atlas::build(&scene).expect("atlas");

@@ -9,7 +9,7 @@
 //! - `stats.json`: element counts, iterations, residual, timings, solver;
 //! - `uv-lightmaps/NN-node_mesh.exr` and `.png`: for every glTF mesh
 //!   instance that brought its own lightmap UVs (`TEXCOORD_1`), the light
-//!   resampled into them (`crate::uvmap`), listed in `atlas.json`;
+//!   resampled into them (`lightwire_scene::uvmap`), listed in `atlas.json`;
 //! - `scene.glb`: the scene as glTF 2.0 with the lightmap on it
 //!   ([`scene_glb`]), which any glTF viewer shows lit and an engine loads
 //!   with its lightmap UVs (`TEXCOORD_1`).
@@ -28,11 +28,11 @@ use lightwire_protocol::{
 };
 use serde::Serialize;
 
-use crate::atlas::{Atlas, Chart};
-use crate::scene::gltf::write::{
+use lightwire_scene::atlas::{Atlas, Chart};
+use lightwire_scene::gltf::write::{
     GlbLightmap, GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene,
 };
-use crate::scene::{Pose, Scene};
+use lightwire_scene::{Pose, Scene};
 
 /// Per-surface entry of `atlas.json`.
 #[derive(Debug, Serialize)]
@@ -181,7 +181,7 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
         scene: scene.name.clone(),
         width: atlas.width,
         height: atlas.height,
-        padding: crate::atlas::PADDING,
+        padding: lightwire_scene::atlas::PADDING,
         surfaces: scene
             .patches
             .iter()
@@ -259,7 +259,7 @@ fn write_uv_lightmaps(
     }
     let sub = dir.join(UV_LIGHTMAPS);
     std::fs::create_dir_all(&sub).with_context(|| format!("creating {}", sub.display()))?;
-    let locator = crate::uvmap::Locator::new(&scene.patches);
+    let locator = lightwire_scene::uvmap::Locator::new(&scene.patches);
     let white = white_point(image);
     let mut entries = Vec::with_capacity(scene.uv_meshes.len());
     for (k, mesh) in scene.uv_meshes.iter().enumerate() {
@@ -267,8 +267,8 @@ fn write_uv_lightmaps(
             // No asset holds these UVs: `scene.glb` carries the light.
             continue;
         }
-        let size = crate::uvmap::default_size(scene, mesh);
-        let map = crate::uvmap::resample(&locator, atlas, image, mesh, size);
+        let size = lightwire_scene::uvmap::default_size(scene, mesh);
+        let map = lightwire_scene::uvmap::resample(&locator, atlas, image, mesh, size);
         if map.unplaced > 0 {
             eprintln!(
                 "warning: {}: {} of its triangles lie on no patch of the scene; its lightmap in its own UVs is not written",
@@ -351,7 +351,7 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 /// Writes all bake outputs for per-element radiosity `values`.
 /// Writes `lightmap.exr`, `lightmap.png`, `atlas.json`, `stats.json`,
 /// `scene.glb` and, for glTF meshes with their own lightmap UVs, their
-/// lightmaps in `uv-lightmaps/`; seams are stitched and invalid texels ([`crate::validity`])
+/// lightmaps in `uv-lightmaps/`; seams are stitched and invalid texels ([`lightwire_solve::validity`])
 /// filled from their neighbours first (`Validity::fill`).
 pub fn write_outputs(
     dir: &Path,
@@ -367,7 +367,7 @@ pub fn write_outputs(
     // visible neighbours' light, so that a client's bilinear filter never
     // blends them in.
     let mut values = values.to_vec();
-    crate::validity::Validity::compute(scene, atlas, poses).fill(atlas, &mut values);
+    lightwire_solve::validity::Validity::compute(scene, atlas, poses).fill(atlas, &mut values);
     let image = atlas.to_image(&values);
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;

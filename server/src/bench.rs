@@ -9,7 +9,7 @@
 //! that fraction of the emitted power (form factor time included), the
 //! closest analogue of "unshot power" a Jacobi solver has. The row
 //! `progressive+2corr` continues the same progressive run with the
-//! default gathered corrections ([`crate::gpu::Correction`], as `lightwire
+//! default gathered corrections ([`lightwire_solve::gpu::Correction`], as `lightwire
 //! bake` runs it): its 10% and 1% times are the progressive ones, its 0.1%
 //! time includes the rounds (each refining to 0.1%; the gather sweep's
 //! setup, like every solver's, is not counted). The gather GPU
@@ -17,8 +17,8 @@
 //! timed the same way: when the power changed by its last completed bounce,
 //! `Σ A_i |ΔB_i|`, first falls to each fraction of the emitted power. The
 //! progressive and gather lightmaps at 0.1% are compared with the converged
-//! reference by [`crate::metrics::accuracy`] (over the elements that are not
-//! inside or under geometry, [`crate::validity`]): area-weighted NRMSE over the
+//! reference by [`lightwire_solve::accuracy::accuracy`] (over the elements that are not
+//! inside or under geometry, [`lightwire_solve::validity`]): area-weighted NRMSE over the
 //! non-emitting elements and the 95th percentile of the per-element
 //! relative error.
 //!
@@ -41,14 +41,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use serde::Serialize;
 
-use crate::atlas::Atlas;
-use crate::gpu::{Correction, Device, GatherOptions, ProgressiveOptions};
-use crate::load::load_scene;
-use crate::metrics::accuracy_where;
-use crate::reference::{self, ReferenceSolver, SolveOptions};
-use crate::scene::LoadOptions;
-use crate::solver::{BatchSolver, DEFAULT_CORRECTIONS, Gather, Progressive};
-use crate::validity::Validity;
+use lightwire_scene::LoadOptions;
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::load::load_scene;
+use lightwire_solve::accuracy::accuracy_where;
+use lightwire_solve::gpu::{Correction, Device, GatherOptions, ProgressiveOptions};
+use lightwire_solve::reference::{self, ReferenceSolver, SolveOptions};
+use lightwire_solve::solver::{BatchSolver, DEFAULT_CORRECTIONS, Gather, Progressive};
+use lightwire_solve::validity::Validity;
 
 /// The unshot-power fractions at which times are recorded.
 pub const FRACTIONS: [f64; 3] = [0.1, 0.01, 0.001];
@@ -73,7 +73,7 @@ pub struct SolverResult {
     /// gathered) per second. Reference: `null`.
     pub shots_per_second: Option<f64>,
     /// NRMSE against the converged reference solution, over the
-    /// non-emitting elements, area-weighted ([`crate::metrics::accuracy`];
+    /// non-emitting elements, area-weighted ([`lightwire_solve::accuracy::accuracy`];
     /// `null` when the reference could not run).
     pub nrmse_vs_reference: Option<f64>,
     /// 95th percentile of the per-element relative error against the

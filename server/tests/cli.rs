@@ -521,3 +521,33 @@ fn command_line_errors_are_clear() {
         text(&bad_scale.stderr)
     );
 }
+
+/// `lightwire bake --solver gather` runs this solver and says so in
+/// stats.json: on the plates the bake converges (the second bounce changes
+/// nothing) and the emitter keeps exactly its emission.
+#[test]
+fn bake_with_the_gather_solver_writes_its_stats() {
+    let out_dir =
+        std::env::temp_dir().join(format!("lightwire-gather-bake-{}", std::process::id()));
+    let scene = lightwire_testkit::scene_path("plates.json");
+    let out = lightwire_testkit::lightwire!()
+        .command()
+        .args(["bake", "--solver", "gather", "--hemicube-resolution", "16"])
+        .arg("--scene")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap_or_else(|e| panic!("running lightwire: {e}"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("2 bounces"), "{stderr}");
+    let stats: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("stats.json")).unwrap_or_else(|e| panic!("{e}")),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(stats["solver"], "gather");
+    assert_eq!(stats["iterations"], 2);
+    assert_eq!(stats["residual_fraction"], 0.0);
+    let _ = std::fs::remove_dir_all(&out_dir);
+}

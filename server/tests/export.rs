@@ -18,17 +18,19 @@
 //! The REST route `GET /api/scenes/{id}/scene.glb` is tested with the other
 //! snapshots in `rest_auth.rs`.
 
+// The solver-level tests' helpers (`gradient`, `filtered`), not copied.
+#[path = "../../solve/tests/common/mod.rs"]
 mod common;
 
 use std::path::{Path, PathBuf};
 
 use glam::{Quat, Vec2, Vec3};
-use lightwire_server::atlas::Atlas;
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::gltf::write::pack_glb;
+use lightwire_scene::gltf::{ImportOptions, ImportedScene, import_slice};
+use lightwire_scene::load::parse_scene;
+use lightwire_scene::{LoadOptions, Scene};
 use lightwire_server::bake::{self, describe, scene_glb};
-use lightwire_server::load::parse_scene;
-use lightwire_server::scene::gltf::write::pack_glb;
-use lightwire_server::scene::gltf::{ImportOptions, ImportedScene, import_slice};
-use lightwire_server::scene::{LoadOptions, Scene};
 
 use common::gradient;
 

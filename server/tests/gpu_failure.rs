@@ -297,7 +297,7 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
 /// device reports itself lost.
 #[test]
 fn device_errors_are_captured_recorded_and_lost_is_seen() {
-    let gpu = lightwire_server::gpu::Device::new(None).expect("a GPU adapter (lavapipe)");
+    let gpu = lightwire_solve::gpu::Device::new(None).expect("a GPU adapter (lavapipe)");
     gpu.record_uncaptured_errors();
     // MAP_READ may only be combined with COPY_DST: a validation error.
     let bad = wgpu::BufferDescriptor {
@@ -319,7 +319,7 @@ fn device_errors_are_captured_recorded_and_lost_is_seen() {
     let uncaptured = gpu.failure().expect("recorded, not panicked on");
     assert!(uncaptured.contains("invalid on purpose"), "{uncaptured}");
 
-    let fresh = lightwire_server::gpu::Device::new(None).expect("a second device");
+    let fresh = lightwire_solve::gpu::Device::new(None).expect("a second device");
     assert_eq!(fresh.failure(), None);
     fresh.device.destroy();
     let _ = fresh.device.poll(wgpu::PollType::Poll);

@@ -127,13 +127,9 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
         .header("x-lightwire-version")
         .and_then(|v| v.parse().ok())
         .expect("x-lightwire-version");
-    let imported = lightwire_server::scene::gltf::import_slice(
-        &glb.body,
-        None,
-        "scene.glb",
-        &Default::default(),
-    )
-    .expect("the served scene.glb imports");
+    let imported =
+        lightwire_scene::gltf::import_slice(&glb.body, None, "scene.glb", &Default::default())
+            .expect("the served scene.glb imports");
     let surfaces = info["surfaces"].as_array().expect("surfaces");
     let triangles: usize = surfaces
         .iter()

@@ -72,8 +72,8 @@ fn fixtures_with_shape_errors_fail_the_schema() {
 /// only `cross_coarse_below`.)
 #[test]
 fn scene_solver_settings_apply_at_the_files_density_and_yield_to_the_command_line() {
-    use lightwire_server::gpu::ProgressiveOptions;
-    use lightwire_server::scene::{LoadOptions, Scene, SolverHints};
+    use lightwire_scene::{LoadOptions, Scene, SolverHints};
+    use lightwire_solve::gpu::ProgressiveOptions;
 
     let defaults = ProgressiveOptions::default();
     let (grid, back, coarse) = (

@@ -581,13 +581,9 @@ async fn a_viewer_that_asks_gets_the_poses_each_version_was_lit_for() {
     // The served scene.glb draws the box where this version lit it.
     let glb = http_get(&server, "/api/scenes/cornell-low/scene.glb").await;
     assert_eq!(glb.status, 200);
-    let imported = lightwire_server::scene::gltf::import_slice(
-        &glb.body,
-        None,
-        "scene.glb",
-        &Default::default(),
-    )
-    .expect("scene.glb imports");
+    let imported =
+        lightwire_scene::gltf::import_slice(&glb.body, None, "scene.glb", &Default::default())
+            .expect("scene.glb imports");
     let placed = imported
         .objects
         .iter()

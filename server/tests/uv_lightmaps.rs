@@ -18,14 +18,16 @@
 //! box (its box in object space) and the atrium (columns whose unrolled
 //! side is one chart over many patches).
 
+// The solver-level tests' helpers (`gradient`, `filtered`), not copied.
+#[path = "../../solve/tests/common/mod.rs"]
 mod common;
 
 use glam::{Vec2, Vec3};
-use lightwire_server::atlas::Atlas;
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::gltf::{ImportOptions, import_slice};
+use lightwire_scene::uvmap::{self, PADDING};
+use lightwire_scene::{Charts, LoadOptions, Scene};
 use lightwire_server::bake::{describe, scene_glb};
-use lightwire_server::scene::gltf::{ImportOptions, import_slice};
-use lightwire_server::scene::{Charts, LoadOptions, Scene};
-use lightwire_server::uvmap::{self, PADDING};
 use lightwire_testkit::scene_path;
 
 use common::{filtered, gradient};
@@ -332,8 +334,8 @@ async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
 /// (`Validity::fill`, `Atlas::to_image`), and the same image without the
 /// adjustment of the seams between lightmap islands.
 fn reference_images(scene: &Scene, atlas: &Atlas) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-    use lightwire_server::atlas::IslandSeams;
-    use lightwire_server::solver::{self, SolverKind, SolverSettings};
+    use lightwire_scene::atlas::IslandSeams;
+    use lightwire_solve::solver::{self, SolverKind, SolverSettings};
     let poses = scene.initial_poses();
     let mut solver = solver::build(
         SolverKind::Reference,
@@ -346,7 +348,7 @@ fn reference_images(scene: &Scene, atlas: &Atlas) -> (Vec<[f32; 3]>, Vec<[f32; 3
     .unwrap_or_else(|e| panic!("{e}"));
     solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
     let mut values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    lightwire_server::validity::Validity::compute(scene, atlas, &poses).fill(atlas, &mut values);
+    lightwire_solve::validity::Validity::compute(scene, atlas, &poses).fill(atlas, &mut values);
     let mut plain = atlas.clone();
     plain.island_seams = IslandSeams::default();
     (atlas.to_image(&values), plain.to_image(&values))
@@ -467,7 +469,7 @@ fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
 /// while the asset's own stay for `uv-lightmaps/`, marked apart.
 #[test]
 fn meshes_without_lightmap_uvs_are_lit_on_generated_ones() {
-    use lightwire_server::scene::gltf::find_uv_overlaps;
+    use lightwire_scene::gltf::find_uv_overlaps;
     let load = |name: &str, charts: Charts, scale: f32| {
         let options = LoadOptions {
             charts,
@@ -539,9 +541,7 @@ fn meshes_without_lightmap_uvs_are_lit_on_generated_ones() {
 /// radial normals (an engine shades it as a cylinder); without, each facet
 /// has its own vertices and face normal (hard edges).
 fn prism_glb(smooth: bool) -> Vec<u8> {
-    use lightwire_server::scene::gltf::write::{
-        GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene,
-    };
+    use lightwire_scene::gltf::write::{GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene};
     let sides = 8usize;
     let at = |i: usize, y: f32| {
         let phi = std::f32::consts::TAU * (i % sides) as f32 / sides as f32;

@@ -40,12 +40,12 @@ use lightwire_protocol::{
 };
 use serde::Serialize;
 
-use crate::atlas::Atlas;
-use crate::gpu::{Device, Redistribution};
-use crate::load::load_scene;
-use crate::scene::{LoadOptions, Scene};
 use crate::service::live::{GpuLive, LiveSolver};
 use crate::service::wire::from_wire;
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::load::load_scene;
+use lightwire_scene::{LoadOptions, Scene};
+use lightwire_solve::gpu::{Device, Redistribution};
 
 /// What to run.
 #[derive(Debug, Clone)]

@@ -17,7 +17,7 @@
 //! Every method's last frame is compared with a high-quality reference at
 //! the same pose — the CPU reference solver where its dense matrix fits,
 //! else the progressive solver at 4x the hemicube resolution converged to
-//! 1e-5 — by [`crate::metrics::accuracy`] (NRMSE and p95 relative error
+//! 1e-5 — by [`lightwire_solve::accuracy::accuracy`] (NRMSE and p95 relative error
 //! over the non-emitting elements), and written as an atlas PNG with a x5 difference image (thesis
 //! Fig. 5.2.1(f)), all at the reference's exposure.
 //!
@@ -31,7 +31,7 @@
 //! read 3.31% there against 1.55% (cornell-low, BENCHMARKS.md).
 //!
 //! With `--profile` (issue 19) each redistribution method's frames are also
-//! broken down by unit and stage ([`crate::gpu::profile`]): after each
+//! broken down by unit and stage ([`lightwire_solve::gpu::profile`]): after each
 //! frame the state is published as the service publishes a version (read
 //! back, invalid texels filled, `Encoder::publish`'s delta), which the
 //! breakdown counts as the publication unit; the milliseconds per frame
@@ -46,21 +46,21 @@ use anyhow::{Context, Result};
 use glam::{Quat, Vec3};
 use serde::Serialize;
 
-use crate::atlas::Atlas;
 use crate::bake::{white_point, write_png_with};
-use crate::gpu::profile::{Clock, FrameProfile, Profiler, Stage, Unit};
-use crate::gpu::{
+use lightwire_protocol::lightmap::Encoder;
+use lightwire_protocol::{DEFAULT_TILE_SIZE, PixelFormat};
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::load::load_scene;
+use lightwire_scene::{Charts, LoadOptions, Pose, SolverHints};
+use lightwire_solve::accuracy::accuracy_where;
+use lightwire_solve::gpu::profile::{Clock, FrameProfile, Profiler, Stage, Unit};
+use lightwire_solve::gpu::{
     Correction, Device, DynamicOptions, DynamicSolver, GatherOptions, GatherSolver,
     ProgressiveOptions, ProgressiveSolver, Redistribution,
 };
-use crate::load::load_scene;
-use crate::metrics::accuracy_where;
-use crate::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
-use crate::scene::{Charts, LoadOptions, Pose, SolverHints};
-use crate::solver::DEFAULT_CORRECTIONS;
-use crate::validity::Validity;
-use lightwire_protocol::lightmap::Encoder;
-use lightwire_protocol::{DEFAULT_TILE_SIZE, PixelFormat};
+use lightwire_solve::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
+use lightwire_solve::solver::DEFAULT_CORRECTIONS;
+use lightwire_solve::validity::Validity;
 
 /// A method the benchmark compares (thesis Table 5.2's rows).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -178,7 +178,7 @@ pub struct MethodResult {
     pub ms_to_state: f64,
     pub frames: usize,
     /// NRMSE of the last frame against the reference: area-weighted, over
-    /// the non-emitting elements ([`crate::metrics::accuracy`]).
+    /// the non-emitting elements ([`lightwire_solve::accuracy::accuracy`]).
     pub nrmse: f64,
     /// 95th percentile of the last frame's per-element relative error
     /// against the reference (same elements).
@@ -448,7 +448,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
     // Where the motion changes the light: the reference at the start too.
     let (_, expected_start) = reference(&start)?;
     // Texels inside or under geometry at the compared poses are left out
-    // (crate::validity).
+    // (lightwire_solve::validity).
     let visible_last = Validity::compute(&scene, &atlas, &last);
     let visible_gather = Validity::compute(&scene, &atlas, &gather_last);
     let changed: Vec<bool> = expected

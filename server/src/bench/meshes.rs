@@ -13,11 +13,11 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use serde::Serialize;
 
-use crate::gpu::{Device, ProgressiveOptions};
-use crate::load::load_scene;
-use crate::scene::gltf::content;
-use crate::scene::{Charts, LoadOptions};
-use crate::solver::{BatchSolver, Progressive};
+use lightwire_scene::gltf::content;
+use lightwire_scene::load::load_scene;
+use lightwire_scene::{Charts, LoadOptions};
+use lightwire_solve::gpu::{Device, ProgressiveOptions};
+use lightwire_solve::solver::{BatchSolver, Progressive};
 
 /// One mesh's results (`--json`).
 #[derive(Debug, Serialize)]

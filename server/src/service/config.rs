@@ -136,7 +136,7 @@ pub struct Config {
     /// Multiplies every texel density (coarser or finer lightmaps).
     pub density_scale: f32,
     /// How a mesh's triangles get charts (`scene::Charts`).
-    pub charts: crate::scene::Charts,
+    pub charts: lightwire_scene::Charts,
     /// Serve without tokens; every client is an admin. Loud on purpose.
     pub dev_mode: bool,
     /// Browser origins allowed to open WebSockets, besides the server's
@@ -164,9 +164,10 @@ pub struct Config {
     pub solver: SolverChoice,
     /// How the GPU solver follows moved objects, for every scene not named
     /// in `scene_redistribution`.
-    pub redistribution: crate::gpu::Redistribution,
+    pub redistribution: lightwire_solve::gpu::Redistribution,
     /// Per scene id: how its moves are followed.
-    pub scene_redistribution: std::collections::BTreeMap<String, crate::gpu::Redistribution>,
+    pub scene_redistribution:
+        std::collections::BTreeMap<String, lightwire_solve::gpu::Redistribution>,
     /// GPU adapter name substring (default: prefer a discrete GPU).
     pub adapter: Option<String>,
     /// Kernel send buffer per connection, bytes (SO_SNDBUF; 0 = OS default).
@@ -241,7 +242,7 @@ impl Default for Config {
             tick_hz: 60.0,
             budget_ms: 8.0,
             density_scale: 1.0,
-            charts: crate::scene::Charts::default(),
+            charts: lightwire_scene::Charts::default(),
             dev_mode: false,
             allowed_origins: Vec::new(),
             max_message_bytes: 4096,
@@ -255,7 +256,7 @@ impl Default for Config {
             settle_ms: 500.0,
             socket_send_buffer: 256 * 1024,
             solver: SolverChoice::Progressive,
-            redistribution: crate::gpu::Redistribution::default(),
+            redistribution: lightwire_solve::gpu::Redistribution::default(),
             scene_redistribution: Default::default(),
             adapter: None,
             metrics: MetricsAccess::Open,
@@ -537,7 +538,7 @@ mod tests {
 
     #[test]
     fn charts_are_lightmap_uvs_by_default_and_set_by_name() {
-        use crate::scene::Charts;
+        use lightwire_scene::Charts;
         assert_eq!(Config::default().charts, Charts::LightmapUvs);
         for (name, charts) in [
             ("triangles", Charts::Triangles),

@@ -513,7 +513,7 @@ fn uv_lightmap_list<S: Scenes>(scenes: &S, id: &str) -> Response {
         .filter(|(_, mesh)| !mesh.generated)
         .map(|(k, mesh)| {
             let stem = crate::bake::uv_lightmap_stem(k, &mesh.name);
-            let size = crate::uvmap::default_size(scene, mesh);
+            let size = lightwire_scene::uvmap::default_size(scene, mesh);
             json!({
                 "mesh": mesh.name,
                 "object": scene.objects[mesh.object as usize].name,
@@ -563,9 +563,10 @@ async fn uv_lightmap_file<S: Scenes>(
         let snapshot = current_rgb(&feed)?;
         let scene = &runtime.scene;
         let mesh = &scene.uv_meshes[k];
-        let locator = crate::uvmap::Locator::new(&scene.patches);
-        let size = crate::uvmap::default_size(scene, mesh);
-        let map = crate::uvmap::resample(&locator, &runtime.atlas, &snapshot.rgb, mesh, size);
+        let locator = lightwire_scene::uvmap::Locator::new(&scene.patches);
+        let size = lightwire_scene::uvmap::default_size(scene, mesh);
+        let map =
+            lightwire_scene::uvmap::resample(&locator, &runtime.atlas, &snapshot.rgb, mesh, size);
         // A PNG at the atlas's exposure, as `lightmap.png` and bake.
         let white = crate::bake::white_point(&snapshot.rgb);
         let bytes = encode_image(&map.pixels, map.width, map.height, format, white)?;

@@ -21,9 +21,9 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
-use crate::atlas::Atlas;
-use crate::reference::{ReferenceSolver, Silent, SolveOptions};
-use crate::scene::{Pose, Scene};
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::{Pose, Scene};
+use lightwire_solve::reference::{ReferenceSolver, Silent, SolveOptions};
 
 /// What one call to [`LiveSolver::step`] did.
 #[derive(Debug, Clone, Copy)]
@@ -159,7 +159,7 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
         self.radiosity = solution.radiosity;
         // Seams stitched; texels inside or under geometry take their
         // neighbours' light.
-        crate::validity::Validity::compute(&self.scene, &self.atlas, &self.poses)
+        lightwire_solve::validity::Validity::compute(&self.scene, &self.atlas, &self.poses)
             .fill(&self.atlas, &mut self.radiosity);
         self.residual = solution.residual_fraction;
         self.reflected = self.tag.clone();
@@ -188,25 +188,25 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
     }
 }
 
-/// The GPU solver session ([`crate::gpu::DynamicSolver`]): progressive
+/// The GPU solver session ([`lightwire_solve::gpu::DynamicSolver`]): progressive
 /// refinement (thesis Alg. 4.2) that follows moves by the configured
 /// method (full recompute, incremental or cross redistribution), with poses
 /// coalesced while a unit of work runs (latest wins) and work sliced into
 /// GPU batches that fit the tick budget (thesis §4.5.3). A state is read
 /// back and handed to the tick loop only when the session reports it
 /// complete (double buffering): at each of the publication levels of
-/// [`crate::gpu::DynamicOptions::publish_at`], after each
+/// [`lightwire_solve::gpu::DynamicOptions::publish_at`], after each
 /// redistribution, and after each gathered correction round once the scene
-/// holds still ([`crate::gpu::DynamicOptions::corrections`]).
+/// holds still ([`lightwire_solve::gpu::DynamicOptions::corrections`]).
 ///
 /// Each step runs inside the device's error scopes
-/// ([`crate::gpu::Device::capture`]) and is followed by a check of the
+/// ([`lightwire_solve::gpu::Device::capture`]) and is followed by a check of the
 /// device's health (lost, uncaptured errors): any of these, or a failed
 /// step, readback or device poll, is a [`SolverFailure`].
 pub struct GpuLive<T> {
-    device: crate::gpu::Device,
+    device: lightwire_solve::gpu::Device,
     /// The session; its `reflected` is the tag of `radiosity`.
-    session: crate::gpu::DynamicSolver<T>,
+    session: lightwire_solve::gpu::DynamicSolver<T>,
     atlas: Atlas,
     /// The last complete state, read back.
     radiosity: Vec<Vec3>,
@@ -218,39 +218,40 @@ impl<T: Clone> GpuLive<T> {
     /// the device outside error scopes are recorded from here on, not
     /// panicked on.
     pub fn new(
-        device: crate::gpu::Device,
+        device: lightwire_solve::gpu::Device,
         scene: &Scene,
         atlas: Atlas,
         poses: &[Pose],
         tag: T,
-        method: crate::gpu::Redistribution,
-    ) -> Result<Self, crate::gpu::GpuError> {
+        method: lightwire_solve::gpu::Redistribution,
+    ) -> Result<Self, lightwire_solve::gpu::GpuError> {
         device.record_uncaptured_errors();
         // The scene's measured solver settings, if it states any.
         if !scene.solver.is_empty() {
             tracing::info!(scene = %scene.name, settings = %scene.solver, "solver settings from the scene file");
         }
-        let options = crate::gpu::DynamicOptions {
+        let options = lightwire_solve::gpu::DynamicOptions {
             method,
-            progressive: crate::gpu::ProgressiveOptions::default().with_hints(&scene.solver),
+            progressive: lightwire_solve::gpu::ProgressiveOptions::default()
+                .with_hints(&scene.solver),
             ..Default::default()
         };
-        if options.corrections > 0 && !crate::gpu::corrections_affordable(scene, &atlas) {
+        if options.corrections > 0 && !lightwire_solve::gpu::corrections_affordable(scene, &atlas) {
             tracing::warn!(
                 scene = %scene.name,
                 elements = atlas.elements.len(),
                 patches = scene.patches.len(),
                 "states are published without gathered corrections: a gather sweep over this \
                  many elements and patches is too slow (more than {} of their product)",
-                crate::gpu::MAX_DEFAULT_SWEEP
+                lightwire_solve::gpu::MAX_DEFAULT_SWEEP
             );
         }
         let (session, error) = device.capture(|| {
-            crate::gpu::DynamicSolver::new(&device, scene, &atlas, poses, tag, options)
+            lightwire_solve::gpu::DynamicSolver::new(&device, scene, &atlas, poses, tag, options)
         });
         let session = session?;
         if let Some(e) = error.or_else(|| device.failure()) {
-            return Err(crate::gpu::GpuError::Device(format!(
+            return Err(lightwire_solve::gpu::GpuError::Device(format!(
                 "setting up the solver: {e}"
             )));
         }

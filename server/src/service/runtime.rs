@@ -57,10 +57,10 @@ use super::live::{GpuLive, LiveSolver, ReferenceLive, SolverFailure, StepReport}
 use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
 use super::wire::{from_wire, newly_reflected, scene_info, to_wire};
-use crate::atlas::Atlas;
-use crate::load::load_scene;
-use crate::reference::MAX_ELEMENTS;
-use crate::scene::{LoadOptions, Pose, Scene};
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::load::load_scene;
+use lightwire_scene::{LoadOptions, Pose, Scene};
+use lightwire_solve::reference::MAX_ELEMENTS;
 
 /// A running scene: its description and the [`Feed`] its sessions serve.
 pub struct SceneRuntime {
@@ -193,7 +193,7 @@ impl SceneRuntime {
                 let adapter = config.adapter.clone();
                 let (scene, atlas) = (scene.clone(), atlas.clone());
                 Box::new(move |poses: &[Pose], tag: Tag| {
-                    let device = crate::gpu::Device::new(adapter.as_deref())?;
+                    let device = lightwire_solve::gpu::Device::new(adapter.as_deref())?;
                     tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
                     let solver = GpuLive::new(device, &scene, atlas.clone(), poses, tag, method)?;
                     Ok(Box::new(solver) as Solver)

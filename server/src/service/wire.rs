@@ -12,8 +12,8 @@
 use glam::{Quat, Vec3};
 use lightwire_protocol::{ErrorCode, ObjectSeq, Pose as WirePose, SceneInfo};
 
-use crate::atlas::Atlas;
-use crate::scene::{Pose, Scene};
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::{Pose, Scene};
 
 /// Why a client frame is refused: the `Error` frame's code, the kind
 /// counted in `lightwire_bad_frames_total`, and the frame's message.

@@ -8,11 +8,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use lightwire_server::bake::{self, BakeStats};
-pub(crate) use lightwire_server::solver::SolverKind;
-use lightwire_server::solver::{self, SolverSettings};
+pub(crate) use lightwire_solve::solver::SolverKind;
+use lightwire_solve::solver::{self, SolverSettings};
 
-use lightwire_server::load::load_scene;
-use lightwire_server::scene::LoadOptions;
+use lightwire_scene::LoadOptions;
+use lightwire_scene::load::load_scene;
 
 /// Solver settings from the command line.
 pub(crate) struct SolveSettings {

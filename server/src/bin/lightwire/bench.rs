@@ -4,9 +4,9 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use lightwire_scene::{Charts, LoadOptions, Scene};
 use lightwire_server::bench;
-use lightwire_server::gpu;
-use lightwire_server::scene::{Charts, LoadOptions, Scene};
+use lightwire_solve::gpu;
 
 /// `lightwire bench codec`'s arguments.
 #[derive(clap::Args)]

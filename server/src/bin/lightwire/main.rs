@@ -10,8 +10,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use lightwire_server::gpu;
-use lightwire_server::scene::{Charts, SolverHints};
+use lightwire_scene::{Charts, SolverHints};
+use lightwire_solve::gpu;
 
 use bake::{SolveSettings, SolverKind, bake_command};
 use bench::{
@@ -326,7 +326,7 @@ fn main() -> ExitCode {
             scene,
             solver,
             out,
-            lightwire_server::scene::LoadOptions {
+            lightwire_scene::LoadOptions {
                 density_scale,
                 charts,
             },

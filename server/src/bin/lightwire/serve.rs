@@ -40,14 +40,14 @@ pub(crate) struct ServeFlags {
     /// parallelograms they tile, or, for the static meshes that have them,
     /// their own lightmap UVs (`lightmap-uvs`) [default: lightmap-uvs].
     #[arg(long, value_enum)]
-    charts: Option<lightwire_server::scene::Charts>,
+    charts: Option<lightwire_scene::Charts>,
     /// Solver per scene [default: progressive].
     #[arg(long, value_enum)]
     solver: Option<lightwire_server::service::config::SolverChoice>,
     /// GPU solver: how moves are followed, full | incremental | cross
     /// [default: cross] (per scene: `scene_redistribution` in the config).
     #[arg(long)]
-    redistribution: Option<lightwire_server::gpu::Redistribution>,
+    redistribution: Option<lightwire_solve::gpu::Redistribution>,
     /// GPU adapter whose name contains this (default: prefer a discrete GPU).
     #[arg(long)]
     adapter: Option<String>,

@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use lightwire_server::atlas::Atlas;
-use lightwire_server::load::load_scene;
-use lightwire_server::scene::{LoadOptions, Scene};
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::load::load_scene;
+use lightwire_scene::{LoadOptions, Scene};
 
 pub(crate) fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
     Ok(load_scene(path, LoadOptions::scaled(density_scale))?)

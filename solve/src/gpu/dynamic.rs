@@ -1,0 +1,662 @@
+//! A solver session that follows moving objects (thesis §3.1, §4.5.3).
+//!
+//! [`DynamicSolver`] owns a [`ProgressiveSolver`] and turns a stream of
+//! poses into a sequence of complete radiosity states:
+//!
+//! - Poses may arrive at any moment ([`DynamicSolver::set_poses`]); the
+//!   latest per call wins and waits until the running unit of work is done,
+//!   so every emitter redistributes its light in chronological order, which
+//!   the shot-radiosity formulation requires (thesis §3.1, §3.3.4).
+//! - Each set of poses comes with a tag of the caller's type `T`, which the
+//!   session keeps and hands back with the complete state that reflects
+//!   those poses ([`DynamicSolver::reflected`]). It never looks inside: what
+//!   a tag stands for (a benchmark's frame number, which of its clients'
+//!   messages the poses came from) is the caller's business.
+//! - Work is cut into GPU batches; [`DynamicSolver::step`] runs batches
+//!   until its time budget is spent, so a redistribution spans several
+//!   ticks when it must (thesis §4.5.3: the loop over shooters is
+//!   interruptible).
+//! - A step reports `completed` only when a whole unit is done: a
+//!   redistribution (and, for the full and incremental methods, the
+//!   progressive iterations that bring the unshot power below the first
+//!   publication level), or a refinement. In between, the GPU holds
+//!   half-done states that nobody reads: the caller publishes only
+//!   completed ones (double buffering).
+//! - Spare budget continues progressive refinement toward the last level.
+//!   With cross redistribution the moving objects stay in place, passive
+//!   ([`ProgressiveSolver::set_passive`]): they occlude, but their elements
+//!   neither receive nor shoot, since their light is each move's business
+//!   (gathered at the new pose, shot with its tiles). What refinement then
+//!   shoots is the static set's unshot light, chiefly what the last move
+//!   deposited on it (the objects' reflected light and their shadows), so
+//!   that deposit gets its second and later bounces. The thesis removes
+//!   the objects for refinement and inserts them again (§4.5.2); that
+//!   takes the deposit out of the unshot light with them, so it was never
+//!   shot on (a cross session's static texels read about 1.5% darker than
+//!   a from-scratch solve on cornell-large), and the shots made while the
+//!   objects are out are blocked by nothing. Shooting with the objects in
+//!   place keeps what cross projection needs: every shot of a static
+//!   shooter was blocked by the objects where they stood, so the next
+//!   move's removal unblocks all of its shot radiosity, as it does.
+//!
+//! - Whenever the scene holds still at poses it was not corrected at (the
+//!   first solve, and every move once its state is complete and refined),
+//!   the session corrects its state by gathering
+//!   ([`DynamicOptions::corrections`], `gpu::correct`): the light then
+//!   comes to the gather solver's accuracy instead of progressive
+//!   refinement's, whatever error the moves before left (issue 57: a box
+//!   moved about and put back must show what a fresh session shows). The
+//!   rounds run a slice at a time, each ends in a published state, and
+//!   the next move cancels them; a benchmark of moves waits for
+//!   [`DynamicSolver::is_settled`], a viewer of a still scene for
+//!   [`DynamicSolver::is_idle`].
+//!
+//! Negative light. Redistribution shoots negative radiosity (thesis
+//! §2.2.5): shadows appear as negative deltas. Intermediate states can hold
+//! negative texels; completed states can only hold the small residue of
+//! discretization differences between what was shot and what is taken back
+//! (tests bound it), and [`DynamicSolver::radiosity`] clamps each channel
+//! at zero, so nothing negative is ever published.
+
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+
+use super::correct::Correction;
+use super::gather::GatherOptions;
+use super::profile::{Profiler, Stage, Unit};
+use super::progressive::{Move, ProgressiveOptions, ProgressiveSolver, Redistribution};
+use super::{Device, GpuError};
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::{Pose, Scene};
+
+/// Tuning of a [`DynamicSolver`].
+#[derive(Debug, Clone, Copy)]
+pub struct DynamicOptions {
+    /// How moves are followed.
+    pub method: Redistribution,
+    /// Unshot fractions of the emitted power at which full and incremental
+    /// states are published, and to which refinement continues (the last).
+    pub publish_at: [f64; 2],
+    /// Incremental only: every this many moves, the move is followed by a
+    /// full recompute instead (0: never). Incremental redistribution is
+    /// exact in theory (thesis §4.4) but each move leaves a little
+    /// discretization error (shooter tiles and item-buffer visibility of
+    /// the take-back differ from those of the original shots) and that
+    /// error random-walks: on cornell-low we measured an NRMSE against a
+    /// from-scratch solve of 0.3% after one move, 0.8% after 10, 1.5%
+    /// after 25, 2.1% after 50 and 4.8% after 200 moves. On this kind of
+    /// scene a full recompute costs about as much as one incremental move
+    /// (thesis Table 5.2 shows the same for the Cornell scenes), so
+    /// re-anchoring every 10 moves keeps the error near its one-move level
+    /// for about 10% more work.
+    pub reanchor_every: u32,
+    /// Gathered correction rounds ([`Correction`]) whenever the scene
+    /// holds still at poses it was not corrected at: after the first solve
+    /// and after every move once its state is complete and refined.
+    /// Progressive refinement alone leaves the light 2-3.5% off the
+    /// reference (NRMSE over the non-emitting elements; its hemicubes see
+    /// each shooter from one eye with yes-or-no visibility), and the
+    /// redistribution methods carry that error, and their own, from move
+    /// to move. Rounds bring a state that holds still to the gather
+    /// solver's accuracy (about 1%), whatever moves came before, so a
+    /// scene put back where it was shows what a fresh session shows. They
+    /// run a slice at a time (a sweep pass, a refinement batch), each
+    /// round ends in a published state, rounds stop early once the
+    /// residual is below [`CORRECTED_RESIDUAL`], and the next move cancels
+    /// them. With cross the moving objects take their residual as shown
+    /// light only (their light is each move's business). Three rounds: on
+    /// cornell-large at the file's density, after 19 jumps of
+    /// `teleport-stress.json` and back, two left one texel 6.1% off a
+    /// fresh session's, three 2.9% (the residual before the third round
+    /// was 1.8e-3 of the emitted power), at 5.2 and 8.4 s from the return
+    /// to the corrected state (`examples/round_trip.rs`). 0: none.
+    pub corrections: u32,
+    /// The progressive solver underneath.
+    pub progressive: ProgressiveOptions,
+}
+
+impl Default for DynamicOptions {
+    fn default() -> Self {
+        Self {
+            method: Redistribution::default(),
+            publish_at: [1e-2, 1e-3],
+            reanchor_every: 10,
+            corrections: 3,
+            progressive: ProgressiveOptions::default(),
+        }
+    }
+}
+
+/// Residual (power over emitted power) below which a correction round
+/// ends the rounds at the current poses: the residual is then no larger
+/// than the unshot power refinement leaves (the last publication level,
+/// [`DynamicOptions::publish_at`]).
+pub const CORRECTED_RESIDUAL: f64 = 1e-3;
+
+/// What one [`DynamicSolver::step`] did.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct DynamicStep {
+    /// A new complete state is ready ([`DynamicSolver::radiosity`]).
+    pub completed: bool,
+    /// Time spent on work caused by moves.
+    pub redistribution: Duration,
+    /// GPU batches run.
+    pub batches: u32,
+}
+
+/// The unit of work in progress.
+enum Phase {
+    /// Nothing to do until poses arrive or refinement is wanted.
+    Idle,
+    /// Progressive iterations with every object present, until the unshot
+    /// power crosses the next publication level (full, incremental).
+    Converging { after_move: bool },
+    /// A redistribution's batches.
+    Moving(Move),
+    /// Cross: progressive iterations on the static scene with the moving
+    /// objects passive in place, until the last publication level.
+    Settling,
+    /// Cross: progressive iterations on the static scene without the
+    /// moving objects until `level` (the first solve).
+    Refining { level: f64, after_move: bool },
+    /// Cross: moving objects are being inserted again.
+    Inserting(Move, bool),
+    /// Gathered corrections at poses that hold still, `left` rounds to go
+    /// after the running one; see [`Round`].
+    Correcting { round: Round, left: u32 },
+}
+
+/// Where a correction round of [`Phase::Correcting`] is. Each stage runs a
+/// slice at a time (a sweep pass, a refinement batch), so that a move that
+/// arrives waits for one slice, not for a round.
+enum Round {
+    /// The gather sweep is being built for the current poses (the first
+    /// round at these poses).
+    Building,
+    /// The sweep runs a pass at a time from `from`, the radiosity it
+    /// started from.
+    Sweeping {
+        correction: Box<Correction>,
+        from: Vec<Vec3>,
+    },
+    /// The residual was handed over; refinement spreads it.
+    Spreading {
+        correction: Box<Correction>,
+        residual: f64,
+    },
+}
+
+/// A GPU radiosity session that follows moving objects, with a tag of type
+/// `T` per set of poses; see the module doc.
+pub struct DynamicSolver<T> {
+    gpu: Device,
+    scene: Scene,
+    atlas: Atlas,
+    options: DynamicOptions,
+    solver: ProgressiveSolver,
+    phase: Phase,
+    /// Poses (and their tag) waiting for the running unit to finish.
+    pending: Option<(Vec<Pose>, T)>,
+    /// Tags of the poses the solver is working on, and of the last
+    /// completed state.
+    working: T,
+    reflected: T,
+    /// Index of the next level of `publish_at` to publish at.
+    next_level: usize,
+    /// Completed states so far.
+    versions: u64,
+    /// Incremental moves since the last full solve.
+    since_anchor: u32,
+    /// Whether the state at the current poses has had its gathered
+    /// corrections (or needs none): a move clears it.
+    corrected: bool,
+    /// Residual of each correction round run at the current poses (power
+    /// over emitted power, before the round).
+    residuals: Vec<f64>,
+    /// Where the time goes (disabled unless profiling, `gpu::profile`).
+    profile: Profiler,
+}
+
+impl<T: Clone> DynamicSolver<T> {
+    /// Uploads the scene at `poses`, tagged `tag` (the first complete
+    /// state reflects them). No work is done yet: the first solve runs in
+    /// [`DynamicSolver::step`]s like everything else.
+    pub fn new(
+        gpu: &Device,
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        tag: T,
+        options: DynamicOptions,
+    ) -> Result<Self, GpuError> {
+        let dynamic: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
+        let (mut solver, phase) = match options.method {
+            Redistribution::Cross => (
+                ProgressiveSolver::with_absent(
+                    gpu,
+                    scene,
+                    atlas,
+                    poses,
+                    &dynamic,
+                    options.progressive,
+                )?,
+                // The static set converges before the objects go in: their
+                // gathers read it once, and light that refinement shoots
+                // later onto them (passive) is not reflected until they
+                // move.
+                Phase::Refining {
+                    level: options.publish_at[1],
+                    after_move: false,
+                },
+            ),
+            _ => (
+                ProgressiveSolver::new(gpu, scene, atlas, poses, options.progressive)?,
+                Phase::Converging { after_move: false },
+            ),
+        };
+        if options.method == Redistribution::Cross {
+            solver.set_passive(&dynamic)?;
+        }
+        Ok(Self {
+            gpu: gpu.clone(),
+            scene: scene.clone(),
+            atlas: atlas.clone(),
+            options,
+            solver,
+            phase,
+            pending: None,
+            working: tag.clone(),
+            reflected: tag,
+            next_level: 0,
+            versions: 0,
+            since_anchor: 0,
+            corrected: options.corrections == 0 || !super::corrections_affordable(scene, atlas),
+            residuals: Vec::new(),
+            profile: Profiler::disabled(),
+        })
+    }
+
+    /// Times the session's units and stages into `profile` from now on
+    /// (`gpu::profile`; benchmarks only).
+    pub fn set_profiler(&mut self, profile: Profiler) {
+        self.solver.set_profiler(profile.clone());
+        self.profile = profile;
+    }
+
+    /// The redistribution method.
+    pub fn method(&self) -> Redistribution {
+        self.options.method
+    }
+
+    /// New poses for every object, tagged `tag`; they replace any poses
+    /// still waiting, and their tag (the latest wins).
+    pub fn set_poses(&mut self, poses: &[Pose], tag: T) {
+        self.pending = Some((poses.to_vec(), tag));
+    }
+
+    /// Whether nothing is running or waiting (the solution is as refined as
+    /// it will get until poses change): the last move's state is complete
+    /// and refined, and its gathered corrections have run.
+    pub fn is_idle(&self) -> bool {
+        self.is_settled() && self.corrected
+    }
+
+    /// Whether the work poses caused is done: nothing waits, and the state
+    /// is complete and refined to the last publication level. Only the
+    /// gathered corrections of a scene that holds still may be left
+    /// ([`DynamicOptions::corrections`]); a benchmark of moves stops here.
+    pub fn is_settled(&self) -> bool {
+        matches!(self.phase, Phase::Idle) && self.pending.is_none() && !self.wants_refinement()
+    }
+
+    /// Residual of each correction round run at the current poses, as a
+    /// fraction of the emitted power before the round (empty until a round
+    /// has run there).
+    pub fn correction_residuals(&self) -> &[f64] {
+        &self.residuals
+    }
+
+    /// Completed states so far.
+    pub fn versions(&self) -> u64 {
+        self.versions
+    }
+
+    /// The poses of the state being worked on (or last completed).
+    pub fn poses(&self) -> &[Pose] {
+        self.solver.poses()
+    }
+
+    /// The tag of the poses the last completed state reflects. A call to
+    /// [`DynamicSolver::set_poses`] with the poses that state already has
+    /// is reflected by it as soon as the session takes them up, without a
+    /// new state.
+    pub fn reflected(&self) -> &T {
+        &self.reflected
+    }
+
+    /// How far from converged the session is: unshot power over emitted
+    /// power. For cross that leaves out the moving objects' own unshot
+    /// radiosity, which is never shot (their light is each move's; see the
+    /// module doc).
+    pub fn unshot_fraction(&self) -> f64 {
+        self.solver.unshot_fraction()
+    }
+
+    /// The progressive solver underneath (for inspection in tests and
+    /// benchmarks).
+    pub fn progressive(&self) -> &ProgressiveSolver {
+        &self.solver
+    }
+
+    /// Radiosity per element of the current GPU state, each channel clamped
+    /// at zero (see the module doc on negative light). Read it after a step
+    /// that reported `completed`.
+    pub fn radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        Ok(self
+            .solver
+            .radiosity()?
+            .into_iter()
+            .map(|b| b.max(Vec3::ZERO))
+            .collect())
+    }
+
+    /// Radiosity without the clamp, to measure negative light.
+    pub fn raw_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        self.solver.total_radiosity()
+    }
+
+    fn wants_refinement(&self) -> bool {
+        self.solver.unshot_fraction() > self.options.publish_at[1]
+    }
+
+    /// Runs batches for about `budget` (at least one when there is work).
+    pub fn step(&mut self, budget: Duration) -> Result<DynamicStep, GpuError> {
+        let started = Instant::now();
+        let mut report = DynamicStep::default();
+        let mut redistributing = Duration::ZERO;
+        loop {
+            if report.batches > 0 && started.elapsed() >= budget {
+                break;
+            }
+            let unit_started = Instant::now();
+            let (ran, moved) = self.advance(&mut report)?;
+            if moved {
+                redistributing += unit_started.elapsed();
+            }
+            if !ran {
+                break;
+            }
+            report.batches += 1;
+            if report.completed {
+                // Publish before starting anything new.
+                break;
+            }
+        }
+        report.redistribution = redistributing;
+        Ok(report)
+    }
+
+    /// One batch (or the start of a unit). Returns (did something, was it
+    /// caused by a move).
+    fn advance(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
+        let levels = self.options.publish_at;
+        self.profile.set_unit(match self.phase {
+            Phase::Idle | Phase::Moving(_) => Unit::Move,
+            Phase::Converging { .. }
+            | Phase::Refining { .. }
+            | Phase::Settling
+            | Phase::Correcting { .. } => Unit::Refinement,
+            Phase::Inserting(..) => Unit::Insertion,
+        });
+        match std::mem::replace(&mut self.phase, Phase::Idle) {
+            Phase::Idle => {
+                if let Some((poses, tag)) = self.pending.take() {
+                    self.start_move(poses, tag)?;
+                    return Ok((true, true));
+                }
+                if self.wants_refinement() {
+                    self.phase = match self.options.method {
+                        Redistribution::Cross => Phase::Settling,
+                        _ => Phase::Converging { after_move: false },
+                    };
+                    return Ok((true, false));
+                }
+                if !self.corrected {
+                    self.residuals.clear();
+                    self.phase = Phase::Correcting {
+                        round: Round::Building,
+                        left: self.options.corrections.saturating_sub(1),
+                    };
+                    return Ok((true, false));
+                }
+                Ok((false, false))
+            }
+            Phase::Converging { after_move } => {
+                // A move may start at any batch boundary once the current
+                // poses have been published.
+                if self.pending.is_some() && self.next_level > 0 {
+                    return Ok((true, false));
+                }
+                let batches = self.profile.start();
+                let shot = self.solver.step(Duration::ZERO)?;
+                self.profile.stop(batches, Stage::Batches);
+                let unshot = shot.unshot_fraction;
+                let mut crossed = false;
+                while self.next_level < levels.len() && unshot <= levels[self.next_level] {
+                    self.next_level += 1;
+                    crossed = true;
+                }
+                if crossed {
+                    self.complete(report);
+                }
+                if shot.batches > 0 && self.next_level < levels.len() {
+                    self.phase = Phase::Converging {
+                        after_move: after_move && !crossed,
+                    };
+                } else if shot.batches == 0 && !crossed {
+                    // Nothing left to shoot: converged as far as it goes.
+                    self.next_level = levels.len();
+                    self.complete(report);
+                }
+                Ok((true, after_move))
+            }
+            Phase::Moving(mut mv) => {
+                let more = self.solver.move_step(&mut mv)?;
+                if more {
+                    self.phase = Phase::Moving(mv);
+                } else if self.options.method == Redistribution::Cross {
+                    self.complete(report);
+                } else {
+                    self.next_level = 0;
+                    self.phase = Phase::Converging { after_move: true };
+                }
+                Ok((true, true))
+            }
+            Phase::Settling => {
+                // Newer poses cut refinement short: what is left stays
+                // unshot, and the state the next move publishes carries
+                // what was shot so far (any state reflects the poses).
+                if self.pending.is_some() {
+                    return Ok((true, false));
+                }
+                let batches = self.profile.start();
+                let shot = self.solver.step(Duration::ZERO)?;
+                self.profile.stop(batches, Stage::Batches);
+                if shot.batches > 0 && shot.unshot_fraction > levels[1] {
+                    self.phase = Phase::Settling;
+                } else {
+                    self.complete(report);
+                }
+                Ok((true, false))
+            }
+            Phase::Refining { level, after_move } => {
+                let batches = self.profile.start();
+                let shot = self.solver.step(Duration::ZERO)?;
+                self.profile.stop(batches, Stage::Batches);
+                if shot.batches > 0 && shot.unshot_fraction > level {
+                    self.phase = Phase::Refining { level, after_move };
+                } else {
+                    // Insert at the newest poses: a move that arrived
+                    // meanwhile costs nothing extra.
+                    let poses = match self.pending.take() {
+                        Some((poses, tag)) => {
+                            self.working = tag;
+                            poses
+                        }
+                        None => self.solver.poses().to_vec(),
+                    };
+                    let present = vec![false; poses.len()];
+                    self.profile.set_unit(Unit::Insertion);
+                    let mv = self
+                        .solver
+                        .begin_move(&poses, &present, Redistribution::Cross)?;
+                    self.phase = Phase::Inserting(mv, after_move);
+                }
+                Ok((true, after_move))
+            }
+            Phase::Inserting(mut mv, after_move) => {
+                if self.solver.move_step(&mut mv)? {
+                    self.phase = Phase::Inserting(mv, after_move);
+                } else {
+                    // The first state is published uncorrected: light
+                    // reaches the clients seconds sooner, and the
+                    // corrected one follows once the scene holds still.
+                    self.complete(report);
+                }
+                Ok((true, after_move))
+            }
+            Phase::Correcting { round, left } => {
+                // A move cancels the rounds: what a round already handed
+                // over stays unshot for refinement after the move, as any
+                // unshot light does (the residual is a change of the light
+                // like any other, thesis §2.2.5).
+                if self.pending.is_some() {
+                    return Ok((true, false));
+                }
+                let batches = self.profile.start();
+                self.correct(round, left, report)?;
+                self.profile.stop(batches, Stage::Batches);
+                Ok((true, false))
+            }
+        }
+    }
+
+    /// One slice of a correction round (see [`Round`]).
+    fn correct(
+        &mut self,
+        round: Round,
+        left: u32,
+        report: &mut DynamicStep,
+    ) -> Result<(), GpuError> {
+        // Cross holds the moving objects' light as each move left it (see
+        // the module doc): they are frozen, as in refinement.
+        let frozen: Vec<bool> = match self.options.method {
+            Redistribution::Cross => self.scene.objects.iter().map(|o| o.dynamic).collect(),
+            _ => Vec::new(),
+        };
+        let round = match round {
+            Round::Building => {
+                let mut correction = Box::new(Correction::new(
+                    &self.gpu,
+                    &self.scene,
+                    &self.atlas,
+                    self.solver.poses(),
+                    GatherOptions::default(),
+                )?);
+                let from = correction.begin(&self.solver)?;
+                Round::Sweeping { correction, from }
+            }
+            Round::Sweeping {
+                mut correction,
+                from,
+            } => {
+                if correction.sweep_pass()? {
+                    let residual = correction.hand_over(&mut self.solver, &from, &frozen)?;
+                    self.residuals.push(residual);
+                    Round::Spreading {
+                        correction,
+                        residual,
+                    }
+                } else {
+                    Round::Sweeping { correction, from }
+                }
+            }
+            Round::Spreading {
+                mut correction,
+                residual,
+            } => {
+                let shot = self.solver.step(Duration::ZERO)?;
+                if shot.batches > 0 && shot.unshot_fraction > self.options.publish_at[1] {
+                    Round::Spreading {
+                        correction,
+                        residual,
+                    }
+                } else {
+                    // A round is a complete state: publish it.
+                    self.complete(report);
+                    if left == 0 || residual <= CORRECTED_RESIDUAL {
+                        self.corrected = true;
+                        return Ok(());
+                    }
+                    let from = correction.begin(&self.solver)?;
+                    self.phase = Phase::Correcting {
+                        round: Round::Sweeping { correction, from },
+                        left: left - 1,
+                    };
+                    return Ok(());
+                }
+            }
+        };
+        self.phase = Phase::Correcting { round, left };
+        Ok(())
+    }
+
+    fn start_move(&mut self, poses: Vec<Pose>, tag: T) -> Result<(), GpuError> {
+        self.working = tag;
+        if poses.as_slice() == self.solver.poses() {
+            // Same poses: the state already reflects them.
+            self.reflected = self.working.clone();
+            return Ok(());
+        }
+        if self.options.corrections > 0 && super::corrections_affordable(&self.scene, &self.atlas) {
+            self.corrected = false;
+        }
+        let mut method = self.options.method;
+        if method == Redistribution::Incremental {
+            self.since_anchor += 1;
+            if self.options.reanchor_every > 0 && self.since_anchor >= self.options.reanchor_every {
+                method = Redistribution::Full;
+            }
+        }
+        match method {
+            Redistribution::Full => {
+                self.since_anchor = 0;
+                let setup = self.profile.start();
+                self.solver = ProgressiveSolver::new(
+                    &self.gpu,
+                    &self.scene,
+                    &self.atlas,
+                    &poses,
+                    self.options.progressive,
+                )?;
+                self.profile.stop(setup, Stage::SolverSetup);
+                self.solver.set_profiler(self.profile.clone());
+                self.next_level = 0;
+                self.phase = Phase::Converging { after_move: true };
+            }
+            method => {
+                let absent = self.solver.absent().to_vec();
+                let mv = self.solver.begin_move(&poses, &absent, method)?;
+                self.phase = Phase::Moving(mv);
+            }
+        }
+        Ok(())
+    }
+
+    fn complete(&mut self, report: &mut DynamicStep) {
+        self.reflected = self.working.clone();
+        self.versions += 1;
+        report.completed = true;
+    }
+}
