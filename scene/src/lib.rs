@@ -33,6 +33,7 @@ pub mod load;
 mod pairs;
 pub mod texture;
 pub mod unwrap;
+pub mod uv;
 pub mod uvmap;
 mod validate;
 

@@ -47,7 +47,7 @@ pub const BORDER: f32 = 2.0;
 pub const WELD: f32 = 1e-5;
 /// The largest block generated (texels); larger meshes are scaled down to
 /// it (fewer texels per metre than their density asks).
-pub const MAX_SIDE: f32 = crate::atlas::uv::MAX_SIDE as f32;
+pub const MAX_SIDE: f32 = crate::uv::MAX_SIDE as f32;
 
 /// A mesh's generated lightmap UVs.
 #[derive(Debug, Clone)]
@@ -495,7 +495,7 @@ mod tests {
         // An affine map sends the cell corners to a square grid: every
         // cell's two triangles have equal UV area, in texels 4² each.
         for (t, uv) in tris.iter().zip(&u.uvs) {
-            let area = crate::atlas::uv::uv_area(uv) * u.side * u.side;
+            let area = crate::uv::uv_area(uv) * u.side * u.side;
             assert!((area - 8.0).abs() < 1e-2, "{t:?}: {area}");
         }
         // 6 m at 4 texels/m plus the borders.
@@ -544,7 +544,7 @@ mod tests {
                     "{uv:?}"
                 );
             }
-            assert!(crate::atlas::uv::uv_area(uv) > 0.0, "{uv:?} is turned over");
+            assert!(crate::uv::uv_area(uv) > 0.0, "{uv:?} is turned over");
         }
         let overlaps = crate::gltf::find_uv_overlaps(&u.uvs, 4).expect("checkable");
         assert!(overlaps.is_empty(), "{overlaps:?}");
@@ -559,7 +559,7 @@ mod tests {
             .iter()
             .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
             .sum();
-        let uv_area: f32 = u.uvs.iter().map(crate::atlas::uv::uv_area).sum();
+        let uv_area: f32 = u.uvs.iter().map(crate::uv::uv_area).sum();
         let side = density * (area / uv_area).sqrt();
         assert!(
             side >= u.side - 1e-3,

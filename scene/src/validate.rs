@@ -638,7 +638,7 @@ fn mesh(
         })
         .collect();
     let zero: Vec<usize> = (0..tris.len())
-        .filter(|&k| crate::atlas::uv::uv_area(&tris[k]).abs() * 2.0 <= 1e-12)
+        .filter(|&k| crate::uv::uv_area(&tris[k]).abs() * 2.0 <= 1e-12)
         .collect();
     for &k in zero.iter().take(MAX_LISTED_TRIANGLES) {
         c.report(

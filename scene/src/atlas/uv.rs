@@ -34,10 +34,8 @@
 
 use glam::{DVec2, Vec2, Vec3};
 
+use crate::uv::{MAX_SIDE, uv_area};
 use crate::{Scene, UvMesh};
-
-/// The side of a mesh's lightmap block is at most this many texels.
-pub const MAX_SIDE: u32 = 4096;
 
 /// Affine map from patch parameters `(s, t)` to a chart's texel
 /// coordinates, texel `(a, b)`'s centre at `(a, b)`: `origin + s ds + t dt`.
@@ -99,11 +97,6 @@ pub fn block_side(scene: &Scene, mesh: &UvMesh) -> u32 {
         MAX_SIDE
     };
     side.div_ceil(4).saturating_mul(4).clamp(16, MAX_SIDE)
-}
-
-/// Signed area of a UV triangle (positive counter-clockwise).
-pub fn uv_area([a, b, c]: &[Vec2; 3]) -> f32 {
-    0.5 * (*b - *a).perp_dot(*c - *a)
 }
 
 /// Signed area of a polygon (positive counter-clockwise).

@@ -45,6 +45,7 @@ mod regather;
 mod resources;
 mod shoot;
 mod shooters;
+mod slot;
 
 #[cfg(test)]
 pub(in crate::gpu) use pipelines::{PROGRESSIVE_PASSES, REDISTRIBUTION_PASSES};

@@ -62,9 +62,10 @@ use glam::Vec3;
 
 use super::pipelines::{
     GATHER_MOVING, RECONSTRUCT_DYN, REGATHER_MOVING, RESET_MOVING, SHADE_BACK, SHADE_STATIC,
-    SHADE_TOTAL, SHOOTER_ENERGY_DYN, SMOOTH_MOVING, slot,
+    SHADE_TOTAL, SHOOTER_ENERGY_DYN, SMOOTH_MOVING,
 };
 use super::shooters::contact_limit;
+use super::slot;
 use super::{BatchUniform, GpuError, GpuShooter, ProgressiveSolver};
 use crate::direct::element_direct_light;
 use crate::gpu::buffers::{WORKGROUP, encode_compute, encode_compute_grid, texture, v4};

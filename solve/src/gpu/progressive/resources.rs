@@ -4,8 +4,8 @@
 use bytemuck::Zeroable;
 use wgpu::util::DeviceExt;
 
-use super::pipelines::slot;
 use super::shoot::{BatchUniform, Selection};
+use super::slot;
 use crate::gpu::binding::Resources;
 use crate::gpu::buffers::texture;
 use crate::gpu::hemicube::{self, FACES, GpuVertex};
