@@ -351,8 +351,8 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 /// Writes all bake outputs for per-element radiosity `values`.
 /// Writes `lightmap.exr`, `lightmap.png`, `atlas.json`, `stats.json`,
 /// `scene.glb` and, for glTF meshes with their own lightmap UVs, their
-/// lightmaps in `uv-lightmaps/`; seams are stitched and invalid texels ([`lightwire_solve::validity`])
-/// filled from their neighbours first (`Validity::fill`).
+/// lightmaps in `uv-lightmaps/`, all of the image a client would receive
+/// ([`crate::publish::lightmap`]).
 pub fn write_outputs(
     dir: &Path,
     scene: &Scene,
@@ -363,12 +363,9 @@ pub fn write_outputs(
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating output directory {}", dir.display()))?;
-    // Seams stitched, and texels inside or under geometry take their
-    // visible neighbours' light, so that a client's bilinear filter never
-    // blends them in.
-    let mut values = values.to_vec();
-    lightwire_solve::validity::Validity::compute(scene, atlas, poses).fill(atlas, &mut values);
-    let image = atlas.to_image(&values);
+    // What a client would receive for this state (crate::publish).
+    let validity = lightwire_solve::validity::Validity::compute(scene, atlas, poses);
+    let image = crate::publish::lightmap(atlas, &validity, &mut values.to_vec());
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;
     write_json(&dir.join("stats.json"), stats)?;

@@ -193,7 +193,8 @@ fn settle(live: &mut GpuLive<u32>, atlas: &Atlas) -> Result<Vec<[f32; 3]>> {
             bail!("the solver did not go idle within 10 minutes");
         }
     }
-    Ok(atlas.to_image(live.radiosity()))
+    let mut radiosity = live.radiosity().to_vec();
+    Ok(crate::publish::lightmap(atlas, live.validity(), &mut radiosity))
 }
 
 /// Records (or loads the cached recording of) `scene_path` under the script
@@ -243,7 +244,7 @@ pub fn record(
     let mut live = GpuLive::new(
         gpu.clone(),
         &scene,
-        atlas.clone(),
+        &atlas,
         &poses,
         0,
         settings.method,

@@ -352,8 +352,7 @@ impl Publication {
         let mut values = session.radiosity()?;
         profile.stop(readback, Stage::Readback);
         let encode = profile.start();
-        session.progressive().validity().fill(atlas, &mut values);
-        let image = atlas.to_image(&values);
+        let image = crate::publish::lightmap(atlas, session.progressive().validity(), &mut values);
         std::hint::black_box(self.encoder.publish(&image, Vec::new()));
         profile.stop(encode, Stage::Encode);
         Ok(())
@@ -467,6 +466,7 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
 
     let dir = settings.out.join(&scene.name);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    // The reference as solved (its white point scales every image).
     let expected_image = atlas.to_image(&expected);
     let white = white_point(&expected_image);
     write_png_with(
@@ -476,14 +476,13 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         &expected_image,
         white,
     )?;
-    // Images show what a client would see: seams stitched, invalid texels
-    // filled.
+    // Images show what a client would see (crate::publish).
     let write_images = |name: &str, values: &[Vec3], against: &[Vec3]| -> Result<()> {
         let (mut values, mut against) = (values.to_vec(), against.to_vec());
-        visible_last.fill(&atlas, &mut values);
-        visible_last.fill(&atlas, &mut against);
+        let image = crate::publish::lightmap(&atlas, &visible_last, &mut values);
+        // The difference is taken between two published states.
+        crate::publish::lightmap(&atlas, &visible_last, &mut against);
         let (values, against) = (&values[..], &against[..]);
-        let image = atlas.to_image(values);
         write_png_with(
             &dir.join(format!("{name}.png")),
             atlas.width,

@@ -24,6 +24,7 @@ use glam::Vec3;
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Pose, Scene};
 use lightwire_solve::reference::{ReferenceSolver, Silent, SolveOptions};
+use lightwire_solve::validity::Validity;
 
 /// What one call to [`LiveSolver::step`] did.
 #[derive(Debug, Clone, Copy)]
@@ -55,8 +56,13 @@ pub trait LiveSolver<T>: Send {
     /// Does up to about `budget` of work. An error means the solver is
     /// unusable (its state may be corrupt); it is not called again.
     fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure>;
-    /// The latest complete state: radiosity per element.
+    /// The latest complete state: radiosity per element, as solved (the
+    /// tick loop publishes it through [`crate::publish`]).
     fn radiosity(&self) -> &[Vec3];
+    /// Which elements of the latest complete state are valid (not inside
+    /// or under geometry at its poses); valid for the state of
+    /// [`LiveSolver::radiosity`] until the next call to `step`.
+    fn validity(&self) -> &Validity;
     /// The tag of the poses that [`LiveSolver::radiosity`] reflects. Poses
     /// equal to those of the state it has are reflected by it as soon as
     /// the solver takes them up, without a new state.
@@ -93,6 +99,7 @@ pub struct ReferenceLive<T> {
     reflected: T,
     dirty: bool,
     radiosity: Vec<Vec3>,
+    validity: Validity,
     residual: f64,
     injected: bool,
 }
@@ -102,6 +109,7 @@ impl<T: Clone> ReferenceLive<T> {
     pub fn new(scene: Scene, atlas: Atlas, poses: &[Pose], tag: T) -> Self {
         Self {
             radiosity: vec![Vec3::ZERO; atlas.elements.len()],
+            validity: Validity::all_valid(&atlas),
             reflected: tag.clone(),
             tag,
             scene,
@@ -157,10 +165,7 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
             }
         };
         self.radiosity = solution.radiosity;
-        // Seams stitched; texels inside or under geometry take their
-        // neighbours' light.
-        lightwire_solve::validity::Validity::compute(&self.scene, &self.atlas, &self.poses)
-            .fill(&self.atlas, &mut self.radiosity);
+        self.validity = Validity::compute(&self.scene, &self.atlas, &self.poses);
         self.residual = solution.residual_fraction;
         self.reflected = self.tag.clone();
         let spent = started.elapsed();
@@ -174,6 +179,10 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
 
     fn radiosity(&self) -> &[Vec3] {
         &self.radiosity
+    }
+
+    fn validity(&self) -> &Validity {
+        &self.validity
     }
 
     fn reflected(&self) -> &T {
@@ -207,7 +216,6 @@ pub struct GpuLive<T> {
     device: lightwire_solve::gpu::Device,
     /// The session; its `reflected` is the tag of `radiosity`.
     session: lightwire_solve::gpu::DynamicSolver<T>,
-    atlas: Atlas,
     /// The last complete state, read back.
     radiosity: Vec<Vec3>,
     name: &'static str,
@@ -220,7 +228,7 @@ impl<T: Clone> GpuLive<T> {
     pub fn new(
         device: lightwire_solve::gpu::Device,
         scene: &Scene,
-        atlas: Atlas,
+        atlas: &Atlas,
         poses: &[Pose],
         tag: T,
         method: lightwire_solve::gpu::Redistribution,
@@ -236,7 +244,7 @@ impl<T: Clone> GpuLive<T> {
                 .with_hints(&scene.solver),
             ..Default::default()
         };
-        if options.corrections > 0 && !lightwire_solve::gpu::corrections_affordable(scene, &atlas) {
+        if options.corrections > 0 && !lightwire_solve::gpu::corrections_affordable(scene, atlas) {
             tracing::warn!(
                 scene = %scene.name,
                 elements = atlas.elements.len(),
@@ -247,7 +255,7 @@ impl<T: Clone> GpuLive<T> {
             );
         }
         let (session, error) = device.capture(|| {
-            lightwire_solve::gpu::DynamicSolver::new(&device, scene, &atlas, poses, tag, options)
+            lightwire_solve::gpu::DynamicSolver::new(&device, scene, atlas, poses, tag, options)
         });
         let session = session?;
         if let Some(e) = error.or_else(|| device.failure()) {
@@ -260,7 +268,6 @@ impl<T: Clone> GpuLive<T> {
             name: method.name(),
             device,
             session,
-            atlas,
         })
     }
 
@@ -271,17 +278,10 @@ impl<T: Clone> GpuLive<T> {
             .step(budget)
             .map_err(|e| SolverFailure(format!("GPU solver step failed: {e}")))?;
         if step.completed {
-            let mut r = self
+            self.radiosity = self
                 .session
                 .radiosity()
                 .map_err(|e| SolverFailure(format!("reading back radiosity failed: {e}")))?;
-            // Seams stitched; texels inside or under geometry at the
-            // state's poses take their neighbours' light.
-            self.session
-                .progressive()
-                .validity()
-                .fill(&self.atlas, &mut r);
-            self.radiosity = r;
         }
         Ok(StepReport {
             completed: step.completed,
@@ -334,6 +334,9 @@ impl<T: Clone + Send> LiveSolver<T> for GpuLive<T> {
 
     fn radiosity(&self) -> &[Vec3] {
         &self.radiosity
+    }
+    fn validity(&self) -> &Validity {
+        self.session.progressive().validity()
     }
     fn reflected(&self) -> &T {
         self.session.reflected()

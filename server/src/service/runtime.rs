@@ -195,7 +195,7 @@ impl SceneRuntime {
                 Box::new(move |poses: &[Pose], tag: Tag| {
                     let device = lightwire_solve::gpu::Device::new(adapter.as_deref())?;
                     tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
-                    let solver = GpuLive::new(device, &scene, atlas.clone(), poses, tag, method)?;
+                    let solver = GpuLive::new(device, &scene, &atlas, poses, tag, method)?;
                     Ok(Box::new(solver) as Solver)
                 })
             }
@@ -227,6 +227,7 @@ impl SceneRuntime {
             name: solver.name(),
             solver: Some(solver),
             has_state: false,
+            image: Vec::new(),
             build,
             episode: None,
             fail_at_seq: config.test_fail_solver.map(|h| h.at_seq),
@@ -290,6 +291,10 @@ struct TickLoop {
     solver: Option<Solver>,
     /// The solver has completed a state (its `radiosity` is one).
     has_state: bool,
+    /// The image of the solver's latest complete state, as a client
+    /// receives it ([`crate::publish`]); published again, unchanged, by
+    /// the versions that only echo seqs or flush the encoder.
+    image: Vec<[f32; 3]>,
     name: &'static str,
     build: Build,
     episode: Option<Episode>,
@@ -531,8 +536,15 @@ impl TickLoop {
                 self.has_state = true;
                 let poses = dynamic_poses(&self.runtime.info, &solved);
                 published = solved;
-                let image = self.runtime.atlas.to_image(solver.radiosity());
-                let delta = self.encoder.publish(&image, reflected);
+                if report.completed {
+                    let mut radiosity = solver.radiosity().to_vec();
+                    self.image = crate::publish::lightmap(
+                        &self.runtime.atlas,
+                        solver.validity(),
+                        &mut radiosity,
+                    );
+                }
+                let delta = self.encoder.publish(&self.image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();
                 self.publisher
@@ -620,6 +632,9 @@ mod tests {
         }
         fn radiosity(&self) -> &[glam::Vec3] {
             &[]
+        }
+        fn validity(&self) -> &lightwire_solve::validity::Validity {
+            unreachable!("a broken solver completes no state")
         }
         fn reflected(&self) -> &() {
             &()
