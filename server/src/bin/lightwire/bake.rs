@@ -12,7 +12,75 @@ pub(crate) use lightwire_solve::solver::SolverKind;
 use lightwire_solve::solver::{self, SolverSettings};
 
 use lightwire_scene::LoadOptions;
+
+use crate::args::ChartsArg;
 use lightwire_scene::load::load_scene;
+
+/// `lightwire bake`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct BakeArgs {
+    /// The scene file (JSON, see scenes/README.md).
+    #[arg(long)]
+    scene: PathBuf,
+    /// Which solver computes the lightmap.
+    #[arg(long, value_enum, default_value_t = SolverKind::Reference)]
+    solver: SolverKind,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    out: PathBuf,
+    /// Multiply every texel density of the scene by this factor.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    #[command(flatten)]
+    charts: ChartsArg,
+    /// Reference: stop when one sweep adds less than this fraction of
+    /// the emitted power. Progressive: stop when the unshot power is
+    /// below this fraction of the emitted power. Gather: stop when one
+    /// bounce changes less than this fraction of the emitted power.
+    #[arg(long, default_value_t = 1e-4)]
+    tolerance: f64,
+    /// GPU solvers: use the adapter whose name contains this
+    /// (case-insensitive); default: prefer a discrete GPU.
+    #[arg(long)]
+    adapter: Option<String>,
+    /// GPU solvers: top-face resolution of the hemicubes [default: 64
+    /// for progressive, 32 for gather].
+    #[arg(long)]
+    hemicube_resolution: Option<u32>,
+    /// GPU solvers: write indirect light only (gems §39.4).
+    #[arg(long)]
+    indirect_only: bool,
+    /// Path tracer: paths per element [default: 256].
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Progressive: gathered correction rounds after refinement (each
+    /// gathers once and refines what that changed; 0 = refinement only)
+    /// [default: 2].
+    #[arg(long)]
+    corrections: Option<u32>,
+}
+
+impl BakeArgs {
+    pub(crate) fn run(self) -> Result<()> {
+        bake_command(
+            self.scene,
+            self.solver,
+            self.out,
+            LoadOptions {
+                density_scale: self.density_scale,
+                charts: self.charts.charts,
+            },
+            SolveSettings {
+                tolerance: self.tolerance,
+                adapter: self.adapter,
+                hemicube_resolution: self.hemicube_resolution,
+                indirect_only: self.indirect_only,
+                spp: self.spp,
+                corrections: self.corrections,
+            },
+        )
+    }
+}
 
 /// Solver settings from the command line.
 pub(crate) struct SolveSettings {
@@ -74,7 +142,7 @@ impl solver::Progress for StderrProgress {
     }
 }
 
-pub(crate) fn bake_command(
+fn bake_command(
     path: PathBuf,
     kind: SolverKind,
     out: PathBuf,

@@ -4,9 +4,282 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use lightwire_scene::{Charts, LoadOptions, Scene};
+use lightwire_scene::{Charts, LoadOptions, Scene, SolverHints};
 use lightwire_server::bench;
 use lightwire_solve::gpu;
+
+use crate::args::{ChartsArg, form_factor_threshold, shared_batch_ratio};
+
+/// `lightwire bench`'s subcommands.
+#[derive(clap::Subcommand)]
+pub(crate) enum BenchCommand {
+    /// Per scene: the progressive solver's time to 10%, 1% and 0.1%
+    /// unshot power and shots per second; the reference and the gather
+    /// solver on the same atlas, timed to the same fractions of power
+    /// changed per sweep or bounce; NRMSE and p95 relative error against
+    /// the reference over the non-emitting elements.
+    Solve(SolveArgs),
+    /// Per scene with a dynamic object (thesis Tables 5.1, 5.2): the box
+    /// rotates a few degrees per frame; milliseconds per frame of gather,
+    /// full progressive, incremental and cross redistribution, their NRMSE
+    /// and p95 relative error (non-emitting elements) against a
+    /// high-quality reference, and atlas PNGs with x5 difference images.
+    Dynamic(DynamicArgs),
+    /// Triangle meshes of growing size (wallner Table 1): tessellated
+    /// Cornell boxes of about the given triangle counts, written as .glb,
+    /// opened as scenes (load time, atlas, elements) and solved by the
+    /// progressive solver to 1% unshot power or the time limit.
+    Meshes(MeshesArgs),
+    /// Per scene and transform script: records the solver's lightmap at
+    /// every version (the script sampled at --rate), then runs the stream
+    /// codecs over the recording side by side: bytes per version, encode
+    /// and decode time, and the deviation a viewer sees.
+    Codec(CodecArgs),
+}
+
+impl BenchCommand {
+    pub(crate) fn run(self) -> Result<()> {
+        match self {
+            Self::Solve(args) => args.run(),
+            Self::Dynamic(args) => args.run(),
+            Self::Meshes(args) => args.run(),
+            Self::Codec(args) => bench_codec_command(args),
+        }
+    }
+}
+
+/// `lightwire bench solve`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct SolveArgs {
+    /// Scene files; default: the four thesis scenes and cornell-blocks
+    /// in scenes/.
+    #[arg(long = "scene")]
+    scenes: Vec<PathBuf>,
+    /// Multiply every texel density by this factor.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    /// Also write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Use the adapter whose name contains this.
+    #[arg(long)]
+    adapter: Option<String>,
+    /// Progressive solver: top-face resolution of the hemicubes.
+    #[arg(long, default_value_t = 64)]
+    hemicube_resolution: u32,
+    /// Gather solver: top-face resolution of the hemicubes.
+    #[arg(long, default_value_t = 32)]
+    gather_resolution: u32,
+    /// Progressive solver: a batch fills the shooter slots its patch
+    /// leaves free with the next patches holding at least this share
+    /// of its unshot power; 0: one patch per batch [default: 0.5].
+    #[arg(long, value_parser = shared_batch_ratio)]
+    shared_batch_ratio: Option<f32>,
+    /// Progressive solver: shoot every triangle as its own patch, not
+    /// in clusters of near-coplanar triangles.
+    #[arg(long)]
+    no_clusters: bool,
+    #[command(flatten)]
+    charts: ChartsArg,
+}
+
+/// `lightwire bench dynamic`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct DynamicArgs {
+    /// Scene files, each with a dynamic object; default: the four
+    /// thesis scenes in scenes/ (cornell-blocks, static only, is
+    /// skipped).
+    #[arg(long = "scene")]
+    scenes: Vec<PathBuf>,
+    /// Multiply every texel density by this factor.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    /// Frames each redistribution method follows.
+    #[arg(long, default_value_t = 10)]
+    frames: u32,
+    /// Frames the gather solver follows (it solves from scratch).
+    #[arg(long, default_value_t = 2)]
+    gather_frames: u32,
+    /// Rotation of the box per frame, degrees.
+    #[arg(long, default_value_t = 2.0)]
+    degrees: f32,
+    /// Methods to run, comma-separated: gather, progressive,
+    /// incremental, cross (default: all four).
+    #[arg(long, value_delimiter = ',', default_values_t = bench::dynamic::Method::ALL)]
+    methods: Vec<bench::dynamic::Method>,
+    /// Directory for the images (a subdirectory per scene).
+    #[arg(long, default_value = "bench-out/dynamic")]
+    out: PathBuf,
+    /// Also write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Use the adapter whose name contains this.
+    #[arg(long)]
+    adapter: Option<String>,
+    /// Break each redistribution method's frames down by stage (a
+    /// table per scene and method, and `profile` in the JSON).
+    #[arg(long)]
+    profile: bool,
+    /// Clock of the breakdown's GPU stages: gpu (timestamp queries,
+    /// CPU timing where the adapter has none) or cpu (submit and wait
+    /// per stage).
+    #[arg(long, value_enum, default_value = "gpu")]
+    profile_clock: gpu::profile::Clock,
+    /// Cross redistribution: moving patches are cut into tiles of at
+    /// most this many texels per side [default: 5].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    cross_tile: Option<u32>,
+    /// Cross redistribution: rays per side of the grid through each
+    /// tile for the cross projection (thesis Alg. 4.5 gridSize); wins
+    /// over the scene file's `solver.cross_grid` [default: 4].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=i64::from(SolverHints::MAX_CROSS_GRID)))]
+    cross_grid: Option<u32>,
+    /// Cross redistribution: a receiver whose form factor to a tile is
+    /// below this samples the tile's projection through a grid of half
+    /// the side (0: never); wins over the scene file's
+    /// `solver.cross_coarse_below` [default: 0.005].
+    #[arg(long, value_parser = form_factor_threshold)]
+    cross_coarse_below: Option<f32>,
+    /// Progressive refinement (the full method's solves, every
+    /// session's refinement): a batch fills the shooter slots its
+    /// patch leaves free with the next patches holding at least this
+    /// share of its unshot power; 0: one patch per batch [default: 0.5].
+    #[arg(long, value_parser = shared_batch_ratio)]
+    shared_batch_ratio: Option<f32>,
+    /// Top-face resolution of the progressive solver's item-buffer
+    /// hemicubes, in pixels (every method but gather) [default: 64].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..=512))]
+    hemicube_resolution: Option<u32>,
+    /// Cross redistribution: top-face resolution of the back hemicubes
+    /// of shot radiosity (thesis §4.5.2); wins over the scene file's
+    /// `solver.back_resolution` [default: 32].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(
+        i64::from(SolverHints::MIN_BACK_RESOLUTION)..=i64::from(SolverHints::MAX_BACK_RESOLUTION)
+    ))]
+    back_resolution: Option<u32>,
+    /// Gathered correction rounds whenever the session holds still
+    /// (0: none) [default: 3]; frames end before them, and the last
+    /// frame's corrected state is timed and judged apart.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
+    corrections: Option<u32>,
+    #[command(flatten)]
+    charts: ChartsArg,
+}
+
+/// `lightwire bench meshes`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct MeshesArgs {
+    /// Triangle counts (each rounded to 24 k², k cells per quad side).
+    #[arg(long, value_delimiter = ',', default_values_t = [1_000usize, 10_000, 100_000])]
+    triangles: Vec<usize>,
+    /// Multiply the default texel density (about 16,384 texels on the
+    /// surface) by this factor.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    /// Stop a solve after this many seconds.
+    #[arg(long, default_value_t = 600)]
+    max_seconds: u64,
+    /// Directory for the generated .glb files.
+    #[arg(long, default_value = "bench-out/meshes")]
+    out: PathBuf,
+    /// Also write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Use the adapter whose name contains this.
+    #[arg(long)]
+    adapter: Option<String>,
+    /// A batch fills the shooter slots its patch leaves free with the
+    /// next patches holding at least this share of its unshot power;
+    /// 0: one patch per batch [default: 0.5].
+    #[arg(long, value_parser = shared_batch_ratio)]
+    shared_batch_ratio: Option<f32>,
+    /// Shoot every triangle as its own patch, not in clusters of
+    /// near-coplanar triangles (the solver before clusters).
+    #[arg(long)]
+    no_clusters: bool,
+    #[command(flatten)]
+    charts: ChartsArg,
+}
+
+impl SolveArgs {
+    fn run(self) -> Result<()> {
+        bench_solve_command(
+            self.scenes,
+            self.density_scale,
+            self.json,
+            self.adapter.as_deref(),
+            (self.hemicube_resolution, self.gather_resolution),
+            (self.shared_batch_ratio, !self.no_clusters),
+            self.charts.charts,
+        )
+    }
+}
+
+impl DynamicArgs {
+    fn run(self) -> Result<()> {
+        let defaults = gpu::ProgressiveOptions::default();
+        let progressive = gpu::ProgressiveOptions {
+            cross_tile: self.cross_tile.unwrap_or(defaults.cross_tile),
+            cross_grid: self.cross_grid.unwrap_or(defaults.cross_grid),
+            cross_coarse_below: self
+                .cross_coarse_below
+                .unwrap_or(defaults.cross_coarse_below),
+            shared_batch_ratio: self
+                .shared_batch_ratio
+                .unwrap_or(defaults.shared_batch_ratio),
+            hemicube_resolution: self
+                .hemicube_resolution
+                .unwrap_or(defaults.hemicube_resolution),
+            back_resolution: self.back_resolution.unwrap_or(defaults.back_resolution),
+            ..defaults
+        };
+        let settings = bench::dynamic::Settings {
+            frames: self.frames,
+            gather_frames: self.gather_frames,
+            degrees_per_frame: self.degrees,
+            methods: self.methods,
+            density_scale: self.density_scale,
+            charts: self.charts.charts,
+            progressive,
+            stated: SolverHints {
+                cross_grid: self.cross_grid,
+                back_resolution: self.back_resolution,
+                cross_coarse_below: self.cross_coarse_below,
+            },
+            gather: gpu::GatherOptions::default(),
+            corrections: self
+                .corrections
+                .unwrap_or(gpu::DynamicOptions::default().corrections),
+            out: self.out,
+            profile: self.profile.then_some(self.profile_clock),
+        };
+        bench_dynamic_command(self.scenes, settings, self.json, self.adapter.as_deref())
+    }
+}
+
+impl MeshesArgs {
+    fn run(self) -> Result<()> {
+        let settings = bench::meshes::Settings {
+            density_scale: self.density_scale,
+            limit: std::time::Duration::from_secs(self.max_seconds),
+            progressive: gpu::ProgressiveOptions {
+                shared_batch_ratio: self
+                    .shared_batch_ratio
+                    .unwrap_or(gpu::ProgressiveOptions::default().shared_batch_ratio),
+                cluster_triangles: !self.no_clusters,
+                ..Default::default()
+            },
+            charts: self.charts.charts,
+        };
+        bench_meshes_command(
+            &self.triangles,
+            settings,
+            &self.out,
+            self.json,
+            self.adapter.as_deref(),
+        )
+    }
+}
 
 /// `lightwire bench codec`'s arguments.
 #[derive(clap::Args)]
@@ -84,7 +357,7 @@ fn has_dynamic_object(path: &std::path::Path, density_scale: f32) -> Result<bool
     Ok(scene.dynamic_objects().next().is_some())
 }
 
-pub(crate) fn bench_dynamic_command(
+fn bench_dynamic_command(
     mut scenes: Vec<PathBuf>,
     settings: bench::dynamic::Settings,
     json: Option<PathBuf>,
@@ -155,7 +428,7 @@ pub(crate) fn bench_dynamic_command(
     Ok(())
 }
 
-pub(crate) fn bench_codec_command(args: CodecArgs) -> Result<()> {
+fn bench_codec_command(args: CodecArgs) -> Result<()> {
     let settings = bench::codec::Settings {
         versions: args.versions,
         rate: args.rate,
@@ -262,7 +535,7 @@ pub(crate) fn bench_codec_command(args: CodecArgs) -> Result<()> {
     Ok(())
 }
 
-pub(crate) fn bench_solve_command(
+fn bench_solve_command(
     mut scenes: Vec<PathBuf>,
     density_scale: f32,
     json: Option<PathBuf>,
@@ -335,9 +608,9 @@ pub(crate) fn bench_solve_command(
 }
 
 /// `lightwire bench meshes`: one tessellated Cornell box per triangle count.
-pub(crate) fn bench_meshes_command(
+fn bench_meshes_command(
     triangles: &[usize],
-    settings: lightwire_server::bench::meshes::Settings,
+    settings: bench::meshes::Settings,
     out: &std::path::Path,
     json: Option<PathBuf>,
     adapter: Option<&str>,
