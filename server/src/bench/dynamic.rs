@@ -51,7 +51,7 @@ use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::{DEFAULT_TILE_SIZE, PixelFormat};
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::load::load_scene;
-use lightwire_scene::{Charts, LoadOptions, Pose, SolverHints};
+use lightwire_scene::{Charts, LoadOptions, Pose, Scene, SolverHints};
 use lightwire_solve::accuracy::accuracy_where;
 use lightwire_solve::gpu::profile::{Clock, FrameProfile, Profiler, Stage, Unit};
 use lightwire_solve::gpu::{
@@ -373,178 +373,277 @@ fn median_ms(times: &mut [Duration]) -> (f64, f64, f64) {
 
 /// Runs the benchmark on one scene file.
 pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<SceneResult> {
-    let (scene, atlas) = load_scene(
-        path,
-        LoadOptions {
-            density_scale: settings.density_scale,
-            charts: settings.charts,
-        },
-    )?;
-    let object = scene.dynamic_objects().next().with_context(|| {
-        format!(
-            "{} has no dynamic object to move (add one under \"objects\")",
-            path.display()
-        )
-    })? as usize;
-    let start = scene.initial_poses();
-    let used = SolverHints {
-        cross_grid: scene
-            .solver
-            .cross_grid
-            .filter(|_| settings.stated.cross_grid.is_none()),
-        back_resolution: scene
-            .solver
-            .back_resolution
-            .filter(|_| settings.stated.back_resolution.is_none()),
-        cross_coarse_below: scene
-            .solver
-            .cross_coarse_below
-            .filter(|_| settings.stated.cross_coarse_below.is_none()),
-    };
-    let progressive = settings.progressive.with_hints(&used);
-    let pose_at = |frame: u32| -> Vec<Pose> {
-        let mut poses = start.clone();
-        let angle = (settings.degrees_per_frame * frame as f32).to_radians();
+    let bench = SceneBench::new(gpu, path, settings)?;
+    let mut methods = Vec::new();
+    if settings.methods.contains(&Method::Gather) {
+        methods.push(bench.gather()?);
+    }
+    for (which, method) in [
+        (Method::Progressive, Redistribution::Full),
+        (Method::Incremental, Redistribution::Incremental),
+        (Method::Cross, Redistribution::Cross),
+    ] {
+        if settings.methods.contains(&which) {
+            methods.push(bench.redistribution(which, method)?);
+        }
+    }
+    Ok(SceneResult {
+        scene: bench.scene.name.clone(),
+        adapter: gpu.describe(),
+        elements: bench.atlas.elements.len(),
+        dynamic_elements: bench.atlas.dynamic_element_count(&bench.scene),
+        reference: bench.reference_name,
+        scene_settings: bench.used.to_string(),
+        changed_texels: bench.changed.iter().filter(|&&c| c).count(),
+        methods,
+    })
+}
+
+/// One scene's benchmark: the scene, its references at the start and at
+/// the last frame, and what every method is judged by.
+struct SceneBench<'a> {
+    gpu: &'a Device,
+    settings: &'a Settings,
+    scene: Scene,
+    atlas: Atlas,
+    /// The moving object.
+    object: usize,
+    start: Vec<Pose>,
+    /// The scene file's solver settings that the command line left alone.
+    used: SolverHints,
+    progressive: ProgressiveOptions,
+    /// Frames the redistribution methods follow.
+    frames: u32,
+    last: Vec<Pose>,
+    gather_last: Vec<Pose>,
+    reference_name: String,
+    /// The reference at `last`.
+    expected: Vec<Vec3>,
+    /// Texels inside or under geometry at the compared poses are left out
+    /// (lightwire_solve::validity).
+    visible_last: Validity,
+    visible_gather: Validity,
+    /// Where the motion changes the light (between the references at the
+    /// start and at `last`).
+    changed: Vec<bool>,
+    dir: PathBuf,
+    /// The reference's white point, which scales every image.
+    white: f32,
+}
+
+impl<'a> SceneBench<'a> {
+    /// Loads the scene, solves its references and writes `reference.png`.
+    fn new(gpu: &'a Device, path: &Path, settings: &'a Settings) -> Result<Self> {
+        let (scene, atlas) = load_scene(
+            path,
+            LoadOptions {
+                density_scale: settings.density_scale,
+                charts: settings.charts,
+            },
+        )?;
+        let object = scene.dynamic_objects().next().with_context(|| {
+            format!(
+                "{} has no dynamic object to move (add one under \"objects\")",
+                path.display()
+            )
+        })? as usize;
+        let start = scene.initial_poses();
+        let used = SolverHints {
+            cross_grid: scene
+                .solver
+                .cross_grid
+                .filter(|_| settings.stated.cross_grid.is_none()),
+            back_resolution: scene
+                .solver
+                .back_resolution
+                .filter(|_| settings.stated.back_resolution.is_none()),
+            cross_coarse_below: scene
+                .solver
+                .cross_coarse_below
+                .filter(|_| settings.stated.cross_coarse_below.is_none()),
+        };
+        let progressive = settings.progressive.with_hints(&used);
+        let frames = settings.frames.max(1);
+        let mut bench = Self {
+            gpu,
+            settings,
+            object,
+            used,
+            progressive,
+            frames,
+            last: Vec::new(),
+            gather_last: Vec::new(),
+            reference_name: String::new(),
+            expected: Vec::new(),
+            visible_last: Validity::all_valid(&atlas),
+            visible_gather: Validity::all_valid(&atlas),
+            changed: Vec::new(),
+            dir: settings.out.join(&scene.name),
+            white: 1.0,
+            start,
+            scene,
+            atlas,
+        };
+        bench.last = bench.pose_at(frames);
+        bench.gather_last = bench.pose_at(settings.gather_frames.max(1));
+        eprintln!(
+            "{}: {} elements, reference solve at frame {frames}, the scene file's solver settings: {used}",
+            bench.scene.name,
+            bench.atlas.elements.len()
+        );
+        let (reference_name, expected) = bench.reference(&bench.last)?;
+        // Where the motion changes the light: the reference at the start too.
+        let (_, expected_start) = bench.reference(&bench.start)?;
+        let (scene, atlas) = (&bench.scene, &bench.atlas);
+        let visible_last = Validity::compute(scene, atlas, &bench.last);
+        bench.visible_gather = Validity::compute(scene, atlas, &bench.gather_last);
+        bench.changed = expected
+            .iter()
+            .zip(&expected_start)
+            .enumerate()
+            .map(|(i, (end, begin))| {
+                !visible_last.is_invalid(i)
+                    && !scene.objects[atlas.elements[i].object as usize].dynamic
+                    && atlas.elements[i].emission.max_element() <= 0.0
+                    && atlas.elements[i].covers_surface()
+                    && (*end - *begin).length() > CHANGED * end.length()
+            })
+            .collect();
+        bench.visible_last = visible_last;
+
+        let dir = &bench.dir;
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        // The reference as solved (its white point scales every image).
+        let expected_image = atlas.to_image(&expected);
+        bench.white = white_point(&expected_image);
+        write_png_with(
+            &dir.join("reference.png"),
+            atlas.width,
+            atlas.height,
+            &expected_image,
+            bench.white,
+        )?;
+        bench.reference_name = reference_name;
+        bench.expected = expected;
+        Ok(bench)
+    }
+
+    /// The poses at `frame`: the object turned about y by the frames'
+    /// degrees.
+    fn pose_at(&self, frame: u32) -> Vec<Pose> {
+        let mut poses = self.start.clone();
+        let angle = (self.settings.degrees_per_frame * frame as f32).to_radians();
+        let object = self.object;
         poses[object].rotation = Quat::from_rotation_y(angle) * poses[object].rotation;
         poses
-    };
-    let frames = settings.frames.max(1);
-    let last = pose_at(frames);
-    let gather_last = pose_at(settings.gather_frames.max(1));
+    }
 
-    let reference = |poses: &[Pose]| -> Result<(String, Vec<Vec3>)> {
+    /// The reference at `poses`, and what it is: the CPU reference where
+    /// the scene is small enough for it, else a high-quality corrected
+    /// progressive solve.
+    fn reference(&self, poses: &[Pose]) -> Result<(String, Vec<Vec3>)> {
+        let (gpu, scene, atlas) = (self.gpu, &self.scene, &self.atlas);
         if atlas.elements.len() <= MAX_ELEMENTS {
-            let solver = ReferenceSolver::new(&scene, &atlas, poses, &Silent)?;
-            Ok((
+            let solver = ReferenceSolver::new(scene, atlas, poses, &Silent)?;
+            return Ok((
                 "reference".into(),
                 solver.solve(SolveOptions::default(), &Silent).radiosity,
-            ))
-        } else {
-            let options = ProgressiveOptions {
-                hemicube_resolution: progressive.hemicube_resolution * 4,
-                ..progressive
-            };
-            let mut solver = ProgressiveSolver::new(gpu, &scene, &atlas, poses, options)?;
-            solver.solve(1e-5)?;
-            // Progressive refinement alone is biased (its one eye per
-            // shooter, yes-or-no visibility) at any resolution, and a
-            // session that is nearer the truth would read as further off
-            // it: corrected by gathering, as a bake is.
-            let mut correction =
-                Correction::new(gpu, &scene, &atlas, poses, GatherOptions::default())?;
-            for _ in 0..DEFAULT_CORRECTIONS {
-                correction.round(&mut solver, 1e-5)?;
-            }
-            Ok(("progressive-hq+corr".into(), solver.radiosity()?))
+            ));
         }
-    };
-    eprintln!(
-        "{}: {} elements, reference solve at frame {frames}, the scene file's solver settings: {used}",
-        scene.name,
-        atlas.elements.len()
-    );
-    let (reference_name, expected) = reference(&last)?;
-    // Where the motion changes the light: the reference at the start too.
-    let (_, expected_start) = reference(&start)?;
-    // Texels inside or under geometry at the compared poses are left out
-    // (lightwire_solve::validity).
-    let visible_last = Validity::compute(&scene, &atlas, &last);
-    let visible_gather = Validity::compute(&scene, &atlas, &gather_last);
-    let changed: Vec<bool> = expected
-        .iter()
-        .zip(&expected_start)
-        .enumerate()
-        .map(|(i, (end, begin))| {
-            !visible_last.is_invalid(i)
-                && !scene.objects[atlas.elements[i].object as usize].dynamic
-                && atlas.elements[i].emission.max_element() <= 0.0
-                && atlas.elements[i].covers_surface()
-                && (*end - *begin).length() > CHANGED * end.length()
-        })
-        .collect();
-    let changed_texels = changed.iter().filter(|&&c| c).count();
+        let options = ProgressiveOptions {
+            hemicube_resolution: self.progressive.hemicube_resolution * 4,
+            ..self.progressive
+        };
+        let mut solver = ProgressiveSolver::new(gpu, scene, atlas, poses, options)?;
+        solver.solve(1e-5)?;
+        // Progressive refinement alone is biased (its one eye per
+        // shooter, yes-or-no visibility) at any resolution, and a
+        // session that is nearer the truth would read as further off
+        // it: corrected by gathering, as a bake is.
+        let mut correction = Correction::new(gpu, scene, atlas, poses, GatherOptions::default())?;
+        for _ in 0..DEFAULT_CORRECTIONS {
+            correction.round(&mut solver, 1e-5)?;
+        }
+        Ok(("progressive-hq+corr".into(), solver.radiosity()?))
+    }
 
-    let dir = settings.out.join(&scene.name);
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    // The reference as solved (its white point scales every image).
-    let expected_image = atlas.to_image(&expected);
-    let white = white_point(&expected_image);
-    write_png_with(
-        &dir.join("reference.png"),
-        atlas.width,
-        atlas.height,
-        &expected_image,
-        white,
-    )?;
-    // Images show what a client would see (crate::publish).
-    let write_images = |name: &str, values: &[Vec3], against: &[Vec3]| -> Result<()> {
+    /// `NAME.png` and `NAME-diff5.png` (five times the difference from
+    /// `against`): what a client would see ([`crate::publish`]).
+    fn write_images(&self, name: &str, values: &[Vec3], against: &[Vec3]) -> Result<()> {
+        let atlas = &self.atlas;
         let (mut values, mut against) = (values.to_vec(), against.to_vec());
-        let image = crate::publish::lightmap(&atlas, &visible_last, &mut values);
+        let image = crate::publish::lightmap(atlas, &self.visible_last, &mut values);
         // The difference is taken between two published states.
-        crate::publish::lightmap(&atlas, &visible_last, &mut against);
-        let (values, against) = (&values[..], &against[..]);
+        crate::publish::lightmap(atlas, &self.visible_last, &mut against);
         write_png_with(
-            &dir.join(format!("{name}.png")),
+            &self.dir.join(format!("{name}.png")),
             atlas.width,
             atlas.height,
             &image,
-            white,
+            self.white,
         )?;
         let diff: Vec<Vec3> = values
             .iter()
-            .zip(against)
+            .zip(&against)
             .map(|(a, b)| (*a - *b).abs() * 5.0)
             .collect();
         write_png_with(
-            &dir.join(format!("{name}-diff5.png")),
+            &self.dir.join(format!("{name}-diff5.png")),
             atlas.width,
             atlas.height,
             &atlas.to_image(&diff),
-            white,
+            self.white,
         )
-    };
+    }
 
-    // NaN (JSON null) when there is nothing to compare.
-    let judge = |values: &[Vec3], against: &[Vec3], visible: &Validity| {
-        accuracy_where(&atlas, values, against, visible.keep())
+    /// NRMSE and p95 of `values` against `against` over the `visible`
+    /// texels; NaN (JSON null) when there is nothing to compare.
+    fn judge(&self, values: &[Vec3], against: &[Vec3], visible: &Validity) -> (f64, f64) {
+        accuracy_where(&self.atlas, values, against, visible.keep())
             .map_or((f64::NAN, f64::NAN), |a| (a.nrmse, a.p95_rel))
-    };
-    let judge_changed = |values: &[Vec3]| {
-        accuracy_where(&atlas, values, &expected, |i| changed[i]).map_or(f64::NAN, |a| a.nrmse)
-    };
-    let mut methods = Vec::new();
-    // Gather: a from-scratch solve per frame, to the level the others
-    // refine to (power changed per bounce below 0.1% of emitted).
-    if settings.methods.contains(&Method::Gather) {
+    }
+
+    /// NRMSE against the reference where the motion changes the light.
+    fn judge_changed(&self, values: &[Vec3]) -> f64 {
+        accuracy_where(&self.atlas, values, &self.expected, |i| self.changed[i])
+            .map_or(f64::NAN, |a| a.nrmse)
+    }
+
+    /// Gather: a from-scratch solve per frame, to the level the others
+    /// refine to (power changed per bounce below 0.1% of emitted).
+    fn gather(&self) -> Result<MethodResult> {
+        let (gpu, scene, atlas, settings) = (self.gpu, &self.scene, &self.atlas, self.settings);
         let mut times = Vec::new();
         let mut values = Vec::new();
         for frame in 1..=settings.gather_frames.max(1) {
             let started = Instant::now();
             let mut solver =
-                GatherSolver::new(gpu, &scene, &atlas, &pose_at(frame), settings.gather)?;
+                GatherSolver::new(gpu, scene, atlas, &self.pose_at(frame), settings.gather)?;
             solver.solve(1e-3)?;
             values = solver.radiosity()?;
             times.push(started.elapsed());
             eprintln!("  gather frame {frame}: {:?}", times[times.len() - 1]);
         }
-        let against = if settings.gather_frames.max(1) == frames {
-            expected.clone()
+        let at_last = settings.gather_frames.max(1) == self.frames;
+        let against = if at_last {
+            self.expected.clone()
         } else {
-            reference(&gather_last)?.1
+            self.reference(&self.gather_last)?.1
         };
         let (median, min, max) = median_ms(&mut times);
-        let visible = if settings.gather_frames.max(1) == frames {
-            &visible_last
+        let visible = if at_last {
+            &self.visible_last
         } else {
-            &visible_gather
+            &self.visible_gather
         };
-        let (nrmse, p95_rel) = judge(&values, &against, visible);
-        let nrmse_changed = if settings.gather_frames.max(1) == frames {
-            judge_changed(&values)
+        let (nrmse, p95_rel) = self.judge(&values, &against, visible);
+        let nrmse_changed = if at_last {
+            self.judge_changed(&values)
         } else {
             f64::NAN
         };
-        methods.push(MethodResult {
+        self.write_images("gather", &values, &against)?;
+        Ok(MethodResult {
             name: "gather".into(),
             ms_per_frame: median,
             ms_min: min,
@@ -557,47 +656,44 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             ms_to_corrected: f64::NAN,
             nrmse_corrected: nrmse,
             profile: None,
-        });
-        write_images("gather", &values, &against)?;
+        })
     }
-    for (which, method) in [
-        (Method::Progressive, Redistribution::Full),
-        (Method::Incremental, Redistribution::Incremental),
-        (Method::Cross, Redistribution::Cross),
-    ] {
-        if !settings.methods.contains(&which) {
-            continue;
-        }
+
+    /// A session that follows the frames by `method`, timed per frame and
+    /// judged at the last one, then once more after its corrections.
+    fn redistribution(&self, which: Method, method: Redistribution) -> Result<MethodResult> {
+        let (gpu, atlas) = (self.gpu, &self.atlas);
         let name = which.name();
         let options = DynamicOptions {
             method,
-            progressive,
-            corrections: settings.corrections,
+            progressive: self.progressive,
+            corrections: self.settings.corrections,
             ..DynamicOptions::default()
         };
-        let mut session = DynamicSolver::new(gpu, &scene, &atlas, &start, 0, options)?;
+        let mut session = DynamicSolver::new(gpu, &self.scene, atlas, &self.start, 0, options)?;
         settle(&mut session, true)?;
-        let profiler = settings
+        let profiler = self
+            .settings
             .profile
             .map_or_else(Profiler::disabled, |clock| Profiler::new(gpu, clock));
         session.set_profiler(profiler.clone());
-        let mut publication = profiler.is_enabled().then(|| Publication::new(&atlas));
+        let mut publication = profiler.is_enabled().then(|| Publication::new(atlas));
         if let Some(p) = &mut publication {
             // The converged start, so that frames encode deltas.
-            p.publish(&session, &atlas, &Profiler::disabled())?;
+            p.publish(&session, atlas, &Profiler::disabled())?;
         }
         let mut times = Vec::new();
         let mut to_state = Vec::new();
         let mut profiles = Vec::new();
-        for frame in 1..=frames {
+        for frame in 1..=self.frames {
             profiler.begin_frame();
             let started = Instant::now();
-            session.set_poses(&pose_at(frame), frame);
+            session.set_poses(&self.pose_at(frame), frame);
             let first = settle(&mut session, false)?;
             times.push(started.elapsed());
             to_state.push(first.unwrap_or_else(|| started.elapsed()));
             if let Some(p) = &mut publication {
-                p.publish(&session, &atlas, &profiler)?;
+                p.publish(&session, atlas, &profiler)?;
             }
             profiles.extend(profiler.end_frame()?);
         }
@@ -610,19 +706,20 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
         eprintln!(
             "  {name}: median {median:.1} ms per frame, {state_median:.1} ms to the first state"
         );
-        let (nrmse, p95_rel) = judge(&values, &expected, &visible_last);
+        let (nrmse, p95_rel) = self.judge(&values, &self.expected, &self.visible_last);
         // The scene now holds still: its corrections run.
         let started = Instant::now();
         settle(&mut session, true)?;
         let ms_to_corrected = started.elapsed().as_secs_f64() * 1e3;
         let corrected = session.radiosity()?;
-        let (nrmse_corrected, _) = judge(&corrected, &expected, &visible_last);
+        let (nrmse_corrected, _) = self.judge(&corrected, &self.expected, &self.visible_last);
         eprintln!(
             "  {name}: {ms_to_corrected:.0} ms from the last frame to its corrected state, NRMSE {:.2}% -> {:.2}%",
             nrmse * 100.0,
             nrmse_corrected * 100.0
         );
-        methods.push(MethodResult {
+        self.write_images(name, &values, &self.expected)?;
+        Ok(MethodResult {
             name: name.into(),
             ms_per_frame: median,
             ms_min: min,
@@ -631,23 +728,12 @@ pub fn dynamic_scene(gpu: &Device, path: &Path, settings: &Settings) -> Result<S
             frames: times.len(),
             nrmse,
             p95_rel,
-            nrmse_changed: judge_changed(&values),
+            nrmse_changed: self.judge_changed(&values),
             ms_to_corrected,
             nrmse_corrected,
             profile,
-        });
-        write_images(name, &values, &expected)?;
+        })
     }
-    Ok(SceneResult {
-        scene: scene.name.clone(),
-        adapter: gpu.describe(),
-        elements: atlas.elements.len(),
-        dynamic_elements: atlas.dynamic_element_count(&scene),
-        reference: reference_name,
-        scene_settings: used.to_string(),
-        changed_texels,
-        methods,
-    })
 }
 
 /// Runs the session until it is settled (a frame: the move's states are
