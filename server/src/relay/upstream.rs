@@ -194,6 +194,73 @@ impl Upstream {
 
     /// One connection, from connect to its end.
     async fn connection(&mut self, mirror: &mut Option<Mirror>) -> Result<Ended> {
+        let (mut ws, role) = self.handshake(mirror).await?;
+        let mirror = mirror
+            .as_mut()
+            .ok_or_else(|| anyhow!("no mirror for the upstream scene"))?;
+        // Poses are per connection: this upstream sends its own before its
+        // first lightmap, or none (one without CAP_POSES); never publish
+        // the previous connection's with its versions.
+        mirror.poses = Arc::default();
+        self.status.connected.store(true, Ordering::Relaxed);
+        self.relay_metrics.upstreams_connected.inc();
+        self.status.connects.fetch_add(1, Ordering::Relaxed);
+        self.relay_metrics.upstream_connects.inc();
+        tracing::info!(upstream = %self.url.url, ?role, "upstream connected");
+
+        let mut link = Link::default();
+        let pace = Duration::from_secs_f64(1.0 / UPSTREAM_TRANSFORMS_PER_SECOND);
+        let mut next_forward = Instant::now();
+        let mut forward_due: Option<Instant> = None;
+        let mut shutdown = self.shutdown.clone();
+        let mut last_frame = tokio::time::Instant::now();
+        let lost = |why: String, synced: bool| {
+            if synced {
+                Ok(Ended::LostAfterSync(why))
+            } else {
+                Err(anyhow!(why))
+            }
+        };
+        loop {
+            let due = forward_due;
+            tokio::select! {
+                biased;
+                _ = async { shutdown.wait_for(|s| *s).await.map(|_| ()) } => {
+                    let _ = tokio::time::timeout(Duration::from_secs(1), ws.close(None)).await;
+                    return Ok(Ended::Shutdown);
+                }
+                // A deadline from the last frame, not a timeout per wait:
+                // forwarding transforms must not keep a dead upstream alive.
+                _ = tokio::time::sleep_until(last_frame + SILENCE) => {
+                    return lost(format!("no frame for {SILENCE:?}"), link.synced);
+                }
+                next = ws.next() => {
+                    last_frame = tokio::time::Instant::now();
+                    if let Err(why) = self.on_frame(next, mirror, &mut link, &mut ws).await {
+                        return lost(why, link.synced);
+                    }
+                }
+                _ = self.feed.inbox.arrived(), if due.is_none() => {
+                    forward_due = Some(next_forward.max(Instant::now()));
+                }
+                _ = sleep_until(due) , if due.is_some() => {
+                    forward_due = None;
+                    if let Err(why) = self.forward(&mut ws).await {
+                        return lost(why, link.synced);
+                    }
+                    next_forward = Instant::now() + pace;
+                }
+            }
+        }
+    }
+
+    /// Connects, says Hello, takes the Welcome and checks it, and makes
+    /// `mirror` mirror the upstream's scene (a new one if its description
+    /// changed).
+    async fn handshake(
+        &mut self,
+        mirror: &mut Option<Mirror>,
+    ) -> Result<(Ws, lightwire_protocol::Role)> {
         let config = WebSocketConfig::default()
             .max_message_size(Some(MAX_FRAME_BYTES))
             .max_frame_size(Some(MAX_FRAME_BYTES));
@@ -245,180 +312,148 @@ impl Upstream {
                     .map_err(|e| anyhow!("the upstream's scene is unusable: {e}"))?,
             );
         }
-        let mirror = mirror
-            .as_mut()
-            .ok_or_else(|| anyhow!("no mirror for the upstream scene"))?;
-        // Poses are per connection: this upstream sends its own before its
-        // first lightmap, or none (one without CAP_POSES); never publish
-        // the previous connection's with its versions.
-        mirror.poses = Arc::default();
-        self.status.connected.store(true, Ordering::Relaxed);
-        self.relay_metrics.upstreams_connected.inc();
-        self.status.connects.fetch_add(1, Ordering::Relaxed);
-        self.relay_metrics.upstream_connects.inc();
-        tracing::info!(upstream = %self.url.url, ?role, "upstream connected");
+        Ok((ws, role))
+    }
 
-        let mut synced = false;
-        let mut awaiting_keyframe = false;
-        let mut bad = 0u32;
-        let pace = Duration::from_secs_f64(1.0 / UPSTREAM_TRANSFORMS_PER_SECOND);
-        let mut next_forward = Instant::now();
-        let mut forward_due: Option<Instant> = None;
-        let mut shutdown = self.shutdown.clone();
-        let mut last_frame = tokio::time::Instant::now();
-        let lost = |why: String, synced: bool| {
-            if synced {
-                Ok(Ended::LostAfterSync(why))
-            } else {
-                Err(anyhow!(why))
+    /// One frame from upstream (or the end of the stream). `Err` says why
+    /// the connection is lost.
+    async fn on_frame(
+        &mut self,
+        next: Option<Result<Message, tokio_tungstenite::tungstenite::Error>>,
+        mirror: &mut Mirror,
+        link: &mut Link,
+        ws: &mut Ws,
+    ) -> Result<(), String> {
+        let bytes = match next {
+            None => return Err("the upstream closed the connection".into()),
+            Some(Err(e)) => return Err(format!("upstream connection failed: {e}")),
+            Some(Ok(Message::Binary(bytes))) => bytes,
+            Some(Ok(Message::Close(frame))) => {
+                let why = frame.map_or_else(String::new, |f| format!(" ({} {})", f.code, f.reason));
+                return Err(format!("the upstream closed the connection{why}"));
+            }
+            Some(Ok(Message::Text(_))) => return link.bad_frame(&self.relay_metrics, None),
+            Some(Ok(_)) => return Ok(()), // ping/pong: tungstenite answers
+        };
+        self.relay_metrics.upstream_frames.inc();
+        self.relay_metrics.upstream_bytes.inc_by(bytes.len() as u64);
+        let message = match decode_server(&bytes) {
+            Ok(m) => m,
+            Err(e) => {
+                tracing::warn!(upstream = %self.url.url, "undecodable upstream frame: {e}");
+                return link.bad_frame(&self.relay_metrics, None);
             }
         };
-        loop {
-            let due = forward_due;
-            tokio::select! {
-                biased;
-                _ = async { shutdown.wait_for(|s| *s).await.map(|_| ()) } => {
-                    let _ = tokio::time::timeout(Duration::from_secs(1), ws.close(None)).await;
-                    return Ok(Ended::Shutdown);
-                }
-                // A deadline from the last frame, not a timeout per wait:
-                // forwarding transforms must not keep a dead upstream alive.
-                _ = tokio::time::sleep_until(last_frame + SILENCE) => {
-                    return lost(format!("no frame for {SILENCE:?}"), synced);
-                }
-                next = ws.next() => {
-                    last_frame = tokio::time::Instant::now();
-                    let bytes = match next {
-                        None => return lost("the upstream closed the connection".into(), synced),
-                        Some(Err(e)) => return lost(format!("upstream connection failed: {e}"), synced),
-                        Some(Ok(Message::Binary(bytes))) => bytes,
-                        Some(Ok(Message::Close(frame))) => {
-                            let why = frame.map_or_else(String::new, |f| format!(" ({} {})", f.code, f.reason));
-                            return lost(format!("the upstream closed the connection{why}"), synced);
-                        }
-                        Some(Ok(Message::Text(_))) => {
-                            self.relay_metrics.upstream_bad_frames.inc();
-                            bad += 1;
-                            if bad >= MAX_BAD_FRAMES {
-                                return lost(format!("{bad} bad frames from upstream"), synced);
-                            }
-                            continue;
-                        }
-                        Some(Ok(_)) => continue, // ping/pong: tungstenite answers
-                    };
-                    self.relay_metrics.upstream_frames.inc();
-                    self.relay_metrics.upstream_bytes.inc_by(bytes.len() as u64);
-                    let message = match decode_server(&bytes) {
-                        Ok(m) => m,
-                        Err(e) => {
-                            tracing::warn!(upstream = %self.url.url, "undecodable upstream frame: {e}");
-                            self.relay_metrics.upstream_bad_frames.inc();
-                            bad += 1;
-                            if bad >= MAX_BAD_FRAMES {
-                                return lost(format!("{bad} bad frames from upstream"), synced);
-                            }
-                            continue;
-                        }
-                    };
-                    let refused = match message {
-                        ServerMessage::Keyframe(k) => match mirror.on_keyframe(&k) {
-                            Ok(publish) => {
-                                awaiting_keyframe = false;
-                                synced = true;
-                                if let Some(p) = publish {
-                                    self.publish(mirror, p);
-                                }
-                                self.status.upstream_version.store(k.version, Ordering::Relaxed);
-                                None
-                            }
-                            Err(e) => Some(e),
-                        },
-                        ServerMessage::Delta(_) if awaiting_keyframe => None,
-                        ServerMessage::Delta(d) => match mirror.on_delta(&d) {
-                            Ok(p) => {
-                                self.publish(mirror, p);
-                                self.status.upstream_version.store(d.version, Ordering::Relaxed);
-                                None
-                            }
-                            Err(e) => Some(e),
-                        },
-                        ServerMessage::Stats(s) => {
-                            self.stats.send_replace(Stats {
-                                version: mirror.version(),
-                                clients: self.feed.clients.load(Ordering::Relaxed),
-                                server_time_us: unix_micros(),
-                                ..s
-                            });
-                            None
-                        }
-                        ServerMessage::Error { code, message } => {
-                            // Errors answer forwarded transforms (a stale
-                            // seq from a driver of another relay, a rate
-                            // limit): nothing to attribute them to.
-                            self.relay_metrics.upstream_errors.inc();
-                            tracing::debug!(upstream = %self.url.url, ?code, "upstream error: {message}");
-                            if matches!(code, ErrorCode::Unauthorized | ErrorCode::UnsupportedVersion) {
-                                return lost(format!("upstream refused the relay: {code:?}: {message}"), synced);
-                            }
-                            None
-                        }
-                        ServerMessage::Pong { .. } => None,
-                        ServerMessage::Poses { poses, .. } => {
-                            if let Err(e) = mirror.on_poses(poses) {
-                                tracing::warn!(upstream = %self.url.url, "upstream Poses refused: {e}");
-                                self.relay_metrics.upstream_bad_frames.inc();
-                                bad += 1;
-                                if bad >= MAX_BAD_FRAMES {
-                                    return lost(format!("{bad} bad frames from upstream (last: {e})"), synced);
-                                }
-                            }
-                            None
-                        }
-                        ServerMessage::Welcome { .. } => {
-                            return lost("a second Welcome from upstream".into(), synced);
-                        }
-                    };
-                    if let Some(e) = refused {
-                        // Never publish what does not apply: unsync and ask
-                        // for a keyframe (deltas until then are ignored).
-                        if !matches!(e, MirrorError::NotSynced | MirrorError::Apply(lightwire_protocol::lightmap::ApplyError::WrongBase { .. })) {
-                            self.relay_metrics.upstream_bad_frames.inc();
-                            bad += 1;
-                            if bad >= MAX_BAD_FRAMES {
-                                return lost(format!("{bad} bad frames from upstream (last: {e})"), synced);
-                            }
-                        }
-                        tracing::warn!(upstream = %self.url.url, "upstream frame refused ({e}); asking for a resync");
-                        mirror.unsync();
-                        awaiting_keyframe = true;
-                        self.relay_metrics.upstream_resyncs.inc();
-                        let resync = ClientMessage::Resync { have_version: self.status_version() };
-                        if let Err(e) = ws.send(Message::Binary(encode_client(&resync).into())).await {
-                            return lost(format!("sending Resync: {e}"), synced);
-                        }
-                    }
-                }
-                _ = self.feed.inbox.arrived(), if due.is_none() => {
-                    forward_due = Some(next_forward.max(Instant::now()));
-                }
-                _ = sleep_until(due) , if due.is_some() => {
-                    forward_due = None;
-                    for (object, pending) in self.feed.inbox.drain() {
-                        let transform = ClientMessage::Transform {
-                            object: object as u32,
-                            seq: pending.seq,
-                            pose: pending.pose,
-                            client_time_us: unix_micros(),
-                        };
-                        if let Err(e) = ws.send(Message::Binary(encode_client(&transform).into())).await {
-                            return lost(format!("forwarding a transform: {e}"), synced);
-                        }
-                        self.relay_metrics.transforms_forwarded.inc();
-                    }
-                    next_forward = Instant::now() + pace;
-                }
-            }
+        let Some(e) = self.on_message(message, mirror, link)? else {
+            return Ok(());
+        };
+        // Never publish what does not apply: unsync and ask for a keyframe
+        // (deltas until then are ignored).
+        if !matches!(
+            e,
+            MirrorError::NotSynced
+                | MirrorError::Apply(lightwire_protocol::lightmap::ApplyError::WrongBase { .. })
+        ) {
+            link.bad_frame(&self.relay_metrics, Some(&e))?;
         }
+        tracing::warn!(upstream = %self.url.url, "upstream frame refused ({e}); asking for a resync");
+        mirror.unsync();
+        link.awaiting_keyframe = true;
+        self.relay_metrics.upstream_resyncs.inc();
+        let resync = ClientMessage::Resync {
+            have_version: self.status_version(),
+        };
+        ws.send(Message::Binary(encode_client(&resync).into()))
+            .await
+            .map_err(|e| format!("sending Resync: {e}"))
+    }
+
+    /// One decoded message from upstream: what the mirror refused, if it
+    /// refused it; `Err` says why the connection is lost.
+    fn on_message(
+        &mut self,
+        message: ServerMessage,
+        mirror: &mut Mirror,
+        link: &mut Link,
+    ) -> Result<Option<MirrorError>, String> {
+        Ok(match message {
+            ServerMessage::Keyframe(k) => match mirror.on_keyframe(&k) {
+                Ok(publish) => {
+                    link.awaiting_keyframe = false;
+                    link.synced = true;
+                    if let Some(p) = publish {
+                        self.publish(mirror, p);
+                    }
+                    self.status
+                        .upstream_version
+                        .store(k.version, Ordering::Relaxed);
+                    None
+                }
+                Err(e) => Some(e),
+            },
+            ServerMessage::Delta(_) if link.awaiting_keyframe => None,
+            ServerMessage::Delta(d) => match mirror.on_delta(&d) {
+                Ok(p) => {
+                    self.publish(mirror, p);
+                    self.status
+                        .upstream_version
+                        .store(d.version, Ordering::Relaxed);
+                    None
+                }
+                Err(e) => Some(e),
+            },
+            ServerMessage::Stats(s) => {
+                self.stats.send_replace(Stats {
+                    version: mirror.version(),
+                    clients: self.feed.clients.load(Ordering::Relaxed),
+                    server_time_us: unix_micros(),
+                    ..s
+                });
+                None
+            }
+            ServerMessage::Error { code, message } => {
+                // Errors answer forwarded transforms (a stale seq from a
+                // driver of another relay, a rate limit): nothing to
+                // attribute them to.
+                self.relay_metrics.upstream_errors.inc();
+                tracing::debug!(upstream = %self.url.url, ?code, "upstream error: {message}");
+                if matches!(
+                    code,
+                    ErrorCode::Unauthorized | ErrorCode::UnsupportedVersion
+                ) {
+                    return Err(format!("upstream refused the relay: {code:?}: {message}"));
+                }
+                None
+            }
+            ServerMessage::Pong { .. } => None,
+            ServerMessage::Poses { poses, .. } => {
+                if let Err(e) = mirror.on_poses(poses) {
+                    tracing::warn!(upstream = %self.url.url, "upstream Poses refused: {e}");
+                    link.bad_frame(&self.relay_metrics, Some(&e))?;
+                }
+                None
+            }
+            ServerMessage::Welcome { .. } => {
+                return Err("a second Welcome from upstream".into());
+            }
+        })
+    }
+
+    /// Forwards the drivers' latest transforms upstream.
+    async fn forward(&mut self, ws: &mut Ws) -> Result<(), String> {
+        for (object, pending) in self.feed.inbox.drain() {
+            let transform = ClientMessage::Transform {
+                object: object as u32,
+                seq: pending.seq,
+                pose: pending.pose,
+                client_time_us: unix_micros(),
+            };
+            ws.send(Message::Binary(encode_client(&transform).into()))
+                .await
+                .map_err(|e| format!("forwarding a transform: {e}"))?;
+            self.relay_metrics.transforms_forwarded.inc();
+        }
+        Ok(())
     }
 
     fn status_version(&self) -> Option<u64> {
@@ -452,6 +487,37 @@ impl Upstream {
 async fn sleep_until(at: Option<Instant>) {
     if let Some(at) = at {
         tokio::time::sleep_until(at.into()).await;
+    }
+}
+
+/// The state of one upstream connection.
+#[derive(Default)]
+struct Link {
+    /// A keyframe has been applied on this connection.
+    synced: bool,
+    /// Deltas are ignored until the keyframe a resync asked for.
+    awaiting_keyframe: bool,
+    /// Bad frames so far.
+    bad: u32,
+}
+
+impl Link {
+    /// Counts a bad frame; `Err` once there are too many (`last` names the
+    /// last one's fault in the reason).
+    fn bad_frame(
+        &mut self,
+        metrics: &RelayMetrics,
+        last: Option<&dyn std::fmt::Display>,
+    ) -> Result<(), String> {
+        metrics.upstream_bad_frames.inc();
+        self.bad += 1;
+        if self.bad < MAX_BAD_FRAMES {
+            return Ok(());
+        }
+        Err(match last {
+            Some(e) => format!("{} bad frames from upstream (last: {e})", self.bad),
+            None => format!("{} bad frames from upstream", self.bad),
+        })
     }
 }
 

@@ -138,21 +138,40 @@ async fn close(sink: &mut Sink, code: u16, reason: &str) {
     let _ = tokio::time::timeout(CLOSE_TIMEOUT, sink.send(Message::Close(Some(frame)))).await;
 }
 
-/// Runs one connection to completion. `header_token` is a token presented
-/// on the HTTP upgrade (header or query); `Hello.token` takes precedence.
-pub async fn run(
-    socket: WebSocket,
-    state: Arc<Shared>,
-    feed: Arc<Feed>,
-    header_token: Option<String>,
-) {
-    let (mut sink, mut stream) = socket.split();
-    let metrics = state.metrics.clone();
+/// What a client's `Hello` asked for.
+struct Hello {
+    token: Option<String>,
+    client: String,
+    wants_poses: bool,
+    version: u16,
+}
 
-    // Handshake: the first frame must be a Hello with a version we speak.
+/// Refuses a client before it joins: counts a bad frame of `kind`, says
+/// why in an `Error` frame and closes with `code` and `reason`.
+async fn refuse(
+    sink: &mut Sink,
+    state: &Shared,
+    kind: &str,
+    error: (ErrorCode, String),
+    (code, reason): (u16, &str),
+) {
+    state.metrics.bad_frame(kind);
+    let _ = sink
+        .send(Message::Binary(error_frame(error.0, error.1)))
+        .await;
+    close(sink, code, reason).await;
+}
+
+/// The handshake's first half: the first frame must be a `Hello` with a
+/// version we speak. `None` when the client is refused or gone.
+async fn hello(
+    sink: &mut Sink,
+    stream: &mut futures_util::stream::SplitStream<WebSocket>,
+    state: &Shared,
+) -> Option<Hello> {
     let hello_timeout = Duration::from_secs_f64(state.config.hello_timeout_secs);
     let first = tokio::time::timeout(hello_timeout, stream.next()).await;
-    let (token, client_name, wants_poses, version) = match first {
+    match first {
         Ok(Some(Ok(Message::Binary(bytes)))) => match decode_client(&bytes) {
             Ok(ClientMessage::Hello {
                 protocol_version,
@@ -161,80 +180,100 @@ pub async fn run(
                 capabilities,
             }) => {
                 if !(MIN_PROTOCOL_VERSION..=PROTOCOL_VERSION).contains(&protocol_version) {
-                    metrics.bad_frame("unsupported_version");
-                    let frame = error_frame(
-                        ErrorCode::UnsupportedVersion,
-                        lightwire_protocol::version_mismatch(protocol_version),
-                    );
-                    let _ = sink.send(Message::Binary(frame)).await;
-                    close(&mut sink, CLOSE_PROTOCOL, "unsupported protocol version").await;
-                    return;
+                    let why = lightwire_protocol::version_mismatch(protocol_version);
+                    let error = (ErrorCode::UnsupportedVersion, why);
+                    let closing = (CLOSE_PROTOCOL, "unsupported protocol version");
+                    refuse(sink, state, "unsupported_version", error, closing).await;
+                    return None;
                 }
-                (
-                    token.or(header_token),
+                Some(Hello {
+                    token,
                     client,
-                    capabilities & HELLO_POSES != 0,
-                    protocol_version,
-                )
+                    wants_poses: capabilities & HELLO_POSES != 0,
+                    version: protocol_version,
+                })
             }
             Ok(_) => {
-                metrics.bad_frame("no_hello");
-                let frame = error_frame(
+                let error = (
                     ErrorCode::ProtocolViolation,
-                    "the first frame must be Hello",
+                    "the first frame must be Hello".into(),
                 );
-                let _ = sink.send(Message::Binary(frame)).await;
-                close(&mut sink, CLOSE_PROTOCOL, "expected Hello").await;
-                return;
+                refuse(
+                    sink,
+                    state,
+                    "no_hello",
+                    error,
+                    (CLOSE_PROTOCOL, "expected Hello"),
+                )
+                .await;
+                None
             }
             Err(e) => {
-                metrics.bad_frame("malformed");
-                let _ = sink
-                    .send(Message::Binary(error_frame(
-                        ErrorCode::BadFrame,
-                        e.to_string(),
-                    )))
-                    .await;
-                close(&mut sink, CLOSE_PROTOCOL, "malformed Hello").await;
-                return;
+                let error = (ErrorCode::BadFrame, e.to_string());
+                refuse(
+                    sink,
+                    state,
+                    "malformed",
+                    error,
+                    (CLOSE_PROTOCOL, "malformed Hello"),
+                )
+                .await;
+                None
             }
         },
-        Ok(Some(Ok(Message::Close(_)))) | Ok(None) => return, // left without a word
+        Ok(Some(Ok(Message::Close(_)))) | Ok(None) => None, // left without a word
         Ok(Some(Ok(_))) => {
             // A text frame (pings and pongs are answered by the layer and
             // never reach here as the first frame).
-            metrics.bad_frame("text");
-            let frame = error_frame(
+            let error = (
                 ErrorCode::BadFrame,
-                "frames must be binary; the first must be Hello",
+                "frames must be binary; the first must be Hello".into(),
             );
-            let _ = sink.send(Message::Binary(frame)).await;
-            close(&mut sink, CLOSE_PROTOCOL, "expected a binary Hello").await;
-            return;
+            let closing = (CLOSE_PROTOCOL, "expected a binary Hello");
+            refuse(sink, state, "text", error, closing).await;
+            None
         }
         Ok(Some(Err(e))) if is_too_large(&e) => {
-            refuse_too_large(&mut sink, &state).await;
-            return;
+            refuse_too_large(sink, state).await;
+            None
         }
-        Ok(Some(Err(_))) => return, // the connection failed
+        Ok(Some(Err(_))) => None, // the connection failed
         Err(_) => {
-            metrics.bad_frame("hello_timeout");
-            close(&mut sink, CLOSE_POLICY, "no Hello in time").await;
-            return;
+            state.metrics.bad_frame("hello_timeout");
+            close(sink, CLOSE_POLICY, "no Hello in time").await;
+            None
         }
-    };
+    }
+}
+
+/// The handshake's second half: the token's role, and the `Welcome` in
+/// the client's protocol version. `None` when the client is refused or
+/// gone; else its role and the scene it was welcomed to.
+async fn welcome(
+    sink: &mut Sink,
+    state: &Shared,
+    feed: &Feed,
+    hello: Hello,
+    header_token: Option<String>,
+) -> Option<(Role, Arc<SceneInfo>)> {
+    let token = hello.token.or(header_token);
     let Some(role) = state.auth.role(token.as_deref()) else {
-        metrics.bad_frame("unauthorized");
-        let frame = error_frame(ErrorCode::Unauthorized, "missing or unknown token");
-        let _ = sink.send(Message::Binary(frame)).await;
-        close(&mut sink, CLOSE_POLICY, "unauthorized").await;
-        return;
+        let error = (ErrorCode::Unauthorized, "missing or unknown token".into());
+        refuse(
+            sink,
+            state,
+            "unauthorized",
+            error,
+            (CLOSE_POLICY, "unauthorized"),
+        )
+        .await;
+        return None;
     };
     // The HTTP handler answers 503 before upgrading when there is no
     // description yet; this covers the race with a relay's scene change.
     let Some(info) = feed.info() else {
-        close(&mut sink, CLOSE_TRY_AGAIN, "scene not available yet").await;
-        return;
+        close(sink, CLOSE_TRY_AGAIN, "scene not available yet").await;
+        return None;
     };
     let welcome = ServerMessage::Welcome {
         protocol_version: PROTOCOL_VERSION,
@@ -252,23 +291,35 @@ pub async fn run(
     };
     // In the client's version: a version 2 client gets version 2's
     // `Welcome`, unless a surface needs what only version 3 describes.
-    let Some(welcome) = encode_welcome_for(version, &welcome) else {
-        metrics.bad_frame("unsupported_version");
-        let frame = error_frame(
-            ErrorCode::UnsupportedVersion,
-            lightwire_protocol::version_mismatch(version),
-        );
-        let _ = sink.send(Message::Binary(frame)).await;
-        close(&mut sink, CLOSE_PROTOCOL, "unsupported protocol version").await;
+    let Some(welcome) = encode_welcome_for(hello.version, &welcome) else {
+        let why = lightwire_protocol::version_mismatch(hello.version);
+        let error = (ErrorCode::UnsupportedVersion, why);
+        let closing = (CLOSE_PROTOCOL, "unsupported protocol version");
+        refuse(sink, state, "unsupported_version", error, closing).await;
+        return None;
+    };
+    let sent = sink.send(Message::Binary(Bytes::from(welcome))).await;
+    sent.is_ok().then_some((role, info))
+}
+
+/// Runs one connection to completion. `header_token` is a token presented
+/// on the HTTP upgrade (header or query); `Hello.token` takes precedence.
+pub async fn run(
+    socket: WebSocket,
+    state: Arc<Shared>,
+    feed: Arc<Feed>,
+    header_token: Option<String>,
+) {
+    let (mut sink, mut stream) = socket.split();
+    let metrics = state.metrics.clone();
+    let Some(hello) = hello(&mut sink, &mut stream, &state).await else {
         return;
     };
-    if sink
-        .send(Message::Binary(Bytes::from(welcome)))
-        .await
-        .is_err()
-    {
+    let client_name = hello.client.clone();
+    let wants_poses = hello.wants_poses;
+    let Some((role, info)) = welcome(&mut sink, &state, &feed, hello, header_token).await else {
         return;
-    }
+    };
     tracing::debug!(scene = %feed.id, client = %client_name, ?role, "client joined");
     feed.clients.fetch_add(1, Ordering::Relaxed);
     metrics.clients.inc();
