@@ -61,7 +61,7 @@ dashboard-deps: deps
 	fi
 
 # The Khronos glTF validator (npm `gltf-validator`, pinned by its
-# package-lock.json) that server/tests/gltf_import.rs runs on the generated
+# package-lock.json) that scene/tests/gltf_import.rs runs on the generated
 # meshes; installed like the dashboard's packages.
 GLTF_VALIDATOR := scene/tests/gltf-validator
 gltf-validator-deps: deps
@@ -88,7 +88,7 @@ bake: build
 	@echo "$(OUT)/atlas.json maps surfaces to atlas rectangles, $(OUT)/stats.json has the numbers,"
 	@echo "$(OUT)/scene.glb is the scene lit by the lightmap for any glTF viewer."
 
-# BENCHMARKS.md, "Soak". The script builds nothing and stops by itself.
+# docs/benchmarks-history.md, "Soak". The script builds nothing and stops by itself.
 SOAK_FLAGS ?=
 soak: build
 	client/bench/soak.sh $(SOAK_FLAGS)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The soak benchmark of BENCHMARKS.md ("Soak"): a solver, a relay in front
+# The soak benchmark of docs/benchmarks-history.md ("Soak"): a solver, a relay in front
 # of it, N viewers and K drivers on the relay for DURATION seconds on
 # loopback; it stops by itself.
 #

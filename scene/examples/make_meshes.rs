@@ -3,7 +3,7 @@
 //! `lightwire_scene::gltf::content`; `tests/gltf_import.rs` checks
 //! that the committed files are byte-identical to a regeneration.
 //!
-//!     cargo run -p lightwire-server --example make_meshes
+//!     cargo run -p lightwire-scene --example make_meshes
 
 use std::path::PathBuf;
 

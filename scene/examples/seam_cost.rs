@@ -1,11 +1,11 @@
 //! What stitching the seams between lightmap islands costs a publication
-//! (`server/src/atlas/stitch.rs`): a floor of `N` x `N` cells, each its own
+//! (`scene/src/atlas/stitch.rs`): a floor of `N` x `N` cells, each its own
 //! island of the floor's lightmap (scattered, transposed), so that every
 //! cell edge is a seam. Prints the atlas build and `Atlas::to_image` without
 //! the seams' adjustment, with it on the first call, and with it on later
 //! calls whose light changes by 1% each (as a publication's does).
 //!
-//! `cargo run --release -p lightwire-server --example seam_cost -- 20`
+//! `cargo run --release -p lightwire-scene --example seam_cost -- 20`
 
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{LoadOptions, Scene};

@@ -59,7 +59,7 @@ fn committed_meshes_are_byte_identical_to_a_regeneration() {
         let committed = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         assert!(
             committed == bytes,
-            "{} differs from what the generator makes now ({} vs {} bytes): run `cargo run -p lightwire-server --example make_meshes` and commit",
+            "{} differs from what the generator makes now ({} vs {} bytes): run `cargo run -p lightwire-scene --example make_meshes` and commit",
             path.display(),
             committed.len(),
             bytes.len()

@@ -1,7 +1,7 @@
 //! Where a GPU solver deviates from the reference, surface by surface.
 //!
 //! ```text
-//! cargo run --release -p lightwire-server --example accuracy_by_surface -- \
+//! cargo run --release -p lightwire-solve --example accuracy_by_surface -- \
 //!     scenes/cornell-blocks.json [--density-scale 0.5] [--direct] [--gather] \
 //!     [--max-shooters N] [--resolution PIXELS] [--close] [--dump SURFACE]...
 //!     [--correct N] [--polish N] [--gather-resolution PIXELS]
@@ -29,7 +29,7 @@
 //! after its first batch (the brightest emitter's shot), the gather solver
 //! after its first bounce, and the reference does no Jacobi sweep, so all
 //! hold emission plus direct light. The
-//! numbers of BENCHMARKS.md's "Where the GPU solvers deviate" come from
+//! numbers of docs/benchmarks-history.md's "Where the GPU solvers deviate" come from
 //! here.
 
 use std::path::PathBuf;

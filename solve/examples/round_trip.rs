@@ -3,7 +3,7 @@
 //! compared texel by texel with a fresh session at the start pose.
 //!
 //! ```text
-//! cargo run --release -p lightwire-server --example round_trip -- \
+//! cargo run --release -p lightwire-solve --example round_trip -- \
 //!     scenes/cornell-low.json [--density-scale S] [--methods cross,incremental,full] \
 //!     [--corrections N] [--script scenes/scripts/teleport-stress.json] \
 //!     [--hold settled|published|corrected] [--jumps N] [--surfaces N] [--trace]

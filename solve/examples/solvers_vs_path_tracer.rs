@@ -5,7 +5,7 @@
 //! lightmap of the same atlas.
 //!
 //! ```text
-//! cargo run --release -p lightwire-server --example solvers_vs_path_tracer -- \
+//! cargo run --release -p lightwire-solve --example solvers_vs_path_tracer -- \
 //!     [SCENE [DENSITY_SCALE [SPP]]]
 //! ```
 //!

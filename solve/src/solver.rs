@@ -91,7 +91,7 @@ pub struct SolverSettings {
 /// Gathered correction rounds the progressive batch solver runs by
 /// default: on the Cornell scenes the first takes the NRMSE against the
 /// reference from 2-4% to about 1%, the second to the gather solver's own
-/// accuracy (BENCHMARKS.md, "Issue 15: gathered corrections").
+/// accuracy (docs/benchmarks-history.md, "Issue 15: gathered corrections").
 pub const DEFAULT_CORRECTIONS: u32 = 2;
 
 /// Receives progress while a solver is built and runs; every method does

@@ -7,7 +7,7 @@
 //!
 //! One reference solve per scene serves both solvers; it is the slow part
 //! (about 40 s per scene in a release build). Measured on 2026-12-02
-//! (BENCHMARKS.md, "Issue 15: gathered corrections"): progressive 0.55%
+//! (docs/benchmarks-history.md, "Issue 15: gathered corrections"): progressive 0.55%
 //! (cornell-blocks) and 0.74% (cornell-large), against 4.09% and 2.37%
 //! without the corrections; gather 0.56% and 0.78%.
 

@@ -276,7 +276,7 @@ fn check(setup: &Setup, solver: &str, mut values: Vec<Vec3>, dilate: bool) -> Ve
 /// contact point reads darker than half the path tracer (bilinear filtering
 /// no longer blends the black texels under a block into the floor beside
 /// it). The issue also asks for every point within 5%; that is not met
-/// (BENCHMARKS.md, "Contacts"), so it is printed, not asserted.
+/// (docs/benchmarks-history.md, "Contacts"), so it is printed, not asserted.
 fn assert_contract(verdict: &Verdict, solver: &str, points: usize) {
     eprintln!(
         "{solver}: {} of {points} contact points more than 5% off the path tracer (issue 15 target, not met)",

@@ -598,7 +598,7 @@ fn tessellated(k: usize, density_scale: f32) -> (Scene, Atlas) {
 /// and corrected as a bake corrects it (two gathered rounds), agrees with
 /// the per-triangle solve within 1% (the accuracy metric, non-emitting
 /// elements). Measured on lavapipe: 5,348 shots in 338 batches alone,
-/// 1,331 in 35 clustered, 0.32% apart (BENCHMARKS.md, "shooting
+/// 1,331 in 35 clustered, 0.32% apart (docs/benchmarks-history.md, "shooting
 /// clusters", has both against the CPU reference).
 #[test]
 fn clusters_light_a_mesh_as_triangles_shot_alone_do() {

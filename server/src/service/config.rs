@@ -249,7 +249,7 @@ impl Default for Config {
             transforms_per_second: 120.0,
             max_bad_frames: 20,
             hello_timeout_secs: 5.0,
-            // Measured (BENCHMARKS.md, "Bandwidth"): a 1.6% budget, about
+            // Measured (docs/benchmarks-history.md, "Bandwidth"): a 1.6% budget, about
             // Weber's fraction, brings a rotating box on cornell-large to
             // 3.5 KB per version.
             epsilon: 1.0 / 64.0,
