@@ -194,7 +194,11 @@ fn settle(live: &mut GpuLive<u32>, atlas: &Atlas) -> Result<Vec<[f32; 3]>> {
         }
     }
     let mut radiosity = live.radiosity().to_vec();
-    Ok(crate::publish::lightmap(atlas, live.validity(), &mut radiosity))
+    Ok(crate::publish::lightmap(
+        atlas,
+        live.validity(),
+        &mut radiosity,
+    ))
 }
 
 /// Records (or loads the cached recording of) `scene_path` under the script
@@ -241,14 +245,7 @@ pub fn record(
     let pose_at = |k: u32| from_wire(&script.pose_at(f64::from(k) / settings.rate));
     poses[object] = pose_at(0);
     let started = Instant::now();
-    let mut live = GpuLive::new(
-        gpu.clone(),
-        &scene,
-        &atlas,
-        &poses,
-        0,
-        settings.method,
-    )?;
+    let mut live = GpuLive::new(gpu.clone(), &scene, &atlas, &poses, 0, settings.method)?;
     let mut frames = vec![settle(&mut live, &atlas)?];
     eprintln!(
         "{} / {script_name}: {} elements, start converged in {:.1} s; recording {} versions at {} Hz",
