@@ -1,6 +1,8 @@
-//! Helpers every GPU solver shares: packing vectors for WGSL, creating
-//! render targets, dispatching a compute pass, and reading buffers back.
+//! Helpers every GPU solver shares: packing vectors for WGSL, padding
+//! what buffers start with, creating render targets, dispatching a compute
+//! pass, and reading buffers back.
 
+use bytemuck::Zeroable;
 use glam::Vec3;
 
 use super::device::GpuError;
@@ -12,6 +14,14 @@ pub(super) const WORKGROUP: u32 = 64;
 /// A `vec4<f32>` of WGSL: `v` and `w`.
 pub(super) fn v4(v: Vec3, w: f32) -> [f32; 4] {
     [v.x, v.y, v.z, w]
+}
+
+/// A vector padded with one zero entry when empty (buffers may not be).
+pub(super) fn non_empty<T: Zeroable + Clone>(mut v: Vec<T>) -> Vec<T> {
+    if v.is_empty() {
+        v.push(T::zeroed());
+    }
+    v
 }
 
 /// A 2D texture of one mip level and its default view.

@@ -215,7 +215,7 @@ fn element_in_chart(first: u32, w: u32, h: u32, triangle: u32, st: vec2<f32>) ->
 // Texels per row of the textures of what the static set shows moving
 // tiles' hemicubes, one texel per element (`shade_static` in
 // redistribute.wgsl, read by its hemicube passes; `SHOWN_WIDTH` in
-// server/src/gpu/progressive/redistribute.rs).
+// solve/src/gpu/progressive/redistribute/mod.rs).
 const SHOWN_WIDTH: u32 = 2048u;
 
 fn shown_texel(e: u32) -> vec2<i32> {

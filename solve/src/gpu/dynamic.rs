@@ -400,7 +400,6 @@ impl<T: Clone> DynamicSolver<T> {
     /// One batch (or the start of a unit). Returns (did something, was it
     /// caused by a move).
     fn advance(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
-        let levels = self.options.publish_at;
         self.profile.set_unit(match self.phase {
             Phase::Idle | Phase::Moving(_) => Unit::Move,
             Phase::Converging { .. }
@@ -410,57 +409,8 @@ impl<T: Clone> DynamicSolver<T> {
             Phase::Inserting(..) => Unit::Insertion,
         });
         match std::mem::replace(&mut self.phase, Phase::Idle) {
-            Phase::Idle => {
-                if let Some((poses, tag)) = self.pending.take() {
-                    self.start_move(poses, tag)?;
-                    return Ok((true, true));
-                }
-                if self.wants_refinement() {
-                    self.phase = match self.options.method {
-                        Redistribution::Cross => Phase::Settling,
-                        _ => Phase::Converging { after_move: false },
-                    };
-                    return Ok((true, false));
-                }
-                if !self.corrected {
-                    self.residuals.clear();
-                    self.phase = Phase::Correcting {
-                        round: Round::Building,
-                        left: self.options.corrections.saturating_sub(1),
-                    };
-                    return Ok((true, false));
-                }
-                Ok((false, false))
-            }
-            Phase::Converging { after_move } => {
-                // A move may start at any batch boundary once the current
-                // poses have been published.
-                if self.pending.is_some() && self.next_level > 0 {
-                    return Ok((true, false));
-                }
-                let batches = self.profile.start();
-                let shot = self.solver.step(Duration::ZERO)?;
-                self.profile.stop(batches, Stage::Batches);
-                let unshot = shot.unshot_fraction;
-                let mut crossed = false;
-                while self.next_level < levels.len() && unshot <= levels[self.next_level] {
-                    self.next_level += 1;
-                    crossed = true;
-                }
-                if crossed {
-                    self.complete(report);
-                }
-                if shot.batches > 0 && self.next_level < levels.len() {
-                    self.phase = Phase::Converging {
-                        after_move: after_move && !crossed,
-                    };
-                } else if shot.batches == 0 && !crossed {
-                    // Nothing left to shoot: converged as far as it goes.
-                    self.next_level = levels.len();
-                    self.complete(report);
-                }
-                Ok((true, after_move))
-            }
+            Phase::Idle => self.start_unit(),
+            Phase::Converging { after_move } => self.converge(after_move, report),
             Phase::Moving(mut mv) => {
                 let more = self.solver.move_step(&mut mv)?;
                 if more {
@@ -473,48 +423,8 @@ impl<T: Clone> DynamicSolver<T> {
                 }
                 Ok((true, true))
             }
-            Phase::Settling => {
-                // Newer poses cut refinement short: what is left stays
-                // unshot, and the state the next move publishes carries
-                // what was shot so far (any state reflects the poses).
-                if self.pending.is_some() {
-                    return Ok((true, false));
-                }
-                let batches = self.profile.start();
-                let shot = self.solver.step(Duration::ZERO)?;
-                self.profile.stop(batches, Stage::Batches);
-                if shot.batches > 0 && shot.unshot_fraction > levels[1] {
-                    self.phase = Phase::Settling;
-                } else {
-                    self.complete(report);
-                }
-                Ok((true, false))
-            }
-            Phase::Refining { level, after_move } => {
-                let batches = self.profile.start();
-                let shot = self.solver.step(Duration::ZERO)?;
-                self.profile.stop(batches, Stage::Batches);
-                if shot.batches > 0 && shot.unshot_fraction > level {
-                    self.phase = Phase::Refining { level, after_move };
-                } else {
-                    // Insert at the newest poses: a move that arrived
-                    // meanwhile costs nothing extra.
-                    let poses = match self.pending.take() {
-                        Some((poses, tag)) => {
-                            self.working = tag;
-                            poses
-                        }
-                        None => self.solver.poses().to_vec(),
-                    };
-                    let present = vec![false; poses.len()];
-                    self.profile.set_unit(Unit::Insertion);
-                    let mv = self
-                        .solver
-                        .begin_move(&poses, &present, Redistribution::Cross)?;
-                    self.phase = Phase::Inserting(mv, after_move);
-                }
-                Ok((true, after_move))
-            }
+            Phase::Settling => self.settle(report),
+            Phase::Refining { level, after_move } => self.refine(level, after_move),
             Phase::Inserting(mut mv, after_move) => {
                 if self.solver.move_step(&mut mv)? {
                     self.phase = Phase::Inserting(mv, after_move);
@@ -540,6 +450,117 @@ impl<T: Clone> DynamicSolver<T> {
                 Ok((true, false))
             }
         }
+    }
+
+    /// While idle: starts the next unit, if any (a move to the poses
+    /// waiting, refinement, or gathered corrections), in that order.
+    fn start_unit(&mut self) -> Result<(bool, bool), GpuError> {
+        if let Some((poses, tag)) = self.pending.take() {
+            self.start_move(poses, tag)?;
+            return Ok((true, true));
+        }
+        if self.wants_refinement() {
+            self.phase = match self.options.method {
+                Redistribution::Cross => Phase::Settling,
+                _ => Phase::Converging { after_move: false },
+            };
+            return Ok((true, false));
+        }
+        if !self.corrected {
+            self.residuals.clear();
+            self.phase = Phase::Correcting {
+                round: Round::Building,
+                left: self.options.corrections.saturating_sub(1),
+            };
+            return Ok((true, false));
+        }
+        Ok((false, false))
+    }
+
+    /// A batch of [`Phase::Converging`]: publishes each level of
+    /// [`DynamicOptions::publish_at`] the unshot power crosses.
+    fn converge(
+        &mut self,
+        after_move: bool,
+        report: &mut DynamicStep,
+    ) -> Result<(bool, bool), GpuError> {
+        let levels = self.options.publish_at;
+        // A move may start at any batch boundary once the current
+        // poses have been published.
+        if self.pending.is_some() && self.next_level > 0 {
+            return Ok((true, false));
+        }
+        let batches = self.profile.start();
+        let shot = self.solver.step(Duration::ZERO)?;
+        self.profile.stop(batches, Stage::Batches);
+        let unshot = shot.unshot_fraction;
+        let mut crossed = false;
+        while self.next_level < levels.len() && unshot <= levels[self.next_level] {
+            self.next_level += 1;
+            crossed = true;
+        }
+        if crossed {
+            self.complete(report);
+        }
+        if shot.batches > 0 && self.next_level < levels.len() {
+            self.phase = Phase::Converging {
+                after_move: after_move && !crossed,
+            };
+        } else if shot.batches == 0 && !crossed {
+            // Nothing left to shoot: converged as far as it goes.
+            self.next_level = levels.len();
+            self.complete(report);
+        }
+        Ok((true, after_move))
+    }
+
+    /// A batch of [`Phase::Settling`], which completes at the last
+    /// publication level.
+    fn settle(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
+        let levels = self.options.publish_at;
+        // Newer poses cut refinement short: what is left stays
+        // unshot, and the state the next move publishes carries
+        // what was shot so far (any state reflects the poses).
+        if self.pending.is_some() {
+            return Ok((true, false));
+        }
+        let batches = self.profile.start();
+        let shot = self.solver.step(Duration::ZERO)?;
+        self.profile.stop(batches, Stage::Batches);
+        if shot.batches > 0 && shot.unshot_fraction > levels[1] {
+            self.phase = Phase::Settling;
+        } else {
+            self.complete(report);
+        }
+        Ok((true, false))
+    }
+
+    /// A batch of [`Phase::Refining`]; once the unshot power is down to
+    /// `level`, the moving objects are inserted at the newest poses.
+    fn refine(&mut self, level: f64, after_move: bool) -> Result<(bool, bool), GpuError> {
+        let batches = self.profile.start();
+        let shot = self.solver.step(Duration::ZERO)?;
+        self.profile.stop(batches, Stage::Batches);
+        if shot.batches > 0 && shot.unshot_fraction > level {
+            self.phase = Phase::Refining { level, after_move };
+        } else {
+            // Insert at the newest poses: a move that arrived
+            // meanwhile costs nothing extra.
+            let poses = match self.pending.take() {
+                Some((poses, tag)) => {
+                    self.working = tag;
+                    poses
+                }
+                None => self.solver.poses().to_vec(),
+            };
+            let present = vec![false; poses.len()];
+            self.profile.set_unit(Unit::Insertion);
+            let mv = self
+                .solver
+                .begin_move(&poses, &present, Redistribution::Cross)?;
+            self.phase = Phase::Inserting(mv, after_move);
+        }
+        Ok((true, after_move))
     }
 
     /// One slice of a correction round (see [`Round`]).

@@ -111,7 +111,7 @@ struct RadFragment {
 // The element each pixel sees and its distance from the eye (Rg32Uint,
 // the distance bitcast; the clear's NO_PATCH and 0 where nothing is): a
 // back hemicube of cross redistribution. The back pass binds `poses` with
-// the moving objects' matrices zero (gpu/progressive/redistribute.rs
+// the moving objects' matrices zero (gpu/progressive/redistribute/cross.rs
 // `back_poses`), so it sees the static surfaces behind them; what they
 // show is looked up per pixel (redistribute.wgsl `shade_back`), so the
 // drawing at a tile's new pose serves again at its old pose in the next

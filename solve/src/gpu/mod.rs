@@ -29,8 +29,9 @@
 //!    16-byte answer is copied to a mappable buffer and read back: it is
 //!    both the next batch's shooter and the convergence measure.
 //!
-//! Shader sources live beside the Rust that binds them (`*.wgsl` here and
-//! in `progressive/`) and are compiled into the binary with `include_str!`; each file names on its
+//! Shader sources live beside the Rust that binds them (`*.wgsl` here, in
+//! `progressive/`, `progressive/redistribute/` and `gather/`) and are
+//! compiled into the binary with `include_str!`; each file names on its
 //! first line the files it requires, `shaders.rs` assembles them into
 //! modules, and its tests validate every file and every module with naga,
 //! tie each struct shared with WGSL to its Rust mirror's size, and check
@@ -48,7 +49,7 @@
 //!   radiosity);
 //! - `shaders.rs`: the WGSL modules;
 //! - `progressive/`: progressive refinement and redistribution;
-//! - `gather.rs`: gather radiosity;
+//! - `gather/`: gather radiosity;
 //! - `correct.rs`: gather sweeps that correct a progressive solution;
 //! - `dynamic.rs`: the solver session that follows moves;
 //! - `profile.rs`: where that session's time goes, per stage (profiling

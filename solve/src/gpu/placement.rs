@@ -303,6 +303,17 @@ pub(super) fn world_areas(local: &[f32], objects: &[u32], poses: &[Pose]) -> Vec
         .collect()
 }
 
+/// Emitted power `Σ A_e E_e` (W, channels summed) of the elements of
+/// `atlas` at the world areas `areas`.
+pub(super) fn emitted_power(atlas: &Atlas, areas: &[f32]) -> f64 {
+    atlas
+        .elements
+        .iter()
+        .zip(areas)
+        .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
+        .sum()
+}
+
 /// The object-to-world matrix of a pose.
 pub(super) fn pose_matrix(pose: &Pose) -> [[f32; 4]; 4] {
     glam::Mat4::from_scale_rotation_translation(

@@ -1,9 +1,10 @@
 //! The WGSL modules the GPU solvers compile, assembled in one place.
 //!
 //! Each source lives beside the Rust that binds it (`gpu/*.wgsl` for the
-//! shared declarations, the hemicube and gather; `gpu/progressive/` for
-//! progressive refinement and redistribution) and is compiled into the
-//! binary with `include_str!`. Every file is standalone: it
+//! shared declarations and the hemicube; `gpu/progressive/` for
+//! progressive refinement, `gpu/progressive/redistribute/` for
+//! redistribution, `gpu/gather/` for gather radiosity) and is compiled
+//! into the binary with `include_str!`. Every file is standalone: it
 //! declares each binding, struct and function it uses, or names the file
 //! that does in its first line, the one documented way WGSL is shared:
 //!
@@ -62,9 +63,9 @@ const FILES: [(&str, &str); 9] = [
     ),
     (
         "redistribute.wgsl",
-        include_str!("progressive/redistribute.wgsl"),
+        include_str!("progressive/redistribute/redistribute.wgsl"),
     ),
-    ("gather.wgsl", include_str!("gather.wgsl")),
+    ("gather.wgsl", include_str!("gather/gather.wgsl")),
 ];
 
 /// The first line of a file that lists what it requires.

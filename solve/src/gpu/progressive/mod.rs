@@ -10,14 +10,15 @@
 //!
 //! The solver in parts, one concept per file:
 //!
-//! - this file: the options, the solver's state and its public interface;
+//! - this file: the solver's state and its public interface;
+//! - `options.rs`: its tuning;
 //! - `resources.rs`: the buffers and targets it keeps, and the slot each is
 //!   bound at;
 //! - `pipelines.rs`: the compute passes and their bindings by name;
 //! - `shooters.rs`: cutting the shooting patch into shooters (§4.3.3);
 //! - `shoot.rs`: one batch and the selection of the next patch;
-//! - `redistribute.rs`: following moves (incremental and cross
-//!   redistribution, thesis §4.4-4.5);
+//! - `redistribute/`: following moves (incremental and cross
+//!   redistribution, thesis §4.4-4.5), with `redistribute.wgsl`;
 //! - `regather.rs`: the texels next to a moved object gather again.
 
 use std::time::{Duration, Instant};
@@ -25,7 +26,7 @@ use std::time::{Duration, Instant};
 use bytemuck::Zeroable;
 use glam::Vec3;
 
-use super::buffers::{WORKGROUP, read_vec4, received_and_absorbed, v4};
+use super::buffers::{WORKGROUP, non_empty, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
 use super::hemicube::{Draws, FACES, patch_vertices};
 use super::placement::{
@@ -36,9 +37,10 @@ use super::profile::Profiler;
 use crate::direct::StaticHits;
 use crate::validity::Validity;
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{Pose, Scene, SolverHints};
+use lightwire_scene::{Pose, Scene};
 
 mod clusters;
+mod options;
 mod pipelines;
 mod redistribute;
 mod regather;
@@ -47,6 +49,7 @@ mod shoot;
 mod shooters;
 mod slot;
 
+pub use options::ProgressiveOptions;
 #[cfg(test)]
 pub(in crate::gpu) use pipelines::{PROGRESSIVE_PASSES, REDISTRIBUTION_PASSES};
 pub use redistribute::{Move, Redistribution};
@@ -55,162 +58,13 @@ pub(in crate::gpu) use shooters::{GpuShooter, MAX_BATCH};
 
 use clusters::Clusters;
 use pipelines::Pipelines;
-use resources::{Buffers, Upload, non_empty};
+use resources::{Buffers, Upload};
 use shooters::Tiling;
 
 /// How far around a moved object, in texels, validity is re-tested and
 /// static texels gather again when a cross move completes
 /// ([`ProgressiveSolver::update_validity`], `regather.rs`).
 const REGATHER_TEXELS: f32 = 2.0;
-
-/// Tuning of [`ProgressiveSolver`].
-#[derive(Debug, Clone, Copy)]
-pub struct ProgressiveOptions {
-    /// Top-face resolution of the hemicube item buffers in pixels (thesis
-    /// §4.3.1: with the disk approximation the form factor does not depend
-    /// on it, only visibility does, so it can be low).
-    pub hemicube_resolution: u32,
-    /// Most shooters one patch is split into (thesis §4.3.3); the count
-    /// for a patch grows with the square root of its share of the emitted
-    /// power. At most 128 (the shaders hold a batch's shooters in a
-    /// uniform buffer of that many; more is taken as 128).
-    pub max_shooters: u32,
-    /// Form-factor subdivision: a shooter of area `A` at distance `r` is
-    /// split into `ceil(subdivision * sqrt(A) / r)²` sub-disks (thesis
-    /// §4.3.3, adaptive form factor subdivision).
-    ///
-    /// The disk approximation (thesis eq. 2.2.7) is biased low: each
-    /// sub-disk of area `a` at distance `r` loses about `a / (π r²)` of its
-    /// form factor to the `+ a` in the denominator, so a closed room
-    /// receives less than is shot. Measured on a closed albedo-0.9 box
-    /// (`furnace.json` repainted), power received per power shot:
-    /// 0.9974 at 4, 0.9992 at 8, 0.9998 at 16, 1.0000 with the exact form
-    /// factor; a room that needs ten bounces multiplies that loss tenfold.
-    pub subdivision: f32,
-    /// Upper bound on sub-disks per axis; closer shooters use the exact
-    /// (infinitely subdivided) form factor: Lambert's contour integral,
-    /// four arctangents for an unclipped quad.
-    pub max_subdivision: u32,
-    /// Publish indirect light only (gems §39.4): [`ProgressiveSolver::radiosity`]
-    /// returns `B - E - D`, where `D` is the first bounce of the emitted
-    /// light, for clients that draw direct light and shadows themselves.
-    /// Every emitting patch shoots its emission once before anything else;
-    /// `D` is what that delivered. (Emitters that light each other mix a
-    /// little of their received light into `D`.)
-    pub indirect_only: bool,
-    /// Side length of the cross projection's sampling grid on each moving
-    /// shooter (thesis Alg. 4.5 gridSize).
-    pub cross_grid: u32,
-    /// A receiver whose form factor to a moving tile is below this samples
-    /// the tile's cross projection through a grid of half the side
-    /// (`cross_grid / 2`, at least 1): where the tile is small in the
-    /// receiver's view, its share of the light is small and the rays
-    /// through it see nearly the same pixels of the back hemicube. 0:
-    /// every receiver takes the full grid. At 0.005 the four thesis scenes
-    /// read the same NRMSE as with the full grid everywhere, and
-    /// cornell-small 2.31% instead of 1.87% at 0.01 (BENCHMARKS.md,
-    /// "a coarse cross projection for receivers that see a tile small").
-    pub cross_coarse_below: f32,
-    /// Cross redistribution shoots from tiles of at most this many texels
-    /// per side on each moving patch, not from every texel: a tile gathers
-    /// the static scene's light once (its texels share it), shoots once
-    /// and casts its shadow once. The thesis does the same by giving the
-    /// rotating box far fewer elements under cross redistribution (§5.1:
-    /// 918 → 90 on the large Cornell box, 270 → 24 on the low-quality
-    /// one). 5 gives 45 tiles on cornell-large's box (912 texels) and 20
-    /// on cornell-low's (294). 4 gave 57 on cornell-large: a cross frame
-    /// there cost 18% more at the same NRMSE, and cornell-small read
-    /// 1.46% against 1.13% with 5 (BENCHMARKS.md, "cross tiles of 5
-    /// texels"). 1 shoots per texel.
-    pub cross_tile: u32,
-    /// Top-face resolution of the back hemicubes of shot radiosity used by
-    /// the cross projection (thesis §4.5.2 renders them as low as 16, with
-    /// multisampling as a blur; here one sample per pixel, which at 32²
-    /// was more accurate than 16² with four and cost the same on lavapipe,
-    /// BENCHMARKS.md "back hemicubes at 32²", and lets a back hemicube
-    /// hold element ids that serve two moves, `redistribute.rs` `Kept`).
-    pub back_resolution: u32,
-    /// Split shooter tiles that straddle a contact (valid and invalid
-    /// elements), up to 1.5 times the tiles of the power-based grid
-    /// (`Tiling::split_contacts` in `shooters.rs`), for every method.
-    /// Incremental sessions once ran without it: with it, incremental on
-    /// indirect-light read 20.3% NRMSE after five frames instead of 3.9%.
-    /// The split was not the cause: ordinary refinement dropped negative
-    /// light at its receivers (`reconstruct` in progressive.wgsl), so the
-    /// refinement after each incremental move created energy, and the
-    /// split's batches, which shoot that negative light from more and
-    /// better placed tiles, created more (BENCHMARKS.md, "Incremental
-    /// redistribution with split shooter tiles").
-    pub split_contacts: bool,
-    /// Most workgroups one dispatch of the per-patch power reduction uses
-    /// (clamped to the adapter's per-dimension limit, 65,535 on most); a
-    /// mesh has a patch per triangle and may have more, which the
-    /// workgroups then take in turns. Tests lower it to exercise that.
-    pub max_power_workgroups: u32,
-    /// Draw each hemicube pass as one instanced draw where the device has
-    /// clip distances (`hemicube::Draws::One`), else a draw per face of
-    /// every shooter. Both give the same hemicubes; tests turn it off to
-    /// compare.
-    pub one_draw_hemicubes: bool,
-    /// A batch whose patch leaves shooter slots free fills them with the
-    /// next patches by unshot power, down to `shared_batch_ratio` of the
-    /// first's (0 or above 1: one patch per batch, as the thesis shoots).
-    /// Every shooter of a batch is shot at once and every element gathers
-    /// from all of them, so it is still progressive refinement; what it
-    /// saves is a batch's fixed cost (the reconstruction over every
-    /// element, the selection, a submission and a readback), which a mesh
-    /// of many small triangles, a patch and a shooter each, otherwise pays
-    /// per triangle (BENCHMARKS.md, "shared batches").
-    pub shared_batch_ratio: f32,
-    /// Shoot a mesh's small triangles in clusters: triangles of one
-    /// object and material joined through shared corners, their normals
-    /// within 20° (`clusters.rs`), cut per batch into as many shooters as
-    /// their power asks for, as a quad is. Without it a mesh needs about a
-    /// shot per triangle (BENCHMARKS.md, "shooting clusters"); tests turn
-    /// it off to compare.
-    pub cluster_triangles: bool,
-    /// Cross redistribution: keep the item buffers and back hemicubes a
-    /// move draws at its tiles' new pose and copy them back as the next
-    /// move's old-pose ones when its tiles, their shooters and every pose
-    /// match (`redistribute.rs` `Kept`), instead of drawing them again;
-    /// tests turn it off to compare.
-    pub keep_old_pose_hemicubes: bool,
-}
-
-impl Default for ProgressiveOptions {
-    fn default() -> Self {
-        Self {
-            hemicube_resolution: 64,
-            max_shooters: 128,
-            subdivision: 8.0,
-            max_subdivision: 2,
-            indirect_only: false,
-            cross_grid: 4,
-            cross_coarse_below: 0.005,
-            cross_tile: 5,
-            back_resolution: 32,
-            split_contacts: true,
-            max_power_workgroups: u32::MAX,
-            one_draw_hemicubes: true,
-            shared_batch_ratio: 0.5,
-            cluster_triangles: true,
-            keep_old_pose_hemicubes: true,
-        }
-    }
-}
-
-impl ProgressiveOptions {
-    /// These options with the settings `hints` states (a scene's measured
-    /// ones, `Scene::solver`, or the command line's) in place of theirs.
-    pub fn with_hints(self, hints: &SolverHints) -> Self {
-        Self {
-            cross_grid: hints.cross_grid.unwrap_or(self.cross_grid),
-            back_resolution: hints.back_resolution.unwrap_or(self.back_resolution),
-            cross_coarse_below: hints.cross_coarse_below.unwrap_or(self.cross_coarse_below),
-            ..self
-        }
-    }
-}
 
 /// What a call to [`ProgressiveSolver::step`] or `solve` did.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -243,7 +97,7 @@ pub struct EnergyBalance {
 /// the CPU only places shooters and reads one 16-byte selection per batch
 /// (and the patches' powers, when batches are shared).
 ///
-/// Objects can move ([`ProgressiveSolver::redistribute`]): elements are kept
+/// Objects can move ([`ProgressiveSolver::begin_move`]): elements are kept
 /// in object space and placed at the current poses by a compute pass, and
 /// the hemicube rasterizer places triangles with one of two pose sets (the
 /// current and the old one), so that a redistribution sees the scene before
@@ -360,36 +214,9 @@ impl ProgressiveSolver {
     ) -> Result<Self, GpuError> {
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
-        let limits = &gpu.limits;
         let res = options.hemicube_resolution.max(1);
-        if FACES * res > limits.max_texture_dimension_2d {
-            return Err(GpuError::TooLarge(format!(
-                "a hemicube resolution of {res} needs a {} pixel wide item buffer; the adapter allows {}",
-                FACES * res,
-                limits.max_texture_dimension_2d
-            )));
-        }
-        // Redistribution batches render two hemicubes per shooter, so the
-        // capacity is even; at most the shaders' uniform array of shooters.
-        let batch_capacity = (options
-            .max_shooters
-            .clamp(2, MAX_BATCH)
-            .min(limits.max_texture_dimension_2d / res)
-            / 2)
-            * 2;
+        let batch_capacity = batch_capacity(&gpu.limits, &options, atlas.elements.len())?;
         let n = atlas.elements.len();
-        let element_bytes = n as u64 * std::mem::size_of::<LocalElement>() as u64;
-        // Cross redistribution's shown textures hold a texel per element,
-        // SHOWN_WIDTH a row.
-        let shown_rows = n.div_ceil(redistribute::SHOWN_WIDTH as usize);
-        if element_bytes > limits.max_storage_buffer_binding_size
-            || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
-            || shown_rows > limits.max_texture_dimension_2d as usize
-        {
-            return Err(GpuError::TooLarge(format!(
-                "{n} elements do not fit the adapter's storage buffer, dispatch or texture limits"
-            )));
-        }
         let absent: Vec<bool> = (0..poses.len())
             .map(|o| absent.get(o).copied().unwrap_or(false))
             .collect();
@@ -413,49 +240,17 @@ impl ProgressiveSolver {
         let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
         let emission = non_empty(atlas.elements.iter().map(|e| v4(e.emission, 0.0)).collect());
         let areas = world_areas(&local_areas, &element_objects, poses);
-        let emitted: f64 = atlas
-            .elements
-            .iter()
-            .zip(&areas)
-            .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
-            .sum();
-        let patch_ranges = table.ranges();
-        let patch_frames = table.frames();
-        // Absent objects start dark: they neither hold nor shoot light.
-        let start: Vec<[f32; 4]> = emission
-            .iter()
-            .zip(
-                atlas
-                    .elements
-                    .iter()
-                    .map(|e| e.object as usize)
-                    .chain(std::iter::once(0)),
-            )
-            .map(|(e, o)| {
-                if absent.get(o).copied().unwrap_or(false) {
-                    [0.0; 4]
-                } else {
-                    *e
-                }
-            })
-            .collect();
-
-        let clusters = if options.cluster_triangles {
-            let materials: Vec<u32> = scene.patches.iter().map(|p| p.material).collect();
-            let mesh: Vec<bool> = scene.patches.iter().map(|p| p.mesh).collect();
-            Clusters::build(&patches, &table.objects, &materials, &mesh)
-        } else {
-            Clusters::default()
-        };
+        let emitted = placement::emitted_power(atlas, &areas);
+        let clusters = clusters(scene, &patches, &table, &options);
         let buffers = Buffers::new(
             &device,
             &Upload {
                 members: clusters.order(),
                 locals: &locals,
                 emission: &emission,
-                start: &start,
-                patch_ranges: &patch_ranges,
-                patch_frames: &patch_frames,
+                start: &start_radiosity(atlas, &emission, &absent),
+                patch_ranges: &table.ranges(),
+                patch_frames: &table.frames(),
                 vertices: &vertices,
                 objects: poses.len(),
                 capacity: batch_capacity,
@@ -514,18 +309,26 @@ impl ProgressiveSolver {
             triangles,
             profile: Profiler::disabled(),
         };
-        let current = solver.poses.clone();
-        solver.write_poses(&current, &current, &[]);
-        solver.write_flags(&[]);
-        let mut encoder = solver.device.create_command_encoder(&Default::default());
-        solver.encode_place(&mut encoder);
-        solver.encode_selection(&mut encoder);
-        solver.queue.submit([encoder.finish()]);
-        solver.refresh_selection()?;
-        if options.indirect_only {
-            solver.shoot_direct(scene, poses)?;
-        }
+        solver.start(scene, poses)?;
         Ok(solver)
+    }
+
+    /// Places the elements at the solver's poses, finds the first shooting
+    /// patch, and with [`ProgressiveOptions::indirect_only`] shoots the
+    /// direct light.
+    fn start(&mut self, scene: &Scene, poses: &[Pose]) -> Result<(), GpuError> {
+        let current = self.poses.clone();
+        self.write_poses(&current, &current, &[]);
+        self.write_flags(&[]);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        self.encode_place(&mut encoder);
+        self.encode_selection(&mut encoder);
+        self.queue.submit([encoder.finish()]);
+        self.refresh_selection()?;
+        if self.options.indirect_only {
+            self.shoot_direct(scene, poses)?;
+        }
+        Ok(())
     }
 
     /// Writes both pose sets and the object flags: `current` (zero for
@@ -882,5 +685,84 @@ impl ProgressiveSolver {
     /// Copies a vec4 buffer with one entry per element back to the CPU.
     fn read_vec4(&self, buffer: &wgpu::Buffer) -> Result<Vec<[f32; 4]>, GpuError> {
         read_vec4(&self.device, &self.queue, buffer, self.element_count)
+    }
+}
+
+/// Shooters per batch the item-buffer target holds with `options` on an
+/// adapter of `limits`, once the hemicubes and `n` elements are known to
+/// fit those limits at all.
+fn batch_capacity(
+    limits: &wgpu::Limits,
+    options: &ProgressiveOptions,
+    n: usize,
+) -> Result<u32, GpuError> {
+    let res = options.hemicube_resolution.max(1);
+    if FACES * res > limits.max_texture_dimension_2d {
+        return Err(GpuError::TooLarge(format!(
+            "a hemicube resolution of {res} needs a {} pixel wide item buffer; the adapter allows {}",
+            FACES * res,
+            limits.max_texture_dimension_2d
+        )));
+    }
+    // Redistribution batches render two hemicubes per shooter, so the
+    // capacity is even; at most the shaders' uniform array of shooters.
+    let batch_capacity = (options
+        .max_shooters
+        .clamp(2, MAX_BATCH)
+        .min(limits.max_texture_dimension_2d / res)
+        / 2)
+        * 2;
+    let element_bytes = n as u64 * std::mem::size_of::<LocalElement>() as u64;
+    // Cross redistribution's shown textures hold a texel per element,
+    // SHOWN_WIDTH a row.
+    let shown_rows = n.div_ceil(redistribute::SHOWN_WIDTH as usize);
+    if element_bytes > limits.max_storage_buffer_binding_size
+        || n > (limits.max_compute_workgroups_per_dimension as usize) * WORKGROUP as usize
+        || shown_rows > limits.max_texture_dimension_2d as usize
+    {
+        return Err(GpuError::TooLarge(format!(
+            "{n} elements do not fit the adapter's storage buffer, dispatch or texture limits"
+        )));
+    }
+    Ok(batch_capacity)
+}
+
+/// `B` and `B^u` of every element at the start: its `emission` (padded as
+/// the buffers are). Absent objects start dark: they neither hold nor
+/// shoot light.
+fn start_radiosity(atlas: &Atlas, emission: &[[f32; 4]], absent: &[bool]) -> Vec<[f32; 4]> {
+    emission
+        .iter()
+        .zip(
+            atlas
+                .elements
+                .iter()
+                .map(|e| e.object as usize)
+                .chain(std::iter::once(0)),
+        )
+        .map(|(e, o)| {
+            if absent.get(o).copied().unwrap_or(false) {
+                [0.0; 4]
+            } else {
+                *e
+            }
+        })
+        .collect()
+}
+
+/// The triangle clusters of the patches placed as `patches`, with
+/// [`ProgressiveOptions::cluster_triangles`] (else none).
+fn clusters(
+    scene: &Scene,
+    patches: &[WorldPatch],
+    table: &PatchTable,
+    options: &ProgressiveOptions,
+) -> Clusters {
+    if options.cluster_triangles {
+        let materials: Vec<u32> = scene.patches.iter().map(|p| p.material).collect();
+        let mesh: Vec<bool> = scene.patches.iter().map(|p| p.mesh).collect();
+        Clusters::build(patches, &table.objects, &materials, &mesh)
+    } else {
+        Clusters::default()
     }
 }

@@ -193,8 +193,25 @@ impl ProgressiveSolver {
             ];
             changed.push(i);
         }
-        // One write per run of consecutive elements (a chart's row along
-        // the moved object), not two per element.
+        self.write_changed(changed, &radiosity, &unshot, &held);
+        self.profile.stop(gathering, Stage::Regather);
+        Ok((!contacts.is_empty()).then_some(Contacts {
+            elements: contacts,
+            radiosity: seen,
+        }))
+    }
+
+    /// Writes the `changed` elements' radiosity, unshot radiosity and
+    /// held shot radiosity to the GPU, one write per run of consecutive
+    /// elements (a chart's row along the moved object), not two per
+    /// element.
+    fn write_changed(
+        &self,
+        mut changed: Vec<usize>,
+        radiosity: &[[f32; 4]],
+        unshot: &[[f32; 4]],
+        held: &[[f32; 4]],
+    ) {
         changed.sort_unstable();
         let mut k = 0;
         while k < changed.len() {
@@ -208,19 +225,14 @@ impl ProgressiveSolver {
             let offset = start as u64 * 16;
             let d = self.dynamic.as_ref().expect("built in begin_move");
             for (buffer, values) in [
-                (&self.buffers.radiosity, &radiosity),
-                (&self.buffers.unshot, &unshot),
-                (&d.held, &held),
+                (&self.buffers.radiosity, radiosity),
+                (&self.buffers.unshot, unshot),
+                (&d.held, held),
             ] {
                 self.queue
                     .write_buffer(buffer, offset, bytemuck::cast_slice(&values[start..end]));
             }
         }
-        self.profile.stop(gathering, Stage::Regather);
-        Ok((!contacts.is_empty()).then_some(Contacts {
-            elements: contacts,
-            radiosity: seen,
-        }))
     }
 
     /// The valid elements of the present objects flagged in `moving` that

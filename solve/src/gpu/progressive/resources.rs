@@ -1,13 +1,12 @@
 //! The GPU buffers and targets a progressive solver keeps for its lifetime,
 //! and which slot of the shaders each one is bound at.
 
-use bytemuck::Zeroable;
 use wgpu::util::DeviceExt;
 
 use super::shoot::{BatchUniform, Selection};
 use super::slot;
 use crate::gpu::binding::Resources;
-use crate::gpu::buffers::texture;
+use crate::gpu::buffers::{non_empty, texture};
 use crate::gpu::hemicube::{self, FACES, GpuVertex};
 use crate::gpu::placement::{ELEMENT_BYTES, LocalElement, PatchFrame, PatchRange};
 
@@ -93,9 +92,7 @@ impl Buffers {
             })
         };
         let selection_bytes = std::mem::size_of::<Selection>() as u64;
-        let res = up.resolution;
-        let size = (FACES * res, res * up.capacity);
-        let attach = wgpu::TextureUsages::RENDER_ATTACHMENT;
+        let (item_view, depth_view) = item_targets(device, up.resolution, up.capacity);
         Self {
             local_elements: init(
                 "local elements",
@@ -173,27 +170,8 @@ impl Buffers {
                 bytemuck::cast_slice(up.vertices),
                 storage,
             ),
-            item_view: texture(
-                device,
-                "hemicube item buffers",
-                size,
-                wgpu::TextureFormat::R32Uint,
-                1,
-                // Copies: cross moves keep their new-pose rows for the next
-                // (redistribute.rs `KeptItems`).
-                attach
-                    | wgpu::TextureUsages::TEXTURE_BINDING
-                    | wgpu::TextureUsages::COPY_SRC
-                    | wgpu::TextureUsages::COPY_DST,
-            ),
-            depth_view: texture(
-                device,
-                "hemicube depth",
-                size,
-                wgpu::TextureFormat::Depth32Float,
-                1,
-                attach,
-            ),
+            item_view,
+            depth_view,
         }
     }
 
@@ -223,10 +201,35 @@ impl Buffers {
     }
 }
 
-/// A vector padded with one zero entry when empty (buffers may not be).
-pub(super) fn non_empty<T: Zeroable + Clone>(mut v: Vec<T>) -> Vec<T> {
-    if v.is_empty() {
-        v.push(T::zeroed());
-    }
-    v
+/// The item buffers, a row of five faces of top-face resolution `res` per
+/// shooter slot of `capacity`, and their depth target.
+fn item_targets(
+    device: &wgpu::Device,
+    res: u32,
+    capacity: u32,
+) -> (wgpu::TextureView, wgpu::TextureView) {
+    let size = (FACES * res, res * capacity);
+    let attach = wgpu::TextureUsages::RENDER_ATTACHMENT;
+    let item_view = texture(
+        device,
+        "hemicube item buffers",
+        size,
+        wgpu::TextureFormat::R32Uint,
+        1,
+        // Copies: cross moves keep their new-pose rows for the next
+        // (redistribute/resources.rs `Kept`).
+        attach
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::COPY_DST,
+    );
+    let depth_view = texture(
+        device,
+        "hemicube depth",
+        size,
+        wgpu::TextureFormat::Depth32Float,
+        1,
+        attach,
+    );
+    (item_view, depth_view)
 }

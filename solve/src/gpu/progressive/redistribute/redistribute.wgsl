@@ -128,7 +128,7 @@ const RESET_UNSHOT: u32 = 0x400u;
 // back].
 const ONE_SIDED: u32 = 0x800u;
 // Cross: the old-pose slots are the last cross job's new-pose ones, item
-// buffers and all (gpu/progressive/redistribute.rs `Kept`), so which of
+// buffers and all (gpu/progressive/redistribute/resources.rs `Kept`), so which of
 // them reach an element is what that job marked (`marks`).
 const KEPT_MARKS: u32 = 0x1000u;
 
@@ -202,7 +202,7 @@ fn shade_static(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 // Shades the back hemicubes of a cross job (slots [0, 2 back.old_from_slot),
 // every slot the job's projection reads, whether drawn now or kept from the
-// last move, `run_job` in gpu/progressive/redistribute.rs): the element a
+// last move, `run_cross` in gpu/progressive/redistribute/cross.rs): the element a
 // pixel sees shows its shot radiosity (`shown_back`, just filled by
 // `shade_static`), with the distance the drawing stored.
 @compute @workgroup_size(8, 8)

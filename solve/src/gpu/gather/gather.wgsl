@@ -19,10 +19,10 @@
 // previous bounce) and writes `updated`; the CPU swaps the two afterwards.
 // Both hold the reflected radiosity R = B - E, not B: that is what the
 // hemicubes show, so a fragment reads one value and no emission; the CPU
-// adds E back where it reads B (gather.rs).
+// adds E back where it reads B (gather/mod.rs).
 
 // One patch corner in world space. Mirrors `GatherVertex` in
-// server/src/gpu/gather.rs.
+// solve/src/gpu/gather/resources.rs.
 struct GatherVertex {
     // xyz: world position, w: bitcast patch id.
     pos: vec4<f32>,
@@ -32,7 +32,7 @@ struct GatherVertex {
     st: vec4<f32>,
 };
 
-// Constants of one pass. Mirrors `GatherParams` in gather.rs.
+// Constants of one pass. Mirrors `GatherParams` in gather/resources.rs.
 struct GatherParams {
     // First element of the pass; the pass gathers for `count` elements.
     first: u32,

@@ -48,31 +48,38 @@
 //! those 16 bytes back: the power the bounce added, as a fraction of the
 //! emitted power, is the convergence measure (the analogue of the reference
 //! solver's Jacobi residual). Then the two radiosity buffers swap roles.
+//!
+//! The solver in parts:
+//!
+//! - this file: the options, the solver's state, its public interface and
+//!   its passes;
+//! - `resources.rs`: the records shared with `gather.wgsl`, what they
+//!   start with, and the buffers, targets and pipelines;
+//! - `tile.rs`: one element's hemicube tile (the target's layout, the face
+//!   viewports, the delta form factors).
 
 use std::time::{Duration, Instant};
 
-use bytemuck::{Pod, Zeroable};
-use glam::{DVec3, Vec3};
-use wgpu::util::DeviceExt;
+use glam::Vec3;
 
-use super::binding::{Kind, Pass, Resources, Slot};
-use super::buffers::{map_read, read_vec4, received_and_absorbed, v4};
+use super::buffers::{map_read, non_empty, read_vec4, received_and_absorbed, v4};
 use super::device::{Device, GpuError};
-use super::hemicube::{FACES, corner_order, render_pipeline};
-use super::placement::{self, PatchRange, PatchTable, SURFACE_OFFSET, world_areas};
-use super::progressive::GpuShooter;
-use super::shaders;
-use crate::direct::direct_light;
+use super::hemicube::FACES;
+use super::placement::{self, PatchTable, SURFACE_OFFSET, world_areas};
 use crate::validity::Validity;
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Pose, Scene};
 
-/// Upper bound on the memory of the hemicube target (colour and depth) of
-/// one pass; fewer elements are batched at high resolutions.
-const TARGET_BYTES: u64 = 64 << 20;
+mod resources;
+mod tile;
 
-/// Bytes per hemicube pixel: `Rgba32Float` colour and `Depth32Float`.
-const PIXEL_BYTES: u64 = 16 + 4;
+#[cfg(test)]
+pub(super) use resources::{ALL_PASSES, GatherVertex};
+use resources::{
+    GatherBuffers, GatherPipelines, Upload, gather_elements, receivers, targets, world_triangles,
+};
+pub(super) use resources::{GatherElement, GatherParams};
+use tile::{TileLayout, delta_form_factors, face_viewport};
 
 /// Tuning of [`GatherSolver`].
 #[derive(Debug, Clone, Copy)]
@@ -132,138 +139,6 @@ pub struct GatherBalance {
     /// `emitted - absorbed` is the power that escaped the scene.
     pub absorbed: f64,
 }
-
-/// One patch corner (`GatherVertex` in gather.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-pub(super) struct GatherVertex {
-    pos: [f32; 4],
-    normal: [f32; 4],
-    st: [f32; 4],
-}
-const _: () = assert!(std::mem::size_of::<GatherVertex>() == 48);
-
-/// One element's emission, area, albedo and direct irradiance
-/// (`GatherElement`).
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-pub(super) struct GatherElement {
-    emission: [f32; 4],
-    albedo: [f32; 4],
-    direct: [f32; 4],
-}
-const _: () = assert!(std::mem::size_of::<GatherElement>() == 48);
-
-/// Constants of one pass (`GatherParams` in gather.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-pub(super) struct GatherParams {
-    first: u32,
-    count: u32,
-    resolution: u32,
-    columns: u32,
-    element_count: u32,
-    near: f32,
-    pad: [u32; 2],
-}
-const _: () = assert!(std::mem::size_of::<GatherParams>() == 32);
-
-/// Delta form factors of one tile, row-major over its `3 res x res`
-/// pixels: the top face in columns `0..res`, then the upper halves of the
-/// side faces 1, 2 (columns `res..2 res`, rows `0..res/2` and
-/// `res/2..res`) and 3, 4 (columns `2 res..3 res`). Normalised to sum to
-/// one, so that a closed scene conserves energy exactly (the raw sum
-/// exceeds 1 by the discretisation error: 5e-4 at res 32, 1e-4 at 64).
-fn delta_form_factors(res: u32) -> Vec<f32> {
-    let half = res / 2;
-    let da = (2.0 / f64::from(res)).powi(2);
-    let centre = |i: u32| (f64::from(i) + 0.5) / f64::from(res) * 2.0 - 1.0;
-    let mut values = Vec::with_capacity((3 * res * res) as usize);
-    for row in 0..res {
-        for col in 0..3 * res {
-            let x = centre(col % res);
-            let value = if col < res {
-                // Top face at distance 1 along the normal, pixel (x, y).
-                let y = -centre(row);
-                da / (std::f64::consts::PI * (x * x + y * y + 1.0).powi(2))
-            } else {
-                // Side face: viewport row `row % half` of the upper half;
-                // y is the height above the horizon (ndc y, in (0, 1)).
-                let y = -centre(row % half);
-                y * da / (std::f64::consts::PI * (x * x + y * y + 1.0).powi(2))
-            };
-            values.push(value);
-        }
-    }
-    let sum: f64 = values.iter().sum();
-    values.iter().map(|v| (v / sum) as f32).collect()
-}
-
-/// Viewport (x, y, size) and scissor height of face `face` of the tile at
-/// `origin`: the side faces' viewports are full faces, scissored to their
-/// upper half (below the horizon there is nothing to gather).
-fn face_viewport(origin: (u32, u32), face: u32, res: u32) -> (u32, u32, u32) {
-    let (x, y) = origin;
-    if face == 0 {
-        (x, y, res)
-    } else {
-        let k = face - 1;
-        (x + res * (1 + k / 2), y + (k % 2) * (res / 2), res / 2)
-    }
-}
-
-/// The bindings of gather.wgsl.
-mod slot {
-    use super::{Kind, Slot};
-
-    pub(super) const VERTICES: Slot = Slot::new("vertices", 0, Kind::StorageRead);
-    pub(super) const RECEIVERS: Slot = Slot::new("receivers", 1, Kind::StorageRead);
-    pub(super) const PARAMS: Slot = Slot::new("params", 2, Kind::Uniform);
-    pub(super) const RADIOSITY: Slot = Slot::new("radiosity", 3, Kind::StorageRead);
-    pub(super) const PATCHES: Slot = Slot::new("patches", 4, Kind::StorageRead);
-    pub(super) const UPDATED: Slot = Slot::new("updated", 5, Kind::Storage);
-    pub(super) const HEMICUBES: Slot =
-        Slot::new("hemicubes", 6, Kind::FloatTexture { filterable: false });
-    pub(super) const MULTIPLIERS: Slot = Slot::new("multipliers", 7, Kind::StorageRead);
-    pub(super) const ELEMENTS: Slot = Slot::new("elements", 8, Kind::StorageRead);
-    pub(super) const CHANGE: Slot = Slot::new("change", 9, Kind::Storage);
-    pub(super) const IRRADIANCE: Slot = Slot::new("irradiance", 10, Kind::Storage);
-    pub(super) const TOTALS: Slot = Slot::new("totals", 11, Kind::Storage);
-    pub(super) const DONORS: Slot = Slot::new("donors", 12, Kind::StorageRead);
-}
-
-use slot::*;
-
-/// "Render all B_j to a hemicube placed on patch i" (thesis Alg. 4.1).
-const RADIOSITY_HEMICUBES: Pass = Pass {
-    entries: &["vs_gather", "fs_gather"],
-    slots: &[VERTICES, RECEIVERS, PARAMS, RADIOSITY, PATCHES, DONORS],
-};
-
-/// Integrate each tile against the delta form factors.
-const GATHER: Pass = Pass {
-    entries: &["gather_main"],
-    slots: &[
-        PARAMS,
-        RADIOSITY,
-        UPDATED,
-        HEMICUBES,
-        MULTIPLIERS,
-        ELEMENTS,
-        CHANGE,
-        IRRADIANCE,
-    ],
-};
-
-/// The power a bounce changed, for the convergence test.
-const TOTAL_CHANGE: Pass = Pass {
-    entries: &["total_change"],
-    slots: &[PARAMS, CHANGE, TOTALS],
-};
-
-/// Every pass of gather.wgsl, for the naga check in shaders.rs.
-#[cfg(test)]
-pub(super) const ALL_PASSES: [Pass; 3] = [RADIOSITY_HEMICUBES, GATHER, TOTAL_CHANGE];
 
 /// Gather radiosity on the GPU (thesis Alg. 4.1): every bounce renders a
 /// hemicube of the current radiosity at every element.
@@ -326,25 +201,12 @@ impl GatherSolver {
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         let limits = &gpu.limits;
-        let res = options.hemicube_resolution.max(2).div_ceil(2) * 2;
-        let max_dim = limits.max_texture_dimension_2d;
-        if 3 * res > max_dim {
-            return Err(GpuError::TooLarge(format!(
-                "a gather hemicube resolution of {res} needs a {} pixel wide tile; the adapter allows {max_dim}",
-                3 * res
-            )));
-        }
-        let tile_bytes = 3 * u64::from(res) * u64::from(res) * PIXEL_BYTES;
-        let wanted = u64::from(options.batch_elements.max(1))
-            .min((TARGET_BYTES / tile_bytes).max(1))
-            .min(u64::from(limits.max_compute_workgroups_per_dimension))
-            as u32;
-        // A roughly square target, within the adapter's texture size.
-        let columns = (max_dim / (3 * res))
-            .min(((f64::from(wanted) / 3.0).sqrt().ceil() as u32).max(1))
-            .max(1);
-        let capacity = wanted.min(columns * (max_dim / res));
-        let rows = capacity.div_ceil(columns);
+        let TileLayout {
+            res,
+            capacity,
+            columns,
+            rows,
+        } = TileLayout::new(limits, options.hemicube_resolution, options.batch_elements)?;
 
         let n = atlas.elements.len();
         if (n as u64) * std::mem::size_of::<GatherElement>() as u64
@@ -360,243 +222,41 @@ impl GatherSolver {
         let extent = placement::extent(&patches);
         let offset = extent * SURFACE_OFFSET;
 
-        // Receiving points and hemicube frames: the sample nudged towards
-        // the patch centre and off the surface by `offset`, exactly as
-        // `place_elements` (progressive.wgsl) places the progressive
-        // solver's receivers.
-        let mut receivers = Vec::with_capacity(n);
-        for e in &atlas.elements {
-            let wp = &patches[e.patch as usize];
-            let [s, t] = e.st;
-            let sample = wp.origin + wp.u * s + wp.v * t;
-            let eye = wp.receiving_point(e.st, offset);
-            let t1 = wp.u.normalize();
-            let t2 = wp.normal.cross(t1);
-            receivers.push(GpuShooter {
-                corner: v4(sample, 0.0),
-                su: [0.0; 4],
-                sv: [0.0; 4],
-                eye: v4(eye, 0.0),
-                t1: v4(t1, 0.0),
-                t2: v4(t2, 0.0),
-                n: v4(wp.normal, f32::from_bits(e.patch)),
-                tile: [0; 4],
-            });
-        }
+        let receivers = receivers(&patches, atlas, offset);
         let local_areas: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
         let objects: Vec<u32> = atlas.elements.iter().map(|e| e.object).collect();
         let areas = world_areas(&local_areas, &objects, poses);
         let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
         let emission: Vec<Vec3> = atlas.elements.iter().map(|e| e.emission).collect();
-        let emitted: f64 = atlas
-            .elements
-            .iter()
-            .zip(&areas)
-            .map(|(e, a)| f64::from(*a) * f64::from(e.emission.element_sum()))
-            .sum();
-        // The direct light of the emission at every receiving point, by
-        // next-event estimation (`crate::direct`): the hemicubes gather
-        // only the reflected part `B - E` of what they see.
-        let points: Vec<(DVec3, DVec3)> = receivers
-            .iter()
-            .map(|r| {
-                let eye = Vec3::new(r.eye[0], r.eye[1], r.eye[2]).as_dvec3();
-                (eye, Vec3::new(r.n[0], r.n[1], r.n[2]).as_dvec3())
-            })
-            .collect();
-        let direct = direct_light(scene, atlas, poses, &points);
-        let mut elements: Vec<GatherElement> = atlas
-            .elements
-            .iter()
-            .zip(&areas)
-            .zip(&direct)
-            .map(|((e, a), d)| GatherElement {
-                emission: v4(e.emission, *a),
-                albedo: v4(e.albedo, 0.0),
-                direct: v4(*d, 0.0),
-            })
-            .collect();
-        // `B = E` is `R = 0`.
-        let start = vec![[0.0f32; 4]; n.max(1)];
-
-        // World-space triangles: two per quad, one per triangle patch.
-        let mut vertices = Vec::with_capacity(patches.len() * 6);
-        for (p, wp) in patches.iter().enumerate() {
-            let corners = [
-                (wp.origin, [0.0, 0.0]),
-                (wp.origin + wp.u, [1.0, 0.0]),
-                (wp.origin + wp.u + wp.v, [1.0, 1.0]),
-                (wp.origin + wp.v, [0.0, 1.0]),
-            ];
-            for &i in corner_order(wp.triangle) {
-                let (c, st) = corners[i];
-                let st = wp.vertex_st(st);
-                vertices.push(GatherVertex {
-                    pos: v4(c, f32::from_bits(p as u32)),
-                    normal: v4(wp.normal, 0.0),
-                    st: [st[0], st[1], 0.0, 0.0],
-                });
-            }
-        }
-        let patch_ranges = table.ranges();
-        let multipliers = delta_form_factors(res);
+        let emitted = placement::emitted_power(atlas, &areas);
+        let elements = gather_elements((scene, atlas, poses), &receivers, &areas);
+        let vertices = world_triangles(&patches);
+        let triangle_vertices = vertices.len() as u32;
 
         // Buffers may not be empty.
-        let triangle_vertices = vertices.len() as u32;
-        if vertices.is_empty() {
-            vertices.push(GatherVertex::zeroed());
-        }
-        if receivers.is_empty() {
-            receivers.push(GpuShooter::zeroed());
-            elements.push(GatherElement::zeroed());
-        }
-        let mut patch_ranges = patch_ranges;
-        if patch_ranges.is_empty() {
-            patch_ranges.push(PatchRange::zeroed());
-        }
-
-        let storage = wgpu::BufferUsages::STORAGE;
-        let init = |label: &str, contents: &[u8], usage: wgpu::BufferUsages| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
-        };
-        let readable = storage | wgpu::BufferUsages::COPY_SRC;
-        let radiosity = [
-            init(
-                "gather radiosity 0",
-                bytemuck::cast_slice(&start),
-                readable | wgpu::BufferUsages::COPY_DST,
-            ),
-            init(
-                "gather radiosity 1",
-                bytemuck::cast_slice(&start),
-                readable | wgpu::BufferUsages::COPY_DST,
-            ),
-        ];
-        let irradiance = init(
-            "gather irradiance",
-            bytemuck::cast_slice(&vec![[0.0f32; 4]; start.len()]),
-            readable,
-        );
-        let change = init(
-            "gather change",
-            bytemuck::cast_slice(&vec![0.0f32; start.len()]),
-            storage,
-        );
-        let vertex_buffer = init("gather vertices", bytemuck::cast_slice(&vertices), storage);
-        let receiver_buffer = init("receivers", bytemuck::cast_slice(&receivers), storage);
-        let element_buffer = init("gather elements", bytemuck::cast_slice(&elements), storage);
-        // What an invalid texel (under or inside geometry) shows in the
-        // hemicubes: its nearest valid neighbour's light
-        // (`Validity::donors`).
-        let mut donors = Validity::compute(scene, atlas, poses).donors(atlas);
-        if donors.is_empty() {
-            donors.push(0);
-        }
-        let donor_buffer = init("gather donors", bytemuck::cast_slice(&donors), storage);
-        let patch_buffer = init(
-            "gather patches",
-            bytemuck::cast_slice(&patch_ranges),
-            storage,
-        );
-        let multiplier_buffer = init(
-            "delta form factors",
-            bytemuck::cast_slice(&multipliers),
-            storage,
-        );
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("gather params"),
-            size: std::mem::size_of::<GatherParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let totals = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("gather totals"),
-            size: 16,
-            usage: readable,
-            mapped_at_creation: false,
-        });
-        let totals_readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("gather totals readback"),
-            size: 16,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-
-        let size = wgpu::Extent3d {
-            width: columns * 3 * res,
-            height: rows * res,
-            depth_or_array_layers: 1,
-        };
-        let texture = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
-            device
-                .create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size,
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage,
-                    view_formats: &[],
-                })
-                .create_view(&Default::default())
-        };
-        let color_view = texture(
-            "gather hemicubes",
-            wgpu::TextureFormat::Rgba32Float,
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-        );
-        let depth_view = texture(
-            "gather depth",
-            wgpu::TextureFormat::Depth32Float,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
-
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("gather.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(shaders::gather().into()),
-        });
-        // Bind group `k` reads `radiosity[k]` and writes the other buffer.
-        let resources = |k: usize| {
-            Resources::new()
-                .buffer(slot::VERTICES, &vertex_buffer)
-                .buffer(slot::RECEIVERS, &receiver_buffer)
-                .buffer(slot::PARAMS, &params)
-                .buffer(slot::RADIOSITY, &radiosity[k])
-                .buffer(slot::PATCHES, &patch_buffer)
-                .buffer(slot::DONORS, &donor_buffer)
-                .buffer(slot::UPDATED, &radiosity[1 - k])
-                .view(slot::HEMICUBES, &color_view)
-                .buffer(slot::MULTIPLIERS, &multiplier_buffer)
-                .buffer(slot::ELEMENTS, &element_buffer)
-                .buffer(slot::CHANGE, &change)
-                .buffer(slot::IRRADIANCE, &irradiance)
-                .buffer(slot::TOTALS, &totals)
-        };
-        let bound = [resources(0), resources(1)];
-        // Reversed depth (see gather.wgsl): nearer is greater.
-        let hemicube_layout = RADIOSITY_HEMICUBES.layout(&device);
-        let hemicube = render_pipeline(
+        let buffers = GatherBuffers::new(
             &device,
-            &module,
-            &[],
-            &RADIOSITY_HEMICUBES,
-            &hemicube_layout,
-            wgpu::TextureFormat::Rgba32Float,
-            1,
-            wgpu::CompareFunction::Greater,
+            &Upload {
+                // `B = E` is `R = 0`.
+                start: &vec![[0.0f32; 4]; n.max(1)],
+                vertices: &non_empty(vertices),
+                receivers: &non_empty(receivers),
+                elements: &non_empty(elements),
+                donors: &non_empty(Validity::compute(scene, atlas, poses).donors(atlas)),
+                patch_ranges: &non_empty(table.ranges()),
+                multipliers: &delta_form_factors(res),
+            },
         );
-        let hemicube_groups = [0, 1]
-            .map(|k| RADIOSITY_HEMICUBES.bind(&device, &hemicube_layout, |s| bound[k].get(s)));
-        let (gather, gather0) = GATHER.compute(&device, &module, &[], |s| bound[0].get(s));
-        let gather1 = GATHER.bind(&device, &gather.get_bind_group_layout(0), |s| {
-            bound[1].get(s)
-        });
-        let total_change = TOTAL_CHANGE.compute(&device, &module, &[], |s| bound[0].get(s));
+        let (color_view, depth_view) = targets(&device, (columns * 3 * res, rows * res));
+        let pipelines = GatherPipelines::new(&device, &buffers, &color_view);
+        let GatherBuffers {
+            radiosity,
+            irradiance,
+            params,
+            totals,
+            totals_readback,
+            ..
+        } = buffers;
 
         Ok(Self {
             device,
@@ -625,11 +285,11 @@ impl GatherSolver {
             totals_readback,
             color_view,
             depth_view,
-            hemicube,
-            hemicube_groups,
-            gather,
-            gather_groups: [gather0, gather1],
-            total_change,
+            hemicube: pipelines.hemicube,
+            hemicube_groups: pipelines.hemicube_groups,
+            gather: pipelines.gather,
+            gather_groups: pipelines.gather_groups,
+            total_change: pipelines.total_change,
         })
     }
 
@@ -873,40 +533,5 @@ impl GatherSolver {
     /// Copies a vec4 buffer with one entry per element back to the CPU.
     fn read_vec4(&self, buffer: &wgpu::Buffer) -> Result<Vec<[f32; 4]>, GpuError> {
         read_vec4(&self.device, &self.queue, buffer, self.element_count)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The delta form factors of a hemicube sum to one (after
-    /// normalisation), and before it the discretisation error is small:
-    /// the hemicube integrates the cosine-weighted hemisphere.
-    #[test]
-    fn delta_form_factors_sum_to_one() {
-        for res in [8u32, 32, 64] {
-            let values = delta_form_factors(res);
-            assert_eq!(values.len(), (3 * res * res) as usize);
-            let sum: f64 = values.iter().map(|v| f64::from(*v)).sum();
-            assert!((sum - 1.0).abs() < 1e-5, "res {res}: {sum}");
-            assert!(values.iter().all(|v| *v > 0.0));
-        }
-    }
-
-    /// Tiles of the side faces do not overlap and cover the tile.
-    #[test]
-    fn face_viewports_tile_three_res_by_res() {
-        let res = 8;
-        let mut covered = vec![0u32; (3 * res * res) as usize];
-        for face in 0..FACES {
-            let (x, y, rows) = face_viewport((0, 0), face, res);
-            for r in y..y + rows {
-                for c in x..x + res {
-                    covered[(r * 3 * res + c) as usize] += 1;
-                }
-            }
-        }
-        assert!(covered.iter().all(|c| *c == 1));
     }
 }
