@@ -17,17 +17,18 @@
 //! axes, so that a corner sample is never on two edges at once (where the
 //! surface it belongs to is ambiguous to a rasterised item buffer).
 //!
-//! Packing: charts are sorted by height (then width) and placed on shelves,
-//! left to right, with [`PADDING`] empty texels between charts and shelves.
-//! The atlas width is the smallest power of two (at least 64) for which the
-//! packing is no taller than it is wide; the height is rounded up to a
-//! multiple of [`HEIGHT_ALIGN`]. Texels that belong to no chart are "not
-//! covered" and carry no element.
+//! Packing (`atlas/pack.rs`): charts are sorted by height (then width) and
+//! placed on shelves, left to right, with [`PADDING`] empty texels between
+//! charts and shelves. The atlas width is the smallest power of two (at
+//! least 64) for which the packing is no taller than it is wide; the height
+//! is rounded up to a multiple of [`HEIGHT_ALIGN`]. Texels that belong to no
+//! chart are "not covered" and carry no element.
 
 use glam::{Vec2, Vec3};
 
-use crate::{Patch, PatchShape, Scene, SceneIssue};
+use crate::{Patch, Scene, SceneIssue};
 
+mod pack;
 pub mod stitch;
 pub mod uv;
 pub use stitch::IslandSeams;
@@ -308,124 +309,56 @@ fn uv_elements(
     out
 }
 
-/// Texels along an edge of `length` metres at `density` texels per metre.
-fn texels_along(length: f32, density: f32) -> u32 {
-    let cells = (length * density).ceil().max(1.0);
-    // Saturating conversion: absurd densities become an overflow error later.
-    (cells.min(1.0e9) as u32).saturating_add(1)
-}
-
-/// Chart dimensions for one patch: a quad's edges each at the density; a
-/// triangle's chart is square (its third edge runs along the chart's
-/// diagonal, whose texel centres must lie on it), as many texels per side as
-/// the longer of `u` and `v` needs at the density. `u` and `v` meet at the
-/// triangle's largest angle (`PatchShape::triangle`), so the third edge is
-/// sampled at most twice as coarsely (at most sqrt(2) times unless that
-/// angle is obtuse), as a quad's cell diagonal is; a quad cut in two
-/// (`Scene::triangulated`) keeps the quad's grid.
-///
-/// A quad merged from `n` equal cells along an edge (`Patch::cells`) gets
-/// `n` times the spacings one cell's chart would have, plus one: its edge
-/// texels fall where the cells' would, also where it meets a smaller merged
-/// chart of the same tessellation. Not when a cell is shorter than a texel
-/// spacing at the density: a whole spacing per cell would then hold more
-/// texels than the density asks for (up to one per cell of a fine mesh), so
-/// such a chart is sampled at the density like any quad, and where it meets
-/// another along part of an edge their texels are not stitched.
-fn chart_size(patch: &Patch) -> (u32, u32) {
-    let along = |length: f32, cells: u32| {
-        let cell = length / cells.max(1) as f32;
-        if cells <= 1 || cell * patch.texel_density < 1.0 {
-            return texels_along(length, patch.texel_density);
-        }
-        let spacings = texels_along(cell, patch.texel_density) - 1;
-        cells.saturating_mul(spacings).saturating_add(1)
-    };
-    match patch.shape {
-        PatchShape::Quad { u, v, .. } => (
-            along(u.length(), patch.cells[0]),
-            along(v.length(), patch.cells[1]),
-        ),
-        PatchShape::Triangle { u, v, .. } => {
-            let n = texels_along(u.length().max(v.length()), patch.texel_density);
-            (n, n)
-        }
-    }
-}
-
-/// Shelf-packs charts of the given sizes into an atlas `width` wide; returns
-/// positions and the packed height.
-fn shelf_pack(sizes: &[(u32, u32)], width: u32) -> Option<(Vec<(u32, u32)>, u32)> {
-    let mut order: Vec<usize> = (0..sizes.len()).collect();
-    order.sort_by(|&a, &b| {
-        sizes[b]
-            .1
-            .cmp(&sizes[a].1)
-            .then(sizes[b].0.cmp(&sizes[a].0))
-            .then(a.cmp(&b))
-    });
-    let mut pos = vec![(0, 0); sizes.len()];
-    let (mut x, mut y, mut shelf) = (0u32, 0u32, 0u32);
-    for i in order {
-        let (w, h) = sizes[i];
-        if w > width {
-            return None;
-        }
-        if x + w > width {
-            y = y.checked_add(shelf + PADDING)?;
-            x = 0;
-            shelf = 0;
-        }
-        pos[i] = (x, y);
-        x += w + PADDING;
-        shelf = shelf.max(h);
-    }
-    Some((pos, y.checked_add(shelf)?))
-}
-
 /// Plans the atlas for a scene, or explains why it does not fit.
 pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
-    // Packed items: every patch on a chart of its own (a triangle on its
-    // mesh's lightmap takes none: a 0 x 0 item, placed with its block
-    // below), then the blocks of the meshes whose triangles use them.
-    let mut sizes: Vec<(u32, u32)> = scene
-        .patches
-        .iter()
-        .map(|p| {
-            if p.lightmap.is_some() {
-                (0, 0)
-            } else {
-                chart_size(p)
-            }
-        })
-        .collect();
-    let used: Vec<bool> = (0..scene.uv_meshes.len())
-        .map(|m| {
-            scene
-                .patches
-                .iter()
-                .any(|p| p.lightmap.is_some_and(|l| l.mesh as usize == m))
-        })
-        .collect();
-    let sides: Vec<u32> = scene
-        .uv_meshes
-        .iter()
-        .zip(&used)
-        .map(|(mesh, &used)| if used { uv::block_side(scene, mesh) } else { 0 })
-        .collect();
-    // A block is packed with a ring of [`BLOCK_RING`] texels around it,
-    // which publication fills as its gutter: an island that reaches its
-    // lightmap's border is read bilinearly there from its own light, never
-    // from the chart packed next to it.
-    sizes.extend(sides.iter().map(|&n| {
-        if n > 0 {
-            (n + 2 * BLOCK_RING, n + 2 * BLOCK_RING)
-        } else {
-            (0, 0)
-        }
-    }));
+    let (sizes, used) = pack::item_sizes(scene);
     let max = scene.max_atlas_size;
-    let location = "lightmap".to_string();
+    check_item_sizes(scene, &sizes, max)?;
+    let Some(packing) = pack::narrowest(&sizes, max) else {
+        let texels: u64 = sizes
+            .iter()
+            .map(|&(w, h)| u64::from(w + PADDING) * u64::from(h + PADDING))
+            .sum();
+        return Err(SceneIssue {
+            location: "lightmap".to_string(),
+            problem: format!(
+                "atlas overflow: {} surfaces need about {texels} texels, which do not fit in {max} x {max} (lightmap.max_atlas_size); lower texel_density or raise max_atlas_size",
+                scene.patches.len()
+            ),
+        });
+    };
+    let mut charts: Vec<Chart> = sizes
+        .iter()
+        .zip(packing.positions)
+        .map(|(&(w, h), (x, y))| Chart { x, y, w, h })
+        .collect();
+    let blocks: Vec<Option<Chart>> = charts
+        .split_off(scene.patches.len())
+        .into_iter()
+        .zip(&used)
+        .map(|(b, &used)| {
+            used.then(|| Chart {
+                x: b.x + BLOCK_RING,
+                y: b.y + BLOCK_RING,
+                w: b.w - 2 * BLOCK_RING,
+                h: b.h - 2 * BLOCK_RING,
+            })
+        })
+        .collect();
+    let lightmap_maps = place_on_blocks(scene, &blocks, &mut charts);
+    Ok(Layout {
+        width: packing.width,
+        height: packing.height.max(HEIGHT_ALIGN),
+        charts,
+        lightmap_maps,
+        blocks,
+    })
+}
+
+/// Reports the first packed item (`sizes`: the patches' charts, then the
+/// meshes' lightmap blocks) wider or taller than `max`, the largest atlas
+/// edge.
+fn check_item_sizes(scene: &Scene, sizes: &[(u32, u32)], max: u32) -> Result<(), SceneIssue> {
     if let Some((i, (w, h))) = sizes
         .iter()
         .enumerate()
@@ -445,79 +378,45 @@ pub fn plan(scene: &Scene) -> Result<Layout, SceneIssue> {
             ),
         });
     }
-    let texels: u64 = sizes
-        .iter()
-        .map(|&(w, h)| u64::from(w + PADDING) * u64::from(h + PADDING))
-        .sum();
-    let mut width = MIN_WIDTH.min(max);
-    loop {
-        if let Some((pos, height)) = shelf_pack(&sizes, width) {
-            let aligned = height.div_ceil(HEIGHT_ALIGN) * HEIGHT_ALIGN;
-            if aligned <= width || (width >= max && aligned <= max) {
-                let mut charts: Vec<Chart> = sizes
-                    .iter()
-                    .zip(pos)
-                    .map(|(&(w, h), (x, y))| Chart { x, y, w, h })
-                    .collect();
-                let blocks: Vec<Option<Chart>> = charts
-                    .split_off(scene.patches.len())
-                    .into_iter()
-                    .zip(&used)
-                    .map(|(b, &used)| {
-                        used.then(|| Chart {
-                            x: b.x + BLOCK_RING,
-                            y: b.y + BLOCK_RING,
-                            w: b.w - 2 * BLOCK_RING,
-                            h: b.h - 2 * BLOCK_RING,
-                        })
-                    })
-                    .collect();
-                let mut lightmap_maps = vec![None; scene.patches.len()];
-                for (p, patch) in scene.patches.iter().enumerate() {
-                    let Some(l) = patch.lightmap else { continue };
-                    let Some(block) = blocks.get(l.mesh as usize).copied().flatten() else {
-                        continue;
-                    };
-                    let q = l.uv.map(|c| c * block.w as f32);
-                    // A parallelogram's fourth corner is affine.
-                    let mut corners = q.to_vec();
-                    if !patch.shape.is_triangle() {
-                        corners.push(q[0] + q[2] - q[1]);
-                    }
-                    let ([x, y], [w, h]) = uv::polygon_chart(&corners, block.w);
-                    charts[p] = Chart {
-                        x: block.x + x,
-                        y: block.y + y,
-                        w,
-                        h,
-                    };
-                    let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-                    lightmap_maps[p] = Some(ChartMap {
-                        origin: q[0] - centre,
-                        ds: q[1] - q[0],
-                        dt: q[2] - q[1],
-                    });
-                }
-                return Ok(Layout {
-                    width,
-                    height: aligned.max(HEIGHT_ALIGN),
-                    charts,
-                    lightmap_maps,
-                    blocks,
-                });
-            }
+    Ok(())
+}
+
+/// Places the chart of every patch lit on its mesh's lightmap in that
+/// mesh's block (`blocks`): the texels its lightmap UVs cover. Returns,
+/// per patch, the map from its parameters to its chart (`None` for a
+/// patch on a chart of its own).
+fn place_on_blocks(
+    scene: &Scene,
+    blocks: &[Option<Chart>],
+    charts: &mut [Chart],
+) -> Vec<Option<ChartMap>> {
+    let mut lightmap_maps = vec![None; scene.patches.len()];
+    for (p, patch) in scene.patches.iter().enumerate() {
+        let Some(l) = patch.lightmap else { continue };
+        let Some(block) = blocks.get(l.mesh as usize).copied().flatten() else {
+            continue;
+        };
+        let q = l.uv.map(|c| c * block.w as f32);
+        // A parallelogram's fourth corner is affine.
+        let mut corners = q.to_vec();
+        if !patch.shape.is_triangle() {
+            corners.push(q[0] + q[2] - q[1]);
         }
-        if width >= max {
-            return Err(SceneIssue {
-                location,
-                problem: format!(
-                    "atlas overflow: {} surfaces need about {texels} texels, which do not fit in {max} x {max} (lightmap.max_atlas_size); lower texel_density or raise max_atlas_size",
-                    scene.patches.len()
-                ),
-            });
-        }
-        width = (width * 2).min(max);
+        let ([x, y], [w, h]) = uv::polygon_chart(&corners, block.w);
+        charts[p] = Chart {
+            x: block.x + x,
+            y: block.y + y,
+            w,
+            h,
+        };
+        let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+        lightmap_maps[p] = Some(ChartMap {
+            origin: q[0] - centre,
+            ds: q[1] - q[0],
+            dt: q[2] - q[1],
+        });
     }
+    lightmap_maps
 }
 
 /// Parameter of sample `a` of `n` along an edge, with the corner offset
@@ -1288,76 +1187,8 @@ mod tests {
                 );
                 continue;
             };
-            assert!(atlas.on_lightmap_uvs(p as u32));
-            assert!(chart.x >= block.x && chart.x + chart.w <= block.x + block.w);
-            assert!(chart.y >= block.y && chart.y + chart.h <= block.y + block.h);
-            // The chart map puts the patch's corners at their UVs (a
-            // parallelogram's fourth where the mesh has it).
-            let triangle = patch.shape.is_triangle();
-            let map = atlas.chart_map(p as u32);
-            let corner = |st: Vec2| {
-                map.to_chart(st) + Vec2::new(chart.x as f32 + 0.5, chart.y as f32 + 0.5)
-                    - Vec2::new(block.x as f32, block.y as f32)
-            };
-            for (st, uv) in [Vec2::ZERO, Vec2::X, Vec2::ONE].into_iter().zip(l.uv) {
-                assert!((corner(st) - uv * side as f32).length() < 1e-3);
-            }
-            if !triangle {
-                let fourth = corner(Vec2::Y);
-                assert!(
-                    scene.uv_meshes[0].uvs[..2]
-                        .iter()
-                        .flatten()
-                        .any(|uv| (fourth - *uv * side as f32).length() < 1e-3),
-                    "the floor's fourth corner at {fourth} is one of its UVs"
-                );
-            }
-            let (origin, u, v) = patch.shape.frame();
-            for i in atlas.elements_of(p as u32) {
-                let e = &atlas.elements[i];
-                let [s, t] = e.st;
-                let top = if triangle { s } else { 1.0 };
-                assert!(
-                    (-1e-5..=1.0 + 1e-5).contains(&s) && (-1e-5..=top + 1e-5).contains(&t),
-                    "{}: sample ({s}, {t}) off the patch",
-                    patch.name
-                );
-                assert!((e.position - (origin + u * s + v * t)).length() < 1e-5);
-                // A texel the triangle covers has an owner that covers at
-                // least as much of it, and shares a seam group with the
-                // other triangles covering it.
-                if e.covers_surface() {
-                    let owner = atlas.element_at(e.texel[0], e.texel[1]).expect("owned");
-                    assert!(atlas.elements[owner as usize].area >= e.area);
-                    let sharing = atlas
-                        .elements
-                        .iter()
-                        .filter(|o| o.texel == e.texel && o.covers_surface())
-                        .count();
-                    if sharing > 1 {
-                        assert!(
-                            atlas
-                                .seams
-                                .iter()
-                                .any(|g| g.contains(&(i as u32)) && g.len() == sharing),
-                            "a shared texel is one seam group"
-                        );
-                    }
-                }
-            }
-            // A point inside the patch reads an element of it whose texel
-            // holds the point and covers surface.
-            for (s, t) in [(0.5, 0.25), (0.9, 0.1), (0.7, 0.6), (0.34, 0.3)] {
-                let i = atlas
-                    .element_of(p as u32, triangle, Vec2::new(s, t))
-                    .expect("inside");
-                let e = &atlas.elements[i];
-                assert_eq!(e.patch, p as u32);
-                assert!(e.covers_surface(), "{}: ({s}, {t})", patch.name);
-                let xy = map.to_chart(Vec2::new(s, t));
-                let texel = Vec2::new((e.texel[0] - chart.x) as f32, (e.texel[1] - chart.y) as f32);
-                assert!((xy - texel).abs().max_element() <= 0.5 + 1e-4);
-            }
+            check_chart_in_block(&scene, &atlas, p, l, block);
+            check_elements_on_uvs(&scene, &atlas, p);
         }
         // The wall's diagonal texels are shared by its two triangles.
         let shared = atlas
@@ -1383,6 +1214,107 @@ mod tests {
                 assert_eq!(image[t][0], owner as f32);
             }
         }
+        check_block_gutters(&atlas, &image, block);
+    }
+
+    /// Checks that patch `p`, lit on its mesh's lightmap at `l`, has its
+    /// chart inside the mesh's `block`, and its corners at their UVs.
+    fn check_chart_in_block(
+        scene: &Scene,
+        atlas: &Atlas,
+        p: usize,
+        l: crate::PatchLightmap,
+        block: Chart,
+    ) {
+        let side = block.w;
+        let patch = &scene.patches[p];
+        let chart = atlas.charts[p];
+        assert!(atlas.on_lightmap_uvs(p as u32));
+        assert!(chart.x >= block.x && chart.x + chart.w <= block.x + block.w);
+        assert!(chart.y >= block.y && chart.y + chart.h <= block.y + block.h);
+        // The chart map puts the patch's corners at their UVs (a
+        // parallelogram's fourth where the mesh has it).
+        let triangle = patch.shape.is_triangle();
+        let map = atlas.chart_map(p as u32);
+        let corner = |st: Vec2| {
+            map.to_chart(st) + Vec2::new(chart.x as f32 + 0.5, chart.y as f32 + 0.5)
+                - Vec2::new(block.x as f32, block.y as f32)
+        };
+        for (st, uv) in [Vec2::ZERO, Vec2::X, Vec2::ONE].into_iter().zip(l.uv) {
+            assert!((corner(st) - uv * side as f32).length() < 1e-3);
+        }
+        if !triangle {
+            let fourth = corner(Vec2::Y);
+            assert!(
+                scene.uv_meshes[0].uvs[..2]
+                    .iter()
+                    .flatten()
+                    .any(|uv| (fourth - *uv * side as f32).length() < 1e-3),
+                "the floor's fourth corner at {fourth} is one of its UVs"
+            );
+        }
+    }
+
+    /// Checks the elements of patch `p`, lit on its mesh's lightmap: their
+    /// samples lie on the patch, a texel's owner covers most of it, texels
+    /// several triangles cover are one seam group, and a point inside the
+    /// patch reads an element whose texel holds it.
+    fn check_elements_on_uvs(scene: &Scene, atlas: &Atlas, p: usize) {
+        let patch = &scene.patches[p];
+        let chart = atlas.charts[p];
+        let triangle = patch.shape.is_triangle();
+        let map = atlas.chart_map(p as u32);
+        let (origin, u, v) = patch.shape.frame();
+        for i in atlas.elements_of(p as u32) {
+            let e = &atlas.elements[i];
+            let [s, t] = e.st;
+            let top = if triangle { s } else { 1.0 };
+            assert!(
+                (-1e-5..=1.0 + 1e-5).contains(&s) && (-1e-5..=top + 1e-5).contains(&t),
+                "{}: sample ({s}, {t}) off the patch",
+                patch.name
+            );
+            assert!((e.position - (origin + u * s + v * t)).length() < 1e-5);
+            // A texel the triangle covers has an owner that covers at
+            // least as much of it, and shares a seam group with the
+            // other triangles covering it.
+            if e.covers_surface() {
+                let owner = atlas.element_at(e.texel[0], e.texel[1]).expect("owned");
+                assert!(atlas.elements[owner as usize].area >= e.area);
+                let sharing = atlas
+                    .elements
+                    .iter()
+                    .filter(|o| o.texel == e.texel && o.covers_surface())
+                    .count();
+                if sharing > 1 {
+                    assert!(
+                        atlas
+                            .seams
+                            .iter()
+                            .any(|g| g.contains(&(i as u32)) && g.len() == sharing),
+                        "a shared texel is one seam group"
+                    );
+                }
+            }
+        }
+        // A point inside the patch reads an element of it whose texel
+        // holds the point and covers surface.
+        for (s, t) in [(0.5, 0.25), (0.9, 0.1), (0.7, 0.6), (0.34, 0.3)] {
+            let i = atlas
+                .element_of(p as u32, triangle, Vec2::new(s, t))
+                .expect("inside");
+            let e = &atlas.elements[i];
+            assert_eq!(e.patch, p as u32);
+            assert!(e.covers_surface(), "{}: ({s}, {t})", patch.name);
+            let xy = map.to_chart(Vec2::new(s, t));
+            let texel = Vec2::new((e.texel[0] - chart.x) as f32, (e.texel[1] - chart.y) as f32);
+            assert!((xy - texel).abs().max_element() <= 0.5 + 1e-4);
+        }
+    }
+
+    /// Checks the gutter texels of the published `image` in and around a
+    /// mesh's `block`.
+    fn check_block_gutters(atlas: &Atlas, image: &[[f32; 3]], block: Chart) {
         // Texels of the block and of the ring around it beside an island
         // take their held neighbours' mean; those farther out stay black.
         // The wall's corner at u = 1 reaches the block's border: the ring

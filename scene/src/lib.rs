@@ -272,7 +272,7 @@ pub struct Patch {
     /// chart would (`atlas.rs`), so that where it meets a smaller merged
     /// chart of the same tessellation (a T-junction) their edge texels
     /// fall on the same points and are stitched as a seam (unless a cell
-    /// is shorter than a texel spacing, `atlas::chart_size`).
+    /// is shorter than a texel spacing, `atlas::pack::chart_size`).
     pub cells: [u32; 2],
     /// A triangle of a glTF mesh that brought its own lightmap UVs
     /// (`TEXCOORD_1`), lit on them (`--charts lightmap-uvs`), or a

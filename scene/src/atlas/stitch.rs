@@ -191,33 +191,44 @@ impl Edge {
     }
 }
 
-impl IslandSeams {
-    /// The seam equations of `scene`'s patches on `charts` (see the module
-    /// documentation); none when no patch lies on its mesh's lightmap.
-    pub(super) fn find(scene: &Scene, charts: &Charts) -> IslandSeams {
-        let on_uvs = |p: usize| charts.maps.get(p).is_some_and(|m| m.is_some());
-        if !(0..scene.patches.len()).any(on_uvs) {
-            return IslandSeams::default();
-        }
-        let edges: Vec<Edge> = scene
-            .patches
-            .iter()
-            .enumerate()
-            .flat_map(|(p, patch)| {
-                let (o, u, v) = patch.shape.frame();
-                let params = corner_params(patch.shape.is_triangle());
-                (0..params.len()).map(move |k| {
-                    let (sa, sb) = (params[k], params[(k + 1) % params.len()]);
-                    Edge {
-                        patch: p as u32,
-                        a: o + u * sa.x + v * sa.y,
-                        b: o + u * sb.x + v * sb.y,
-                        st_a: sa,
-                        st_b: sb,
-                    }
-                })
+/// The edges of every patch, in patch order, each patch's from corner to
+/// corner around it.
+fn patch_edges(scene: &Scene) -> Vec<Edge> {
+    scene
+        .patches
+        .iter()
+        .enumerate()
+        .flat_map(|(p, patch)| {
+            let (o, u, v) = patch.shape.frame();
+            let params = corner_params(patch.shape.is_triangle());
+            (0..params.len()).map(move |k| {
+                let (sa, sb) = (params[k], params[(k + 1) % params.len()]);
+                Edge {
+                    patch: p as u32,
+                    a: o + u * sa.x + v * sa.y,
+                    b: o + u * sb.x + v * sb.y,
+                    st_a: sa,
+                    st_b: sb,
+                }
             })
-            .collect();
+        })
+        .collect()
+}
+
+/// The cells of the grids edges are looked up on, and how close a point
+/// must be to an edge to lie on it.
+struct Space {
+    /// The corner of the edges' bounding box.
+    lo: Vec3,
+    /// A cell's side.
+    cell: f32,
+    tolerance: f32,
+}
+
+impl Space {
+    /// Cells about the median edge's length over the bounding box of
+    /// `edges`, and a tolerance of 1e-5 of its extent.
+    fn around(edges: &[Edge]) -> Space {
         // A grid of cells about the median edge's length; an edge is
         // entered in the cells of points half a cell apart along it, so a
         // point on it lies in one of those cells or next to one.
@@ -230,32 +241,45 @@ impl IslandSeams {
         let extent = (hi - lo).max_element().max(1e-6);
         let cell = lengths[lengths.len() / 2].max(extent * 1e-4);
         let tolerance = extent * 1e-5;
-        let key = |x: Vec3| ((x - lo) / cell).floor().as_ivec3().to_array();
-        // Enters edge `i` of `object` in `grid`, in the cells of points half a
-        // cell apart along it.
-        let enter = |grid: &mut Grid, object: u32, e: &Edge, i: u32| {
-            let steps = (((e.b - e.a).length() / (0.5 * cell)).ceil() as usize).max(1);
-            for k in 0..=steps {
-                let list = grid
-                    .entry((object, key(e.a.lerp(e.b, k as f32 / steps as f32))))
-                    .or_default();
-                if list.last() != Some(&i) {
-                    list.push(i);
-                }
-            }
-        };
-        let mut grid = Grid::new();
-        for (i, e) in edges.iter().enumerate() {
-            enter(
-                &mut grid,
-                scene.patches[e.patch as usize].object,
-                e,
-                i as u32,
-            );
+        Space {
+            lo,
+            cell,
+            tolerance,
         }
-        // Edges where an asset's vertex normals say its surface is smooth
-        // (`UvMesh::smooth_edges`), on a grid of their own.
-        let smooth: Vec<Edge> = scene
+    }
+
+    /// The cell `x` lies in.
+    fn key(&self, x: Vec3) -> [i32; 3] {
+        ((x - self.lo) / self.cell).floor().as_ivec3().to_array()
+    }
+
+    /// Enters edge `i` of `object` in `grid`, in the cells of points half a
+    /// cell apart along it.
+    fn enter(&self, grid: &mut Grid, object: u32, e: &Edge, i: u32) {
+        let steps = (((e.b - e.a).length() / (0.5 * self.cell)).ceil() as usize).max(1);
+        for k in 0..=steps {
+            let list = grid
+                .entry((object, self.key(e.a.lerp(e.b, k as f32 / steps as f32))))
+                .or_default();
+            if list.last() != Some(&i) {
+                list.push(i);
+            }
+        }
+    }
+}
+
+/// Edges where an asset's vertex normals say its surface is smooth
+/// (`UvMesh::smooth_edges`), on a grid of their own.
+struct SmoothEdges {
+    edges: Vec<Edge>,
+    grid: Grid,
+}
+
+impl SmoothEdges {
+    /// The smooth edges of every mesh of `scene`, entered on cells of
+    /// `space`.
+    fn new(scene: &Scene, space: &Space) -> SmoothEdges {
+        let edges: Vec<Edge> = scene
             .uv_meshes
             .iter()
             .flat_map(|m| {
@@ -268,93 +292,187 @@ impl IslandSeams {
                 })
             })
             .collect();
-        let mut smooth_grid = Grid::new();
-        for (i, e) in smooth.iter().enumerate() {
-            enter(&mut smooth_grid, e.patch, e, i as u32);
+        let mut grid = Grid::new();
+        for (i, e) in edges.iter().enumerate() {
+            space.enter(&mut grid, e.patch, e, i as u32);
         }
-        let smooth_at = |object: u32, x: Vec3| {
-            let [cx, cy, cz] = key(x);
-            neighbourhood().any(|(dx, dy, dz)| {
-                smooth_grid
-                    .get(&(object, [cx + dx, cy + dy, cz + dz]))
-                    .is_some_and(|list| {
-                        list.iter()
-                            .any(|&i| smooth[i as usize].locate(x, tolerance).is_some())
-                    })
-            })
-        };
-        let smooth_cos = crate::unwrap::SMOOTH_MAX_DEG.to_radians().cos();
+        SmoothEdges { edges, grid }
+    }
 
-        let mut seams = IslandSeams::default();
-        let mut slot: HashMap<u32, u32> = HashMap::new();
-        let mut index = |seams: &mut IslandSeams, texel: u32| -> u32 {
-            *slot.entry(texel).or_insert_with(|| {
-                seams.texels.push(texel);
-                seams.keep.push(
-                    if charts.texel_element.get(texel as usize) == Some(&NO_ELEMENT) {
-                        KEEP_GUTTER
-                    } else {
-                        KEEP_HELD
-                    },
-                );
-                (seams.texels.len() - 1) as u32
-            })
+    /// Whether `x` lies on a smooth edge of `object`.
+    fn at(&self, space: &Space, object: u32, x: Vec3) -> bool {
+        let [cx, cy, cz] = space.key(x);
+        neighbourhood().any(|(dx, dy, dz)| {
+            self.grid
+                .get(&(object, [cx + dx, cy + dy, cz + dz]))
+                .is_some_and(|list| {
+                    list.iter()
+                        .any(|&i| self.edges[i as usize].locate(x, space.tolerance).is_some())
+                })
+        })
+    }
+}
+
+/// The seam equations found so far.
+struct Equations<'a> {
+    seams: IslandSeams,
+    /// Where each texel an equation reads is in `seams.texels`.
+    slot: HashMap<u32, u32>,
+    /// The atlas's element per texel, which says whether a texel is gutter.
+    texel_element: &'a [u32],
+}
+
+impl Equations<'_> {
+    /// The index of `texel` in `seams.texels`, added with its keep weight
+    /// the first time.
+    fn index(&mut self, texel: u32) -> u32 {
+        *self.slot.entry(texel).or_insert_with(|| {
+            self.seams.texels.push(texel);
+            self.seams.keep.push(
+                if self.texel_element.get(texel as usize) == Some(&NO_ELEMENT) {
+                    KEEP_GUTTER
+                } else {
+                    KEEP_HELD
+                },
+            );
+            (self.seams.texels.len() - 1) as u32
+        })
+    }
+
+    /// Adds the equation "bilinear read at `here` = bilinear read at
+    /// `there`" (atlas pixel coordinates).
+    fn push(&mut self, charts: &Charts, here: Vec2, there: Vec2) {
+        let start = self.seams.entries.len() as u32;
+        for (t, w) in charts.bilinear(here) {
+            let i = self.index(t);
+            self.seams.entries.push((i, w));
+        }
+        let mid = self.seams.entries.len() as u32;
+        for (t, w) in charts.bilinear(there) {
+            let i = self.index(t);
+            self.seams.entries.push((i, w));
+        }
+        self.seams
+            .rows
+            .push([start, mid, self.seams.entries.len() as u32]);
+    }
+}
+
+/// What finding the seams along an edge looks up.
+struct Finder<'a> {
+    scene: &'a Scene,
+    charts: &'a Charts<'a>,
+    /// Every patch's edges ([`patch_edges`]).
+    edges: &'a [Edge],
+    /// `edges` by object and cell.
+    grid: &'a Grid,
+    space: &'a Space,
+    smooth: SmoothEdges,
+    /// The cosine of the largest angle between the faces of a smooth edge.
+    smooth_cos: f32,
+}
+
+impl Finder<'_> {
+    /// Adds the equations at the sample points along edge `e` of a patch on
+    /// its mesh's lightmap, [`SAMPLES_PER_TEXEL`] per texel.
+    fn along(&self, equations: &mut Equations, e: &Edge) {
+        let p = e.patch as usize;
+        let normal = self.scene.patches[p].shape.normal();
+        let (pa, pb) = (self.charts.pixel(p, e.st_a), self.charts.pixel(p, e.st_b));
+        let n = (((pb - pa).length() * SAMPLES_PER_TEXEL).ceil() as usize).max(1);
+        for k in 0..n {
+            let f = (k as f32 + 0.5) / n as f32;
+            let x = e.a.lerp(e.b, f);
+            let here = pa.lerp(pb, f);
+            self.point(equations, p, normal, x, here);
+        }
+    }
+
+    /// Adds an equation at the point `x` of an edge of patch `p` (facing
+    /// `normal`), at `here` in the atlas, for every other patch of its
+    /// object that has an edge through `x`, is a seam with it (see the
+    /// module documentation) and shows `x` at another place of the atlas.
+    fn point(&self, equations: &mut Equations, p: usize, normal: Vec3, x: Vec3, here: Vec2) {
+        let patch = &self.scene.patches[p];
+        let [cx, cy, cz] = self.space.key(x);
+        let mut seen: Vec<u32> = Vec::new();
+        for (dx, dy, dz) in neighbourhood() {
+            let Some(list) = self.grid.get(&(patch.object, [cx + dx, cy + dy, cz + dz])) else {
+                continue;
+            };
+            for &j in list {
+                let other = &self.edges[j as usize];
+                let q = other.patch as usize;
+                if q == p || seen.contains(&other.patch) {
+                    continue;
+                }
+                // Facing the same way, or meeting at a crease the
+                // asset shades smoothly.
+                let cos = self.scene.patches[q].shape.normal().dot(normal);
+                if cos < SEAM_COS
+                    && (cos < self.smooth_cos || !self.smooth.at(self.space, patch.object, x))
+                {
+                    continue;
+                }
+                let Some(g) = other.locate(x, self.space.tolerance) else {
+                    continue;
+                };
+                seen.push(other.patch);
+                let there = self.charts.pixel(q, other.st_a.lerp(other.st_b, g));
+                if (there - here).length() <= SAME_PLACE {
+                    continue;
+                }
+                equations.push(self.charts, here, there);
+            }
+        }
+    }
+}
+
+/// The dot product of two vectors.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>()
+}
+
+impl IslandSeams {
+    /// The seam equations of `scene`'s patches on `charts` (see the module
+    /// documentation); none when no patch lies on its mesh's lightmap.
+    pub(super) fn find(scene: &Scene, charts: &Charts) -> IslandSeams {
+        let on_uvs = |p: usize| charts.maps.get(p).is_some_and(|m| m.is_some());
+        if !(0..scene.patches.len()).any(on_uvs) {
+            return IslandSeams::default();
+        }
+        let edges = patch_edges(scene);
+        let space = Space::around(&edges);
+        let mut grid = Grid::new();
+        for (i, e) in edges.iter().enumerate() {
+            space.enter(
+                &mut grid,
+                scene.patches[e.patch as usize].object,
+                e,
+                i as u32,
+            );
+        }
+        let finder = Finder {
+            scene,
+            charts,
+            edges: &edges,
+            grid: &grid,
+            space: &space,
+            smooth: SmoothEdges::new(scene, &space),
+            smooth_cos: crate::unwrap::SMOOTH_MAX_DEG.to_radians().cos(),
+        };
+
+        let mut equations = Equations {
+            seams: IslandSeams::default(),
+            slot: HashMap::new(),
+            texel_element: charts.texel_element,
         };
         for e in &edges {
-            let p = e.patch as usize;
-            if !on_uvs(p) {
-                continue;
-            }
-            let patch = &scene.patches[p];
-            let normal = patch.shape.normal();
-            let (pa, pb) = (charts.pixel(p, e.st_a), charts.pixel(p, e.st_b));
-            let n = (((pb - pa).length() * SAMPLES_PER_TEXEL).ceil() as usize).max(1);
-            for k in 0..n {
-                let f = (k as f32 + 0.5) / n as f32;
-                let x = e.a.lerp(e.b, f);
-                let here = pa.lerp(pb, f);
-                let [cx, cy, cz] = key(x);
-                let mut seen: Vec<u32> = Vec::new();
-                for (dx, dy, dz) in neighbourhood() {
-                    let Some(list) = grid.get(&(patch.object, [cx + dx, cy + dy, cz + dz])) else {
-                        continue;
-                    };
-                    for &j in list {
-                        let other = &edges[j as usize];
-                        let q = other.patch as usize;
-                        if q == p || seen.contains(&other.patch) {
-                            continue;
-                        }
-                        // Facing the same way, or meeting at a crease the
-                        // asset shades smoothly.
-                        let cos = scene.patches[q].shape.normal().dot(normal);
-                        if cos < SEAM_COS && (cos < smooth_cos || !smooth_at(patch.object, x)) {
-                            continue;
-                        }
-                        let Some(g) = other.locate(x, tolerance) else {
-                            continue;
-                        };
-                        seen.push(other.patch);
-                        let there = charts.pixel(q, other.st_a.lerp(other.st_b, g));
-                        if (there - here).length() <= SAME_PLACE {
-                            continue;
-                        }
-                        let start = seams.entries.len() as u32;
-                        for (t, w) in charts.bilinear(here) {
-                            let i = index(&mut seams, t);
-                            seams.entries.push((i, w));
-                        }
-                        let mid = seams.entries.len() as u32;
-                        for (t, w) in charts.bilinear(there) {
-                            let i = index(&mut seams, t);
-                            seams.entries.push((i, w));
-                        }
-                        seams.rows.push([start, mid, seams.entries.len() as u32]);
-                    }
-                }
+            if on_uvs(e.patch as usize) {
+                finder.along(&mut equations, e);
             }
         }
-        seams
+        equations.seams
     }
 
     /// How many seam equations (points along seams, once per side that
@@ -401,132 +519,16 @@ impl IslandSeams {
             return;
         }
         let n = self.texels.len();
-        // y = (AᵀA + K) x for the keep weights `keep` (none: AᵀA x).
-        let multiply = |keep: Option<&[f64]>, x: &[f64], y: &mut [f64]| {
-            match keep {
-                Some(keep) => {
-                    for (yi, (xi, k)) in y.iter_mut().zip(x.iter().zip(keep)) {
-                        *yi = k * xi;
-                    }
-                }
-                None => y.fill(0.0),
-            }
-            for &[a, b, end] in &self.rows {
-                let (a, b, end) = (a as usize, b as usize, end as usize);
-                let mut r = 0.0;
-                for &(i, w) in &self.entries[a..b] {
-                    r += f64::from(w) * x[i as usize];
-                }
-                for &(i, w) in &self.entries[b..end] {
-                    r -= f64::from(w) * x[i as usize];
-                }
-                for &(i, w) in &self.entries[a..b] {
-                    y[i as usize] += f64::from(w) * r;
-                }
-                for &(i, w) in &self.entries[b..end] {
-                    y[i as usize] -= f64::from(w) * r;
-                }
-            }
-        };
-        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
         // The diagonal of AᵀA; with the keep weights, the preconditioner
         // (they span five orders of magnitude with pinned texels).
-        let mut seam_diagonal = vec![0.0; n];
-        for &[a, _, end] in &self.rows {
-            for &(i, w) in &self.entries[a as usize..end as usize] {
-                seam_diagonal[i as usize] += f64::from(w) * f64::from(w);
-            }
-        }
-        // Conjugate gradients on (AᵀA + K) x = K target, from `x`.
-        let solve = |keep: &[f64], target: &[f64], x: &mut [f64]| {
-            let diagonal: Vec<f64> = seam_diagonal.iter().zip(keep).map(|(d, k)| d + k).collect();
-            let rhs: Vec<f64> = target.iter().zip(keep).map(|(t, k)| t * k).collect();
-            let mut ax = vec![0.0; n];
-            multiply(Some(keep), x, &mut ax);
-            let mut r: Vec<f64> = rhs.iter().zip(&ax).map(|(b, a)| b - a).collect();
-            let precondition =
-                |r: &[f64]| -> Vec<f64> { r.iter().zip(&diagonal).map(|(r, d)| r / d).collect() };
-            let mut z = precondition(&r);
-            let mut d = z.clone();
-            let mut rz = dot(&r, &z);
-            let stop = STOP * dot(&rhs, &rhs).max(1e-30);
-            let mut ad = vec![0.0; n];
-            for _ in 0..MAX_ITERATIONS {
-                if dot(&r, &r) <= stop {
-                    break;
-                }
-                multiply(Some(keep), &d, &mut ad);
-                let dad = dot(&d, &ad);
-                if dad <= 0.0 {
-                    break;
-                }
-                let alpha = rz / dad;
-                for ((xi, ri), (di, adi)) in x.iter_mut().zip(&mut r).zip(d.iter().zip(&ad)) {
-                    *xi += alpha * di;
-                    *ri -= alpha * adi;
-                }
-                z = precondition(&r);
-                let next = dot(&r, &z);
-                let beta = next / rz;
-                rz = next;
-                for (di, zi) in d.iter_mut().zip(&z) {
-                    *di = zi + beta * *di;
-                }
-            }
-        };
+        let seam_diagonal = self.seam_diagonal();
         // The three channels are independent systems.
         let last = self.last.lock().map(|l| l.clone()).unwrap_or_default();
         let solved: Vec<(Vec<f64>, LastSolve)> = [0usize, 1, 2]
             .par_iter()
             .map(|&channel| {
-                let x0: Vec<f64> = self
-                    .texels
-                    .iter()
-                    .map(|&t| f64::from(image[t as usize][channel]))
-                    .collect();
                 let previous = last.get(channel).filter(|l| l.change.len() == n);
-                let mut x: Vec<f64> = match previous {
-                    Some(l) => x0.iter().zip(&l.change).map(|(x, c)| x + c).collect(),
-                    None => x0.clone(),
-                };
-                let mut pinned = previous.map_or_else(|| vec![false; n], |l| l.pinned.clone());
-                let mut rounds = 0;
-                loop {
-                    let keep: Vec<f64> = (0..n)
-                        .map(|i| if pinned[i] { KEEP_PINNED } else { self.keep[i] })
-                        .collect();
-                    let target: Vec<f64> = (0..n)
-                        .map(|i| if pinned[i] { 0.0 } else { x0[i] })
-                        .collect();
-                    solve(&keep, &target, &mut x);
-                    if rounds == PIN_ROUNDS {
-                        break;
-                    }
-                    rounds += 1;
-                    // The objective's gradient at the pinned texels:
-                    // negative where raising one would lower it.
-                    let mut gradient = vec![0.0; n];
-                    multiply(None, &x, &mut gradient);
-                    let mut changed = false;
-                    for i in 0..n {
-                        if pinned[i] {
-                            let g = gradient[i] + self.keep[i] * (x[i] - x0[i]);
-                            if g < 0.0 {
-                                pinned[i] = false;
-                                changed = true;
-                            }
-                        } else if x[i] < 0.0 {
-                            pinned[i] = true;
-                            x[i] = 0.0;
-                            changed = true;
-                        }
-                    }
-                    if !changed {
-                        break;
-                    }
-                }
-                let change = x.iter().zip(&x0).map(|(x, x0)| x - x0).collect();
-                (x, LastSolve { change, pinned })
+                self.solve_channel(image, channel, previous, &seam_diagonal)
             })
             .collect();
         let (solved, lasts): (Vec<Vec<f64>>, Vec<LastSolve>) = solved.into_iter().unzip();
@@ -539,5 +541,155 @@ impl IslandSeams {
                 image[t as usize][channel] = v.max(0.0) as f32;
             }
         }
+    }
+
+    /// y = (AᵀA + K) x for the keep weights `keep` (none: AᵀA x).
+    fn multiply(&self, keep: Option<&[f64]>, x: &[f64], y: &mut [f64]) {
+        match keep {
+            Some(keep) => {
+                for (yi, (xi, k)) in y.iter_mut().zip(x.iter().zip(keep)) {
+                    *yi = k * xi;
+                }
+            }
+            None => y.fill(0.0),
+        }
+        for &[a, b, end] in &self.rows {
+            let (a, b, end) = (a as usize, b as usize, end as usize);
+            let mut r = 0.0;
+            for &(i, w) in &self.entries[a..b] {
+                r += f64::from(w) * x[i as usize];
+            }
+            for &(i, w) in &self.entries[b..end] {
+                r -= f64::from(w) * x[i as usize];
+            }
+            for &(i, w) in &self.entries[a..b] {
+                y[i as usize] += f64::from(w) * r;
+            }
+            for &(i, w) in &self.entries[b..end] {
+                y[i as usize] -= f64::from(w) * r;
+            }
+        }
+    }
+
+    /// The diagonal of AᵀA, A the seam equations.
+    fn seam_diagonal(&self) -> Vec<f64> {
+        let mut seam_diagonal = vec![0.0; self.texels.len()];
+        for &[a, _, end] in &self.rows {
+            for &(i, w) in &self.entries[a as usize..end as usize] {
+                seam_diagonal[i as usize] += f64::from(w) * f64::from(w);
+            }
+        }
+        seam_diagonal
+    }
+
+    /// Conjugate gradients on (AᵀA + K) x = K target, from `x`, for the keep
+    /// weights `keep`, preconditioned by the diagonal (`seam_diagonal`, the
+    /// diagonal of AᵀA, plus `keep`).
+    fn solve(&self, seam_diagonal: &[f64], keep: &[f64], target: &[f64], x: &mut [f64]) {
+        let n = self.texels.len();
+        let diagonal: Vec<f64> = seam_diagonal.iter().zip(keep).map(|(d, k)| d + k).collect();
+        let rhs: Vec<f64> = target.iter().zip(keep).map(|(t, k)| t * k).collect();
+        let mut ax = vec![0.0; n];
+        self.multiply(Some(keep), x, &mut ax);
+        let mut r: Vec<f64> = rhs.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        let precondition =
+            |r: &[f64]| -> Vec<f64> { r.iter().zip(&diagonal).map(|(r, d)| r / d).collect() };
+        let mut z = precondition(&r);
+        let mut d = z.clone();
+        let mut rz = dot(&r, &z);
+        let stop = STOP * dot(&rhs, &rhs).max(1e-30);
+        let mut ad = vec![0.0; n];
+        for _ in 0..MAX_ITERATIONS {
+            if dot(&r, &r) <= stop {
+                break;
+            }
+            self.multiply(Some(keep), &d, &mut ad);
+            let dad = dot(&d, &ad);
+            if dad <= 0.0 {
+                break;
+            }
+            let alpha = rz / dad;
+            for ((xi, ri), (di, adi)) in x.iter_mut().zip(&mut r).zip(d.iter().zip(&ad)) {
+                *xi += alpha * di;
+                *ri -= alpha * adi;
+            }
+            z = precondition(&r);
+            let next = dot(&r, &z);
+            let beta = next / rz;
+            rz = next;
+            for (di, zi) in d.iter_mut().zip(&z) {
+                *di = zi + beta * *di;
+            }
+        }
+    }
+
+    /// One channel of the adjusted texels, from their values in `image`:
+    /// solved from the last call's solution on (`previous`: its change and
+    /// pins), then again while [`IslandSeams::repin`] changes the pins, for
+    /// at most [`PIN_ROUNDS`] rounds. Returns the texels' values and what
+    /// the next call starts from.
+    fn solve_channel(
+        &self,
+        image: &[[f32; 3]],
+        channel: usize,
+        previous: Option<&LastSolve>,
+        seam_diagonal: &[f64],
+    ) -> (Vec<f64>, LastSolve) {
+        let n = self.texels.len();
+        let x0: Vec<f64> = self
+            .texels
+            .iter()
+            .map(|&t| f64::from(image[t as usize][channel]))
+            .collect();
+        let mut x: Vec<f64> = match previous {
+            Some(l) => x0.iter().zip(&l.change).map(|(x, c)| x + c).collect(),
+            None => x0.clone(),
+        };
+        let mut pinned = previous.map_or_else(|| vec![false; n], |l| l.pinned.clone());
+        let mut rounds = 0;
+        loop {
+            let keep: Vec<f64> = (0..n)
+                .map(|i| if pinned[i] { KEEP_PINNED } else { self.keep[i] })
+                .collect();
+            let target: Vec<f64> = (0..n)
+                .map(|i| if pinned[i] { 0.0 } else { x0[i] })
+                .collect();
+            self.solve(seam_diagonal, &keep, &target, &mut x);
+            if rounds == PIN_ROUNDS {
+                break;
+            }
+            rounds += 1;
+            if !self.repin(&x0, &mut x, &mut pinned) {
+                break;
+            }
+        }
+        let change = x.iter().zip(&x0).map(|(x, x0)| x - x0).collect();
+        (x, LastSolve { change, pinned })
+    }
+
+    /// Releases the pinned texels that the solution `x` (from the texels'
+    /// values `x0`) would raise, and pins at zero the free ones it pulls
+    /// below zero. Returns whether any texel changed.
+    fn repin(&self, x0: &[f64], x: &mut [f64], pinned: &mut [bool]) -> bool {
+        let n = self.texels.len();
+        // The objective's gradient at the pinned texels:
+        // negative where raising one would lower it.
+        let mut gradient = vec![0.0; n];
+        self.multiply(None, x, &mut gradient);
+        let mut changed = false;
+        for i in 0..n {
+            if pinned[i] {
+                let g = gradient[i] + self.keep[i] * (x[i] - x0[i]);
+                if g < 0.0 {
+                    pinned[i] = false;
+                    changed = true;
+                }
+            } else if x[i] < 0.0 {
+                pinned[i] = true;
+                x[i] = 0.0;
+                changed = true;
+            }
+        }
+        changed
     }
 }

@@ -1,5 +1,5 @@
 //! Test content: triangle-mesh scenes generated here, never downloaded
-//! (issue 18, item 7). `cargo run -p lightwire-server --example make_meshes`
+//! (issue 18, item 7). `cargo run -p lightwire-scene --example make_meshes`
 //! writes them to `scenes/meshes/`; a test regenerates them and compares the
 //! bytes, so the committed files always match this code.
 //!
@@ -410,109 +410,12 @@ pub fn atrium() -> GlbScene {
         material("ceiling", [0.75, 0.75, 0.75], [0.0; 3]),
         material("panel", [0.78, 0.78, 0.78], [20.0, 19.0, 17.0]),
     ];
-    let h = HALL / 2.0;
     let mut meshes = Vec::new();
     let mut nodes = Vec::new();
-    let add = |mesh: GlbMesh, meshes: &mut Vec<GlbMesh>, nodes: &mut Vec<GlbNode>| {
+    for mesh in hall() {
         nodes.push(GlbNode::new(mesh.name.clone(), Some(meshes.len())));
         meshes.push(mesh);
-    };
-    // Floor: 20 × 20 cells, faces up; texture repeats every 2 m (8 texels).
-    let mut floor = primitive(0, true, true);
-    grid(
-        &mut floor,
-        Vec3::new(-h, 0.0, -h),
-        Vec3::new(0.0, 0.0, HALL),
-        Vec3::new(HALL, 0.0, 0.0),
-        20,
-        20,
-        Chart::FULL,
-        0.5,
-    );
-    add(
-        GlbMesh {
-            name: "floor".into(),
-            primitives: vec![floor],
-        },
-        &mut meshes,
-        &mut nodes,
-    );
-    // Ceiling faces down.
-    let mut ceiling = primitive(2, true, true);
-    grid(
-        &mut ceiling,
-        Vec3::new(-h, HEIGHT, -h),
-        Vec3::new(HALL, 0.0, 0.0),
-        Vec3::new(0.0, 0.0, HALL),
-        10,
-        10,
-        Chart::FULL,
-        1.0,
-    );
-    add(
-        GlbMesh {
-            name: "ceiling".into(),
-            primitives: vec![ceiling],
-        },
-        &mut meshes,
-        &mut nodes,
-    );
-    // Walls face into the hall.
-    let up = Vec3::new(0.0, HEIGHT, 0.0);
-    let walls = [
-        (
-            "wall-north",
-            Vec3::new(-h, 0.0, -h),
-            Vec3::new(HALL, 0.0, 0.0),
-        ),
-        (
-            "wall-east",
-            Vec3::new(h, 0.0, -h),
-            Vec3::new(0.0, 0.0, HALL),
-        ),
-        (
-            "wall-south",
-            Vec3::new(h, 0.0, h),
-            Vec3::new(-HALL, 0.0, 0.0),
-        ),
-        (
-            "wall-west",
-            Vec3::new(-h, 0.0, h),
-            Vec3::new(0.0, 0.0, -HALL),
-        ),
-    ];
-    for (name, origin, u) in walls {
-        let mut p = primitive(1, true, true);
-        grid(&mut p, origin, u, up, 10, 4, Chart::FULL, 1.0);
-        add(
-            GlbMesh {
-                name: name.into(),
-                primitives: vec![p],
-            },
-            &mut meshes,
-            &mut nodes,
-        );
     }
-    // Light panel, 5 cm below the ceiling, facing down.
-    let mut panel = primitive(3, true, true);
-    grid(
-        &mut panel,
-        Vec3::new(-2.0, HEIGHT - 0.05, -2.0),
-        Vec3::new(4.0, 0.0, 0.0),
-        Vec3::new(0.0, 0.0, 4.0),
-        4,
-        4,
-        Chart::FULL,
-        1.0,
-    );
-    add(
-        GlbMesh {
-            name: "panel".into(),
-            primitives: vec![panel],
-        },
-        &mut meshes,
-        &mut nodes,
-    );
 
     // Column mesh (local: base at the origin), instanced.
     let column_mesh = meshes.len();
@@ -544,6 +447,117 @@ pub fn atrium() -> GlbScene {
         meshes,
         roots: (0..nodes.len()).collect(),
         nodes,
+    }
+}
+
+/// The atrium's hall, a mesh per surface: floor, ceiling, the four walls
+/// and the light panel.
+fn hall() -> Vec<GlbMesh> {
+    let mut meshes = vec![hall_floor(), hall_ceiling()];
+    meshes.extend(hall_walls());
+    meshes.push(hall_panel());
+    meshes
+}
+
+/// The hall's floor.
+fn hall_floor() -> GlbMesh {
+    let h = HALL / 2.0;
+    // Floor: 20 × 20 cells, faces up; texture repeats every 2 m (8 texels).
+    let mut floor = primitive(0, true, true);
+    grid(
+        &mut floor,
+        Vec3::new(-h, 0.0, -h),
+        Vec3::new(0.0, 0.0, HALL),
+        Vec3::new(HALL, 0.0, 0.0),
+        20,
+        20,
+        Chart::FULL,
+        0.5,
+    );
+    GlbMesh {
+        name: "floor".into(),
+        primitives: vec![floor],
+    }
+}
+
+/// The hall's ceiling.
+fn hall_ceiling() -> GlbMesh {
+    let h = HALL / 2.0;
+    // Ceiling faces down.
+    let mut ceiling = primitive(2, true, true);
+    grid(
+        &mut ceiling,
+        Vec3::new(-h, HEIGHT, -h),
+        Vec3::new(HALL, 0.0, 0.0),
+        Vec3::new(0.0, 0.0, HALL),
+        10,
+        10,
+        Chart::FULL,
+        1.0,
+    );
+    GlbMesh {
+        name: "ceiling".into(),
+        primitives: vec![ceiling],
+    }
+}
+
+/// The hall's four walls: north, east, south, west.
+fn hall_walls() -> Vec<GlbMesh> {
+    let h = HALL / 2.0;
+    // Walls face into the hall.
+    let up = Vec3::new(0.0, HEIGHT, 0.0);
+    let walls = [
+        (
+            "wall-north",
+            Vec3::new(-h, 0.0, -h),
+            Vec3::new(HALL, 0.0, 0.0),
+        ),
+        (
+            "wall-east",
+            Vec3::new(h, 0.0, -h),
+            Vec3::new(0.0, 0.0, HALL),
+        ),
+        (
+            "wall-south",
+            Vec3::new(h, 0.0, h),
+            Vec3::new(-HALL, 0.0, 0.0),
+        ),
+        (
+            "wall-west",
+            Vec3::new(-h, 0.0, h),
+            Vec3::new(0.0, 0.0, -HALL),
+        ),
+    ];
+    walls
+        .into_iter()
+        .map(|(name, origin, u)| {
+            let mut p = primitive(1, true, true);
+            grid(&mut p, origin, u, up, 10, 4, Chart::FULL, 1.0);
+            GlbMesh {
+                name: name.into(),
+                primitives: vec![p],
+            }
+        })
+        .collect()
+}
+
+/// The hall's light panel.
+fn hall_panel() -> GlbMesh {
+    // Light panel, 5 cm below the ceiling, facing down.
+    let mut panel = primitive(3, true, true);
+    grid(
+        &mut panel,
+        Vec3::new(-2.0, HEIGHT - 0.05, -2.0),
+        Vec3::new(4.0, 0.0, 0.0),
+        Vec3::new(0.0, 0.0, 4.0),
+        4,
+        4,
+        Chart::FULL,
+        1.0,
+    );
+    GlbMesh {
+        name: "panel".into(),
+        primitives: vec![panel],
     }
 }
 

@@ -322,6 +322,56 @@ struct Importer<'o> {
     uv_checked: HashMap<usize, ()>,
 }
 
+/// What [`Importer::convert`] gathers while it walks the node hierarchy.
+struct Gathered {
+    materials: Vec<ImportedMaterial>,
+    /// The index the default material gets, after the glTF's.
+    default_material: usize,
+    /// Whether a primitive without a material uses the default one.
+    used_default: bool,
+    objects: Vec<ImportedObject>,
+    instances: Vec<MeshInstance>,
+}
+
+impl Gathered {
+    /// The imported scene, with the default material at the end when a
+    /// primitive uses it.
+    fn into_scene(self) -> ImportedScene {
+        let Gathered {
+            mut materials,
+            used_default,
+            objects,
+            instances,
+            ..
+        } = self;
+        if used_default {
+            materials.push(ImportedMaterial {
+                name: "default".to_string(),
+                albedo: Vec3::splat(ALBEDO_MAX),
+                emission: Vec3::ZERO,
+                base_color_texture: None,
+                texture: None,
+            });
+        }
+        ImportedScene {
+            materials,
+            objects,
+            instances,
+        }
+    }
+}
+
+/// A primitive's accessors as read, not yet checked against each other.
+struct Accessors {
+    positions: Vec<Vec3>,
+    normals: Option<Vec<Vec3>>,
+    uv0: Option<Vec<Vec2>>,
+    uv1: Option<Vec<Vec2>>,
+    /// Three indices per triangle (the vertices in order when the
+    /// primitive is not indexed).
+    flat: Vec<u32>,
+}
+
 fn named(kind: &str, index: usize, name: Option<&str>) -> String {
     match name {
         Some(n) => format!("{kind} #{index} \"{n}\""),
@@ -383,10 +433,7 @@ impl Importer<'_> {
     }
 
     fn convert(&mut self, doc: &::gltf::Document) -> ImportedScene {
-        let mut materials: Vec<ImportedMaterial> =
-            doc.materials().map(|m| self.material(&m)).collect();
-        let default_material = materials.len();
-        let mut used_default = false;
+        let materials: Vec<ImportedMaterial> = doc.materials().map(|m| self.material(&m)).collect();
 
         let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
             self.report("file", "has no scene (no node is placed in the world)");
@@ -396,7 +443,25 @@ impl Importer<'_> {
                 instances: Vec::new(),
             };
         };
+        self.check_option_names(doc);
 
+        let mut gathered = Gathered {
+            default_material: materials.len(),
+            used_default: false,
+            materials,
+            objects: vec![ImportedObject {
+                name: STATIC_NAME.to_string(),
+                node: None,
+                pose: Pose::IDENTITY,
+            }],
+            instances: Vec::new(),
+        };
+        self.walk_nodes(doc, &scene, &mut gathered);
+        gathered.into_scene()
+    }
+
+    /// Reports node names in the options that no node has.
+    fn check_option_names(&mut self, doc: &::gltf::Document) {
         // Names the options refer to must exist.
         let names: HashMap<&str, usize> = doc
             .nodes()
@@ -415,13 +480,18 @@ impl Importer<'_> {
                 }
             }
         }
+    }
 
-        let mut objects = vec![ImportedObject {
-            name: STATIC_NAME.to_string(),
-            node: None,
-            pose: Pose::IDENTITY,
-        }];
-        let mut instances = Vec::new();
+    /// Walks the node hierarchy of `scene` depth-first: makes the dynamic
+    /// objects and instances the meshes of the selected nodes. Reports a
+    /// node reached twice or whose world transform is not finite, and
+    /// leaves it and its descendants out.
+    fn walk_nodes(
+        &mut self,
+        doc: &::gltf::Document,
+        scene: &::gltf::Scene,
+        gathered: &mut Gathered,
+    ) {
         // Depth-first with an explicit stack: (node, parent world transform,
         // selected, the object and its world-from-object inverse).
         struct Frame<'a> {
@@ -464,91 +534,17 @@ impl Importer<'_> {
             let mut object = frame.object;
             let mut object_from_world = frame.object_from_world;
             if selected && self.is_dynamic(&node) {
-                if object != 0 {
-                    let outer = objects[object as usize].name.clone();
-                    self.report(
-                        &location,
-                        format!(
-                            "is marked dynamic inside dynamic object \"{outer}\"; nested dynamic objects are not supported"
-                        ),
-                    );
-                } else if let Some(name) = node.name() {
-                    if objects.iter().any(|o| o.name == name) {
-                        self.report(
-                            &location,
-                            format!("another dynamic object is also called \"{name}\""),
-                        );
-                    } else if name == STATIC_NAME {
-                        self.report(
-                            &location,
-                            format!("\"{STATIC_NAME}\" is reserved for the static world"),
-                        );
-                    }
-                    let (_, rotation, translation) = world.to_scale_rotation_translation();
-                    let rotation = rotation.normalize();
-                    if !rotation.is_finite() || !translation.is_finite() {
-                        self.report(
-                            &location,
-                            "its world transform has no rotation (it is singular), so it cannot be a dynamic object's pose",
-                        );
-                    }
-                    let pose = Pose {
-                        translation,
-                        rotation,
-                        scale: 1.0,
-                    };
-                    object = objects.len() as u32;
-                    object_from_world =
-                        Mat4::from_rotation_translation(rotation, translation).inverse();
-                    objects.push(ImportedObject {
-                        name: name.to_string(),
-                        node: Some(node.index()),
-                        pose,
-                    });
-                } else {
-                    self.report(
-                        &location,
-                        "is marked dynamic but has no name; dynamic objects are driven by name",
-                    );
+                let made =
+                    self.dynamic_object(&node, &location, world, object, &mut gathered.objects);
+                if let Some(made) = made {
+                    (object, object_from_world) = made;
                 }
             }
 
             if selected {
                 if let Some(mesh) = node.mesh() {
                     let to_object = object_from_world * world;
-                    let det = Mat3::from_mat4(to_object).determinant();
-                    if det.abs() <= f32::MIN_POSITIVE || !det.is_finite() {
-                        self.report(
-                            &location,
-                            format!(
-                                "its transform is singular (determinant {det:e}): it flattens mesh #{} to zero area",
-                                mesh.index()
-                            ),
-                        );
-                    } else {
-                        for primitive in mesh.primitives() {
-                            let Some(data) = self.primitive(&node, &mesh, &primitive) else {
-                                continue;
-                            };
-                            let material = match data.material {
-                                Some(m) => m as u32,
-                                None => {
-                                    used_default = true;
-                                    default_material as u32
-                                }
-                            };
-                            let instance = self.instance(
-                                &node, &mesh, &primitive, data, to_object, det, object, material,
-                            );
-                            if let Some(instance) = instance {
-                                self.check_texture_uvs(
-                                    &node, &mesh, &primitive, &materials, &instance,
-                                );
-                                instances.push(instance);
-                            }
-                        }
-                        self.check_mesh_uvs(&node, &mesh);
-                    }
+                    self.instance_mesh(&node, &mesh, &location, to_object, object, gathered);
                 }
             }
             for child in node.children().collect::<Vec<_>>().into_iter().rev() {
@@ -561,20 +557,116 @@ impl Importer<'_> {
                 });
             }
         }
-        if used_default {
-            materials.push(ImportedMaterial {
-                name: "default".to_string(),
-                albedo: Vec3::splat(ALBEDO_MAX),
-                emission: Vec3::ZERO,
-                base_color_texture: None,
-                texture: None,
+    }
+
+    /// Makes a node marked dynamic, with world transform `world`, a dynamic
+    /// object of its own, posed by the rigid part of `world`. Returns the
+    /// new object and its object-from-world transform; none (and a report)
+    /// when the node lies inside the dynamic object `outer` (not the static
+    /// world, 0) or has no name.
+    fn dynamic_object(
+        &mut self,
+        node: &::gltf::Node,
+        location: &str,
+        world: Mat4,
+        outer: u32,
+        objects: &mut Vec<ImportedObject>,
+    ) -> Option<(u32, Mat4)> {
+        if outer != 0 {
+            let outer = objects[outer as usize].name.clone();
+            self.report(
+                location,
+                format!(
+                    "is marked dynamic inside dynamic object \"{outer}\"; nested dynamic objects are not supported"
+                ),
+            );
+            None
+        } else if let Some(name) = node.name() {
+            if objects.iter().any(|o| o.name == name) {
+                self.report(
+                    location,
+                    format!("another dynamic object is also called \"{name}\""),
+                );
+            } else if name == STATIC_NAME {
+                self.report(
+                    location,
+                    format!("\"{STATIC_NAME}\" is reserved for the static world"),
+                );
+            }
+            let (_, rotation, translation) = world.to_scale_rotation_translation();
+            let rotation = rotation.normalize();
+            if !rotation.is_finite() || !translation.is_finite() {
+                self.report(
+                    location,
+                    "its world transform has no rotation (it is singular), so it cannot be a dynamic object's pose",
+                );
+            }
+            let pose = Pose {
+                translation,
+                rotation,
+                scale: 1.0,
+            };
+            let object = objects.len() as u32;
+            let object_from_world =
+                Mat4::from_rotation_translation(rotation, translation).inverse();
+            objects.push(ImportedObject {
+                name: name.to_string(),
+                node: Some(node.index()),
+                pose,
             });
+            Some((object, object_from_world))
+        } else {
+            self.report(
+                location,
+                "is marked dynamic but has no name; dynamic objects are driven by name",
+            );
+            None
         }
-        ImportedScene {
-            materials,
-            objects,
-            instances,
+    }
+
+    /// Instances each primitive of a node's mesh in `object`, whose space
+    /// the node's transform `to_object` maps to, and checks the mesh's
+    /// lightmap UVs. Reports a transform that flattens the mesh.
+    fn instance_mesh(
+        &mut self,
+        node: &::gltf::Node,
+        mesh: &::gltf::Mesh,
+        location: &str,
+        to_object: Mat4,
+        object: u32,
+        gathered: &mut Gathered,
+    ) {
+        let det = Mat3::from_mat4(to_object).determinant();
+        if det.abs() <= f32::MIN_POSITIVE || !det.is_finite() {
+            self.report(
+                location,
+                format!(
+                    "its transform is singular (determinant {det:e}): it flattens mesh #{} to zero area",
+                    mesh.index()
+                ),
+            );
+            return;
         }
+        for primitive in mesh.primitives() {
+            let Some(data) = self.primitive(node, mesh, &primitive) else {
+                continue;
+            };
+            let material = match data.material {
+                Some(m) => m as u32,
+                None => {
+                    gathered.used_default = true;
+                    gathered.default_material as u32
+                }
+            };
+            let instance = self.instance(
+                node, mesh, &primitive, data, to_object, det, object, material,
+            );
+            if let Some(instance) = instance {
+                self.check_texture_uvs(node, mesh, &primitive, &gathered.materials, &instance);
+                gathered.instances.push(instance);
+            }
+        }
+        self.check_mesh_uvs(node, mesh);
     }
 
     fn is_dynamic(&mut self, node: &::gltf::Node) -> bool {
@@ -855,7 +947,7 @@ impl Importer<'_> {
         location: &str,
         primitive: &::gltf::Primitive,
     ) -> Option<PrimitiveData> {
-        use ::gltf::mesh::{Mode, Semantic};
+        use ::gltf::mesh::Mode;
         if primitive.mode() != Mode::Triangles {
             self.report(
                 location,
@@ -866,6 +958,65 @@ impl Importer<'_> {
             );
             return None;
         }
+        let Accessors {
+            positions,
+            normals,
+            uv0,
+            uv1,
+            flat,
+        } = self.read_accessors(location, primitive)?;
+        let n = positions.len();
+        for (what, len) in [
+            ("NORMAL", normals.as_ref().map(Vec::len)),
+            ("TEXCOORD_0", uv0.as_ref().map(Vec::len)),
+            ("TEXCOORD_1", uv1.as_ref().map(Vec::len)),
+        ] {
+            if let Some(len) = len {
+                if len != n {
+                    self.report(
+                        location,
+                        format!("{what} has {len} elements but POSITION has {n}"),
+                    );
+                }
+            }
+        }
+        if flat.len() % 3 != 0 {
+            self.report(
+                location,
+                format!(
+                    "{} indices (or vertices, when not indexed) is not a multiple of 3",
+                    flat.len()
+                ),
+            );
+            return None;
+        }
+        let indices: Vec<[u32; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        if !self.check_triangles(location, &positions, &indices) {
+            return None;
+        }
+        // Lightmap UVs inside [0, 1].
+        if let Some(uv) = &uv1 {
+            self.check_uv_range(location, uv);
+        }
+        Some(PrimitiveData {
+            positions,
+            normals,
+            indices,
+            uv0,
+            uv1,
+            material: primitive.material().index(),
+        })
+    }
+
+    /// Reads a primitive's positions, normals, texture coordinates and
+    /// indices. Reports every accessor that cannot be read; none without
+    /// positions or readable indices.
+    fn read_accessors(
+        &mut self,
+        location: &str,
+        primitive: &::gltf::Primitive,
+    ) -> Option<Accessors> {
+        use ::gltf::mesh::Semantic;
         let reader = accessor::Reader {
             buffers: &self.buffers,
         };
@@ -904,35 +1055,25 @@ impl Importer<'_> {
         for p in problems {
             self.report(location, p);
         }
-        let positions = positions?;
-        let flat = flat?;
-        let n = positions.len();
-        for (what, len) in [
-            ("NORMAL", normals.as_ref().map(Vec::len)),
-            ("TEXCOORD_0", uv0.as_ref().map(Vec::len)),
-            ("TEXCOORD_1", uv1.as_ref().map(Vec::len)),
-        ] {
-            if let Some(len) = len {
-                if len != n {
-                    self.report(
-                        location,
-                        format!("{what} has {len} elements but POSITION has {n}"),
-                    );
-                }
-            }
-        }
-        if flat.len() % 3 != 0 {
-            self.report(
-                location,
-                format!(
-                    "{} indices (or vertices, when not indexed) is not a multiple of 3",
-                    flat.len()
-                ),
-            );
-            return None;
-        }
-        let indices: Vec<[u32; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        Some(Accessors {
+            positions: positions?,
+            normals,
+            uv0,
+            uv1,
+            flat: flat?,
+        })
+    }
 
+    /// Reports non-finite positions, out-of-range indices and degenerate
+    /// triangles (in mesh space), a few of each kind. Returns whether the
+    /// positions are finite and the indices in range.
+    fn check_triangles(
+        &mut self,
+        location: &str,
+        positions: &[Vec3],
+        indices: &[[u32; 3]],
+    ) -> bool {
+        let n = positions.len();
         // Non-finite positions: the first few by vertex index, then a count.
         let bad: Vec<usize> = (0..n).filter(|&i| !positions[i].is_finite()).collect();
         self.listed(location, &bad, |i| {
@@ -952,7 +1093,7 @@ impl Importer<'_> {
             )
         });
         if !bad.is_empty() || !out.is_empty() {
-            return None;
+            return false;
         }
         // Degenerate triangles (mesh space).
         let degenerate: Vec<usize> = (0..indices.len())
@@ -974,30 +1115,24 @@ impl Importer<'_> {
                 0.5 * (b - a).cross(c - a).length()
             )
         });
-        // Lightmap UVs inside [0, 1].
-        if let Some(uv) = &uv1 {
-            let lo = -UV_RANGE_SLACK;
-            let hi = 1.0 + UV_RANGE_SLACK;
-            let outside: Vec<usize> = (0..uv.len())
-                .filter(|&i| {
-                    !(uv[i].cmpge(Vec2::splat(lo)).all() && uv[i].cmple(Vec2::splat(hi)).all())
-                })
-                .collect();
-            self.listed(location, &outside, |i| {
-                format!(
-                    "TEXCOORD_1 of vertex {i} is {:?}: lightmap UVs must lie in [0, 1]",
-                    uv[i]
-                )
-            });
-        }
-        Some(PrimitiveData {
-            positions,
-            normals,
-            indices,
-            uv0,
-            uv1,
-            material: primitive.material().index(),
-        })
+        true
+    }
+
+    /// Reports lightmap UVs (`TEXCOORD_1`) outside [0, 1], a few of them.
+    fn check_uv_range(&mut self, location: &str, uv: &[Vec2]) {
+        let lo = -UV_RANGE_SLACK;
+        let hi = 1.0 + UV_RANGE_SLACK;
+        let outside: Vec<usize> = (0..uv.len())
+            .filter(|&i| {
+                !(uv[i].cmpge(Vec2::splat(lo)).all() && uv[i].cmple(Vec2::splat(hi)).all())
+            })
+            .collect();
+        self.listed(location, &outside, |i| {
+            format!(
+                "TEXCOORD_1 of vertex {i} is {:?}: lightmap UVs must lie in [0, 1]",
+                uv[i]
+            )
+        });
     }
 
     /// Reports the first [`MAX_LISTED`] items and a count of the rest.

@@ -226,6 +226,164 @@ impl Builder {
             bounds,
         )
     }
+
+    /// Appends a PNG as a buffer view, an image of it and a texture that
+    /// samples it with `sampler`.
+    fn texture(
+        &mut self,
+        name: &str,
+        png: &[u8],
+        sampler: json::Index<json::texture::Sampler>,
+    ) -> json::Index<json::Texture> {
+        let view = self.view(png, None);
+        let source = self.root.push(json::Image {
+            buffer_view: Some(view),
+            mime_type: Some(json::image::MimeType("image/png".to_string())),
+            name: Some(name.to_string()),
+            uri: None,
+            extensions: None,
+            extras: None,
+        });
+        self.root.push(json::Texture {
+            name: Some(name.to_string()),
+            sampler: Some(sampler),
+            source,
+            extensions: None,
+            extras: None,
+        })
+    }
+
+    /// Images, their textures, one sampler (none without images). Returns
+    /// the textures, indexed like `images`.
+    fn images(&mut self, images: &[GlbImage]) -> Vec<json::Index<json::Texture>> {
+        let mut textures = Vec::new();
+        if !images.is_empty() {
+            let sampler = self.root.push(json::texture::Sampler {
+                mag_filter: Some(Valid(json::texture::MagFilter::Nearest)),
+                min_filter: Some(Valid(json::texture::MinFilter::Nearest)),
+                wrap_s: Valid(json::texture::WrappingMode::Repeat),
+                wrap_t: Valid(json::texture::WrappingMode::Repeat),
+                ..Default::default()
+            });
+            for image in images {
+                textures.push(self.texture(&image.name, &image.png, sampler));
+            }
+        }
+        textures
+    }
+
+    /// The lightmap's texture, with a sampler of its own.
+    fn lightmap_texture(&mut self, l: &GlbLightmap) -> json::Index<json::Texture> {
+        // The lightmap: filtered as a client filters it (bilinear, no
+        // mipmaps, which would blend neighbouring charts; clamped at the
+        // atlas border).
+        let sampler = self.root.push(json::texture::Sampler {
+            mag_filter: Some(Valid(json::texture::MagFilter::Linear)),
+            min_filter: Some(Valid(json::texture::MinFilter::Linear)),
+            wrap_s: Valid(json::texture::WrappingMode::ClampToEdge),
+            wrap_t: Valid(json::texture::WrappingMode::ClampToEdge),
+            ..Default::default()
+        });
+        self.texture(&l.name, &l.png, sampler)
+    }
+
+    /// A mesh: the accessors of each of its primitives, then the mesh.
+    fn mesh(&mut self, mesh: &GlbMesh) {
+        let mut primitives = Vec::new();
+        for p in &mesh.primitives {
+            primitives.push(self.primitive(p));
+        }
+        self.root.push(json::Mesh {
+            extensions: None,
+            extras: None,
+            name: Some(mesh.name.clone()),
+            primitives,
+            weights: None,
+        });
+    }
+
+    /// A primitive's accessors, in order: positions (with their bounds),
+    /// normals, TEXCOORD_0, TEXCOORD_1 and the indices.
+    fn primitive(&mut self, p: &GlbPrimitive) -> json::mesh::Primitive {
+        use json::accessor::Type;
+        use json::mesh::Semantic;
+        let mut attributes = BTreeMap::new();
+        let flat: Vec<f32> = p.positions.iter().flat_map(|v| v.to_array()).collect();
+        attributes.insert(
+            Valid(Semantic::Positions),
+            self.floats(&flat, 3, Type::Vec3, true),
+        );
+        if let Some(ns) = &p.normals {
+            let flat: Vec<f32> = ns.iter().flat_map(|v| v.to_array()).collect();
+            attributes.insert(
+                Valid(Semantic::Normals),
+                self.floats(&flat, 3, Type::Vec3, false),
+            );
+        }
+        for (set, uv) in [(0, &p.uv0), (1, &p.uv1)] {
+            if let Some(uv) = uv {
+                let flat: Vec<f32> = uv.iter().flat_map(|v| v.to_array()).collect();
+                attributes.insert(
+                    Valid(Semantic::TexCoords(set)),
+                    self.floats(&flat, 2, Type::Vec2, false),
+                );
+            }
+        }
+        let bytes: Vec<u8> = p
+            .indices
+            .iter()
+            .flatten()
+            .flat_map(|i| i.to_le_bytes())
+            .collect();
+        let indices = self.accessor(
+            &bytes,
+            p.indices.len() * 3,
+            json::accessor::ComponentType::U32,
+            Type::Scalar,
+            json::buffer::Target::ElementArrayBuffer,
+            None,
+        );
+        json::mesh::Primitive {
+            attributes,
+            extensions: None,
+            extras: None,
+            indices: Some(indices),
+            material: p.material.map(|m| json::Index::new(m as u32)),
+            mode: Valid(json::mesh::Mode::Triangles),
+            targets: None,
+        }
+    }
+
+    /// Places the `roots` in the (single) scene, pads the binary buffer to
+    /// 4 bytes and declares it (in the file `bin_uri`, for a `.gltf`), and
+    /// serialises the JSON. Returns the JSON and the binary buffer.
+    fn finish(
+        mut self,
+        roots: &[usize],
+        bin_uri: Option<&str>,
+    ) -> Result<(String, Vec<u8>), WriteError> {
+        let scene = self.root.push(json::Scene {
+            extensions: None,
+            extras: None,
+            name: None,
+            nodes: roots.iter().map(|&r| json::Index::new(r as u32)).collect(),
+        });
+        self.root.scene = Some(scene);
+
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
+        }
+        self.root.push(json::Buffer {
+            byte_length: USize64::from(self.bin.len()),
+            extensions: None,
+            extras: None,
+            name: None,
+            uri: bin_uri.map(str::to_string),
+        });
+        let text =
+            json::serialize::to_string(&self.root).map_err(|e| WriteError::Json(e.to_string()))?;
+        Ok((text, self.bin))
+    }
 }
 
 fn extras(value: &Option<serde_json::Value>) -> Result<json::Extras, WriteError> {
@@ -233,6 +391,90 @@ fn extras(value: &Option<serde_json::Value>) -> Result<json::Extras, WriteError>
         .as_ref()
         .map(|v| serde_json::value::to_raw_value(v).map_err(|e| WriteError::Json(e.to_string())))
         .transpose()
+}
+
+/// A material in glTF's terms: emission as `emissiveFactor`, with
+/// `KHR_materials_emissive_strength` when a channel exceeds 1; with
+/// `lightmap_texture`, shown unlit as the lightmap, its physical values in
+/// its `extras` (see the module doc). Returns it and whether it uses the
+/// emission strength.
+fn json_material(
+    m: &GlbMaterial,
+    textures: &[json::Index<json::Texture>],
+    lightmap_texture: Option<json::Index<json::Texture>>,
+) -> Result<(json::Material, bool), WriteError> {
+    let peak = m.emission.max_element();
+    let (factor, strength) = if peak > 1.0 {
+        (m.emission / peak, Some(peak))
+    } else {
+        (m.emission, None)
+    };
+    let mut material = json::Material {
+        name: Some(m.name.clone()),
+        emissive_factor: json::material::EmissiveFactor(factor.to_array()),
+        ..Default::default()
+    };
+    material.pbr_metallic_roughness.base_color_factor =
+        json::material::PbrBaseColorFactor([m.base_color.x, m.base_color.y, m.base_color.z, 1.0]);
+    // Diffuse surfaces: no metal, fully rough.
+    material.pbr_metallic_roughness.metallic_factor = json::material::StrengthFactor(0.0);
+    material.pbr_metallic_roughness.roughness_factor = json::material::StrengthFactor(1.0);
+    material.pbr_metallic_roughness.base_color_texture =
+        m.base_color_texture.map(|t| json::texture::Info {
+            index: textures[t],
+            tex_coord: 0,
+            extensions: None,
+            extras: None,
+        });
+    let mut extensions = json::extensions::material::Material::default();
+    if let Some(s) = strength {
+        extensions.emissive_strength = Some(json::extensions::material::EmissiveStrength {
+            emissive_strength: json::extensions::material::EmissiveStrengthFactor(s),
+        });
+    }
+    if let Some(index) = lightmap_texture {
+        // Shown as the baked light: unlit, white × the lightmap.
+        extensions.unlit = Some(json::extensions::material::Unlit {});
+        material.pbr_metallic_roughness.base_color_factor =
+            json::material::PbrBaseColorFactor([1.0; 4]);
+        material.pbr_metallic_roughness.base_color_texture = Some(json::texture::Info {
+            index,
+            tex_coord: 1,
+            extensions: None,
+            extras: None,
+        });
+        material.extras = extras(&Some(serde_json::json!({
+            "lightwire": {
+                "albedo": m.base_color.to_array(),
+                "emission": m.emission.to_array(),
+            }
+        })))?;
+    }
+    if strength.is_some() || lightmap_texture.is_some() {
+        material.extensions = Some(extensions);
+    }
+    Ok((material, strength.is_some()))
+}
+
+/// A node in glTF's terms: its transform's parts that are not the
+/// identity, its children when it has any, and its `extras`.
+fn json_node(node: &GlbNode) -> Result<json::Node, WriteError> {
+    Ok(json::Node {
+        name: Some(node.name.clone()),
+        mesh: node.mesh.map(|m| json::Index::new(m as u32)),
+        children: (!node.children.is_empty()).then(|| {
+            node.children
+                .iter()
+                .map(|&c| json::Index::new(c as u32))
+                .collect()
+        }),
+        translation: (node.translation != Vec3::ZERO).then(|| node.translation.to_array()),
+        rotation: (node.rotation != Quat::IDENTITY)
+            .then(|| json::scene::UnitQuaternion(node.rotation.to_array())),
+        scale: (node.scale != Vec3::ONE).then(|| node.scale.to_array()),
+        extras: extras(&node.extras)?,
+        ..Default::default()
+    })
 }
 
 impl GlbScene {
@@ -314,7 +556,6 @@ impl GlbScene {
         let (text, bin) = self.build(None, Some(lightmap))?;
         pack_glb(text.as_bytes(), &bin)
     }
-
     fn build(
         &self,
         bin_uri: Option<&str>,
@@ -330,126 +571,13 @@ impl GlbScene {
             extras: extras(&lightmap.and_then(|l| l.asset_extras.clone()))?,
             ..Default::default()
         };
-
-        // Images, their textures, one sampler.
-        let mut textures = Vec::new();
-        if !self.images.is_empty() {
-            let sampler = b.root.push(json::texture::Sampler {
-                mag_filter: Some(Valid(json::texture::MagFilter::Nearest)),
-                min_filter: Some(Valid(json::texture::MinFilter::Nearest)),
-                wrap_s: Valid(json::texture::WrappingMode::Repeat),
-                wrap_t: Valid(json::texture::WrappingMode::Repeat),
-                ..Default::default()
-            });
-            for image in &self.images {
-                let view = b.view(&image.png, None);
-                let source = b.root.push(json::Image {
-                    buffer_view: Some(view),
-                    mime_type: Some(json::image::MimeType("image/png".to_string())),
-                    name: Some(image.name.clone()),
-                    uri: None,
-                    extensions: None,
-                    extras: None,
-                });
-                textures.push(b.root.push(json::Texture {
-                    name: Some(image.name.clone()),
-                    sampler: Some(sampler),
-                    source,
-                    extensions: None,
-                    extras: None,
-                }));
-            }
-        }
-        // The lightmap: filtered as a client filters it (bilinear, no
-        // mipmaps, which would blend neighbouring charts; clamped at the
-        // atlas border).
-        let lightmap_texture = match lightmap {
-            Some(l) => {
-                let sampler = b.root.push(json::texture::Sampler {
-                    mag_filter: Some(Valid(json::texture::MagFilter::Linear)),
-                    min_filter: Some(Valid(json::texture::MinFilter::Linear)),
-                    wrap_s: Valid(json::texture::WrappingMode::ClampToEdge),
-                    wrap_t: Valid(json::texture::WrappingMode::ClampToEdge),
-                    ..Default::default()
-                });
-                let view = b.view(&l.png, None);
-                let source = b.root.push(json::Image {
-                    buffer_view: Some(view),
-                    mime_type: Some(json::image::MimeType("image/png".to_string())),
-                    name: Some(l.name.clone()),
-                    uri: None,
-                    extensions: None,
-                    extras: None,
-                });
-                Some(b.root.push(json::Texture {
-                    name: Some(l.name.clone()),
-                    sampler: Some(sampler),
-                    source,
-                    extensions: None,
-                    extras: None,
-                }))
-            }
-            None => None,
-        };
+        let textures = b.images(&self.images);
+        let lightmap_texture = lightmap.map(|l| b.lightmap_texture(l));
 
         let mut uses_strength = false;
         for m in &self.materials {
-            let peak = m.emission.max_element();
-            let (factor, strength) = if peak > 1.0 {
-                uses_strength = true;
-                (m.emission / peak, Some(peak))
-            } else {
-                (m.emission, None)
-            };
-            let mut material = json::Material {
-                name: Some(m.name.clone()),
-                emissive_factor: json::material::EmissiveFactor(factor.to_array()),
-                ..Default::default()
-            };
-            material.pbr_metallic_roughness.base_color_factor =
-                json::material::PbrBaseColorFactor([
-                    m.base_color.x,
-                    m.base_color.y,
-                    m.base_color.z,
-                    1.0,
-                ]);
-            // Diffuse surfaces: no metal, fully rough.
-            material.pbr_metallic_roughness.metallic_factor = json::material::StrengthFactor(0.0);
-            material.pbr_metallic_roughness.roughness_factor = json::material::StrengthFactor(1.0);
-            material.pbr_metallic_roughness.base_color_texture =
-                m.base_color_texture.map(|t| json::texture::Info {
-                    index: textures[t],
-                    tex_coord: 0,
-                    extensions: None,
-                    extras: None,
-                });
-            let mut extensions = json::extensions::material::Material::default();
-            if let Some(s) = strength {
-                extensions.emissive_strength = Some(json::extensions::material::EmissiveStrength {
-                    emissive_strength: json::extensions::material::EmissiveStrengthFactor(s),
-                });
-            }
-            if let Some(index) = lightmap_texture {
-                // Shown as the baked light: unlit, white × the lightmap.
-                extensions.unlit = Some(json::extensions::material::Unlit {});
-                material.pbr_metallic_roughness.base_color_factor =
-                    json::material::PbrBaseColorFactor([1.0; 4]);
-                material.pbr_metallic_roughness.base_color_texture = Some(json::texture::Info {
-                    index,
-                    tex_coord: 1,
-                    extensions: None,
-                    extras: None,
-                });
-                material.extras = extras(&Some(serde_json::json!({
-                    "lightwire": {
-                        "albedo": m.base_color.to_array(),
-                        "emission": m.emission.to_array(),
-                    }
-                })))?;
-            }
-            if strength.is_some() || lightmap_texture.is_some() {
-                material.extensions = Some(extensions);
-            }
+            let (material, strength) = json_material(m, &textures, lightmap_texture)?;
+            uses_strength |= strength;
             b.root.push(material);
         }
         if uses_strength {
@@ -459,110 +587,13 @@ impl GlbScene {
             b.root.extensions_used.push(UNLIT.to_string());
         }
 
-        use json::accessor::Type;
-        use json::mesh::Semantic;
         for mesh in &self.meshes {
-            let mut primitives = Vec::new();
-            for p in &mesh.primitives {
-                let mut attributes = BTreeMap::new();
-                let flat: Vec<f32> = p.positions.iter().flat_map(|v| v.to_array()).collect();
-                attributes.insert(
-                    Valid(Semantic::Positions),
-                    b.floats(&flat, 3, Type::Vec3, true),
-                );
-                if let Some(ns) = &p.normals {
-                    let flat: Vec<f32> = ns.iter().flat_map(|v| v.to_array()).collect();
-                    attributes.insert(
-                        Valid(Semantic::Normals),
-                        b.floats(&flat, 3, Type::Vec3, false),
-                    );
-                }
-                for (set, uv) in [(0, &p.uv0), (1, &p.uv1)] {
-                    if let Some(uv) = uv {
-                        let flat: Vec<f32> = uv.iter().flat_map(|v| v.to_array()).collect();
-                        attributes.insert(
-                            Valid(Semantic::TexCoords(set)),
-                            b.floats(&flat, 2, Type::Vec2, false),
-                        );
-                    }
-                }
-                let bytes: Vec<u8> = p
-                    .indices
-                    .iter()
-                    .flatten()
-                    .flat_map(|i| i.to_le_bytes())
-                    .collect();
-                let indices = b.accessor(
-                    &bytes,
-                    p.indices.len() * 3,
-                    json::accessor::ComponentType::U32,
-                    Type::Scalar,
-                    json::buffer::Target::ElementArrayBuffer,
-                    None,
-                );
-                primitives.push(json::mesh::Primitive {
-                    attributes,
-                    extensions: None,
-                    extras: None,
-                    indices: Some(indices),
-                    material: p.material.map(|m| json::Index::new(m as u32)),
-                    mode: Valid(json::mesh::Mode::Triangles),
-                    targets: None,
-                });
-            }
-            b.root.push(json::Mesh {
-                extensions: None,
-                extras: None,
-                name: Some(mesh.name.clone()),
-                primitives,
-                weights: None,
-            });
+            b.mesh(mesh);
         }
-
         for node in &self.nodes {
-            let n = json::Node {
-                name: Some(node.name.clone()),
-                mesh: node.mesh.map(|m| json::Index::new(m as u32)),
-                children: (!node.children.is_empty()).then(|| {
-                    node.children
-                        .iter()
-                        .map(|&c| json::Index::new(c as u32))
-                        .collect()
-                }),
-                translation: (node.translation != Vec3::ZERO).then(|| node.translation.to_array()),
-                rotation: (node.rotation != Quat::IDENTITY)
-                    .then(|| json::scene::UnitQuaternion(node.rotation.to_array())),
-                scale: (node.scale != Vec3::ONE).then(|| node.scale.to_array()),
-                extras: extras(&node.extras)?,
-                ..Default::default()
-            };
-            b.root.push(n);
+            b.root.push(json_node(node)?);
         }
-        let scene = b.root.push(json::Scene {
-            extensions: None,
-            extras: None,
-            name: None,
-            nodes: self
-                .roots
-                .iter()
-                .map(|&r| json::Index::new(r as u32))
-                .collect(),
-        });
-        b.root.scene = Some(scene);
-
-        while !b.bin.len().is_multiple_of(4) {
-            b.bin.push(0);
-        }
-        b.root.push(json::Buffer {
-            byte_length: USize64::from(b.bin.len()),
-            extensions: None,
-            extras: None,
-            name: None,
-            uri: bin_uri.map(str::to_string),
-        });
-        let text =
-            json::serialize::to_string(&b.root).map_err(|e| WriteError::Json(e.to_string()))?;
-        Ok((text, b.bin))
+        b.finish(&self.roots, bin_uri)
     }
 
     /// The document as a binary glTF (`.glb`).
