@@ -38,7 +38,8 @@
 //! `hemicube_rows.wgsl` (the hemicube rasterizer's vertex entry points in
 //! its two draw layouts: a draw per face, or all faces in one draw with
 //! clip distances), `progressive.wgsl` (progressive refinement),
-//! `redistribute.wgsl` (redistribution after moves), `gather.wgsl` (gather
+//! `redistribute.wgsl` (redistribution after moves, on what
+//! `redistribute_bindings.wgsl` declares), `gather.wgsl` (gather
 //! radiosity). The progressive and redistribution modules share the
 //! bindings of `elements.wgsl` and `receive.wgsl` at the same indices, so
 //! one slot table serves both (`progressive/pipelines.rs`).
@@ -50,7 +51,7 @@
 //! pipeline binds what its entry points use.
 
 /// Every `.wgsl` file under `gpu/`, by name.
-const FILES: [(&str, &str); 9] = [
+const FILES: [(&str, &str); 10] = [
     ("common.wgsl", include_str!("common.wgsl")),
     ("elements.wgsl", include_str!("elements.wgsl")),
     ("receive.wgsl", include_str!("receive.wgsl")),
@@ -60,6 +61,10 @@ const FILES: [(&str, &str); 9] = [
     (
         "progressive.wgsl",
         include_str!("progressive/progressive.wgsl"),
+    ),
+    (
+        "redistribute_bindings.wgsl",
+        include_str!("progressive/redistribute/redistribute_bindings.wgsl"),
     ),
     (
         "redistribute.wgsl",
