@@ -153,6 +153,50 @@ impl fmt::Display for Endpoint {
     }
 }
 
+/// Where to connect, with what token: the arguments every subcommand of
+/// `lightwire-client` takes. See [`Endpoint::parse`] for the URL forms.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ServerArgs {
+    /// The server: its base address `http://HOST:PORT` (then --scene
+    /// picks the scene) or the WebSocket URL `ws://HOST:PORT/ws/scenes/ID`.
+    pub url: String,
+    /// Scene id (`GET /api/scenes` lists them); not needed when the URL
+    /// ends in /ws/scenes/ID.
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// Access token [env: LIGHTWIRE_TOKEN]: a viewer token watches and
+    /// views, drivers need a driver or admin token; omit only for a `--dev`
+    /// server.
+    #[arg(long)]
+    pub token: Option<String>,
+}
+
+impl ServerArgs {
+    /// The parsed endpoint.
+    pub fn endpoint(&self) -> Result<Endpoint, EndpointError> {
+        Endpoint::parse(&self.url, self.scene.as_deref())
+    }
+
+    /// `--token`, else `LIGHTWIRE_TOKEN`, else none.
+    pub fn token(&self) -> Option<String> {
+        self.token
+            .clone()
+            .or_else(|| std::env::var("LIGHTWIRE_TOKEN").ok())
+            .filter(|t| !t.is_empty())
+    }
+
+    /// The default [`Options`](crate::Options) with [`ServerArgs::token`],
+    /// the client naming itself `lightwire-client/VERSION COMMAND` in its
+    /// `Hello`.
+    pub fn options(&self, command: &str) -> crate::Options {
+        crate::Options {
+            token: self.token(),
+            client_name: format!("lightwire-client/{} {command}", env!("CARGO_PKG_VERSION")),
+            ..crate::Options::default()
+        }
+    }
+}
+
 /// Percent-encodes everything but RFC 3986's unreserved characters, so
 /// any scene name makes one path segment.
 fn percent_encode(s: &str) -> String {

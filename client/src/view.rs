@@ -32,23 +32,18 @@ use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec3};
 use lightwire_protocol::{Pose, SceneInfo};
 
+use crate::endpoint::ServerArgs;
 use crate::render::camera::parse_vec3;
 use crate::render::{self, CameraSpec, LightmapTexels, Renderer, Settings, geometry, tonemap};
-use crate::{Client, Endpoint, Frame, Options};
+use crate::{Client, Frame, Options};
 
 /// Arguments of `lightwire-client view`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ViewArgs {
-    /// Server address: http://HOST:PORT or HOST:PORT (with --scene), or
-    /// ws://HOST:PORT/ws/scenes/ID.
-    pub url: String,
-    /// Scene id, when URL does not name one.
-    #[arg(long)]
-    pub scene: Option<String>,
-    /// Access token [env: LIGHTWIRE_TOKEN]; a viewer token is enough; omit
-    /// only for a `--dev` server.
-    #[arg(long)]
-    pub token: Option<String>,
+    /// The server, the scene and the token, as the other subcommands take
+    /// them.
+    #[command(flatten)]
+    pub server: ServerArgs,
     /// Camera as "eye=x,y,z;target=x,y,z;up=x,y,z;fov=deg" (fov vertical,
     /// degrees). Every key is optional: target defaults to the centre of
     /// the scene's bounding box, up to +y, fov to 45, and eye to a view
@@ -284,16 +279,10 @@ pub fn run(args: ViewArgs) -> Result<()> {
         .build()
         .context("starting the network runtime")?;
     let timeout = Duration::from_secs_f64(args.timeout);
-    let endpoint = Endpoint::parse(&args.url, args.scene.as_deref())?;
+    let endpoint = args.server.endpoint()?;
     let options = Options {
-        token: args
-            .token
-            .clone()
-            .or_else(|| std::env::var("LIGHTWIRE_TOKEN").ok())
-            .filter(|t| !t.is_empty()),
-        client_name: concat!("lightwire-client/", env!("CARGO_PKG_VERSION"), " view").into(),
         connect_timeout: timeout,
-        ..Options::default()
+        ..args.server.options("view")
     };
     let client = runtime.block_on(Client::connect_with(endpoint, options))?;
     let first = runtime.block_on(client.wait_for_version(1, timeout))?;
@@ -409,18 +398,18 @@ mod tests {
         let poses = resolve_poses(&scene, &BTreeMap::new(), &[p]).unwrap();
         assert_eq!(poses[0].translation, [1.0, 2.0, 3.0]);
         assert_eq!(poses[0].scale, 2.0, "keys not given keep the scene's value");
-        let missing = parse_pose("ball:scale=2").unwrap();
-        let err = resolve_poses(&scene, &BTreeMap::new(), &[missing])
-            .unwrap_err()
-            .to_string();
+        let refused = |pose: &str| {
+            let pose = parse_pose(pose).unwrap();
+            resolve_poses(&scene, &BTreeMap::new(), &[pose])
+                .unwrap_err()
+                .to_string()
+        };
+        let err = refused("ball:scale=2");
         assert!(
             err.contains("has no object \"ball\"; its objects: box"),
             "{err}"
         );
-        let flat = parse_pose("box:scale=0").unwrap();
-        let err = resolve_poses(&scene, &BTreeMap::new(), &[flat])
-            .unwrap_err()
-            .to_string();
+        let err = refused("box:scale=0");
         assert!(
             err.contains("--pose for \"box\": scale is not positive"),
             "{err}"

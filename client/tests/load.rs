@@ -19,23 +19,21 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{Lightwire, repo};
+use lightwire_testkit::{Lightwire, repo, scene_path};
 use serde_json::Value;
 
 /// cornell-low at a fifth of its density on the reference solver, 3 ticks
 /// per second.
 fn start_server() -> Proc {
-    let scene = repo().join("scenes/cornell-low.json");
-    let server = Lightwire::built().serve_dev(&[
+    let flags = [
         "--solver",
         "reference",
         "--density-scale",
         "0.2",
         "--tick-hz",
         "3",
-        "--scene",
-        scene.to_str().expect("utf-8 path"),
-    ]);
+    ];
+    let server = Lightwire::built().serve_dev_on(scene_path("cornell-low.json"), &flags);
     server.wait_ready();
     server
 }
@@ -54,6 +52,15 @@ fn client(args: &[&str]) -> Output {
         .env_remove("LIGHTWIRE_TOKEN")
         .output()
         .expect("lightwire-client runs")
+}
+
+/// Runs `lightwire-client ARGS`, which must exit with `code`; returns
+/// what it said on stderr.
+fn client_exits(args: &[&str], code: i32) -> String {
+    let out = client(args);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(code), "{stderr}");
+    stderr
 }
 
 fn report_path(name: &str) -> PathBuf {
@@ -170,23 +177,22 @@ fn watch_drive_and_load_limits_as_a_user_sees_them() {
     std::fs::create_dir_all(&dir).expect("dir");
     let bad = dir.join("bad.json");
     std::fs::write(&bad, "{ \"keyframes\": [ { \"t\": 0, \"scale\": 1 } ] }\n").expect("write");
-    let out = client(&[
-        "drive",
-        "http://127.0.0.1:9",
-        "--scene",
-        "x",
-        "--script",
-        bad.to_str().expect("utf-8"),
-    ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    let stderr = client_exits(
+        &[
+            "drive",
+            "http://127.0.0.1:9",
+            "--scene",
+            "x",
+            "--script",
+            bad.to_str().expect("utf-8"),
+        ],
+        2,
+    );
     assert!(
         stderr.contains("bad.json: keyframes[0].translation"),
         "{stderr}"
     );
-    let out = client(&["watch", "http://127.0.0.1:9/api/scenes"]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    let stderr = client_exits(&["watch", "http://127.0.0.1:9/api/scenes"], 2);
     assert!(
         stderr.contains("http://127.0.0.1:9/api/scenes") && stderr.contains("unexpected path"),
         "{stderr}"
@@ -220,18 +226,19 @@ fn watch_drive_and_load_limits_as_a_user_sees_them() {
     // drive: moves the box, measures its own poses' latency, exits 0.
     let rotate = repo().join("scenes/scripts/rotate.json");
     let before = version(&server);
-    let out = client(&[
-        "drive",
-        &url,
-        "--scene",
-        "cornell-low",
-        "--script",
-        rotate.to_str().expect("utf-8"),
-        "--duration",
-        "1s",
-    ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    let stderr = client_exits(
+        &[
+            "drive",
+            &url,
+            "--scene",
+            "cornell-low",
+            "--script",
+            rotate.to_str().expect("utf-8"),
+            "--duration",
+            "1s",
+        ],
+        0,
+    );
     assert!(
         stderr.contains("done: ") && stderr.contains("reached the light"),
         "{stderr}"
@@ -240,28 +247,29 @@ fn watch_drive_and_load_limits_as_a_user_sees_them() {
 
     // load: a missed limit is exit code 1 and says which.
     let report = report_path("missed-limit.json");
-    let out = client(&[
-        "load",
-        &url,
-        "--scene",
-        "cornell-low",
-        "--script",
-        rotate.to_str().expect("utf-8"),
-        "--viewers",
-        "2",
-        "--drivers",
-        "1",
-        "--duration",
-        "1s",
-        "--quiet",
-        "300ms",
-        "--max-p99-ms",
-        "0.001",
-        "--report",
-        report.to_str().expect("utf-8"),
-    ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let stderr = client_exits(
+        &[
+            "load",
+            &url,
+            "--scene",
+            "cornell-low",
+            "--script",
+            rotate.to_str().expect("utf-8"),
+            "--viewers",
+            "2",
+            "--drivers",
+            "1",
+            "--duration",
+            "1s",
+            "--quiet",
+            "300ms",
+            "--max-p99-ms",
+            "0.001",
+            "--report",
+            report.to_str().expect("utf-8"),
+        ],
+        1,
+    );
     assert!(stderr.contains("FAILED: p99 latency"), "{stderr}");
     let r: Value =
         serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");

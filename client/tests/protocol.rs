@@ -4,16 +4,17 @@
 //! not fit, nothing applied from a corrupt frame, reconnect with backoff,
 //! permanent refusals, the pose outbox and transform-to-light latency.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use futures_util::SinkExt;
-use lightwire_client::{Client, ClientError, ErrorCode, Event, Options, Pose, Role};
+use lightwire_client::{Client, ClientError, ErrorCode, Event, Frame, Options, Pose, Role};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::{
-    ClientMessage, MaterialInfo, ObjectInfo, ObjectSeq, PROTOCOL_VERSION, PixelFormat, SceneInfo,
-    ServerMessage, SurfaceInfo,
+    ClientMessage, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, SceneInfo, ServerMessage,
+    SurfaceInfo,
 };
-use lightwire_testkit::fake::{FakeServer, recv, send};
+use lightwire_testkit::fake::{Conn, FakeServer, delta, keyframe, recv, send, welcome};
 use tokio_tungstenite::tungstenite::Message;
 
 const WAIT: Duration = Duration::from_secs(10);
@@ -68,6 +69,48 @@ fn encoder() -> Encoder {
     Encoder::new(10, 9, 4, PixelFormat::Rgb9e5, 0.0)
 }
 
+/// A client of `fake` presenting `token`, welcomed as `role` on
+/// [`scene`], and the fake server's side of its connection.
+async fn connected(fake: &FakeServer, token: Option<&str>, role: Role) -> (Client, Conn) {
+    let url = fake.ws_url("fake");
+    let (client, ws) = tokio::join!(
+        Client::connect(&url, token, None),
+        fake.welcome(role, scene())
+    );
+    (client.expect("connects"), ws)
+}
+
+/// [`connected`], then holding version 1 ([`image`] of 1.0, a keyframe
+/// of the returned encoder).
+async fn at_version_1(
+    fake: &FakeServer,
+    token: Option<&str>,
+    role: Role,
+) -> (Client, Conn, Encoder) {
+    let (client, mut ws) = connected(fake, token, role).await;
+    let mut enc = encoder();
+    enc.publish(&image(1.0), vec![]);
+    keyframe(&mut ws, enc.keyframe()).await;
+    front_is(&client, 1, &enc).await;
+    (client, ws, enc)
+}
+
+/// Waits for the client's front to reach `version`, and checks that it is
+/// that version with the texels `enc` published, bit for bit.
+async fn front_is(client: &Client, version: u64, enc: &Encoder) -> Arc<Frame> {
+    let front = client
+        .wait_for_version(version, WAIT)
+        .await
+        .unwrap_or_else(|e| panic!("version {version}: {e}"));
+    assert_eq!(front.version(), version);
+    assert_eq!(
+        front.lightmap.texels,
+        enc.state().texels,
+        "version {version} is bit-exact"
+    );
+    front
+}
+
 /// Waits for the first event matching `pick`.
 async fn until<T>(client: &mut Client, mut pick: impl FnMut(&Event) -> Option<T>) -> T {
     let deadline = Instant::now() + WAIT;
@@ -86,21 +129,15 @@ async fn until<T>(client: &mut Client, mut pick: impl FnMut(&Event) -> Option<T>
 #[tokio::test]
 async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
     let fake = FakeServer::bind().await;
-    let url = fake.ws_url("fake");
-    let (client, ws) = tokio::join!(
-        Client::connect(&url, None, None),
-        fake.welcome(Role::Viewer, scene())
-    );
-    let (mut client, mut ws) = (client.expect("connects"), ws);
+    let (mut client, mut ws) = connected(&fake, None, Role::Viewer).await;
     assert_eq!(client.scene().id, "fake");
     assert_eq!(client.role(), Role::Viewer);
 
     let mut enc = encoder();
     enc.publish(&image(1.0), vec![]);
     let k1 = enc.keyframe();
-    send(&mut ws, &ServerMessage::Keyframe(k1.clone())).await;
-    let v1 = client.wait_for_version(1, WAIT).await.expect("keyframe 1");
-    assert_eq!(v1.lightmap.texels, enc.state().texels);
+    keyframe(&mut ws, k1.clone()).await;
+    let v1 = front_is(&client, 1, &enc).await;
 
     // Garbage: reported with the frame's place, ignored; still version 1.
     ws.send(Message::Binary(vec![0x02, 0xff, 0xff].into()))
@@ -121,7 +158,7 @@ async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
     let d2 = enc.publish(&image(2.0), vec![]);
     let mut corrupt = d2.clone();
     corrupt.residual = vec![0x28, 0xb5, 0x2f, 0xfd, 0, 0];
-    send(&mut ws, &ServerMessage::Delta(corrupt)).await;
+    delta(&mut ws, corrupt).await;
     let message = until(&mut client, |e| match e {
         Event::Error(e @ ClientError::Apply { .. }) => Some(e.to_string()),
         _ => None,
@@ -139,19 +176,17 @@ async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
     assert_eq!(front.lightmap.texels, v1.lightmap.texels, "front untouched");
 
     // While waiting for the keyframe, even a fitting delta is ignored.
-    send(&mut ws, &ServerMessage::Delta(d2)).await;
+    delta(&mut ws, d2).await;
     // The keyframe of version 3 brings it up to date.
     enc.publish(&image(3.0), vec![]);
-    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
-    let v3 = client.wait_for_version(3, WAIT).await.expect("keyframe 3");
-    assert_eq!(v3.version(), 3);
-    assert_eq!(v3.lightmap.texels, enc.state().texels);
+    keyframe(&mut ws, enc.keyframe()).await;
+    front_is(&client, 3, &enc).await;
     assert_eq!(client.counters().deltas_ignored, 1);
 
     // A delta whose base is not the held version: Resync, not applied.
     enc.publish(&image(4.0), vec![]); // version 4: never sent
     let d5 = enc.publish(&image(5.0), vec![]);
-    send(&mut ws, &ServerMessage::Delta(d5)).await;
+    delta(&mut ws, d5).await;
     let (have, base) = until(&mut client, |e| match e {
         Event::Resync { have, delta_base } => Some((*have, *delta_base)),
         _ => None,
@@ -165,13 +200,9 @@ async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
         }
     );
     assert_eq!(client.version(), Some(3));
-    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
-    let v5 = client.wait_for_version(5, WAIT).await.expect("keyframe 5");
-    assert_eq!(
-        v5.lightmap.texels,
-        enc.state().texels,
-        "bit-exact after resync"
-    );
+    keyframe(&mut ws, enc.keyframe()).await;
+    // Bit-exact after the resync.
+    front_is(&client, 5, &enc).await;
     let c = client.counters();
     assert_eq!((c.resyncs, c.decode_errors, c.apply_errors), (2, 1, 1));
     client.close().await;
@@ -180,16 +211,7 @@ async fn deltas_apply_only_onto_their_base_and_bad_frames_change_nothing() {
 #[tokio::test]
 async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
     let fake = FakeServer::bind().await;
-    let url = fake.ws_url("fake");
-    let (client, ws) = tokio::join!(
-        Client::connect(&url, Some("d"), None),
-        fake.welcome(Role::Driver, scene())
-    );
-    let (mut client, mut ws) = (client.expect("connects"), ws);
-    let mut enc = encoder();
-    enc.publish(&image(1.0), vec![]);
-    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
-    client.wait_for_version(1, WAIT).await.expect("version 1");
+    let (mut client, ws, mut enc) = at_version_1(&fake, Some("d"), Role::Driver).await;
 
     // The server goes away.
     drop(ws);
@@ -221,17 +243,7 @@ async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
     // only the newest pose.
     let (mut ws, token) = fake.accept().await;
     assert_eq!(token.as_deref(), Some("d"));
-    send(
-        &mut ws,
-        &ServerMessage::Welcome {
-            protocol_version: PROTOCOL_VERSION,
-            server: "fake".into(),
-            role: Role::Driver,
-            capabilities: 0,
-            scene: scene(),
-        },
-    )
-    .await;
+    send(&mut ws, &welcome(Role::Driver, scene())).await;
     match recv(&mut ws).await {
         ClientMessage::Transform {
             object, seq, pose, ..
@@ -244,9 +256,8 @@ async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
     // The new session starts from a keyframe; the front catches up.
     enc.publish(&image(2.0), vec![]);
     enc.publish(&image(3.0), vec![]);
-    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
-    let v3 = client.wait_for_version(3, WAIT).await.expect("version 3");
-    assert_eq!(v3.lightmap.texels, enc.state().texels);
+    keyframe(&mut ws, enc.keyframe()).await;
+    front_is(&client, 3, &enc).await;
     let c = client.counters();
     assert_eq!((c.reconnects, c.poses_sent, c.poses_coalesced), (1, 1, 2));
     client.close().await;
@@ -255,16 +266,7 @@ async fn a_dropped_connection_reconnects_and_sends_the_newest_queued_pose() {
 #[tokio::test]
 async fn latency_runs_from_sending_a_pose_to_the_version_that_echoes_it() {
     let fake = FakeServer::bind().await;
-    let url = fake.ws_url("fake");
-    let (client, ws) = tokio::join!(
-        Client::connect(&url, None, None),
-        fake.welcome(Role::Driver, scene())
-    );
-    let (mut client, mut ws) = (client.expect("connects"), ws);
-    let mut enc = encoder();
-    enc.publish(&image(1.0), vec![]);
-    send(&mut ws, &ServerMessage::Keyframe(enc.keyframe())).await;
-    client.wait_for_version(1, WAIT).await.expect("version 1");
+    let (mut client, mut ws, mut enc) = at_version_1(&fake, None, Role::Driver).await;
 
     // What the server would refuse is refused locally, saying why.
     assert!(matches!(
@@ -295,7 +297,7 @@ async fn latency_runs_from_sending_a_pose_to_the_version_that_echoes_it() {
     assert_eq!(got, (1, seq));
     tokio::time::sleep(Duration::from_millis(50)).await;
     let d2 = enc.publish(&image(2.0), vec![ObjectSeq { object: 1, seq }]);
-    send(&mut ws, &ServerMessage::Delta(d2)).await;
+    delta(&mut ws, d2).await;
     let delivered = until(&mut client, |e| match e {
         Event::Version(v) if v.version == 2 => Some(v.delivered.clone()),
         _ => None,
@@ -381,11 +383,7 @@ async fn a_refused_token_is_permanent_and_a_viewer_may_not_drive() {
     );
 
     // A viewer's pose is refused before it reaches the socket.
-    let (client, _ws) = tokio::join!(
-        Client::connect(&url, None, None),
-        fake.welcome(Role::Viewer, scene())
-    );
-    let client = client.expect("connects");
+    let (client, _ws) = connected(&fake, None, Role::Viewer).await;
     assert!(matches!(
         client.send_pose(1, Pose::IDENTITY),
         Err(ClientError::Forbidden { role: Role::Viewer })

@@ -17,7 +17,7 @@ use glam::Vec3;
 use lightwire_client::render::reference::{self, Hit};
 use lightwire_client::render::tonemap::tone_map;
 use lightwire_client::render::{
-    BACKGROUND, Camera, CameraSpec, LightmapTexels, RenderError, Renderer, Settings,
+    AdapterError, BACKGROUND, Camera, CameraSpec, LightmapTexels, RenderError, Renderer, Settings,
 };
 use lightwire_protocol::lightmap::{Lightmap, quantize_into};
 use lightwire_protocol::{ObjectInfo, PixelFormat, Pose, SceneInfo, SurfaceInfo};
@@ -58,6 +58,22 @@ fn scene(atlas: (u32, u32), objects: Vec<ObjectInfo>, surfaces: Vec<SurfaceInfo>
         materials: vec![],
         surfaces,
     }
+}
+
+/// A 2 x 2 m wall centred on the origin in the plane z = 0, its corners
+/// `-1, -1, 0` plus `u` and `v` (so its lit side faces `u x v`), alone in a
+/// 16 x 8 atlas with its chart at `rect`.
+fn wall_spanned(u: Vec3, v: Vec3, rect: [u32; 4]) -> SceneInfo {
+    scene(
+        (16, 8),
+        vec![object("wall", Pose::IDENTITY)],
+        vec![quad("wall", 0, Vec3::new(-1.0, -1.0, 0.0), u, v, rect)],
+    )
+}
+
+/// [`wall_spanned`] facing +z.
+fn wall(rect: [u32; 4]) -> SceneInfo {
+    wall_spanned(Vec3::X * 2.0, Vec3::Y * 2.0, rect)
 }
 
 /// A lightmap full of [`POISON`], with `f(a, b)` written into the chart of
@@ -157,23 +173,30 @@ fn compare(
     (compared, worst, hits, image)
 }
 
+/// [`compare`] at 96 x 72 pixels for a quad that fills much of the frame;
+/// prints the largest difference under `what`.
+fn compare_large_quad(
+    renderer: &mut Renderer,
+    scene: &SceneInfo,
+    texels: &[[f32; 3]],
+    camera: &Camera,
+    exposure: f32,
+    what: &str,
+) {
+    let (compared, worst, _, _) = compare(renderer, scene, texels, camera, (96, 72), exposure);
+    assert!(
+        compared > 1000,
+        "the quad is large in the frame: {compared}"
+    );
+    eprintln!("{what}: {compared} pixels, max difference {worst} levels");
+}
+
 #[test]
 fn a_wall_of_constant_radiosity_renders_as_one_colour() {
     let mut renderer = Renderer::new(None).unwrap_or_else(|e| panic!("{e}"));
     // A 2 x 2 m wall facing +z; its 5 x 4 chart sits inside a poisoned
     // atlas, so a UV that strays outside the chart changes the colour.
-    let s = scene(
-        (16, 8),
-        vec![object("wall", Pose::IDENTITY)],
-        vec![quad(
-            "wall",
-            0,
-            Vec3::new(-1.0, -1.0, 0.0),
-            Vec3::X * 2.0,
-            Vec3::Y * 2.0,
-            [3, 2, 5, 4],
-        )],
-    );
+    let s = wall([3, 2, 5, 4]);
     let c = [0.5, 0.25, 0.125];
     let texels = lightmap(&s, |_, _, _| c);
     let cam = camera("eye=0.3,-0.2,3;target=0,0,0;fov=60");
@@ -221,12 +244,7 @@ fn radiosity_interpolates_bilinearly_between_texels_on_a_posed_quad() {
         [v, 0.5 * v + 0.1, 1.2 - v.min(1.2)]
     });
     let cam = camera("eye=0.8,0.6,2.2;target=0.1,0,-0.4;fov=50");
-    let (compared, worst, _, _) = compare(&mut renderer, &s, &texels, &cam, (96, 72), 1.5);
-    assert!(
-        compared > 1000,
-        "the quad is large in the frame: {compared}"
-    );
-    eprintln!("bilinear: {compared} pixels, max difference {worst} levels");
+    compare_large_quad(&mut renderer, &s, &texels, &cam, 1.5, "bilinear");
 }
 
 #[test]
@@ -313,18 +331,7 @@ fn wire_texels_and_decoded_rgb_render_identically() {
     // The RGB path (a decoded EXR snapshot) converts to RGBA16F; every
     // RGB9E5 value is exact there, so both paths give the same bytes.
     let mut renderer = Renderer::new(None).unwrap();
-    let s = scene(
-        (16, 8),
-        vec![object("wall", Pose::IDENTITY)],
-        vec![quad(
-            "wall",
-            0,
-            Vec3::new(-1.0, -1.0, 0.0),
-            Vec3::X * 2.0,
-            Vec3::Y * 2.0,
-            [0, 0, 7, 6],
-        )],
-    );
+    let s = wall([0, 0, 7, 6]);
     let texels = lightmap(&s, |_, a, b| {
         [
             0.013 * (a * a) as f32,
@@ -375,18 +382,7 @@ fn wire_texels_and_decoded_rgb_render_identically() {
 fn the_back_of_a_one_sided_surface_is_not_drawn() {
     let mut renderer = Renderer::new(None).unwrap();
     // The wall faces -z (u = y, v = x); the eye is on its +z side.
-    let s = scene(
-        (16, 8),
-        vec![object("wall", Pose::IDENTITY)],
-        vec![quad(
-            "wall",
-            0,
-            Vec3::new(-1.0, -1.0, 0.0),
-            Vec3::Y * 2.0,
-            Vec3::X * 2.0,
-            [0, 0, 3, 3],
-        )],
-    );
+    let s = wall_spanned(Vec3::Y * 2.0, Vec3::X * 2.0, [0, 0, 3, 3]);
     let texels = lightmap(&s, |_, _, _| [1.0; 3]);
     let map = wire(&s, &texels, PixelFormat::Rgb9e5);
     let settings = Settings {
@@ -394,47 +390,25 @@ fn the_back_of_a_one_sided_surface_is_not_drawn() {
         height: 32,
         exposure: 1.0,
     };
-    let image = renderer
-        .render(
-            &s,
-            &poses(&s),
-            (&map).into(),
-            &camera("eye=0,0,3;target=0,0,0"),
-            &settings,
-        )
-        .unwrap();
+    let mut seen_from = |eye: &str| {
+        renderer
+            .render(&s, &poses(&s), (&map).into(), &camera(eye), &settings)
+            .unwrap()
+    };
+    let image = seen_from("eye=0,0,3;target=0,0,0");
     assert!(
         image.pixels().all(|p| p.0[..3] == BACKGROUND),
         "only background"
     );
     // From the lit side, the same wall covers the middle of the frame.
-    let front = renderer
-        .render(
-            &s,
-            &poses(&s),
-            (&map).into(),
-            &camera("eye=0,0,-3;target=0,0,0"),
-            &settings,
-        )
-        .unwrap();
+    let front = seen_from("eye=0,0,-3;target=0,0,0");
     assert_eq!(front.get_pixel(16, 16).0[..3], tone_map([1.0; 3], 1.0));
 }
 
 #[test]
 fn bad_input_is_refused_with_a_reason() {
     let mut renderer = Renderer::new(None).unwrap();
-    let s = scene(
-        (16, 8),
-        vec![object("wall", Pose::IDENTITY)],
-        vec![quad(
-            "wall",
-            0,
-            Vec3::new(-1.0, -1.0, 0.0),
-            Vec3::X * 2.0,
-            Vec3::Y * 2.0,
-            [0, 0, 3, 3],
-        )],
-    );
+    let s = wall([0, 0, 3, 3]);
     let map = wire(&s, &lightmap(&s, |_, _, _| [1.0; 3]), PixelFormat::Rgb9e5);
     let cam = camera("eye=0,0,3;target=0,0,0");
     let ok = Settings {
@@ -486,7 +460,10 @@ fn bad_input_is_refused_with_a_reason() {
     );
 
     let err = Renderer::new(Some("no-such-adapter-name")).unwrap_err();
-    assert!(matches!(err, RenderError::NoMatchingAdapter { .. }));
+    assert!(matches!(
+        err,
+        RenderError::Adapter(AdapterError::NoMatchingAdapter { .. })
+    ));
     assert!(err.to_string().contains("available: \""), "{err}");
 }
 
@@ -527,10 +504,12 @@ fn a_surface_with_its_own_lightmap_coordinates_is_drawn_with_them() {
         }
     }
     let cam = camera("eye=0.4,0.3,2;target=0,0,0;fov=50");
-    let (compared, worst, _, _) = compare(&mut renderer, &s, &texels, &cam, (96, 72), 1.0);
-    assert!(
-        compared > 1000,
-        "the quad is large in the frame: {compared}"
+    compare_large_quad(
+        &mut renderer,
+        &s,
+        &texels,
+        &cam,
+        1.0,
+        "own lightmap coordinates",
     );
-    eprintln!("own lightmap coordinates: {compared} pixels, max difference {worst} levels");
 }

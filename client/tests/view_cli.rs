@@ -50,9 +50,8 @@ use lightwire_client::render::tonemap::{auto_exposure, tone_map};
 use lightwire_client::render::{BACKGROUND, Camera, CameraSpec};
 use lightwire_protocol::{Pose, SceneInfo};
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{Lightwire, http, repo};
+use lightwire_testkit::{Lightwire, SCENE, repo, scene_file};
 
-const SCENE: &str = "cornell-low";
 const TOLERANCE: u8 = 2;
 const WIDTH: u32 = 320;
 const HEIGHT: u32 = 240;
@@ -60,15 +59,7 @@ const HEIGHT: u32 = 240;
 /// cornell-low at half density on the reference solver: one converged
 /// version in well under a second, then no more (nothing moves).
 fn start_server() -> Proc {
-    let scene = repo().join(format!("scenes/{SCENE}.json"));
-    let server = Lightwire::built().serve_dev(&[
-        "--solver",
-        "reference",
-        "--density-scale",
-        "0.5",
-        "--scene",
-        scene.to_str().expect("utf-8 path"),
-    ]);
+    let server = Lightwire::built().dev_solver();
     server.wait_ready();
     server
 }
@@ -139,29 +130,17 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     let version: u64 = field(wrote, "version").parse().unwrap();
 
     // The snapshot of the version view drew, and the scene, over HTTP.
-    let http::Response {
-        status,
-        headers,
-        body: exr,
-    } = server.get(&format!("/api/scenes/{SCENE}/lightmap.exr"));
-    assert_eq!(status, 200);
-    let snapshot_version = headers
-        .iter()
-        .find(|(k, _)| k == "x-lightwire-version")
-        .map(|(_, v)| v.parse::<u64>().unwrap());
+    let snapshot = server.get(&scene_file("lightmap.exr"));
+    assert_eq!(snapshot.status, 200);
     assert_eq!(
-        snapshot_version,
+        snapshot.version(),
         Some(version),
         "view drew the snapshot's version"
     );
-    let snapshot = image::load_from_memory_with_format(&exr, image::ImageFormat::OpenExr)
-        .expect("the snapshot decodes")
-        .into_rgb32f();
-    let http::Response {
-        status, body: json, ..
-    } = server.get(&format!("/api/scenes/{SCENE}"));
-    assert_eq!(status, 200);
-    let scene: SceneInfo = serde_json::from_slice(&json).expect("scene JSON");
+    let snapshot = snapshot.exr();
+    let described = server.get(&format!("/api/scenes/{SCENE}"));
+    assert_eq!(described.status, 200);
+    let scene: SceneInfo = serde_json::from_slice(&described.body).expect("scene JSON");
     assert_eq!(
         snapshot.dimensions(),
         (scene.atlas_width, scene.atlas_height)
@@ -172,13 +151,11 @@ fn view_renders_the_streamed_lightmap_like_the_servers_snapshot() {
     // 1 / white point of this lightmap, and tone-mapping each texel with it
     // gives the server's own lightmap.png byte for byte.
     assert_eq!(exposure, auto_exposure(&texels), "automatic exposure");
-    let http::Response {
-        status,
-        body: png_bytes,
-        ..
-    } = server.get(&format!("/api/scenes/{SCENE}/lightmap.png"));
-    assert_eq!(status, 200);
-    let baked = image::load_from_memory(&png_bytes).unwrap().into_rgb8();
+    let png_snapshot = server.get(&scene_file("lightmap.png"));
+    assert_eq!(png_snapshot.status, 200);
+    let baked = image::load_from_memory(&png_snapshot.body)
+        .unwrap()
+        .into_rgb8();
     for (texel, baked) in texels.iter().zip(baked.pixels()) {
         assert_eq!(tone_map(*texel, exposure), baked.0, "texel {texel:?}");
     }
@@ -343,7 +320,7 @@ fn view_writes_numbered_frames_on_a_cadence() {
     let dir = out_dir("frames");
     let started = Instant::now();
     let output = view(&[
-        &format!("ws://{}/ws/scenes/{SCENE}", server.addr),
+        &server.ws_url(),
         "--camera",
         "eye=2.78,2.74,9;target=2.78,2.74,0;fov=40",
         "--width",

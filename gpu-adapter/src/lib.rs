@@ -1,5 +1,5 @@
 //! Which GPU adapter Lightwire runs on, and a device on it: the one rule
-//! that the server's solvers (`lightwire_server::gpu::Device`) and the thin
+//! that the server's solvers (`lightwire_solve::gpu::Device`) and the thin
 //! client's renderer (`lightwire_client::render`) both follow.
 //!
 //! The rule:
@@ -49,8 +49,8 @@ pub enum AdapterError {
     },
 }
 
-/// The message of [`AdapterError::NoAdapter`], for error types that keep a
-/// variant of their own for it.
+/// The message of [`AdapterError::NoAdapter`] (the solver's `GpuError`
+/// still keeps a variant of its own for each of these).
 pub const NO_ADAPTER: &str = "no GPU adapter found on any backend (Vulkan, GL, Metal, DX12). \
      Install a Vulkan driver; without a GPU, the software driver lavapipe works: \
      `apt-get install mesa-vulkan-drivers` (Debian/Ubuntu) or \
@@ -149,6 +149,27 @@ pub async fn choose(name: Option<&str>) -> Result<wgpu::Adapter, AdapterError> {
     let infos = adapters.iter().map(|a| a.get_info()).collect::<Vec<_>>();
     let chosen = pick(&infos, name)?;
     Ok(adapters.swap_remove(chosen))
+}
+
+/// The adapter [`choose`] picks for `name`, and a device and its queue on
+/// it ([`request_device`]): all a renderer or a solver needs to start.
+pub async fn open(
+    name: Option<&str>,
+    label: &str,
+) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), AdapterError> {
+    open_with(name, label, wgpu::Features::empty()).await
+}
+
+/// [`open`] with those of the optional `features` that the adapter has
+/// ([`request_device_with`]).
+pub async fn open_with(
+    name: Option<&str>,
+    label: &str,
+    features: wgpu::Features,
+) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), AdapterError> {
+    let adapter = choose(name).await?;
+    let (device, queue) = request_device_with(&adapter, label, features).await?;
+    Ok((adapter, device, queue))
 }
 
 /// Creates a device and its queue on `adapter` with the adapter's own

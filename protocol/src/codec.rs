@@ -20,10 +20,11 @@
 //!   16-byte frame claiming a billion-element vector is refused before
 //!   allocating.
 
+use bincode::Encode;
 use bincode::config::{Configuration, Limit, LittleEndian, Varint};
 use bincode::de::read::Reader;
 
-use crate::{ClientMessage, ErrorCode, MAX_FRAME_BYTES, ServerMessage};
+use crate::{ClientMessage, ErrorCode, MAX_FRAME_BYTES, Role, SceneInfo, ServerMessage};
 
 /// Bincode's allocation budget for decoding one frame; see the module docs.
 pub const DECODE_BUDGET_BYTES: usize = 4 * MAX_FRAME_BYTES;
@@ -114,70 +115,49 @@ pub fn encode_welcome_for(version: u16, msg: &ServerMessage) -> Option<Vec<u8>> 
     if version != 2 || scene.surfaces.iter().any(|s| !s.uvs.is_empty()) {
         return None;
     }
-    let welcome = v2::ServerMessage::Welcome {
-        protocol_version: 2,
-        server: server.clone(),
+    Some(encode(&WelcomeV2 {
+        server,
         role: *role,
         capabilities: *capabilities,
-        scene: v2::SceneInfo {
-            id: scene.id.clone(),
-            atlas_width: scene.atlas_width,
-            atlas_height: scene.atlas_height,
-            tile_size: scene.tile_size,
-            format: scene.format,
-            objects: scene.objects.clone(),
-            materials: scene.materials.clone(),
-            surfaces: scene
-                .surfaces
-                .iter()
-                .map(|s| v2::SurfaceInfo {
-                    name: s.name.clone(),
-                    object: s.object,
-                    material: s.material,
-                    corners: s.corners,
-                    rect: s.rect,
-                })
-                .collect(),
-        },
-    };
-    Some(encode(&welcome))
+        scene,
+    }))
 }
 
-/// Version 2's `Welcome`, for [`encode_welcome_for`]: `SurfaceInfo` without
-/// `uvs`. `Welcome` is variant 0 of `ServerMessage` in both versions.
-mod v2 {
-    use crate::messages::{MaterialInfo, ObjectInfo, PixelFormat, Role};
+/// Version 2's `Welcome`, for [`encode_welcome_for`]: version 3's with
+/// `protocol_version` 2 and every `SurfaceInfo` without `uvs`, encoded from
+/// version 3's values as bincode encodes a derived type (an enum variant as
+/// its index then its fields, a struct as its fields in order, a `Vec` as
+/// its length then its items). `Welcome` is variant 0 in both versions;
+/// the committed version 2 vectors (`tests/vectors/v2/`) check the bytes.
+struct WelcomeV2<'a> {
+    server: &'a str,
+    role: Role,
+    capabilities: u32,
+    scene: &'a SceneInfo,
+}
 
-    #[derive(bincode::Encode)]
-    pub enum ServerMessage {
-        Welcome {
-            protocol_version: u16,
-            server: String,
-            role: Role,
-            capabilities: u32,
-            scene: SceneInfo,
-        },
-    }
-
-    #[derive(bincode::Encode)]
-    pub struct SceneInfo {
-        pub id: String,
-        pub atlas_width: u32,
-        pub atlas_height: u32,
-        pub tile_size: u16,
-        pub format: PixelFormat,
-        pub objects: Vec<ObjectInfo>,
-        pub materials: Vec<MaterialInfo>,
-        pub surfaces: Vec<SurfaceInfo>,
-    }
-
-    #[derive(bincode::Encode)]
-    pub struct SurfaceInfo {
-        pub name: String,
-        pub object: u32,
-        pub material: u32,
-        pub corners: [[f32; 3]; 4],
-        pub rect: [u32; 4],
+impl Encode for WelcomeV2<'_> {
+    fn encode<E: bincode::enc::Encoder>(
+        &self,
+        encoder: &mut E,
+    ) -> Result<(), bincode::error::EncodeError> {
+        let scene = self.scene;
+        (0u32, 2u16, self.server, self.role, self.capabilities).encode(encoder)?;
+        (
+            &scene.id,
+            scene.atlas_width,
+            scene.atlas_height,
+            scene.tile_size,
+            scene.format,
+            &scene.objects,
+            &scene.materials,
+        )
+            .encode(encoder)?;
+        (scene.surfaces.len() as u64).encode(encoder)?;
+        for s in &scene.surfaces {
+            (&s.name, s.object, s.material, s.corners, s.rect).encode(encoder)?;
+        }
+        Ok(())
     }
 }
 

@@ -354,6 +354,33 @@ pub struct Keyframe {
     pub tiles: Vec<Tile>,
 }
 
+impl Keyframe {
+    /// The keyframe of `version` whose tile `i` is `tiles[i]` (one zstd
+    /// frame each, in index order), reflecting the latest seq per object of
+    /// `reflected` (object -> seq, so sorted by object).
+    pub fn new(
+        version: u64,
+        reflected: &std::collections::BTreeMap<u32, u64>,
+        tiles: &[Vec<u8>],
+    ) -> Keyframe {
+        Keyframe {
+            version,
+            reflected: reflected
+                .iter()
+                .map(|(&object, &seq)| ObjectSeq { object, seq })
+                .collect(),
+            tiles: tiles
+                .iter()
+                .enumerate()
+                .map(|(i, data)| Tile {
+                    index: i as u32,
+                    data: data.clone(),
+                })
+                .collect(),
+        }
+    }
+}
+
 /// What changed between two versions: residuals of the tiles that changed.
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub struct Delta {

@@ -177,13 +177,7 @@ fn recorded_sequences_reconstruct_their_final_state() {
 /// surface needs `uvs`.
 #[test]
 fn a_version_2_client_gets_version_2_s_welcome() {
-    let welcome = |capabilities: u32, scene: SceneInfo| ServerMessage::Welcome {
-        protocol_version: PROTOCOL_VERSION,
-        server: "lightwire/0.1".into(),
-        role: Role::Driver,
-        capabilities,
-        scene,
-    };
+    use vectors::welcome;
     for (name, capabilities) in [
         ("server_welcome", 0),
         ("server_welcome_poses", CAP_SCENE_GLB | CAP_POSES),

@@ -19,26 +19,15 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{DRIVER_TOKEN, http, lightwire, scene_path};
+use lightwire_testkit::{DRIVER_TOKEN, dashboard, lightwire, scene_path};
 
 /// The browser test's own time limit (it is usually done in 15-40 s).
 const E2E_TIMEOUT: Duration = Duration::from_secs(300);
 
-/// `lightwire serve --dev` on cornell-low on a free port, with extra
+/// `lightwire serve --dev` on `scenes/<scene>` on a free port, with extra
 /// `serve` flags.
-fn dev_server(flags: &[&str]) -> Proc {
-    dev_server_on("cornell-low.json", flags)
-}
-
-/// `lightwire serve --dev` on `scenes/<scene>` on a free port.
 fn dev_server_on(scene: &str, flags: &[&str]) -> Proc {
-    let scene = scene_path(scene);
-    let flags: Vec<&str> = flags
-        .iter()
-        .copied()
-        .chain(["--scene", scene.to_str().expect("utf-8 path")])
-        .collect();
-    lightwire!().serve_dev(&flags)
+    lightwire!().serve_dev_on(scene_path(scene), flags)
 }
 
 fn dashboard_dir() -> PathBuf {
@@ -53,49 +42,8 @@ fn target_dir() -> PathBuf {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_embedded_files_are_served_and_nothing_else() {
     // No need for the GPU here: the cheap reference solver on a coarse atlas.
-    let server = dev_server(&["--solver", "reference", "--density-scale", "0.5"]);
-    let index = http::get(&server.addr, "/", None).await;
-    assert_eq!(index.status, 200);
-    assert!(
-        index
-            .header("content-type")
-            .is_some_and(|t| t.starts_with("text/html")),
-        "{:?}",
-        index.headers
-    );
-    assert!(
-        index
-            .header("content-security-policy")
-            .is_some_and(|c| c.starts_with("default-src 'self'")),
-        "{:?}",
-        index.headers
-    );
-    assert!(
-        index
-            .text()
-            .contains("<script type=\"module\" src=\"/dashboard/app.js\">")
-    );
-    for file in [
-        "app.js",
-        "protocol.js",
-        "lightmap.js",
-        "view3d.js",
-        "chart.js",
-        "vendor/fzstd.js",
-    ] {
-        let r = http::get(&server.addr, &format!("/dashboard/{file}"), None).await;
-        assert_eq!(r.status, 200, "{file}");
-        assert!(
-            r.header("content-type")
-                .is_some_and(|t| t.starts_with("text/javascript")),
-            "{file}: {:?}",
-            r.headers
-        );
-    }
-    for missing in ["/dashboard/nope.js", "/dashboard/../Cargo.toml"] {
-        let r = http::get(&server.addr, missing, None).await;
-        assert_eq!(r.status, 404, "{missing}");
-    }
+    let server = lightwire!().dev_solver();
+    dashboard::assert_served(&server.addr).await;
 }
 
 /// Runs `dashboard.e2e.mjs` against the page at `url` and checks that it
@@ -155,7 +103,7 @@ fn run_e2e(url: &str, artifacts: &Path) {
 
 #[test]
 fn the_dashboard_works_in_headless_chromium() {
-    let server = dev_server(&[]);
+    let server = dev_server_on("cornell-low.json", &[]);
     run_e2e(
         &format!("http://{}/", server.addr),
         &target_dir().join("dashboard-artifacts"),
@@ -181,11 +129,7 @@ fn the_dashboard_works_on_a_mesh_scene() {
 async fn the_dashboard_works_on_a_relay_with_a_token() {
     let solver = lightwire!().solver("127.0.0.1:0");
     let relay = lightwire!().relay(&solver.addr);
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while http::get(&relay.addr, "/readyz", None).await.status != 200 {
-        assert!(Instant::now() < deadline, "the relay never became ready");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    relay.ready().await;
     let url = format!("http://{}/?token={DRIVER_TOKEN}", relay.addr);
     let artifacts = target_dir().join("dashboard-artifacts/relay");
     tokio::task::spawn_blocking(move || run_e2e(&url, &artifacts))

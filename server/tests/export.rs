@@ -31,6 +31,7 @@ use lightwire_scene::gltf::{ImportOptions, ImportedScene, import_slice};
 use lightwire_scene::load::parse_scene;
 use lightwire_scene::{LoadOptions, Scene};
 use lightwire_server::bake::{self, describe, scene_glb};
+use lightwire_testkit::validator::khronos_validate;
 
 use common::gradient;
 
@@ -325,45 +326,33 @@ fn temp_dir(test: &str) -> PathBuf {
     dir
 }
 
-/// Runs the Khronos glTF validator (npm `gltf-validator` in
-/// `tests/gltf-validator`, installed by `make test`) on a file; returns
-/// (success, output).
-fn khronos_validate(file: &Path) -> (bool, String) {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/gltf-validator");
-    assert!(
-        dir.join("node_modules/gltf-validator").is_dir(),
-        "{} has no node_modules/gltf-validator: run `make gltf-validator-deps` (make test does)",
-        dir.display()
-    );
-    let out = std::process::Command::new("node")
-        .arg(dir.join("validate.mjs"))
-        .arg(file)
-        .output()
-        .expect("run node");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
-
-#[test]
-fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
-    let dir = temp_dir("bake");
-    let scene_file = dir.join("export-room.json");
-    std::fs::write(&scene_file, ROOM).expect("write scene");
+/// Writes the scene file `name` holding `json` into `dir` and bakes it
+/// with `lightwire bake FLAGS --scene FILE --solver reference --out
+/// DIR/out`, which must succeed; returns the output directory and what the
+/// bake said on stderr.
+fn bake(dir: &Path, name: &str, json: &str, flags: &[&str]) -> (PathBuf, String) {
+    let scene_file = dir.join(name);
+    std::fs::write(&scene_file, json).expect("write scene");
     let out_dir = dir.join("out");
     let out = lightwire_testkit::lightwire!()
         .command()
-        .args(["bake", "--scene"])
+        .arg("bake")
+        .args(flags)
+        .arg("--scene")
         .arg(&scene_file)
         .args(["--solver", "reference", "--out"])
         .arg(&out_dir)
         .output()
         .expect("lightwire runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(out.status.success(), "{stderr}");
+    (out_dir, stderr)
+}
+
+#[test]
+fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
+    let dir = temp_dir("bake");
+    let (out_dir, stderr) = bake(&dir, "export-room.json", ROOM, &[]);
     assert!(
         stderr.contains("scene.glb"),
         "the bake says it wrote it: {stderr}"
@@ -371,7 +360,7 @@ fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
     let path = out_dir.join(bake::SCENE_GLB);
     let glb = std::fs::read(&path).expect("bake wrote scene.glb");
 
-    let (ok, text) = khronos_validate(&path);
+    let (ok, text) = khronos_validate(&[&path]);
     assert!(ok && text.contains(" errors 0 "), "{text}");
     eprintln!("{text}");
 
@@ -410,15 +399,7 @@ fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
     );
 
     // The linear lightmap is named in the asset's extras.
-    let extras: serde_json::Value = serde_json::from_str(
-        gltf.as_json()
-            .asset
-            .extras
-            .as_ref()
-            .expect("asset extras")
-            .get(),
-    )
-    .expect("JSON");
+    let extras = serde_json::to_value(&gltf.as_json().asset.extras).expect("JSON");
     assert_eq!(extras["lightwire"]["lightmap"], "lightmap.exr");
     assert_eq!(extras["lightwire"]["scene"], "export-room");
     assert!(out_dir.join("lightmap.exr").is_file());
@@ -435,7 +416,7 @@ fn bake_writes_a_scene_glb_the_khronos_validator_accepts() {
     .expect("pack");
     let broken_path = dir.join("broken.glb");
     std::fs::write(&broken_path, broken).expect("write");
-    let (ok, text) = khronos_validate(&broken_path);
+    let (ok, text) = khronos_validate(&[&broken_path]);
     assert!(
         !ok,
         "the validator accepted an undeclared extension: {text}"
@@ -471,21 +452,9 @@ fn a_mesh_baked_on_its_own_lightmap_uvs_exports_them() {
       ]
     }"#;
     let dir = temp_dir("uvs");
-    let scene_file = dir.join("uv-room.json");
-    std::fs::write(&scene_file, UVS).expect("write scene");
-    let out_dir = dir.join("out");
-    let out = lightwire_testkit::lightwire!()
-        .command()
-        .args(["bake", "--charts", "lightmap-uvs", "--scene"])
-        .arg(&scene_file)
-        .args(["--solver", "reference", "--out"])
-        .arg(&out_dir)
-        .output()
-        .expect("lightwire runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    let (out_dir, _) = bake(&dir, "uv-room.json", UVS, &["--charts", "lightmap-uvs"]);
     let path = out_dir.join(bake::SCENE_GLB);
-    let (ok, text) = khronos_validate(&path);
+    let (ok, text) = khronos_validate(&[&path]);
     assert!(ok && text.contains(" errors 0 "), "{text}");
 
     let atlas: serde_json::Value = serde_json::from_str(

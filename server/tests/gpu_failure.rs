@@ -68,10 +68,15 @@ impl Server {
         (r.status, serde_json::from_slice(&r.body).ok())
     }
 
-    async fn metrics(&self) -> String {
+    /// Checks that `/metrics` gives the scene each `(name, value)` of
+    /// `expected`.
+    async fn assert_metrics(&self, expected: &[(&str, f64)]) {
         let r = self.get("/metrics").await;
         assert_eq!(r.status, 200);
-        r.text()
+        let metrics = r.text();
+        for &(name, value) in expected {
+            assert_eq!(metric(&metrics, name), Some(value), "{name}: {metrics}");
+        }
     }
 
     /// The scene's current version, from `/api/scenes`.
@@ -117,17 +122,12 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
         server.readyz().await.0 == 200
     })
     .await;
-    let metrics = server.metrics().await;
-    assert_eq!(
-        metric(&metrics, "lightwire_scene_ready"),
-        Some(1.0),
-        "{metrics}"
-    );
-    assert_eq!(
-        metric(&metrics, "lightwire_solver_failures_total"),
-        Some(0.0),
-        "{metrics}"
-    );
+    server
+        .assert_metrics(&[
+            ("lightwire_scene_ready", 1.0),
+            ("lightwire_solver_failures_total", 0.0),
+        ])
+        .await;
 
     let mut viewer = Peer::connect(&server.ws_url(), VIEWER_TOKEN).await;
     assert_eq!(viewer.role, Some(Role::Viewer));
@@ -165,17 +165,12 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
     assert!(failures[0]["since_unix_ms"].as_u64().is_some(), "{failed}");
     assert_eq!(failed["solving"], serde_json::json!([]), "{failed}");
 
-    let metrics = server.metrics().await;
-    assert_eq!(
-        metric(&metrics, "lightwire_solver_failures_total"),
-        Some(1.0),
-        "{metrics}"
-    );
-    assert_eq!(
-        metric(&metrics, "lightwire_scene_ready"),
-        Some(0.0),
-        "{metrics}"
-    );
+    server
+        .assert_metrics(&[
+            ("lightwire_solver_failures_total", 1.0),
+            ("lightwire_scene_ready", 0.0),
+        ])
+        .await;
 
     // The failed scene keeps serving its last version: the viewer reaches
     // it and nothing newer comes, for many ticks (the hook holds the
@@ -251,24 +246,15 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
         driver.errors
     );
 
-    let metrics = server.metrics().await;
-    assert_eq!(
-        metric(&metrics, "lightwire_scene_ready"),
-        Some(1.0),
-        "{metrics}"
-    );
-    assert_eq!(
-        metric(&metrics, "lightwire_solver_failures_total"),
-        Some(1.0),
-        "{metrics}"
-    );
-    // The first rebuild failed (the hook), the second, after its backoff,
-    // succeeded.
-    assert_eq!(
-        metric(&metrics, "lightwire_solver_rebuilds_total"),
-        Some(2.0),
-        "{metrics}"
-    );
+    server
+        .assert_metrics(&[
+            ("lightwire_scene_ready", 1.0),
+            ("lightwire_solver_failures_total", 1.0),
+            // The first rebuild failed (the hook), the second, after
+            // its backoff, succeeded.
+            ("lightwire_solver_rebuilds_total", 2.0),
+        ])
+        .await;
     assert_eq!(
         server
             .log_lines(&["WARN", "rebuilding the solver failed", "next try in 1s"])

@@ -33,9 +33,11 @@ use tokio_tungstenite::tungstenite::Message;
 
 use lightwire_testkit::fake::FakeServer;
 use lightwire_testkit::peer::{Peer, hello};
-use lightwire_testkit::pose::{box_turned, transform};
+use lightwire_testkit::pose::{assert_same_pose, box_turned, transform};
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{DRIVER_TOKEN, SCENE, VIEWER_TOKEN, http, lightwire};
+use lightwire_testkit::{
+    DRIVER_TOKEN, SCENE, VIEWER_TOKEN, dashboard, http, lightwire, scene_file, viewer_routes,
+};
 
 const VIEWERS: usize = 500;
 /// Killing a relay: every one of its viewers is connected to the other
@@ -45,49 +47,30 @@ const FAILOVER_BOUND: Duration = Duration::from_secs(20);
 /// this after the new solver published its first version.
 const RESYNC_BOUND: Duration = Duration::from_secs(20);
 
-/// `GET path` with the viewer token: status and body, `None` if the
-/// process does not answer.
-async fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
-    let bearer = format!("Bearer {VIEWER_TOKEN}");
-    let r = http::get_with(addr, path, &[("Authorization", &bearer)]).await?;
-    Some((r.status, r.text()))
-}
-
 /// The relay's view of its scene (from `/api/scenes`).
 async fn relay_status(addr: &str) -> serde_json::Value {
-    let (status, body) = http_get(addr, "/api/scenes").await.expect("relay answers");
-    assert_eq!(status, 200);
-    let list: serde_json::Value = serde_json::from_str(&body).expect("json");
-    list[0].clone()
+    let list = http::get(addr, "/api/scenes", Some(VIEWER_TOKEN)).await;
+    assert_eq!(list.status, 200);
+    list.json()[0].clone()
+}
+
+/// A viewer that has just joined `url`, holding the keyframe it was sent.
+async fn joined(url: &str) -> Peer {
+    let mut viewer = Peer::connect(url, VIEWER_TOKEN).await;
+    viewer
+        .read_until(Duration::from_secs(10), "the first keyframe", |v| {
+            v.keyframes > 0
+        })
+        .await;
+    viewer
 }
 
 /// The state a protocol client holds right after joining `url`: its
 /// version, its texels and the seq of object 1 it reflects.
 async fn joined_state(url: &str) -> (u64, Vec<u8>, Option<u64>) {
-    let mut ws = hello(url, VIEWER_TOKEN).await.expect("connects");
-    let mut map = None;
-    loop {
-        let frame = tokio::time::timeout(Duration::from_secs(10), ws.next())
-            .await
-            .expect("frames arrive")
-            .expect("open")
-            .expect("ok");
-        let Message::Binary(bytes) = frame else {
-            continue;
-        };
-        match decode_server(&bytes).expect("decodes") {
-            ServerMessage::Welcome { scene, .. } => {
-                map = Some(Lightmap::for_scene(&scene).expect("layout"))
-            }
-            ServerMessage::Keyframe(k) => {
-                let map = map.as_mut().expect("Welcome first");
-                map.apply_keyframe(&k).expect("applies");
-                let seq = k.reflected.iter().find(|r| r.object == 1).map(|r| r.seq);
-                return (k.version, map.texels.clone(), seq);
-            }
-            _ => {}
-        }
-    }
+    let viewer = joined(url).await;
+    let seq = viewer.reflected.get(&1).copied();
+    (viewer.version(), viewer.texels().to_vec(), seq)
 }
 
 /// How long the solver's state must stay put to count as settled: longer
@@ -244,6 +227,15 @@ async fn all_viewers(
     }
 }
 
+/// Waits, at most 30 s, until every viewer holds `version` with `texels`.
+async fn all_viewers_hold(viewers: &[Arc<ViewerState>], version: u64, texels: &[u8], what: &str) {
+    let bound = Duration::from_secs(30);
+    all_viewers(viewers, Instant::now(), bound, what, |v| {
+        holds(v, version, texels)
+    })
+    .await;
+}
+
 /// What the viewers hold, for a failure message: how many are on which
 /// relay at which version, after how many connections.
 fn census(viewers: &[Arc<ViewerState>]) -> String {
@@ -340,14 +332,7 @@ async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exac
     }
     let (v1, texels1) = settled(&solver, Some(3)).await;
     assert!(v1 > v0 && texels1 != texels0, "the move changed the light");
-    all_viewers(
-        &viewers,
-        Instant::now(),
-        Duration::from_secs(30),
-        "after the move",
-        |v| holds(v, v1, &texels1),
-    )
-    .await;
+    all_viewers_hold(&viewers, v1, &texels1, "after the move").await;
 
     // Kill relay A: its viewers move to relay B.
     let on_a = viewers
@@ -367,14 +352,7 @@ async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exac
     // And they follow the next move, bit-exact with the solver.
     assert_eq!(drive(&relays[1], DRIVER_TOKEN, 4).await, vec![]);
     let (v2, texels2) = settled(&solver, Some(4)).await;
-    all_viewers(
-        &viewers,
-        Instant::now(),
-        Duration::from_secs(30),
-        "after failover",
-        |v| holds(v, v2, &texels2),
-    )
-    .await;
+    all_viewers_hold(&viewers, v2, &texels2, "after failover").await;
     let connections_before: Vec<u32> = viewers
         .iter()
         .map(|v| v.connections.load(Ordering::Relaxed))
@@ -390,8 +368,10 @@ async fn five_hundred_viewers_survive_a_relay_kill_and_a_solver_restart_bit_exac
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     assert_eq!(
-        http_get(&relay_b.addr, "/readyz").await.map(|r| r.0),
-        Some(200),
+        http::get(&relay_b.addr, "/readyz", Some(VIEWER_TOKEN))
+            .await
+            .status,
+        200,
         "a relay without its upstream still serves the last version"
     );
     let (late_version, late_texels, _) = joined_state(&relays[1]).await;
@@ -627,12 +607,7 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     let driving = tokio::spawn(async move {
         let mut ws = hello(&relay_url, DRIVER_TOKEN).await.expect("driver");
         for seq in 100..200u64 {
-            let t = ClientMessage::Transform {
-                object: 1,
-                seq,
-                pose: pose_at(seq as u32),
-                client_time_us: 0,
-            };
+            let t = transform(1, seq, pose_at(seq as u32));
             if ws
                 .send(Message::Binary(encode_client(&t).into()))
                 .await
@@ -670,31 +645,13 @@ async fn bad_upstream_frames_are_refused_resynced_and_never_reach_viewers() {
     assert_eq!(status["upstream_version"].as_u64(), Some(4));
 }
 
-/// A viewer's lightmap after joining `url`: its version and its linear RGB.
-async fn joined_rgb(url: &str) -> (u64, Vec<[f32; 3]>) {
-    let mut ws = hello(url, VIEWER_TOKEN).await.expect("connects");
-    let mut map = None;
-    loop {
-        let frame = tokio::time::timeout(Duration::from_secs(10), ws.next())
-            .await
-            .expect("frames arrive")
-            .expect("open")
-            .expect("ok");
-        let Message::Binary(bytes) = frame else {
-            continue;
-        };
-        match decode_server(&bytes).expect("decodes") {
-            ServerMessage::Welcome { scene, .. } => {
-                map = Some(Lightmap::for_scene(&scene).expect("layout"))
-            }
-            ServerMessage::Keyframe(k) => {
-                let map = map.as_mut().expect("Welcome first");
-                map.apply_keyframe(&k).expect("applies");
-                return (k.version, map.to_rgb());
-            }
-            _ => {}
-        }
-    }
+/// A solver and a relay of it, both ready (the relay holds a version).
+async fn ready_solver_and_relay() -> (Proc, Proc) {
+    let solver = lightwire!().solver("127.0.0.1:0");
+    solver.ready().await;
+    let relay = lightwire!().relay(&solver.addr);
+    relay.ready().await;
+    (solver, relay)
 }
 
 /// A viewer on a relay needs nothing from the solver: the relay serves the
@@ -702,13 +659,11 @@ async fn joined_rgb(url: &str) -> (u64, Vec<[f32; 3]>) {
 /// the solver's token and Origin rules (PROTOCOL.md §7, Relays and REST).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
-    let solver = lightwire!().solver("127.0.0.1:0");
-    solver.ready().await;
-    let relay = lightwire!().relay(&solver.addr);
-    relay.ready().await;
+    let (solver, relay) = ready_solver_and_relay().await;
     // Nothing moves, so once settled the state stays put.
     let _ = settled(&solver, None).await;
-    let (version, rgb) = joined_rgb(&relay.ws_url()).await;
+    let viewer = joined(&relay.ws_url()).await;
+    let (version, rgb) = (viewer.version(), viewer.map.expect("welcomed").to_rgb());
     let addr = relay.addr.as_str();
 
     // Scene info: the solver's description, byte for byte.
@@ -719,22 +674,15 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
     assert_eq!(from_relay.json(), from_solver.json());
 
     // Snapshots of the version the relay's viewer holds.
-    let exr = http::get(
-        addr,
-        &format!("/api/scenes/{SCENE}/lightmap.exr"),
-        Some(VIEWER_TOKEN),
-    )
-    .await;
+    let exr = http::get(addr, &scene_file("lightmap.exr"), Some(VIEWER_TOKEN)).await;
     assert_eq!(exr.status, 200, "{}", exr.text());
     assert_eq!(exr.header("content-type"), Some("image/x-exr"));
     assert_eq!(
-        exr.header("x-lightwire-version"),
-        Some(version.to_string().as_str()),
+        exr.version(),
+        Some(version),
         "the snapshot is the version a WebSocket client of the relay holds"
     );
-    let image = image::load_from_memory_with_format(&exr.body, image::ImageFormat::OpenExr)
-        .expect("valid EXR")
-        .into_rgb32f();
+    let image = exr.exr();
     let pixels: Vec<[f32; 3]> = image.pixels().map(|p| p.0).collect();
     assert!(
         pixels == rgb,
@@ -742,16 +690,13 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
     );
     let png = http::get(
         addr,
-        &format!("/api/scenes/{SCENE}/lightmap.png?token={VIEWER_TOKEN}"),
+        &scene_file(&format!("lightmap.png?token={VIEWER_TOKEN}")),
         None,
     )
     .await;
     assert_eq!(png.status, 200, "{}", png.text());
     assert_eq!(png.header("content-type"), Some("image/png"));
-    assert_eq!(
-        png.header("x-lightwire-version"),
-        Some(version.to_string().as_str())
-    );
+    assert_eq!(png.version(), Some(version));
     let decoded =
         image::load_from_memory_with_format(&png.body, image::ImageFormat::Png).expect("valid PNG");
     assert_eq!(
@@ -761,18 +706,10 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
 
     // The lit scene: exactly the export of the description and the
     // version the relay holds.
-    let glb = http::get(
-        addr,
-        &format!("/api/scenes/{SCENE}/scene.glb"),
-        Some(VIEWER_TOKEN),
-    )
-    .await;
+    let glb = http::get(addr, &scene_file("scene.glb"), Some(VIEWER_TOKEN)).await;
     assert_eq!(glb.status, 200, "{}", glb.text());
     assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
-    assert_eq!(
-        glb.header("x-lightwire-version"),
-        Some(version.to_string().as_str())
-    );
+    assert_eq!(glb.version(), Some(version));
     let info: lightwire_protocol::SceneInfo =
         serde_json::from_value(from_relay.json()).expect("a SceneInfo");
     let expected =
@@ -791,55 +728,19 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
     assert_eq!(list[0]["connected"], true);
 
     // The same rules as the solver's, with the relay's own tokens.
-    for route in [
-        "/api/scenes".to_string(),
-        info_path.clone(),
-        format!("/api/scenes/{SCENE}/lightmap.exr"),
-        format!("/api/scenes/{SCENE}/lightmap.png"),
-        format!("/api/scenes/{SCENE}/scene.glb"),
-    ] {
+    for route in viewer_routes() {
         let none = http::get(addr, &route, None).await;
         assert_eq!(none.status, 401, "{route} on the relay without a token");
         assert!(none.json()["error"].is_string());
-        let bearer = format!("Bearer {VIEWER_TOKEN}");
-        let foreign = http::get_with(
-            addr,
-            &route,
-            &[
-                ("Authorization", &bearer),
-                ("Origin", "https://evil.example"),
-            ],
-        )
-        .await
-        .expect("answers");
+        let foreign =
+            http::get_from(addr, &route, Some(VIEWER_TOKEN), "https://evil.example").await;
         assert_eq!(foreign.status, 403, "{route} from a foreign origin");
     }
     let unknown = http::get(addr, "/api/scenes/nope", Some(VIEWER_TOKEN)).await;
     assert_eq!(unknown.status, 404);
 
     // The dashboard.
-    let index = http::get(addr, "/", None).await;
-    assert_eq!(index.status, 200);
-    assert!(
-        index
-            .header("content-type")
-            .is_some_and(|t| t.starts_with("text/html"))
-    );
-    assert!(
-        index
-            .text()
-            .contains("<script type=\"module\" src=\"/dashboard/app.js\">")
-    );
-    for file in [
-        "app.js",
-        "protocol.js",
-        "lightmap.js",
-        "view3d.js",
-        "chart.js",
-    ] {
-        let r = http::get(addr, &format!("/dashboard/{file}"), None).await;
-        assert_eq!(r.status, 200, "/dashboard/{file} on the relay");
-    }
+    dashboard::assert_served(addr).await;
     // Metrics are open by default on the relay too.
     assert_eq!(http::get(addr, "/metrics", None).await.status, 200);
 }
@@ -850,23 +751,19 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
 /// ask for).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_relay_passes_the_poses_on_to_viewers_that_ask() {
-    let solver = lightwire!().solver("127.0.0.1:0");
-    solver.ready().await;
-    let relay = lightwire!().relay(&solver.addr);
-    relay.ready().await;
+    let (_solver, relay) = ready_solver_and_relay().await;
     let url = relay.ws_url();
     let mut viewer = Peer::connect_asking_poses(&url, VIEWER_TOKEN).await;
     let mut old = Peer::connect(&url, VIEWER_TOKEN).await;
     let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     driver.transform(1, 7, pose_at(2)).await;
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while viewer.reflected.get(&1) != Some(&7) {
-        assert!(
-            Instant::now() < deadline,
-            "seq 7 never reached the relay's viewer"
-        );
-        assert!(viewer.read_one(Duration::from_secs(10)).await);
-    }
+    viewer
+        .read_until(
+            Duration::from_secs(120),
+            "seq 7 at the relay's viewer",
+            |v| v.reflected.get(&1) == Some(&7),
+        )
+        .await;
     let (version, poses) = viewer
         .poses
         .last()
@@ -874,11 +771,7 @@ async fn a_relay_passes_the_poses_on_to_viewers_that_ask() {
         .expect("Poses through the relay");
     assert_eq!(version, viewer.version(), "the relay's own version");
     assert_eq!((poses[0].object, poses[0].seq), (1, 7), "{poses:?}");
-    let want = pose_at(2);
-    assert_eq!(poses[0].pose.translation, want.translation);
-    for (got, want) in poses[0].pose.rotation.iter().zip(want.rotation) {
-        assert!((got - want).abs() < 1e-6, "{:?}", poses[0].pose);
-    }
+    assert_same_pose(&poses[0].pose, &pose_at(2));
     old.read_until_version(viewer.version(), Duration::from_secs(60))
         .await;
     assert_eq!(old.texels(), viewer.texels());

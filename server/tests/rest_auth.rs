@@ -14,18 +14,9 @@
 //!   the protocol crate builds from the scene id answers with the glb.
 
 use lightwire_testkit::http::{self, Response};
-use lightwire_testkit::{ADMIN_TOKEN, DRIVER_TOKEN, SCENE, VIEWER_TOKEN, lightwire, scene_path};
-
-/// The routes that need a viewer token.
-fn viewer_routes() -> [String; 5] {
-    [
-        "/api/scenes".to_string(),
-        format!("/api/scenes/{SCENE}"),
-        format!("/api/scenes/{SCENE}/lightmap.exr"),
-        format!("/api/scenes/{SCENE}/lightmap.png"),
-        format!("/api/scenes/{SCENE}/scene.glb"),
-    ]
-}
+use lightwire_testkit::{
+    ADMIN_TOKEN, DRIVER_TOKEN, SCENE, VIEWER_TOKEN, lightwire, scene_file, viewer_routes,
+};
 
 fn assert_unauthorized(r: &Response, route: &str, what: &str) {
     assert_eq!(r.status, 401, "{route}: {}", r.text());
@@ -69,17 +60,8 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
 
         // The WebSocket's Origin rule: a foreign origin is refused even
         // with a good token, the server's own is not.
-        let bearer = format!("Bearer {VIEWER_TOKEN}");
-        let foreign = http::get_with(
-            addr,
-            &route,
-            &[
-                ("Authorization", &bearer),
-                ("Origin", "https://evil.example"),
-            ],
-        )
-        .await
-        .expect("answers");
+        let foreign =
+            http::get_from(addr, &route, Some(VIEWER_TOKEN), "https://evil.example").await;
         assert_eq!(foreign.status, 403, "{route}");
         let error = foreign.json()["error"]
             .as_str()
@@ -87,13 +69,7 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
             .to_string();
         assert!(error.contains("evil.example"), "{route}: {error:?}");
         let own = format!("http://{addr}");
-        let same = http::get_with(
-            addr,
-            &route,
-            &[("Authorization", &bearer), ("Origin", &own)],
-        )
-        .await
-        .expect("answers");
+        let same = http::get_from(addr, &route, Some(VIEWER_TOKEN), &own).await;
         assert_eq!(same.status, 200, "{route} from the server's own origin");
     }
 
@@ -106,27 +82,14 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
         .await
         .json();
     assert_eq!(info["id"], SCENE);
-    let exr = http::get(
-        addr,
-        &format!("/api/scenes/{SCENE}/lightmap.exr"),
-        Some(VIEWER_TOKEN),
-    )
-    .await;
+    let exr = http::get(addr, &scene_file("lightmap.exr"), Some(VIEWER_TOKEN)).await;
     assert_eq!(exr.header("content-type"), Some("image/x-exr"));
-    assert!(exr.header("x-lightwire-version").is_some());
+    assert!(exr.version().is_some());
     // The lit scene: a glb that imports, one triangle per triangle surface
     // and two per quad of the scene info, the version in its extras.
-    let glb = http::get(
-        addr,
-        &format!("/api/scenes/{SCENE}/scene.glb"),
-        Some(VIEWER_TOKEN),
-    )
-    .await;
+    let glb = http::get(addr, &scene_file("scene.glb"), Some(VIEWER_TOKEN)).await;
     assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
-    let version: u64 = glb
-        .header("x-lightwire-version")
-        .and_then(|v| v.parse().ok())
-        .expect("x-lightwire-version");
+    let version = glb.version().expect("x-lightwire-version");
     let imported =
         lightwire_scene::gltf::import_slice(&glb.body, None, "scene.glb", &Default::default())
             .expect("the served scene.glb imports");
@@ -150,16 +113,7 @@ async fn scene_routes_need_a_viewer_token_and_an_allowed_origin() {
         .count();
     assert_eq!(imported.objects.len(), 1 + dynamic);
     let document = gltf::Gltf::from_slice(&glb.body).expect("parses");
-    let extras: serde_json::Value = serde_json::from_str(
-        document
-            .as_json()
-            .asset
-            .extras
-            .as_ref()
-            .expect("asset extras")
-            .get(),
-    )
-    .expect("JSON");
+    let extras = serde_json::to_value(&document.as_json().asset.extras).expect("JSON");
     assert_eq!(extras["lightwire"]["version"], version);
     assert_eq!(extras["lightwire"]["lightmap"], "lightmap.exr");
 
@@ -205,15 +159,7 @@ async fn metrics_token_mode_needs_an_admin_token() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn development_mode_leaves_the_rest_routes_open() {
-    let scene = scene_path("cornell-low.json");
-    let server = lightwire!().serve_dev(&[
-        "--solver",
-        "reference",
-        "--density-scale",
-        "0.5",
-        "--scene",
-        scene.to_str().expect("utf-8 path"),
-    ]);
+    let server = lightwire!().dev_solver();
     server.ready().await;
     for route in viewer_routes() {
         let r = http::get(&server.addr, &route, None).await;
@@ -227,40 +173,21 @@ async fn development_mode_leaves_the_rest_routes_open() {
 /// and with the connection's token, is the scene as glTF binary.
 #[tokio::test]
 async fn the_welcome_says_where_the_scene_glb_is() {
-    use futures_util::StreamExt;
-    use lightwire_protocol::{CAP_SCENE_GLB, ServerMessage, decode_server, scene_glb_path};
-    use tokio_tungstenite::tungstenite::Message;
+    use lightwire_protocol::{CAP_SCENE_GLB, scene_glb_path};
+    use lightwire_testkit::peer::Peer;
 
     let server = lightwire!().solver("127.0.0.1:0");
     server.ready().await;
-    let mut ws = lightwire_testkit::peer::hello(&server.ws_url(), VIEWER_TOKEN)
-        .await
-        .expect("connects");
-    let welcome = loop {
-        let frame = tokio::time::timeout(std::time::Duration::from_secs(10), ws.next())
-            .await
-            .expect("a frame arrives")
-            .expect("open")
-            .expect("ok");
-        if let Message::Binary(bytes) = frame {
-            break decode_server(&bytes).expect("decodes");
-        }
-    };
-    let ServerMessage::Welcome {
-        capabilities,
-        scene,
-        ..
-    } = welcome
-    else {
-        panic!("the first message is a Welcome: {welcome:?}");
-    };
+    // The kit's peer asserts that the first message is a Welcome.
+    let viewer = Peer::connect(&server.ws_url(), VIEWER_TOKEN).await;
+    let (capabilities, scene) = (viewer.capabilities, viewer.scene.expect("welcomed"));
     assert_ne!(
         capabilities & CAP_SCENE_GLB,
         0,
         "capabilities {capabilities:#x}"
     );
     let path = scene_glb_path(&scene.id);
-    assert_eq!(path, format!("/api/scenes/{SCENE}/scene.glb"));
+    assert_eq!(path, scene_file("scene.glb"));
     let glb = http::get(&server.addr, &path, Some(VIEWER_TOKEN)).await;
     assert_eq!(glb.status, 200, "{path}");
     assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));

@@ -14,13 +14,44 @@ use tokio_tungstenite::MaybeTlsStream;
 use tokio_tungstenite::tungstenite::Message;
 
 use lightwire_testkit::peer::Peer;
-use lightwire_testkit::pose::box_turned;
+use lightwire_testkit::pose::{assert_same_pose, box_turned, transform};
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{DRIVER_TOKEN, VIEWER_TOKEN, http, lightwire};
+use lightwire_testkit::{DRIVER_TOKEN, VIEWER_TOKEN, http, lightwire, scene_file};
 
 /// `GET path` on `server` with the viewer token (the REST routes need one).
 async fn http_get(server: &Proc, path: &str) -> http::Response {
     http::get(&server.addr, path, Some(VIEWER_TOKEN)).await
+}
+
+/// [`Lightwire::solver`](lightwire_testkit::Lightwire::solver) on any
+/// port once it has published its first version, and its WebSocket URL.
+async fn ready_solver() -> (Proc, String) {
+    let server = lightwire!().solver("127.0.0.1:0");
+    server.ready().await;
+    let url = server.ws_url();
+    (server, url)
+}
+
+/// Sends `count` frames that decode as nothing, fewer if the server
+/// closes the connection first.
+async fn send_garbage(peer: &mut Peer, count: usize) {
+    for _ in 0..count {
+        let garbage = Message::Binary(vec![0xee; 7].into());
+        if peer.ws.send(garbage).await.is_err() {
+            break;
+        }
+    }
+}
+
+/// Sends `frame` (on a connection that has had no Error yet) and reads
+/// until the server answers with an Error; returns its code.
+async fn first_error_after(peer: &mut Peer, frame: Message) -> ErrorCode {
+    peer.ws.send(frame).await.expect("send");
+    peer.read_until(Duration::from_secs(10), "an Error", |p| {
+        !p.errors.is_empty()
+    })
+    .await;
+    peer.errors[0].0
 }
 
 /// Reads (and applies) frames on a task until `stop` flips.
@@ -42,16 +73,10 @@ fn pose_at(step: u32) -> Pose {
 /// The server's current version, and its lightmap decoded from the EXR
 /// snapshot (f32, so bit-exact with what a client decodes).
 async fn server_state(server: &Proc) -> (u64, Vec<[f32; 3]>) {
-    let snapshot = http_get(server, "/api/scenes/cornell-low/lightmap.exr").await;
+    let snapshot = http_get(server, &scene_file("lightmap.exr")).await;
     assert_eq!(snapshot.status, 200);
-    let version: u64 = snapshot
-        .header("x-lightwire-version")
-        .and_then(|v| v.parse().ok())
-        .expect("version header");
-    let image = image::load_from_memory_with_format(&snapshot.body, image::ImageFormat::OpenExr)
-        .expect("valid EXR")
-        .into_rgb32f();
-    (version, image.pixels().map(|p| p.0).collect())
+    let version = snapshot.version().expect("version header");
+    (version, snapshot.exr_rgb())
 }
 
 /// Waits until the published state reflects transform `seq` of the box
@@ -109,14 +134,7 @@ async fn fifty_clients_follow_a_moving_box_bit_exactly_and_a_late_joiner_converg
         .collect();
     let steps = 12u32;
     for step in 1..=steps {
-        driver
-            .send(&ClientMessage::Transform {
-                object: 1,
-                seq: u64::from(step),
-                pose: pose_at(step),
-                client_time_us: 0,
-            })
-            .await;
+        driver.transform(1, u64::from(step), pose_at(step)).await;
         // Faster than the solver: some poses are coalesced (latest wins).
         tokio::time::sleep(Duration::from_millis(150)).await;
     }
@@ -202,14 +220,7 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
     let fast_task = read_until_stopped(fast, stopped);
     while stall.elapsed() < Duration::from_secs(10) {
         step += 1;
-        driver
-            .send(&ClientMessage::Transform {
-                object: 1,
-                seq: u64::from(step),
-                pose: pose_at(step),
-                client_time_us: 0,
-            })
-            .await;
+        driver.transform(1, u64::from(step), pose_at(step)).await;
         tokio::time::sleep(Duration::from_millis(100)).await;
         // Keep the driver's socket drained.
         while driver.read_one(Duration::from_millis(1)).await {}
@@ -273,14 +284,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
 
     // A viewer may not move objects.
     let mut viewer = Peer::connect(&url, VIEWER_TOKEN).await;
-    viewer
-        .send(&ClientMessage::Transform {
-            object: 1,
-            seq: 1,
-            pose: pose_at(1),
-            client_time_us: 0,
-        })
-        .await;
+    viewer.transform(1, 1, pose_at(1)).await;
     // Garbage, an unknown object and an invalid pose, from a driver.
     let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     driver
@@ -298,14 +302,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
         .await;
     let mut bad_pose = pose_at(1);
     bad_pose.rotation = [0.0, 0.0, 0.0, 2.0];
-    driver
-        .send(&ClientMessage::Transform {
-            object: 1,
-            seq: 2,
-            pose: bad_pose,
-            client_time_us: 0,
-        })
-        .await;
+    driver.transform(1, 2, bad_pose).await;
     driver
         .ws
         .send(Message::Text("hello?".into()))
@@ -332,10 +329,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
     );
 
     // A bad token is refused.
-    let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
-        .await
-        .expect("connects");
-    let mut intruder = Peer::unhandshaken(ws);
+    let mut intruder = Peer::open(&url).await;
     intruder
         .send(&ClientMessage::Hello {
             protocol_version: PROTOCOL_VERSION,
@@ -350,24 +344,9 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
 
     // Repeated abuse closes that connection (after max_bad_frames = 20).
     let mut abuser = Peer::connect(&url, DRIVER_TOKEN).await;
-    for _ in 0..25 {
-        if abuser
-            .ws
-            .send(Message::Binary(vec![0xee; 7].into()))
-            .await
-            .is_err()
-        {
-            break;
-        }
-    }
-    let mut closed = false;
-    for _ in 0..200 {
-        if !abuser.read_one(Duration::from_secs(5)).await {
-            closed = true;
-            break;
-        }
-    }
-    assert!(closed, "the abusive connection is closed");
+    send_garbage(&mut abuser, 25).await;
+    let code = abuser.read_to_close(Duration::from_secs(60)).await;
+    assert_eq!(code, Some(1008), "the abusive connection is closed");
 
     // A browser from a foreign origin may not open a socket.
     let request = tokio_tungstenite::tungstenite::client::IntoClientRequest::into_client_request(
@@ -386,14 +365,7 @@ async fn hostile_frames_get_error_codes_and_never_disturb_other_clients() {
 
     // The bystander is undisturbed: still connected and still served.
     let _ = http_get(&server, "/healthz").await;
-    driver
-        .send(&ClientMessage::Transform {
-            object: 1,
-            seq: 3,
-            pose: pose_at(3),
-            client_time_us: 0,
-        })
-        .await;
+    driver.transform(1, 3, pose_at(3)).await;
     let version = settled_version(&server, 3, &mut driver).await;
     bystander
         .read_until_version(version, Duration::from_secs(30))
@@ -461,13 +433,7 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
     let url = server.ws_url();
     server.ready().await;
     let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
-    let transform = |seq| ClientMessage::Transform {
-        object: 1,
-        seq,
-        pose: pose_at(4),
-        client_time_us: 0,
-    };
-    driver.send(&transform(10)).await;
+    driver.transform(1, 10, pose_at(4)).await;
     settled_version(&server, 10, &mut driver).await;
     let before = driver.map.as_ref().expect("a lightmap").to_rgb();
     let version = driver.version();
@@ -475,15 +441,13 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
     // The same pose again, with newer seqs: each is echoed in a version
     // of its own within a tick or two, and the light does not change.
     for seq in [11, 12] {
-        driver.send(&transform(seq)).await;
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while driver.reflected.get(&1) != Some(&seq) {
-            assert!(
-                Instant::now() < deadline,
-                "{solver}: seq {seq} with an unchanged pose was never echoed"
-            );
-            assert!(driver.read_one(Duration::from_secs(5)).await);
-        }
+        driver.transform(1, seq, pose_at(4)).await;
+        let what = format!("{solver}: the echo of seq {seq} with an unchanged pose");
+        driver
+            .read_until(Duration::from_secs(10), &what, |d| {
+                d.reflected.get(&1) == Some(&seq)
+            })
+            .await;
     }
     assert!(driver.version() > version, "the echoes are versions");
     assert_eq!(
@@ -495,23 +459,22 @@ async fn echo_of_an_unchanged_pose(solver: &str) {
 
     // A second driver learns where to continue from its keyframe.
     let mut second = Peer::connect(&url, DRIVER_TOKEN).await;
-    while second.keyframes == 0 {
-        assert!(second.read_one(Duration::from_secs(10)).await);
-    }
+    second
+        .read_until(Duration::from_secs(10), "a keyframe", |s| s.keyframes > 0)
+        .await;
     let latest = *second
         .reflected
         .get(&1)
         .expect("the keyframe lists object 1");
     assert_eq!(latest, 12);
-    second.send(&transform(latest + 1)).await;
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while second.reflected.get(&1) != Some(&(latest + 1)) {
-        assert!(
-            Instant::now() < deadline,
-            "the continued seq was never echoed"
-        );
-        assert!(second.read_one(Duration::from_secs(5)).await);
-    }
+    second.transform(1, latest + 1, pose_at(4)).await;
+    second
+        .read_until(
+            Duration::from_secs(10),
+            "the echo of the continued seq",
+            |s| s.reflected.get(&1) == Some(&(latest + 1)),
+        )
+        .await;
     assert!(second.errors.is_empty(), "{:?}", second.errors);
 }
 
@@ -526,9 +489,9 @@ async fn a_viewer_that_asks_gets_the_poses_each_version_was_lit_for() {
     server.ready().await;
     let mut viewer = Peer::connect_asking_poses(&url, VIEWER_TOKEN).await;
     let mut old = Peer::connect(&url, VIEWER_TOKEN).await;
-    while viewer.keyframes == 0 {
-        assert!(viewer.read_one(Duration::from_secs(10)).await);
-    }
+    viewer
+        .read_until(Duration::from_secs(10), "a keyframe", |v| v.keyframes > 0)
+        .await;
     let (first_version, first) = viewer
         .poses
         .first()
@@ -571,15 +534,12 @@ async fn a_viewer_that_asks_gets_the_poses_each_version_was_lit_for() {
     assert!(lit > 0, "after the first version");
     assert_eq!((moved[0].object, moved[0].seq), (1, 5));
     let want = pose_at(3);
-    for (got, want) in moved[0].pose.rotation.iter().zip(want.rotation) {
-        assert!((got - want).abs() < 1e-6, "{:?} vs {want:?}", moved[0].pose);
-    }
-    assert_eq!(moved[0].pose.translation, want.translation);
+    assert_same_pose(&moved[0].pose, &want);
     assert_eq!(viewer.reflected.get(&1), Some(&5));
     assert_eq!(viewer.texels(), old.texels(), "the same light either way");
 
     // The served scene.glb draws the box where this version lit it.
-    let glb = http_get(&server, "/api/scenes/cornell-low/scene.glb").await;
+    let glb = http_get(&server, &scene_file("scene.glb")).await;
     assert_eq!(glb.status, 200);
     let imported =
         lightwire_scene::gltf::import_slice(&glb.body, None, "scene.glb", &Default::default())
@@ -607,19 +567,14 @@ async fn a_viewer_that_asks_gets_the_poses_each_version_was_lit_for() {
 /// `Hello`; other clients are undisturbed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_oversized_frame_gets_too_large_and_close_1009() {
-    let server = lightwire!().solver("127.0.0.1:0");
-    let url = server.ws_url();
-    server.ready().await;
+    let (_server, url) = ready_solver().await;
     let mut bystander = Peer::connect(&url, VIEWER_TOKEN).await;
 
     for (size, after_hello) in [(4097, true), (1 << 20, true), (5000, false)] {
         let mut client = if after_hello {
             Peer::connect(&url, DRIVER_TOKEN).await
         } else {
-            let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
-                .await
-                .expect("connects");
-            Peer::unhandshaken(ws)
+            Peer::open(&url).await
         };
         // Whether the send completes depends on how much the server read
         // before it closed; the reply is what matters.
@@ -634,15 +589,11 @@ async fn an_oversized_frame_gets_too_large_and_close_1009() {
     }
     // A frame of exactly the limit is read (and refused as malformed).
     let mut client = Peer::connect(&url, DRIVER_TOKEN).await;
-    client
-        .ws
-        .send(Message::Binary(vec![0xee; 4096].into()))
-        .await
-        .expect("send");
-    while client.errors.is_empty() {
-        assert!(client.read_one(Duration::from_secs(10)).await);
-    }
-    assert_eq!(client.errors[0].0, ErrorCode::BadFrame);
+    let limit = Message::Binary(vec![0xee; 4096].into());
+    assert_eq!(
+        first_error_after(&mut client, limit).await,
+        ErrorCode::BadFrame
+    );
 
     let before = bystander.version();
     bystander
@@ -658,13 +609,8 @@ async fn an_oversized_frame_gets_too_large_and_close_1009() {
 /// PROTOCOL.md §1: a text frame is a bad frame (1), first or later.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_text_frame_is_a_bad_frame() {
-    let server = lightwire!().solver("127.0.0.1:0");
-    let url = server.ws_url();
-    server.ready().await;
-    let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
-        .await
-        .expect("connects");
-    let mut first = Peer::unhandshaken(ws);
+    let (_server, url) = ready_solver().await;
+    let mut first = Peer::open(&url).await;
     first
         .ws
         .send(Message::Text("hello".into()))
@@ -678,15 +624,11 @@ async fn a_text_frame_is_a_bad_frame() {
     assert_eq!(first.errors[0].0, ErrorCode::BadFrame);
 
     let mut later = Peer::connect(&url, VIEWER_TOKEN).await;
-    later
-        .ws
-        .send(Message::Text("{}".into()))
-        .await
-        .expect("send");
-    while later.errors.is_empty() {
-        assert!(later.read_one(Duration::from_secs(10)).await);
-    }
-    assert_eq!(later.errors[0].0, ErrorCode::BadFrame);
+    let text = Message::Text("{}".into());
+    assert_eq!(
+        first_error_after(&mut later, text).await,
+        ErrorCode::BadFrame
+    );
 }
 
 /// PROTOCOL.md §1.7 and §7: every refused frame gets its Error, in order;
@@ -694,22 +636,11 @@ async fn a_text_frame_is_a_bad_frame() {
 /// `max_bad_frames`-th bad frame earns.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn no_error_reply_is_lost() {
-    let server = lightwire!().solver("127.0.0.1:0");
-    let url = server.ws_url();
-    server.ready().await;
+    let (_server, url) = ready_solver().await;
 
     // 30 bad frames back to back: exactly 20 Errors, then close 1008.
     let mut abuser = Peer::connect(&url, DRIVER_TOKEN).await;
-    for _ in 0..30 {
-        if abuser
-            .ws
-            .send(Message::Binary(vec![0xee; 7].into()))
-            .await
-            .is_err()
-        {
-            break;
-        }
-    }
+    send_garbage(&mut abuser, 30).await;
     let code = abuser.read_to_close(Duration::from_secs(20)).await;
     assert_eq!(code, Some(1008));
     assert_eq!(abuser.errors.len(), 20, "{:?}", abuser.errors);
@@ -719,15 +650,9 @@ async fn no_error_reply_is_lost() {
     // newer): one Error each, StaleSeq or RateLimited (neither counts
     // toward closing), all before the Pong of a Ping sent after them.
     let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
-    let transform = |seq| ClientMessage::Transform {
-        object: 1,
-        seq,
-        pose: pose_at(2),
-        client_time_us: 0,
-    };
-    driver.send(&transform(1_000_000)).await;
+    driver.transform(1, 1_000_000, pose_at(2)).await;
     const FLOOD: usize = 3000;
-    let frame = encode_client(&transform(5));
+    let frame = encode_client(&transform(1, 5, pose_at(2)));
     // Send and read concurrently, so that the flood is never held up by
     // replies piling up unread on our side.
     let (mut tx, mut rx) = driver.ws.split();
@@ -776,9 +701,7 @@ async fn no_error_reply_is_lost() {
 /// a pose at the bounds is accepted and lit with finite light.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
-    let server = lightwire!().solver("127.0.0.1:0");
-    let url = server.ws_url();
-    server.ready().await;
+    let (server, url) = ready_solver().await;
     let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
     let far = Pose {
         translation: [1e30, 0.0, 0.0],
@@ -789,18 +712,13 @@ async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
         ..pose_at(0)
     };
     for (seq, pose) in [(1, far), (2, tiny)] {
-        driver
-            .send(&ClientMessage::Transform {
-                object: 1,
-                seq,
-                pose,
-                client_time_us: 0,
-            })
-            .await;
+        driver.transform(1, seq, pose).await;
     }
-    while driver.errors.len() < 2 {
-        assert!(driver.read_one(Duration::from_secs(10)).await);
-    }
+    driver
+        .read_until(Duration::from_secs(10), "two Errors", |d| {
+            d.errors.len() >= 2
+        })
+        .await;
     assert!(
         driver
             .errors
@@ -814,14 +732,7 @@ async fn extreme_poses_are_refused_and_poses_at_the_bounds_stay_finite() {
         scale: Pose::SCALE_RANGE.1,
         ..pose_at(0)
     };
-    driver
-        .send(&ClientMessage::Transform {
-            object: 1,
-            seq: 3,
-            pose: edge,
-            client_time_us: 0,
-        })
-        .await;
+    driver.transform(1, 3, edge).await;
     let version = settled_version(&server, 3, &mut driver).await;
     let (at, rgb) = server_state(&server).await;
     assert_eq!(at, version);
@@ -872,20 +783,13 @@ async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
         // Start from a quiet state: the first solve's version, and with a
         // budget the settle version after it.
         quiet(&mut driver).await;
+        driver.transform(1, 1, pose_at(7)).await;
+        // The first version that reflects the move...
         driver
-            .send(&ClientMessage::Transform {
-                object: 1,
-                seq: 1,
-                pose: pose_at(7),
-                client_time_us: 0,
+            .read_until(Duration::from_secs(120), "the move's version", |d| {
+                d.reflected.get(&1) == Some(&1)
             })
             .await;
-        // The first version that reflects the move...
-        let deadline = Instant::now() + Duration::from_secs(120);
-        while driver.reflected.get(&1) != Some(&1) {
-            assert!(Instant::now() < deadline, "the move was never published");
-            driver.read_one(Duration::from_millis(100)).await;
-        }
         let moved = driver.map.clone().expect("a lightmap");
         // ... and the state once the server has settled.
         quiet(&mut driver).await;
@@ -933,17 +837,12 @@ async fn with_an_error_budget_viewers_still_end_on_the_exact_lightmap() {
 /// client from the future likewise.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_old_client_is_refused_with_a_message_that_says_why() {
-    let server = lightwire!().solver("127.0.0.1:0");
-    let url = server.ws_url();
-    server.ready().await;
+    let (_server, url) = ready_solver().await;
     for (theirs, says) in [
         (1, "upgrade the client"),
         (PROTOCOL_VERSION + 1, "newer than this server"),
     ] {
-        let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
-            .await
-            .expect("connects");
-        let mut old = Peer::unhandshaken(ws);
+        let mut old = Peer::open(&url).await;
         old.send(&ClientMessage::Hello {
             protocol_version: theirs,
             client: "lw/old".into(),

@@ -246,16 +246,18 @@ fn the_atrium_reads_its_light_in_its_own_uvs() {
 async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
     use lightwire_testkit::{http, lightwire};
     let path = scene_path("meshes/cornell-large.glb");
-    let server = lightwire!().serve_dev(&[
-        "--solver",
-        "reference",
-        "--density-scale",
-        "0.3",
-        "--scene",
-        path.to_str().expect("utf-8"),
-    ]);
+    let server =
+        lightwire!().serve_dev_on(&path, &["--solver", "reference", "--density-scale", "0.3"]);
     server.ready().await;
-    let list = http::get(&server.addr, "/api/scenes/cornell-large/uv-lightmaps", None).await;
+    let file = async |name: &str| {
+        http::get(
+            &server.addr,
+            &format!("/api/scenes/cornell-large/{name}"),
+            None,
+        )
+        .await
+    };
+    let list = file("uv-lightmaps").await;
     assert_eq!(list.status, 200, "{}", list.text());
     let list = list.json();
     let entries = list["uv_lightmaps"].as_array().expect("a list");
@@ -267,27 +269,13 @@ async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
     let exr_path = box_entry["exr"].as_str().expect("exr");
     // A version that holds still: the reference solver publishes once.
     let (version, atlas_rgb, served) = loop {
-        let snapshot =
-            http::get(&server.addr, "/api/scenes/cornell-large/lightmap.exr", None).await;
-        let uv = http::get(
-            &server.addr,
-            &format!("/api/scenes/cornell-large/{exr_path}"),
-            None,
-        )
-        .await;
+        let snapshot = file("lightmap.exr").await;
+        let uv = file(exr_path).await;
         assert_eq!(uv.status, 200, "{}", uv.text());
         assert_eq!(uv.header("content-type"), Some("image/x-exr"));
-        let v = snapshot.header("x-lightwire-version").map(str::to_owned);
-        if v.is_some() && v.as_deref() == uv.header("x-lightwire-version") {
-            let decode = |bytes: &[u8]| -> Vec<[f32; 3]> {
-                image::load_from_memory_with_format(bytes, image::ImageFormat::OpenExr)
-                    .expect("valid EXR")
-                    .into_rgb32f()
-                    .pixels()
-                    .map(|p| p.0)
-                    .collect()
-            };
-            break (v, decode(&snapshot.body), decode(&uv.body));
+        let v = snapshot.version();
+        if v.is_some() && v == uv.version() {
+            break (v, snapshot.exr_rgb(), uv.exr_rgb());
         }
     };
     assert!(version.is_some());
@@ -320,12 +308,7 @@ async fn the_server_serves_the_lightmaps_in_the_assets_own_uvs() {
         "uv-lightmaps/06-nope.exr",
         "uv-lightmaps/x.exr",
     ] {
-        let r = http::get(
-            &server.addr,
-            &format!("/api/scenes/cornell-large/{bad}"),
-            None,
-        )
-        .await;
+        let r = file(bad).await;
         assert_eq!(r.status, 404, "{bad}: {}", r.text());
     }
 }
@@ -352,6 +335,29 @@ fn reference_images(scene: &Scene, atlas: &Atlas) -> (Vec<[f32; 3]>, Vec<[f32; 3
     let mut plain = atlas.clone();
     plain.island_seams = IslandSeams::default();
     (atlas.to_image(&values), plain.to_image(&values))
+}
+
+/// Where `uv`, a coordinate in the own lightmap of mesh `k`, lies in the
+/// atlas (normalized): in the mesh's block.
+fn in_block(atlas: &Atlas, k: usize, uv: Vec2) -> Vec2 {
+    let block = atlas.blocks[k].unwrap_or_else(|| panic!("mesh {k} has a block"));
+    (Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32)
+        / Vec2::new(atlas.width as f32, atlas.height as f32)
+}
+
+/// 2% of the 95th percentile of `image`'s brightest channel: how bright
+/// a reading must be to be judged against itself in [`relative_step`].
+fn dark_floor(image: &[[f32; 3]]) -> f32 {
+    let mut lum: Vec<f32> = image.iter().map(|p| p[0].max(p[1]).max(p[2])).collect();
+    lum.sort_by(f32::total_cmp);
+    0.02 * lum[lum.len() * 95 / 100]
+}
+
+/// How far apart two readings of the light are: their largest channel
+/// difference over the brighter one, or over `floor` where both are
+/// darker.
+fn relative_step(a: Vec3, b: Vec3, floor: f32) -> f32 {
+    (a - b).abs().max_element() / a.max_element().max(b.max_element()).max(floor)
 }
 
 /// A floor of two islands of its own lightmap: the left half of the floor
@@ -408,14 +414,8 @@ fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
         atlas.island_seams.len()
     );
     let (stitched, raw) = reference_images(&scene, &atlas);
-    let block = atlas.blocks[0].unwrap_or_else(|| panic!("the floor's block"));
-    let in_atlas = |uv: Vec2| {
-        (Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32)
-            / Vec2::new(atlas.width as f32, atlas.height as f32)
-    };
-    let mut lum: Vec<f32> = stitched.iter().map(|p| p[0].max(p[1]).max(p[2])).collect();
-    lum.sort_by(f32::total_cmp);
-    let floor = 0.02 * lum[lum.len() * 95 / 100];
+    let in_atlas = |uv: Vec2| in_block(&atlas, 0, uv);
+    let floor = dark_floor(&stitched);
     let worst = |image: &[[f32; 3]]| {
         (0..64)
             .map(|k| {
@@ -423,13 +423,7 @@ fn both_sides_of_a_seam_between_lightmap_islands_read_alike() {
                 // The point (1, 0, -along) on either island.
                 let left = filtered(image, &atlas, in_atlas(Vec2::new(0.45, 0.05 + 0.4 * along)));
                 let right = filtered(image, &atlas, in_atlas(Vec2::new(0.55 + 0.4 * along, 0.55)));
-                let scale = left.max_element().max(right.max_element()).max(floor);
-                (
-                    (left - right).abs().max_element() / scale,
-                    along,
-                    left,
-                    right,
-                )
+                (relative_step(left, right, floor), along, left, right)
             })
             .fold((0.0f32, 0.0, Vec3::ZERO, Vec3::ZERO), |a, b| {
                 if b.0 > a.0 { b } else { a }
@@ -547,7 +541,8 @@ fn prism_glb(smooth: bool) -> Vec<u8> {
         let phi = std::f32::consts::TAU * (i % sides) as f32 / sides as f32;
         Vec3::new(0.5 * phi.cos(), y, -0.5 * phi.sin())
     };
-    let mut side = GlbPrimitive {
+    // Positions with normals, without texture coordinates, in material 0.
+    let empty = || GlbPrimitive {
         positions: Vec::new(),
         normals: Some(Vec::new()),
         uv0: None,
@@ -555,6 +550,7 @@ fn prism_glb(smooth: bool) -> Vec<u8> {
         indices: Vec::new(),
         material: Some(0),
     };
+    let mut side = empty();
     let push = |p: &mut GlbPrimitive, x: Vec3, n: Vec3| {
         p.positions.push(x);
         if let Some(ns) = &mut p.normals {
@@ -596,14 +592,7 @@ fn prism_glb(smooth: bool) -> Vec<u8> {
         side.positions = unique.iter().map(|u| u.0).collect();
         side.normals = Some(unique.iter().map(|u| u.1).collect());
     }
-    let mut caps = GlbPrimitive {
-        positions: Vec::new(),
-        normals: Some(Vec::new()),
-        uv0: None,
-        uv1: None,
-        indices: Vec::new(),
-        material: Some(0),
-    };
+    let mut caps = empty();
     for (y, up) in [(1.0f32, true), (0.0, false)] {
         let n = if up { Vec3::Y } else { Vec3::NEG_Y };
         let ring: Vec<u32> = (0..sides).map(|i| push(&mut caps, at(i, y), n)).collect();
@@ -692,14 +681,8 @@ fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
         assert_eq!(mesh.smooth_edges.len(), expect, "smooth: {smooth}");
         let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
         let (stitched, raw) = reference_images(&scene, &atlas);
-        let block = atlas.blocks[k].unwrap_or_else(|| panic!("the prism's block"));
-        let in_atlas = |uv: Vec2| {
-            (Vec2::new(block.x as f32, block.y as f32) + uv * block.w as f32)
-                / Vec2::new(atlas.width as f32, atlas.height as f32)
-        };
-        let mut lum: Vec<f32> = stitched.iter().map(|p| p[0].max(p[1]).max(p[2])).collect();
-        lum.sort_by(f32::total_cmp);
-        let floor = 0.02 * lum[lum.len() * 95 / 100];
+        let in_atlas = |uv: Vec2| in_block(&atlas, k, uv);
+        let floor = dark_floor(&stitched);
         // The UVs of point `x` on every side triangle whose edge holds it,
         // one per facet (by face normal).
         let sides_at = |x: Vec3| {
@@ -731,8 +714,7 @@ fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
                     assert_eq!(sides.len(), 2, "two facets meet at {x}");
                     let a = filtered(image, &atlas, in_atlas(sides[0].1));
                     let b = filtered(image, &atlas, in_atlas(sides[1].1));
-                    let scale = a.max_element().max(b.max_element()).max(floor);
-                    worst = worst.max((a - b).abs().max_element() / scale);
+                    worst = worst.max(relative_step(a, b, floor));
                 }
             }
             worst

@@ -128,6 +128,23 @@ impl Lightwire {
         self.spawn(&args, &[])
     }
 
+    /// [`Lightwire::serve_dev`] of the scene file at `scene`, `flags`
+    /// first.
+    pub fn serve_dev_on(&self, scene: impl AsRef<Path>, flags: &[&str]) -> Proc {
+        let scene = scene.as_ref().to_str().expect("a UTF-8 scene path");
+        let flags: Vec<&str> = flags.iter().copied().chain(["--scene", scene]).collect();
+        self.serve_dev(&flags)
+    }
+
+    /// [`Lightwire::solver`]'s scene, density and solver in development
+    /// mode (no tokens), on any port.
+    pub fn dev_solver(&self) -> Proc {
+        self.serve_dev_on(
+            scene_path(&format!("{SCENE}.json")),
+            &["--density-scale", "0.5", "--solver", "reference"],
+        )
+    }
+
     /// A solver on `listen` (port 0: any) with cornell-low at a coarse
     /// density on the CPU reference solver, which re-solves a move in well
     /// under a second, with the three tokens.

@@ -9,17 +9,23 @@
 //!   protocol demands and records what it saw;
 //! - [`fake`]: a scripted fake server, for tests where the test plays the
 //!   solver (a relay's upstream, the client library's server);
-//! - [`pose`]: poses of the Cornell scenes' box and transform messages.
+//! - [`pose`]: poses of the Cornell scenes' box and transform messages;
+//! - [`dashboard`]: the web dashboard's files as a server or relay serves
+//!   them;
+//! - [`validator`]: the Khronos glTF validator.
 //!
-//! The kit depends on `lightwire-protocol` only, never on the server
-//! crate, so that the client's tests do not link the solver. Tests that
-//! need the solver's types keep their helpers in `server/tests/common`.
+//! The kit depends on `lightwire-protocol` only of ours, never on the
+//! scene, solver or server crates, so that the client's tests do not link
+//! the solver. Tests that need their types keep such helpers to themselves
+//! (`solve/tests/common`).
 
+pub mod dashboard;
 pub mod fake;
 pub mod http;
 pub mod peer;
 pub mod pose;
 pub mod process;
+pub mod validator;
 
 mod binary;
 
@@ -45,6 +51,25 @@ pub fn tokens() -> String {
 /// The repository root.
 pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// `/api/scenes/{SCENE}/{file}`: a file of [`SCENE`] in the REST API
+/// (`lightmap.exr`, `lightmap.png`, `scene.glb`, ...).
+pub fn scene_file(file: &str) -> String {
+    format!("/api/scenes/{SCENE}/{file}")
+}
+
+/// The REST routes that need a viewer token where tokens are configured:
+/// the scene list, [`SCENE`]'s description and its snapshots and lit
+/// `scene.glb`.
+pub fn viewer_routes() -> [String; 5] {
+    [
+        "/api/scenes".to_string(),
+        format!("/api/scenes/{SCENE}"),
+        scene_file("lightmap.exr"),
+        scene_file("lightmap.png"),
+        scene_file("scene.glb"),
+    ]
 }
 
 /// Path of a file in the repository's `scenes/` directory.

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, ObjectPose, PROTOCOL_VERSION, Pose, Role, ServerMessage,
+    ClientMessage, ErrorCode, ObjectPose, PROTOCOL_VERSION, Pose, Role, SceneInfo, ServerMessage,
     decode_server, encode_client,
 };
 use tokio::net::TcpStream;
@@ -58,6 +58,10 @@ pub struct Peer {
     pub ws: Ws,
     pub map: Option<Lightmap>,
     pub role: Option<Role>,
+    /// The `Welcome`'s capability bits (0 before it).
+    pub capabilities: u32,
+    /// The scene the `Welcome` described.
+    pub scene: Option<SceneInfo>,
     pub versions: Vec<u64>,
     pub keyframes: usize,
     /// (version, arrived as a keyframe) per applied frame.
@@ -76,11 +80,19 @@ pub struct Peer {
 }
 
 impl Peer {
+    /// Opens a WebSocket to `url`, says `Hello` with `token` and reads
+    /// the `Welcome`.
     pub async fn connect(url: &str, token: &str) -> Peer {
+        Peer::open(url).await.greet(hello_message(token)).await
+    }
+
+    /// A peer on a fresh socket to `url` that has not said `Hello` (it may
+    /// say anything, or something else, first).
+    pub async fn open(url: &str) -> Peer {
         let (ws, _) = tokio_tungstenite::connect_async(url)
             .await
             .expect("websocket connects");
-        Self::hello(ws, token).await
+        Peer::unhandshaken(ws)
     }
 
     /// A peer on an open socket that has not said `Hello` yet.
@@ -89,6 +101,8 @@ impl Peer {
             ws,
             map: None,
             role: None,
+            capabilities: 0,
+            scene: None,
             versions: Vec::new(),
             keyframes: 0,
             applied: Vec::new(),
@@ -102,29 +116,23 @@ impl Peer {
 
     /// [`Peer::connect`] with `HELLO_POSES` set: the server sends `Poses`.
     pub async fn connect_asking_poses(url: &str, token: &str) -> Peer {
-        let (mut ws, _) = tokio_tungstenite::connect_async(url)
-            .await
-            .expect("websocket connects");
-        let hello = hello_with(token, lightwire_protocol::HELLO_POSES);
-        ws.send(Message::Binary(encode_client(&hello).into()))
-            .await
-            .expect("send hello");
-        let mut peer = Peer::unhandshaken(ws);
+        let mut peer = Peer::open(url).await;
         peer.asked_poses = true;
-        peer.read_one(Duration::from_secs(10)).await;
-        assert!(peer.role.is_some(), "Welcome is the first frame");
-        peer
+        peer.greet(hello_with(token, lightwire_protocol::HELLO_POSES))
+            .await
     }
 
     /// Says `Hello` on an open socket and reads the `Welcome`.
-    pub async fn hello(mut ws: Ws, token: &str) -> Peer {
-        ws.send(Message::Binary(encode_client(&hello_message(token)).into()))
-            .await
-            .expect("send hello");
-        let mut peer = Peer::unhandshaken(ws);
-        peer.read_one(Duration::from_secs(10)).await;
-        assert!(peer.role.is_some(), "Welcome is the first frame");
-        peer
+    pub async fn hello(ws: Ws, token: &str) -> Peer {
+        Peer::unhandshaken(ws).greet(hello_message(token)).await
+    }
+
+    /// Says `hello` and reads the `Welcome`, which must come first.
+    async fn greet(mut self, hello: ClientMessage) -> Peer {
+        self.send(&hello).await;
+        self.read_one(Duration::from_secs(10)).await;
+        assert!(self.role.is_some(), "Welcome is the first frame");
+        self
     }
 
     pub async fn send(&mut self, message: &ClientMessage) {
@@ -173,11 +181,14 @@ impl Peer {
                 role,
                 scene,
                 protocol_version,
+                capabilities,
                 ..
             } => {
                 assert_eq!(protocol_version, PROTOCOL_VERSION);
                 self.role = Some(role);
+                self.capabilities = capabilities;
                 self.map = Some(Lightmap::for_scene(&scene).expect("valid scene info"));
+                self.scene = Some(scene);
             }
             ServerMessage::Keyframe(k) => {
                 let map = self.map.as_mut().expect("Welcome came first");
@@ -248,6 +259,24 @@ impl Peer {
             version,
             "overshot: the server published more than expected"
         );
+    }
+
+    /// Reads frames until `done` holds of the peer, for at most `limit`;
+    /// panics, saying what it waited for, if the time runs out or the
+    /// connection ends first.
+    pub async fn read_until(&mut self, limit: Duration, what: &str, done: impl Fn(&Peer) -> bool) {
+        let deadline = Instant::now() + limit;
+        while !done(self) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.read_frame(left).await {
+                Read::Frame => {}
+                Read::Timeout => panic!("timed out after {limit:?} waiting for {what}"),
+                Read::Closed => panic!(
+                    "the connection ended at version {} waiting for {what}",
+                    self.version()
+                ),
+            }
+        }
     }
 
     /// Reads frames for `time`; the connection must stay open.

@@ -25,3 +25,13 @@ pub fn transform(object: u32, seq: u64, pose: Pose) -> ClientMessage {
         client_time_us: 0,
     }
 }
+
+/// Checks that `got`, a pose the server sent back (in `Poses`), is `want`
+/// as a client sent it: the same translation, the rotation within 1e-6 per
+/// component (the server keeps it normalized).
+pub fn assert_same_pose(got: &Pose, want: &Pose) {
+    assert_eq!(got.translation, want.translation, "{got:?} vs {want:?}");
+    for (g, w) in got.rotation.iter().zip(want.rotation) {
+        assert!((g - w).abs() < 1e-6, "{got:?} vs {want:?}");
+    }
+}

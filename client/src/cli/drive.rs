@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use hdrhistogram::Histogram;
 use lightwire_client::script::Script;
-use lightwire_client::{Client, ErrorCode, Event, Options, Role};
+use lightwire_client::{Client, ErrorCode, Event, Role};
 
 use super::{ServerArgs, ms, parse_duration, parse_rate, pick_object};
 
@@ -49,11 +49,7 @@ pub fn run(args: DriveArgs) -> Result<()> {
 
 async fn drive(args: DriveArgs, script: Script) -> Result<()> {
     let endpoint = args.server.endpoint()?;
-    let options = Options {
-        token: args.server.token(),
-        client_name: concat!("lightwire-client/", env!("CARGO_PKG_VERSION"), " drive").into(),
-        ..Options::default()
-    };
+    let options = args.server.options("drive");
     let mut client = Client::connect_with(endpoint.clone(), options).await?;
     if client.role() == Role::Viewer {
         bail!(

@@ -8,38 +8,7 @@ pub mod watch;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use lightwire_client::Endpoint;
-
-/// Where to connect, with what token. See `Endpoint::parse` for the URL
-/// forms.
-#[derive(clap::Args, Debug, Clone)]
-pub struct ServerArgs {
-    /// The server: its base address `http://HOST:PORT` (then --scene
-    /// picks the scene) or the WebSocket URL `ws://HOST:PORT/ws/scenes/ID`.
-    pub url: String,
-    /// Scene id (`GET /api/scenes` lists them); not needed when the URL
-    /// ends in /ws/scenes/ID.
-    #[arg(long)]
-    pub scene: Option<String>,
-    /// Access token [env: LIGHTWIRE_TOKEN]; omit only for a `--dev` server.
-    #[arg(long)]
-    pub token: Option<String>,
-}
-
-impl ServerArgs {
-    /// The parsed endpoint.
-    pub fn endpoint(&self) -> Result<Endpoint> {
-        Ok(Endpoint::parse(&self.url, self.scene.as_deref())?)
-    }
-
-    /// `--token`, else `LIGHTWIRE_TOKEN`, else none.
-    pub fn token(&self) -> Option<String> {
-        self.token
-            .clone()
-            .or_else(|| std::env::var("LIGHTWIRE_TOKEN").ok())
-            .filter(|t| !t.is_empty())
-    }
-}
+pub use lightwire_client::endpoint::ServerArgs;
 
 /// Parses `20s`, `1.5m`, `500ms`, `2h` or a bare number of seconds.
 pub fn parse_duration(text: &str) -> Result<Duration, String> {

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use lightwire_client::latency::{seq_clock_age, unix_micros};
-use lightwire_client::{Client, Event, Options};
+use lightwire_client::{Client, Event};
 
 use super::{ServerArgs, parse_duration};
 
@@ -43,11 +43,7 @@ pub fn run(args: WatchArgs) -> Result<()> {
 
 async fn watch(args: WatchArgs) -> Result<()> {
     let endpoint = args.server.endpoint()?;
-    let options = Options {
-        token: args.server.token(),
-        client_name: concat!("lightwire-client/", env!("CARGO_PKG_VERSION"), " watch").into(),
-        ..Options::default()
-    };
+    let options = args.server.options("watch");
     let mut client = Client::connect_with(endpoint.clone(), options).await?;
     let scene = client.scene();
     eprintln!(

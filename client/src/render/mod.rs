@@ -34,27 +34,23 @@
 //! texture and the render targets only when their sizes change.
 
 pub mod camera;
-mod device;
 pub mod geometry;
 pub mod reference;
 mod renderer;
 pub mod tonemap;
 
 pub use camera::{Camera, CameraError, CameraSpec};
+pub use lightwire_adapter::AdapterError;
 pub use renderer::{BACKGROUND, LightmapTexels, Renderer, Settings};
 
 /// Why a frame could not be rendered. Messages name the input at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
-    /// No adapter on any backend.
-    #[error("{}", lightwire_adapter::NO_ADAPTER)]
-    NoAdapter,
-    /// `--adapter NAME` matched none of the adapters present.
-    #[error("{}", lightwire_adapter::no_matching_adapter(.wanted, .available))]
-    NoMatchingAdapter { wanted: String, available: String },
-    /// The adapter refused to create a device.
-    #[error("{}", lightwire_adapter::request_device_failed(.adapter, .message))]
-    RequestDevice { adapter: String, message: String },
+    /// No adapter, none matching `--adapter NAME`, or no device on it: the
+    /// rule and its messages are [`lightwire_adapter`]'s, which the
+    /// server's solvers share.
+    #[error(transparent)]
+    Adapter(#[from] AdapterError),
     /// The scene description cannot be drawn (a surface naming a missing
     /// object, a rectangle outside the atlas, non-finite corners, ...).
     #[error("scene: {0}")]

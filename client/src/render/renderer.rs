@@ -5,9 +5,9 @@ use glam::Mat4;
 use lightwire_protocol::lightmap::{Lightmap, quantize_into};
 use lightwire_protocol::{PixelFormat, Pose, SceneInfo};
 
+use super::RenderError;
 use super::camera::Camera;
 use super::geometry::{self, Vertex};
-use super::{RenderError, device};
 
 /// The clear colour, 8-bit sRGB: the dashboard's background
 /// (`view3d.js` BACKGROUND = 0.07, 0.08, 0.1). Pixels that show no surface
@@ -156,7 +156,11 @@ impl Renderer {
     }
 
     async fn new_async(adapter: Option<&str>) -> Result<Renderer, RenderError> {
-        let (adapter, device, queue) = device::open(adapter).await?;
+        // The adapter by the rule the server's solvers follow too, and a
+        // device with its limits (large images and atlases need more than
+        // wgpu's defaults).
+        let (adapter, device, queue) =
+            lightwire_adapter::open(adapter, "lightwire-client view").await?;
         let info = adapter.get_info();
         let max_dimension = device.limits().max_texture_dimension_2d;
         let msaa = |format| {

@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use super::{Lightmap, TileRect, ZSTD_LEVEL, compress_tile, dequantize, quantize_into, residual};
-use crate::{Delta, Keyframe, ObjectSeq, PixelFormat, Tile};
+use crate::{Delta, Keyframe, ObjectSeq, PixelFormat};
 
 /// Default absolute floor of the change rule: changes among values below
 /// this are judged against `epsilon * floor` rather than against the values
@@ -273,23 +273,7 @@ impl Encoder {
     /// Every tile of the current state, with the latest seq per object
     /// reflected so far (sorted by object).
     pub fn keyframe(&self) -> Keyframe {
-        Keyframe {
-            version: self.current.version,
-            reflected: self
-                .reflected
-                .iter()
-                .map(|(&object, &seq)| ObjectSeq { object, seq })
-                .collect(),
-            tiles: self
-                .compressed
-                .iter()
-                .enumerate()
-                .map(|(i, data)| Tile {
-                    index: i as u32,
-                    data: data.clone(),
-                })
-                .collect(),
-        }
+        Keyframe::new(self.current.version, &self.reflected, &self.compressed)
     }
 
     /// The current (last published) state: exactly what a client holds.

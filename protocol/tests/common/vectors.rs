@@ -189,6 +189,30 @@ pub fn scene_with_uvs() -> SceneInfo {
     scene
 }
 
+/// The `Hello` of the vectors' client "lw/1".
+fn hello(token: Option<&str>, capabilities: u32) -> Msg {
+    Msg::Client(ClientMessage::Hello {
+        protocol_version: PROTOCOL_VERSION,
+        client: "lw/1".into(),
+        token: token.map(Into::into),
+        capabilities,
+    })
+}
+
+/// The capabilities of a server that serves `scene.glb` and sends `Poses`.
+const GLB_AND_POSES: u32 = CAP_SCENE_GLB | CAP_POSES;
+
+/// The `Welcome` of the vectors' server "lightwire/0.1" to a driver.
+pub fn welcome(capabilities: u32, scene: SceneInfo) -> ServerMessage {
+    ServerMessage::Welcome {
+        protocol_version: PROTOCOL_VERSION,
+        server: "lightwire/0.1".into(),
+        role: Role::Driver,
+        capabilities,
+        scene,
+    }
+}
+
 pub fn all() -> Vec<Vector> {
     use ClientMessage as C;
     use ServerMessage as S;
@@ -196,22 +220,12 @@ pub fn all() -> Vec<Vector> {
         Vector {
             name: "client_hello",
             description: "Hello with a token: protocol 3, client \"lw/1\", token \"t0k\", no capabilities",
-            msg: Msg::Client(C::Hello {
-                protocol_version: PROTOCOL_VERSION,
-                client: "lw/1".into(),
-                token: Some("t0k".into()),
-                capabilities: 0,
-            }),
+            msg: hello(Some("t0k"), 0),
         },
         Vector {
             name: "client_hello_no_token",
             description: "Hello in development mode (token None); capabilities 0x1_0000 shows a 4-byte varint",
-            msg: Msg::Client(C::Hello {
-                protocol_version: PROTOCOL_VERSION,
-                client: "lw/1".into(),
-                token: None,
-                capabilities: 0x1_0000,
-            }),
+            msg: hello(None, 0x1_0000),
         },
         Vector {
             name: "client_transform",
@@ -247,24 +261,12 @@ pub fn all() -> Vec<Vector> {
         Vector {
             name: "server_welcome",
             description: "Welcome as a driver to scene \"cornell\": 3x2 RGB9E5 atlas, tile size 2, one dynamic object, one material, one surface",
-            msg: Msg::Server(S::Welcome {
-                protocol_version: PROTOCOL_VERSION,
-                server: "lightwire/0.1".into(),
-                role: Role::Driver,
-                capabilities: 0,
-                scene: scene(),
-            }),
+            msg: Msg::Server(welcome(0, scene())),
         },
         Vector {
             name: "server_welcome_scene_glb",
             description: "Welcome as server_welcome, with capability bit 0 (CAP_SCENE_GLB): the scene's glTF binary is at /api/scenes/cornell/scene.glb",
-            msg: Msg::Server(S::Welcome {
-                protocol_version: PROTOCOL_VERSION,
-                server: "lightwire/0.1".into(),
-                role: Role::Driver,
-                capabilities: lightwire_protocol::CAP_SCENE_GLB,
-                scene: scene(),
-            }),
+            msg: Msg::Server(welcome(CAP_SCENE_GLB, scene())),
         },
         Vector {
             name: "server_keyframe",
@@ -308,23 +310,12 @@ pub fn all() -> Vec<Vector> {
         Vector {
             name: "client_hello_poses",
             description: "Hello as client_hello with capability bit 0 (HELLO_POSES): send me Poses",
-            msg: Msg::Client(C::Hello {
-                protocol_version: PROTOCOL_VERSION,
-                client: "lw/1".into(),
-                token: Some("t0k".into()),
-                capabilities: lightwire_protocol::HELLO_POSES,
-            }),
+            msg: hello(Some("t0k"), lightwire_protocol::HELLO_POSES),
         },
         Vector {
             name: "server_welcome_poses",
             description: "Welcome as server_welcome, with capability bits 0 and 1 (CAP_SCENE_GLB | CAP_POSES): the server sends Poses to clients that ask",
-            msg: Msg::Server(S::Welcome {
-                protocol_version: PROTOCOL_VERSION,
-                server: "lightwire/0.1".into(),
-                role: Role::Driver,
-                capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
-                scene: scene(),
-            }),
+            msg: Msg::Server(welcome(GLB_AND_POSES, scene())),
         },
         Vector {
             name: "server_poses",
@@ -345,13 +336,7 @@ pub fn all() -> Vec<Vector> {
         Vector {
             name: "server_welcome_uvs",
             description: "Welcome as server_welcome_poses, with a second surface: a triangle (third corner repeated) lit on its mesh's own lightmap UVs, its corners' lightmap coordinates in uvs (u, v) = (0.25, 0.75), (0.75, 0.75), (0.5, 0.25), (0.5, 0.25)",
-            msg: Msg::Server(S::Welcome {
-                protocol_version: PROTOCOL_VERSION,
-                server: "lightwire/0.1".into(),
-                role: Role::Driver,
-                capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
-                scene: scene_with_uvs(),
-            }),
+            msg: Msg::Server(welcome(GLB_AND_POSES, scene_with_uvs())),
         },
         Vector {
             name: "server_pong",

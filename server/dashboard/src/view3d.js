@@ -168,6 +168,26 @@ function compile(gl, vertex, fragment) {
   return program;
 }
 
+/**
+ * A vertex array, left bound, over a new buffer of `data` (floats): one
+ * attribute per entry of `sizes` (its float count), at locations 0, 1, ...,
+ * interleaved. Returns the vertex array and its buffer.
+ */
+function vertexArray(gl, data, sizes) {
+  const vao = gl.createVertexArray();
+  gl.bindVertexArray(vao);
+  const buffer = gl.createBuffer();
+  gl.bindBuffer(gl.ARRAY_BUFFER, buffer);
+  gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(data), gl.STATIC_DRAW);
+  const stride = 4 * sizes.reduce((a, b) => a + b, 0);
+  let offset = 0;
+  sizes.forEach((size, location) => {
+    gl.enableVertexAttribArray(location);
+    gl.vertexAttribPointer(location, size, gl.FLOAT, false, stride, offset);
+    offset += 4 * size;
+  });
+  return [vao, buffer];
+}
 
 /**
  * The lightmap coordinates of a surface's four corners (PROTOCOL.md §3):
@@ -271,25 +291,12 @@ export class View3D {
         const b = k * 4;
         indices.push(b, b + 1, b + 2, b, b + 2, b + 3);
       });
-      const vao = gl.createVertexArray();
-      gl.bindVertexArray(vao);
-      const vbo = gl.createBuffer();
-      gl.bindBuffer(gl.ARRAY_BUFFER, vbo);
-      gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(vertices), gl.STATIC_DRAW);
-      gl.enableVertexAttribArray(0);
-      gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 20, 0);
-      gl.enableVertexAttribArray(1);
-      gl.vertexAttribPointer(1, 2, gl.FLOAT, false, 20, 12);
+      // Position and atlas UV per vertex; the indices belong to this VAO.
+      const [vao, vbo] = vertexArray(gl, vertices, [3, 2]);
       const ibo = gl.createBuffer();
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ibo);
       gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint32Array(indices), gl.STATIC_DRAW);
-      const lineVao = gl.createVertexArray();
-      gl.bindVertexArray(lineVao);
-      const lbo = gl.createBuffer();
-      gl.bindBuffer(gl.ARRAY_BUFFER, lbo);
-      gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(lines), gl.STATIC_DRAW);
-      gl.enableVertexAttribArray(0);
-      gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 12, 0);
+      const [lineVao, lbo] = vertexArray(gl, lines, [3]);
       gl.bindVertexArray(null);
       return {
         info,
