@@ -109,9 +109,6 @@ impl Texture {
         }
         let rgb = image.to_rgb32f();
         let (width, height) = rgb.dimensions();
-        if width == 0 || height == 0 {
-            return Err("the image has no pixels".to_string());
-        }
         // `to_rgb32f` maps 8- and 16-bit channels to [0, 1] without touching
         // the transfer function, so the sRGB decoding is still to do.
         let texels = rgb
@@ -124,14 +121,9 @@ impl Texture {
                 )
             })
             .collect();
-        Ok(Texture {
-            name: name.to_string(),
-            width,
-            height,
-            texels,
-            wrap,
-            filter,
-        })
+        // The texels match the dimensions: only an empty image is refused.
+        Texture::from_linear(name, width, height, texels, wrap, filter)
+            .ok_or_else(|| "the image has no pixels".to_string())
     }
 
     /// A texture from linear texels (row-major, `width × height`), for tests

@@ -83,6 +83,27 @@ fn compared(
     )
 }
 
+/// The relative errors `|V_i - R_i| / |R_i|`, sorted, of the `picked`
+/// elements whose `|R_i|` is above [`P95_FLOOR`] of the area-weighted mean
+/// `magnitude / total_area`.
+fn relative_errors(
+    picked: &[usize],
+    values: &[Vec3],
+    reference: &[Vec3],
+    (magnitude, total_area): (f64, f64),
+) -> Vec<f64> {
+    let floor = P95_FLOOR * magnitude / total_area;
+    let mut relative: Vec<f64> = picked
+        .iter()
+        .filter_map(|&i| {
+            let r = reference[i].as_dvec3().length();
+            (r > floor).then(|| (values[i].as_dvec3() - reference[i].as_dvec3()).length() / r)
+        })
+        .collect();
+    relative.sort_by(f64::total_cmp);
+    relative
+}
+
 /// [`accuracy`] over the non-emitting elements `i` for which `keep(i)`
 /// (elements that stand for no surface are always left out).
 pub fn accuracy_where(
@@ -104,15 +125,7 @@ pub fn accuracy_where(
     if norm <= 0.0 || total_area <= 0.0 {
         return None;
     }
-    let floor = P95_FLOOR * magnitude / total_area;
-    let mut relative: Vec<f64> = picked
-        .iter()
-        .filter_map(|&i| {
-            let r = reference[i].as_dvec3().length();
-            (r > floor).then(|| (values[i].as_dvec3() - reference[i].as_dvec3()).length() / r)
-        })
-        .collect();
-    relative.sort_by(f64::total_cmp);
+    let relative = relative_errors(&picked, values, reference, (magnitude, total_area));
     let p95_rel = match relative.len() {
         0 => 0.0,
         len => relative[((0.95 * len as f64).ceil() as usize).clamp(1, len) - 1],
@@ -181,15 +194,7 @@ pub fn agreement(
     if total_area <= 0.0 || magnitude <= 0.0 {
         return None;
     }
-    let floor = P95_FLOOR * magnitude / total_area;
-    let mut relative: Vec<f64> = picked
-        .iter()
-        .filter_map(|&i| {
-            let r = reference[i].as_dvec3().length();
-            (r > floor).then(|| (values[i].as_dvec3() - reference[i].as_dvec3()).length() / r)
-        })
-        .collect();
-    relative.sort_by(f64::total_cmp);
+    let relative = relative_errors(&picked, values, reference, (magnitude, total_area));
     let count = relative.len();
     if count == 0 {
         return None;

@@ -309,6 +309,18 @@ fn reference_lightmap_at_contacts_agrees_with_the_path_tracer() {
     assert_contract(&verdict, "reference", setup.contacts.len());
 }
 
+/// The progressive GPU solver over `setup` with the default options.
+fn progressive(gpu: &Device, setup: &Setup) -> ProgressiveSolver {
+    ProgressiveSolver::new(
+        gpu,
+        &setup.scene,
+        &setup.atlas,
+        &setup.poses,
+        ProgressiveOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
 /// The same for the progressive GPU solver converged to 1e-4 unshot.
 #[test]
 fn progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
@@ -316,14 +328,7 @@ fn progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
     let gpu = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
     eprintln!("adapter: {}", gpu.describe());
     let started = Instant::now();
-    let mut solver = ProgressiveSolver::new(
-        &gpu,
-        &setup.scene,
-        &setup.atlas,
-        &setup.poses,
-        ProgressiveOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = progressive(&gpu, setup);
     let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
     let values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
     eprintln!(
@@ -360,14 +365,7 @@ fn corrected_progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
     let setup = setup();
     let gpu = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
     let started = Instant::now();
-    let mut solver = ProgressiveSolver::new(
-        &gpu,
-        &setup.scene,
-        &setup.atlas,
-        &setup.poses,
-        ProgressiveOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = progressive(&gpu, setup);
     solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
     let mut correction = Correction::new(
         &gpu,

@@ -48,20 +48,9 @@ fn lamp(x0: f64, x1: f64) -> [DVec3; 4] {
 #[test]
 fn unshadowed_irradiance_is_e_times_the_exact_form_factor() {
     let (scene, atlas) = common::parse(&lamp_scene(false));
-    let caster = Raycaster::new(&scene, &scene.initial_poses());
-    let emitters = Emitters::of(&scene);
-    for (dx, dz) in [(0.0, 0.0), (0.5, 0.3), (2.5, -1.0)] {
-        let x = DVec3::new(dx, 1e-6, dz);
-        let h = emitters.irradiance(&caster, &atlas, x, DVec3::Y, GRID, |j| {
-            atlas.elements[j].emission
-        });
-        let expected = 3.0 * form_factor(x, DVec3::Y, &lamp(-0.5, 0.5));
-        let got = f64::from(h.x);
-        assert!(
-            (got - expected).abs() <= 1e-5 * expected,
-            "({dx}, {dz}): {got} vs {expected}"
-        );
-    }
+    common::assert_floor_irradiance(&scene, &atlas, [(0.0, 0.0), (0.5, 0.3), (2.5, -1.0)], |x| {
+        3.0 * form_factor(x, DVec3::Y, &lamp(-0.5, 0.5))
+    });
 }
 
 /// Under the plate's edge the point sees exactly the half of the light

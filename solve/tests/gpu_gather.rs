@@ -73,17 +73,7 @@ fn plates_implied_form_factor_within_one_percent_of_0_19982() {
     assert_eq!(report.bounces, 2, "{report:?}");
     assert_eq!(report.change_fraction, 0.0, "{report:?}");
     let b = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
-    let receiver = atlas.elements_of(1);
-    let area: f64 = receiver
-        .clone()
-        .map(|i| f64::from(atlas.elements[i].area))
-        .sum();
-    let mean: f64 = receiver
-        .map(|i| f64::from(atlas.elements[i].area) * f64::from(b[i].x))
-        .sum::<f64>()
-        / area;
-    let rho = f64::from(scene.materials[1].albedo.x);
-    let f = mean / (rho * 1.0);
+    let f = common::implied_form_factor(&scene, &atlas, &b);
     eprintln!(
         "plates: implied F = {f:.5} ({:+.2}%), {:.2} s",
         100.0 * (f - 0.19982) / 0.19982,

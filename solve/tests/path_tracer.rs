@@ -14,21 +14,6 @@ use lightwire_solve::accuracy;
 use lightwire_solve::pathtrace::{self, Estimate, PathTracer, Silent, SurfacePoint};
 use lightwire_solve::reference::{self, ReferenceSolver, SolveOptions};
 
-/// Lambert's formula for the form factor from a differential area at `x`
-/// with unit normal `n` to a polygon entirely above its horizon:
-/// `F = (1/2π) Σ_i γ_i n · (r_i × r_{i+1}) / |r_i × r_{i+1}|`, where
-/// `r_i = v_i − x` and `γ_i` is the angle between `r_i` and `r_{i+1}`.
-fn lambert(x: DVec3, n: DVec3, polygon: &[DVec3]) -> f64 {
-    let mut sum = 0.0;
-    for i in 0..polygon.len() {
-        let (a, b) = (polygon[i] - x, polygon[(i + 1) % polygon.len()] - x);
-        let c = a.cross(b);
-        let gamma = a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos();
-        sum += gamma * n.dot(c / c.length());
-    }
-    (sum / (2.0 * PI)).abs()
-}
-
 /// The form factor from a point on the axis of a square of half side `a`
 /// at distance `h`, facing it. Split the square into four `a × a` squares
 /// with a corner on the axis; for a rectangle `b × c` with a corner on the
@@ -62,7 +47,7 @@ fn closed_forms_agree() {
     };
     for (a, h) in [(0.5, 1.0), (0.25, 2.0), (1.0, 0.3)] {
         let closed = on_axis_square(a, h);
-        let polygon = lambert(DVec3::ZERO, DVec3::Y, &square(a, h));
+        let polygon = common::lambert(DVec3::ZERO, DVec3::Y, &square(a, h));
         assert!(
             (closed - polygon).abs() < 1e-12,
             "{a} {h}: {closed} vs {polygon}"
@@ -99,7 +84,7 @@ fn closed_forms_agree() {
                 0.0,
                 (f64::from(j) + 0.5) / f64::from(k) - 0.5,
             );
-            mean += lambert(x, DVec3::Y, &square(0.5, 1.0)) / f64::from(k * k);
+            mean += common::lambert(x, DVec3::Y, &square(0.5, 1.0)) / f64::from(k * k);
         }
     }
     assert!((mean - 0.19982).abs() < 2e-5, "area-to-area {mean}");
@@ -250,7 +235,7 @@ fn direct_irradiance_under_a_square_light_matches_lamberts_formula() {
         .enumerate()
     {
         let x = DVec3::new(dx, 0.0, dz);
-        let expected = 3.0 * lambert(x, DVec3::Y, &lamp);
+        let expected = 3.0 * common::lambert(x, DVec3::Y, &lamp);
         let h = tracer.estimate_irradiance(x, DVec3::Y, spp, k as u64);
         assert!(
             within(&h, DVec3::splat(expected), 1e-4 * expected),
@@ -289,30 +274,7 @@ fn direct_irradiance_under_a_square_light_matches_lamberts_formula() {
 /// tracer.
 #[test]
 fn path_tracer_agrees_with_the_reference_solver_in_a_coloured_room() {
-    let (scene, atlas) = common::parse(
-        r#"{
-        "name": "coloured-room", "lightmap": { "texel_density": 6 },
-        "materials": [
-            { "name": "white", "albedo": [0.7, 0.7, 0.7] },
-            { "name": "red", "albedo": [0.65, 0.1, 0.08] },
-            { "name": "green", "albedo": [0.12, 0.5, 0.1] },
-            { "name": "light", "albedo": [0.5, 0.5, 0.5], "emission": [20, 20, 20] }
-        ],
-        "surfaces": [
-            { "name": "floor", "material": "white", "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } },
-            { "name": "back", "material": "white", "quad": { "origin": [0, 0, 0], "u": [2, 0, 0], "v": [0, 2, 0] } },
-            { "name": "front", "material": "white", "quad": { "origin": [0, 0, 2], "u": [0, 2, 0], "v": [2, 0, 0] } },
-            { "name": "left", "material": "red", "quad": { "origin": [0, 0, 0], "u": [0, 2, 0], "v": [0, 0, 2] } },
-            { "name": "right", "material": "green", "quad": { "origin": [2, 0, 0], "u": [0, 0, 2], "v": [0, 2, 0] } },
-            { "name": "ceiling-back", "material": "white", "quad": { "origin": [0, 2, 0], "u": [2, 0, 0], "v": [0, 0, 0.7] } },
-            { "name": "ceiling-front", "material": "white", "quad": { "origin": [0, 2, 1.3], "u": [2, 0, 0], "v": [0, 0, 0.7] } },
-            { "name": "ceiling-left", "material": "white", "quad": { "origin": [0, 2, 0.7], "u": [0.7, 0, 0], "v": [0, 0, 0.6] } },
-            { "name": "ceiling-right", "material": "white", "quad": { "origin": [1.3, 2, 0.7], "u": [0.7, 0, 0], "v": [0, 0, 0.6] } },
-            { "name": "light", "material": "light", "texel_density": 20, "quad": { "origin": [0.7, 2, 0.7], "u": [0.6, 0, 0], "v": [0, 0, 0.6] } },
-            { "name": "occluder", "material": "white", "box": { "center": [0.9, 0.7, 1.1], "size": [0.6, 0.4, 0.6] } }
-        ]
-    }"#,
-    );
+    let (scene, atlas) = common::parse(common::ROOM);
     let poses = scene.initial_poses();
     let started = Instant::now();
     let reference =

@@ -17,22 +17,6 @@ use lightwire_solve::raycast::Raycaster;
 use lightwire_solve::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_solve::validity::Validity;
 
-/// Lambert's formula for the form factor from a differential area at `x`
-/// with unit normal `n` to a convex polygon entirely above its horizon:
-/// `F = (1/2π) Σ_i γ_i n · (r_i × r_{i+1}) / |r_i × r_{i+1}|`, `r_i = v_i − x`,
-/// `γ_i` the angle between `r_i` and `r_{i+1}`. Written out here so that
-/// the tests do not check the solvers against their own form factor.
-fn lambert(x: DVec3, n: DVec3, polygon: &[DVec3]) -> f64 {
-    let mut sum = 0.0;
-    for i in 0..polygon.len() {
-        let (a, b) = (polygon[i] - x, polygon[(i + 1) % polygon.len()] - x);
-        let c = a.cross(b);
-        let gamma = a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos();
-        sum += gamma * n.dot(c / c.length());
-    }
-    (sum / (2.0 * PI)).abs()
-}
-
 /// Height of the lamp.
 const LAMP_Y: f64 = 1.5;
 /// The lamp's emission (W/m²).
@@ -96,8 +80,8 @@ fn closed_forms_agree() {
     let other = [a, c, DVec3::new(-0.5, LAMP_Y, 0.5)];
     let x = DVec3::ZERO;
     let (f_tri, f_other) = (
-        lambert(x, DVec3::Y, &[a, b, c]),
-        lambert(x, DVec3::Y, &other),
+        common::lambert(x, DVec3::Y, &[a, b, c]),
+        common::lambert(x, DVec3::Y, &other),
     );
     assert!(
         (f_tri + f_other - square).abs() < 1e-12,
@@ -108,8 +92,8 @@ fn closed_forms_agree() {
     let x = DVec3::new(0.3, 0.0, -0.2);
     eprintln!(
         "{} {}",
-        lambert(x, DVec3::Y, &[a, b, c]),
-        lambert(x, DVec3::Y, &other)
+        common::lambert(x, DVec3::Y, &[a, b, c]),
+        common::lambert(x, DVec3::Y, &other)
     );
 }
 
@@ -122,20 +106,9 @@ fn closed_forms_agree() {
 fn emitters_under_a_triangular_light_match_lamberts_formula() {
     let (scene, atlas) = common::parse(&lamp_scene(false));
     assert!(scene.patches[0].shape.is_triangle());
-    let caster = Raycaster::new(&scene, &scene.initial_poses());
-    let emitters = Emitters::of(&scene);
-    for (dx, dz) in FLOOR_POINTS {
-        let x = DVec3::new(dx, 1e-6, dz);
-        let h = emitters.irradiance(&caster, &atlas, x, DVec3::Y, GRID, |j| {
-            atlas.elements[j].emission
-        });
-        let expected = LAMP_E * lambert(x, DVec3::Y, &lamp());
-        let got = f64::from(h.x);
-        assert!(
-            (got - expected).abs() <= 1e-5 * expected,
-            "({dx}, {dz}): {got} vs {expected}"
-        );
-    }
+    common::assert_floor_irradiance(&scene, &atlas, FLOOR_POINTS, |x| {
+        LAMP_E * common::lambert(x, DVec3::Y, &lamp())
+    });
 }
 
 /// Half shadowed by the plate (edge at x = 0, half-way up), a floor point
@@ -161,9 +134,9 @@ fn emitters_under_a_half_shadowed_triangular_light_follow_its_visible_part() {
             DVec3::new(0.5, LAMP_Y, 0.5),
             DVec3::new(c, LAMP_Y, c),
         ];
-        let expected = LAMP_E * lambert(x, DVec3::Y, &visible);
+        let expected = LAMP_E * common::lambert(x, DVec3::Y, &visible);
         let got = f64::from(h.x);
-        let open = LAMP_E * lambert(x, DVec3::Y, &lamp());
+        let open = LAMP_E * common::lambert(x, DVec3::Y, &lamp());
         assert!(
             (got - expected).abs() <= 0.02 * expected,
             "x0 = {x0}: {got} vs {expected} (unshadowed {open})"
@@ -182,7 +155,7 @@ fn path_tracer_under_a_triangular_light_matches_lamberts_formula() {
     let spp = 8192;
     for (k, (dx, dz)) in FLOOR_POINTS.into_iter().enumerate() {
         let x = DVec3::new(dx, 0.0, dz);
-        let expected = LAMP_E * lambert(x, DVec3::Y, &lamp());
+        let expected = LAMP_E * common::lambert(x, DVec3::Y, &lamp());
         let h = tracer.estimate_irradiance(x, DVec3::Y, spp, k as u64);
         let (mean, se) = (f64::from(h.mean.x), f64::from(h.std_error.x));
         assert!(
@@ -241,31 +214,6 @@ fn path_tracer_traces_only_the_texels_that_stand_for_surface() {
     );
 }
 
-/// A closed 2 m room of quads (red and green side walls, a ceiling light
-/// flush with the ceiling, a floating box that shadows the floor).
-const ROOM: &str = r#"{
-    "name": "room", "lightmap": { "texel_density": 6 },
-    "materials": [
-        { "name": "white", "albedo": [0.7, 0.7, 0.7] },
-        { "name": "red", "albedo": [0.65, 0.1, 0.08] },
-        { "name": "green", "albedo": [0.12, 0.5, 0.1] },
-        { "name": "light", "albedo": [0.5, 0.5, 0.5], "emission": [20, 20, 20] }
-    ],
-    "surfaces": [
-        { "name": "floor", "material": "white", "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } },
-        { "name": "back", "material": "white", "quad": { "origin": [0, 0, 0], "u": [2, 0, 0], "v": [0, 2, 0] } },
-        { "name": "front", "material": "white", "quad": { "origin": [0, 0, 2], "u": [0, 2, 0], "v": [2, 0, 0] } },
-        { "name": "left", "material": "red", "quad": { "origin": [0, 0, 0], "u": [0, 2, 0], "v": [0, 0, 2] } },
-        { "name": "right", "material": "green", "quad": { "origin": [2, 0, 0], "u": [0, 0, 2], "v": [0, 2, 0] } },
-        { "name": "ceiling-back", "material": "white", "quad": { "origin": [0, 2, 0], "u": [2, 0, 0], "v": [0, 0, 0.7] } },
-        { "name": "ceiling-front", "material": "white", "quad": { "origin": [0, 2, 1.3], "u": [2, 0, 0], "v": [0, 0, 0.7] } },
-        { "name": "ceiling-left", "material": "white", "quad": { "origin": [0, 2, 0.7], "u": [0.7, 0, 0], "v": [0, 0, 0.6] } },
-        { "name": "ceiling-right", "material": "white", "quad": { "origin": [1.3, 2, 0.7], "u": [0.7, 0, 0], "v": [0, 0, 0.6] } },
-        { "name": "light", "material": "light", "texel_density": 20, "quad": { "origin": [0.7, 2, 0.7], "u": [0.6, 0, 0], "v": [0, 0, 0.6] } },
-        { "name": "occluder", "material": "white", "box": { "center": [0.9, 0.7, 1.1], "size": [0.6, 0.4, 0.6] } }
-    ]
-}"#;
-
 /// Solves `scene` with the reference solver; returns the point radiosity
 /// with invalid texels filled (as `bake` publishes it) and the absorbed
 /// power summed over channels.
@@ -313,7 +261,7 @@ fn reference_solve(
 /// energy error (reciprocity up to quadrature).
 #[test]
 fn reference_solver_on_a_triangulated_room_matches_the_quads() {
-    let (scene, atlas) = common::parse(ROOM);
+    let (scene, atlas) = common::parse(common::ROOM);
     let tri = scene.triangulated();
     let tri_atlas = lightwire_scene::atlas::Atlas::build(&tri).expect("triangulated room fits");
     let started = Instant::now();

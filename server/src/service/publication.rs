@@ -199,6 +199,22 @@ mod tests {
         })
     }
 
+    /// Encodes `rgb` as the next version and publishes it with its delta.
+    fn publish_delta(
+        publisher: &Publisher,
+        info: &Arc<SceneInfo>,
+        encoder: &mut Encoder,
+        rgb: &[[f32; 3]],
+    ) {
+        let delta = encoder.publish(rgb, vec![]);
+        publisher.publish(
+            info.clone(),
+            encoder.keyframe(),
+            Some(delta),
+            Arc::default(),
+        );
+    }
+
     fn image(width: u32, height: u32, step: u32, changed_tiles: u32) -> Vec<[f32; 3]> {
         // Tile columns 0..changed_tiles brighten with `step`.
         (0..width * height)
@@ -230,13 +246,7 @@ mod tests {
         for step in 1..=6 {
             // Version 1 sends every tile (onto the empty state); after
             // that only the first two tile columns change.
-            let delta = encoder.publish(&image(w, h, step, 2), vec![]);
-            publisher.publish(
-                info.clone(),
-                encoder.keyframe(),
-                Some(delta),
-                Arc::default(),
-            );
+            publish_delta(&publisher, &info, &mut encoder, &image(w, h, step, 2));
             states.push(encoder.state().clone());
         }
         let newest = rx.borrow().clone().expect("published");
@@ -303,13 +313,7 @@ mod tests {
         };
         let flat = vec![[0.5f32, 0.25, 0.125]; (w * h) as usize];
         for image in [noise(), noise(), flat] {
-            let delta = encoder.publish(&image, vec![]);
-            publisher.publish(
-                info.clone(),
-                encoder.keyframe(),
-                Some(delta),
-                Arc::default(),
-            );
+            publish_delta(&publisher, &info, &mut encoder, &image);
         }
         let newest = publisher.latest().expect("published");
         assert!(
@@ -326,24 +330,12 @@ mod tests {
         let mut encoder = Encoder::new(w, h, 8, PixelFormat::Rgb9e5, 0.0);
         let (publisher, _rx) = Publisher::new();
         for step in 1..=2 {
-            let delta = encoder.publish(&image(w, h, step, 1), vec![]);
-            publisher.publish(
-                info.clone(),
-                encoder.keyframe(),
-                Some(delta),
-                Arc::default(),
-            );
+            publish_delta(&publisher, &info, &mut encoder, &image(w, h, step, 1));
         }
         // A keyframe-only version, then a delta on it.
         let _ = encoder.publish(&image(w, h, 3, 1), vec![]);
         publisher.publish(info.clone(), encoder.keyframe(), None, Arc::default());
-        let delta = encoder.publish(&image(w, h, 4, 1), vec![]);
-        publisher.publish(
-            info.clone(),
-            encoder.keyframe(),
-            Some(delta),
-            Arc::default(),
-        );
+        publish_delta(&publisher, &info, &mut encoder, &image(w, h, 4, 1));
         let newest = publisher.latest().expect("published");
         assert!(newest.frame_for(3).is_some());
         assert!(
@@ -352,8 +344,7 @@ mod tests {
         );
         // Another scene description: no delta reaches across it either.
         let other = scene(w, h);
-        let delta = encoder.publish(&image(w, h, 5, 1), vec![]);
-        publisher.publish(other, encoder.keyframe(), Some(delta), Arc::default());
+        publish_delta(&publisher, &other, &mut encoder, &image(w, h, 5, 1));
         let newest = publisher.latest().expect("published");
         assert!(newest.frame_for(4).is_some(), "its own delta");
         assert!(newest.frame_for(3).is_none());

@@ -6,7 +6,9 @@
 // Each test binary compiles this module and uses only some helpers.
 #![allow(dead_code)]
 
-use glam::{Vec2, Vec3};
+use std::f64::consts::PI;
+
+use glam::{DVec3, Vec2, Vec3};
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{LoadOptions, Scene};
 
@@ -140,4 +142,87 @@ pub fn gpu() -> &'static lightwire_solve::gpu::Device {
         eprintln!("adapter: {}", device.describe());
         device
     })
+}
+
+/// A closed 2 m room of quads (red and green side walls, a ceiling light
+/// flush with the ceiling, a floating box that shadows the floor).
+pub const ROOM: &str = r#"{
+    "name": "coloured-room", "lightmap": { "texel_density": 6 },
+    "materials": [
+        { "name": "white", "albedo": [0.7, 0.7, 0.7] },
+        { "name": "red", "albedo": [0.65, 0.1, 0.08] },
+        { "name": "green", "albedo": [0.12, 0.5, 0.1] },
+        { "name": "light", "albedo": [0.5, 0.5, 0.5], "emission": [20, 20, 20] }
+    ],
+    "surfaces": [
+        { "name": "floor", "material": "white", "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } },
+        { "name": "back", "material": "white", "quad": { "origin": [0, 0, 0], "u": [2, 0, 0], "v": [0, 2, 0] } },
+        { "name": "front", "material": "white", "quad": { "origin": [0, 0, 2], "u": [0, 2, 0], "v": [2, 0, 0] } },
+        { "name": "left", "material": "red", "quad": { "origin": [0, 0, 0], "u": [0, 2, 0], "v": [0, 0, 2] } },
+        { "name": "right", "material": "green", "quad": { "origin": [2, 0, 0], "u": [0, 0, 2], "v": [0, 2, 0] } },
+        { "name": "ceiling-back", "material": "white", "quad": { "origin": [0, 2, 0], "u": [2, 0, 0], "v": [0, 0, 0.7] } },
+        { "name": "ceiling-front", "material": "white", "quad": { "origin": [0, 2, 1.3], "u": [2, 0, 0], "v": [0, 0, 0.7] } },
+        { "name": "ceiling-left", "material": "white", "quad": { "origin": [0, 2, 0.7], "u": [0.7, 0, 0], "v": [0, 0, 0.6] } },
+        { "name": "ceiling-right", "material": "white", "quad": { "origin": [1.3, 2, 0.7], "u": [0.7, 0, 0], "v": [0, 0, 0.6] } },
+        { "name": "light", "material": "light", "texel_density": 20, "quad": { "origin": [0.7, 2, 0.7], "u": [0.6, 0, 0], "v": [0, 0, 0.6] } },
+        { "name": "occluder", "material": "white", "box": { "center": [0.9, 0.7, 1.1], "size": [0.6, 0.4, 0.6] } }
+    ]
+}"#;
+
+/// Asserts that the emitters' irradiance (red channel) at the floor
+/// points `(x, 1e-6, z)`, facing up, is within 1e-5 (relative) of
+/// `expected` there.
+pub fn assert_floor_irradiance(
+    scene: &Scene,
+    atlas: &Atlas,
+    points: impl IntoIterator<Item = (f64, f64)>,
+    expected: impl Fn(DVec3) -> f64,
+) {
+    use lightwire_solve::direct::{Emitters, GRID};
+    let caster = lightwire_solve::raycast::Raycaster::new(scene, &scene.initial_poses());
+    let emitters = Emitters::of(scene);
+    for (dx, dz) in points {
+        let x = DVec3::new(dx, 1e-6, dz);
+        let h = emitters.irradiance(&caster, atlas, x, DVec3::Y, GRID, |j| {
+            atlas.elements[j].emission
+        });
+        let expected = expected(x);
+        let got = f64::from(h.x);
+        assert!(
+            (got - expected).abs() <= 1e-5 * expected,
+            "({dx}, {dz}): {got} vs {expected}"
+        );
+    }
+}
+
+/// The form factor between the two plates of `plates.json` implied by the
+/// radiosity `b`: the receiver's area-weighted mean over ρ E (E = 1).
+pub fn implied_form_factor(scene: &Scene, atlas: &Atlas, b: &[Vec3]) -> f64 {
+    let receiver = atlas.elements_of(1);
+    let area: f64 = receiver
+        .clone()
+        .map(|i| f64::from(atlas.elements[i].area))
+        .sum();
+    let mean: f64 = receiver
+        .map(|i| f64::from(atlas.elements[i].area) * f64::from(b[i].x))
+        .sum::<f64>()
+        / area;
+    let rho = f64::from(scene.materials[1].albedo.x);
+    mean / (rho * 1.0)
+}
+
+/// Lambert's formula for the form factor from a differential area at `x`
+/// with unit normal `n` to a convex polygon entirely above its horizon:
+/// `F = (1/2π) Σ_i γ_i n · (r_i × r_{i+1}) / |r_i × r_{i+1}|`, `r_i = v_i − x`,
+/// `γ_i` the angle between `r_i` and `r_{i+1}`. Written out here so that
+/// the tests do not check the solvers against their own form factor.
+pub fn lambert(x: DVec3, n: DVec3, polygon: &[DVec3]) -> f64 {
+    let mut sum = 0.0;
+    for i in 0..polygon.len() {
+        let (a, b) = (polygon[i] - x, polygon[(i + 1) % polygon.len()] - x);
+        let c = a.cross(b);
+        let gamma = a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos();
+        sum += gamma * n.dot(c / c.length());
+    }
+    (sum / (2.0 * PI)).abs()
 }
