@@ -11,6 +11,7 @@ use lightwire_scene::gltf::write::{
 };
 use lightwire_scene::gltf::{ImageSource, ImportOptions, ImportedScene, import, import_slice};
 use lightwire_scene::{Scene, SceneError};
+use lightwire_testkit::validator::khronos_validate;
 
 fn scenes_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes")
@@ -888,33 +889,7 @@ fn a_hundred_thousand_triangle_mesh_imports() {
     assert_eq!(scene.triangle_count(), 2 * n * n);
 }
 
-// ---- the Khronos validator -----------------------------------------------
-
-fn validator_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/gltf-validator")
-}
-
-/// Runs the Khronos glTF validator (npm `gltf-validator`, installed by
-/// `make test`) on files; returns (success, output).
-fn khronos_validate(files: &[&Path]) -> (bool, String) {
-    let dir = validator_dir();
-    assert!(
-        dir.join("node_modules/gltf-validator").is_dir(),
-        "{} has no node_modules/gltf-validator: run `npm ci` there (make test does)",
-        dir.display()
-    );
-    let out = std::process::Command::new("node")
-        .arg(dir.join("validate.mjs"))
-        .args(files)
-        .output()
-        .expect("run node");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
+// ---- the Khronos validator (lightwire_testkit::validator) -----------------
 
 #[test]
 fn khronos_validator_accepts_the_committed_meshes_and_refuses_a_broken_file() {

@@ -28,7 +28,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use lightwire_protocol::lightmap::{ApplyError, Lightmap};
-use lightwire_protocol::{Delta, Keyframe, ObjectPose, ObjectSeq, SceneInfo, Tile};
+use lightwire_protocol::{Delta, Keyframe, ObjectPose, ObjectSeq, SceneInfo};
 
 /// Why an upstream frame was not taken.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -135,23 +135,7 @@ impl Mirror {
 
     /// The state as a relay keyframe.
     pub fn keyframe(&self) -> Keyframe {
-        Keyframe {
-            version: self.map.version,
-            reflected: self
-                .reflected
-                .iter()
-                .map(|(&object, &seq)| ObjectSeq { object, seq })
-                .collect(),
-            tiles: self
-                .tiles
-                .iter()
-                .enumerate()
-                .map(|(index, data)| Tile {
-                    index: index as u32,
-                    data: data.clone(),
-                })
-                .collect(),
-        }
+        Keyframe::new(self.map.version, &self.reflected, &self.tiles)
     }
 
     /// Takes an upstream keyframe. `Ok(None)`: the state did not change,
