@@ -218,7 +218,19 @@ async fn a_client_that_stops_reading_costs_bounded_memory_and_resyncs() {
     let mut step = 0u32;
     let (stop, stopped) = tokio::sync::watch::channel(false);
     let fast_task = read_until_stopped(fast, stopped);
-    while stall.elapsed() < Duration::from_secs(10) {
+    // Long enough for the stalled socket to fill: 10 s and at least
+    // `STALL_VERSIONS` versions (a loaded machine solves fewer per second;
+    // about 23 come in 10 s on an idle one), at most a minute.
+    const STALL_VERSIONS: u64 = 20;
+    let published = |driver: &Peer| {
+        driver
+            .versions
+            .last()
+            .map_or(0, |v| v.saturating_sub(first))
+    };
+    while stall.elapsed() < Duration::from_secs(10)
+        || (published(&driver) < STALL_VERSIONS && stall.elapsed() < Duration::from_secs(60))
+    {
         step += 1;
         driver.transform(1, u64::from(step), pose_at(step)).await;
         tokio::time::sleep(Duration::from_millis(100)).await;
