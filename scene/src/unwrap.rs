@@ -219,6 +219,11 @@ fn neighbours(triangles: &[[Vec3; 3]]) -> Vec<Vec<u32>> {
             out[b as usize].push(a);
         }
     }
+    // The map's order is not stable from run to run; the charts grown from
+    // these lists must be.
+    for list in &mut out {
+        list.sort_unstable();
+    }
     out
 }
 
@@ -251,7 +256,7 @@ pub fn smooth_edges(triangles: &[[Vec3; 3]], normals: &[Option<[Vec3; 3]>]) -> V
         Some(normals.get(t).copied().flatten()?[k].normalize_or_zero())
     };
     let max_cos = SMOOTH_MAX_DEG.to_radians().cos();
-    let mut out: Vec<(u32, [Vec3; 2])> = edges
+    let mut out: Vec<(u64, [Vec3; 2])> = edges
         .iter()
         .filter_map(|(&(a, b), list)| {
             let [s, t] = list[..] else { return None };
@@ -266,7 +271,10 @@ pub fn smooth_edges(triangles: &[[Vec3; 3]], normals: &[Option<[Vec3; 3]>]) -> V
             }
             let k = corners[s].iter().position(|&c| c == a)?;
             let l = corners[s].iter().position(|&c| c == b)?;
-            Some((s as u32 * 3 + k as u32, [triangles[s][k], triangles[s][l]]))
+            Some((
+                (s as u64 * 3 + k as u64) * 3 + l as u64,
+                [triangles[s][k], triangles[s][l]],
+            ))
         })
         .collect();
     // In triangle order (the map's order is not stable).

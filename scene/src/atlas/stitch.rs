@@ -396,6 +396,8 @@ impl Finder<'_> {
         let patch = &self.scene.patches[p];
         let [cx, cy, cz] = self.space.key(x);
         let mut seen: Vec<u32> = Vec::new();
+        // Whether `x` is on a smooth edge: asked at most once per point.
+        let mut smooth_here: Option<bool> = None;
         for (dx, dy, dz) in neighbourhood() {
             let Some(list) = self.grid.get(&(patch.object, [cx + dx, cy + dy, cz + dz])) else {
                 continue;
@@ -410,7 +412,9 @@ impl Finder<'_> {
                 // asset shades smoothly.
                 let cos = self.scene.patches[q].shape.normal().dot(normal);
                 if cos < SEAM_COS
-                    && (cos < self.smooth_cos || !self.smooth.at(self.space, patch.object, x))
+                    && (cos < self.smooth_cos
+                        || !*smooth_here
+                            .get_or_insert_with(|| self.smooth.at(self.space, patch.object, x)))
                 {
                     continue;
                 }
