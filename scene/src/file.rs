@@ -83,6 +83,27 @@ pub struct ImportJson {
     /// Overrides the scene's texel density for these triangles.
     #[serde(default)]
     pub texel_density: Option<f64>,
+    /// Replaces the albedo or emission of imported materials by name
+    /// (`"*"`: every material not named): a level whose materials carry
+    /// only texture names, or whose lamps are textures, gets its light and
+    /// colours here.
+    #[serde(default)]
+    pub materials: std::collections::BTreeMap<String, MaterialOverrideJson>,
+}
+
+/// New values for an imported material; a field left out keeps the
+/// glTF's.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialOverrideJson {
+    /// Diffuse reflectance per channel, each in [0, 1); replaces the base
+    /// colour factor and texture.
+    #[serde(default)]
+    pub albedo: Option<Vec3Json>,
+    /// Self-emitted radiant exitance per channel in W/m², each >= 0 (not
+    /// multiplied by `emission_scale`).
+    #[serde(default)]
+    pub emission: Option<Vec3Json>,
 }
 
 /// Lightmap resolution settings for the whole scene.

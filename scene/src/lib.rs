@@ -71,6 +71,11 @@ pub struct Scene {
     /// at its own texel density: empty when it states none or when the
     /// scene was loaded at another density (`LoadOptions::density_scale`).
     pub solver: SolverHints,
+    /// What loading dropped or changed and went on past (zero-area and
+    /// duplicate triangles of a mesh, clamped albedos), one entry per kind
+    /// and source; `lightwire validate` and `bake` print them, `serve` logs
+    /// them.
+    pub warnings: Vec<SceneIssue>,
 }
 
 /// Solver settings measured for one scene (its file's `"solver"`; see

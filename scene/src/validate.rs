@@ -31,13 +31,23 @@ pub const MIN_ATLAS_LIMIT: u32 = 16;
 /// Name reserved for the static world.
 pub const STATIC_NAME: &str = "static";
 
+#[derive(Default)]
 struct Checker {
     issues: Vec<SceneIssue>,
+    /// What was dropped or changed and loading went on past.
+    warnings: Vec<SceneIssue>,
 }
 
 impl Checker {
     fn report(&mut self, location: &str, problem: impl Into<String>) {
         self.issues.push(SceneIssue {
+            location: location.to_string(),
+            problem: problem.into(),
+        });
+    }
+
+    fn warn(&mut self, location: &str, problem: impl Into<String>) {
+        self.warnings.push(SceneIssue {
             location: location.to_string(),
             problem: problem.into(),
         });
@@ -147,7 +157,7 @@ pub fn validate(
     options: LoadOptions,
     base: Option<&Path>,
 ) -> Result<Scene, Vec<SceneIssue>> {
-    let mut c = Checker { issues: Vec::new() };
+    let mut c = Checker::default();
     let (texel_density, max_atlas_size) = check_settings(&mut c, &raw, options);
     let solver = solver_hints(&mut c, &raw.solver, options.density_scale);
     let mut materials = check_materials(&mut c, &raw.materials);
@@ -178,6 +188,7 @@ pub fn validate(
         patches,
         uv_meshes,
         solver,
+        warnings: c.warnings,
     })
 }
 
@@ -527,7 +538,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
             })
         })
         .sum();
-    let mut c = Checker { issues: Vec::new() };
+    let mut c = Checker::default();
     if !(options.density_scale.is_finite() && options.density_scale > 0.0) {
         c.report(
             "load options",
@@ -556,6 +567,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         patches: Vec::new(),
         uv_meshes: Vec::new(),
         solver: SolverHints::default(),
+        warnings: Vec::new(),
     };
     let mut into = Parts {
         materials: &mut scene.materials,
@@ -588,5 +600,6 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         return Err(c.issues);
     }
     scene.patches = super::pairs::charts(std::mem::take(&mut scene.patches), options.charts);
+    scene.warnings = c.warnings;
     Ok(scene)
 }

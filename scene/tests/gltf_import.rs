@@ -662,28 +662,67 @@ fn non_triangle_primitive_is_named() {
 }
 
 #[test]
-fn degenerate_triangle_is_named_with_its_index() {
+fn zero_area_and_duplicate_triangles_are_dropped_with_one_warning_each() {
+    // Triangle 0 is sound; 1 has its corners on a line; 2 repeats an index;
+    // 3 is triangle 0 again, same turning, from another corner (z-fighting);
+    // 4 is triangle 0 turned the other way (a two-sided face: kept); 5 is a
+    // sliver whose height is 1e-7 of its length.
     let mut p = triangle_primitive(TRI, Some(0));
-    // Triangle 1: three points on a line.
     p.positions.extend([
         Vec3::new(0.0, 0.0, 1.0),
         Vec3::new(1.0, 1.0, 1.0),
         Vec3::new(2.0, 2.0, 1.0),
+        Vec3::new(0.0, 0.0, 2.0),
+        Vec3::new(10.0, 0.0, 2.0),
+        Vec3::new(5.0, 1e-6, 2.0),
     ]);
-    p.indices.push([3, 4, 5]);
-    // Triangle 2: a repeated index.
-    p.indices.push([0, 0, 1]);
-    let message = error_of(&single(vec![p]), "flat.glb");
-    assert_names_everything(&message, "flat.glb", 0);
+    p.indices
+        .extend([[3, 4, 5], [0, 0, 1], [1, 2, 0], [0, 2, 1], [6, 7, 8]]);
+    let imported = import_slice(
+        &single(vec![p]),
+        None,
+        "flat.glb",
+        &ImportOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("refused: {e}"));
+    assert_eq!(imported.instances.len(), 1);
+    let inst = &imported.instances[0];
+    assert_eq!(inst.indices, vec![[0, 1, 2], [0, 2, 1]]);
+    assert_eq!(inst.triangle_numbers, vec![0, 4], "numbers in the glTF");
+    let warnings: Vec<String> = imported.warnings.iter().map(|w| w.to_string()).collect();
+    assert_eq!(warnings.len(), 2, "{warnings:#?}");
+    for (w, kind, count) in [
+        (&warnings[0], "zero-area", 3),
+        (&warnings[1], "duplicate", 1),
+    ] {
+        assert!(w.contains(&format!("dropped {count} {kind}")), "{w}");
+        assert!(
+            w.contains(&format!(
+                "node #0 \"n\", mesh #0 \"thing\", primitive #0: {count} of 6"
+            )),
+            "{w}"
+        );
+    }
+}
+
+#[test]
+fn a_primitive_of_only_zero_area_triangles_leaves_no_instance_behind() {
+    let mut flat = triangle_primitive(TRI, Some(0));
+    flat.positions[2] = Vec3::new(2.0, 0.0, 0.0);
+    let imported = import_slice(
+        &single(vec![triangle_primitive(TRI, Some(0)), flat]),
+        None,
+        "flat.glb",
+        &ImportOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("refused: {e}"));
+    assert_eq!(imported.triangle_count(), 1);
+    assert!(imported.instances.iter().all(|i| !i.indices.is_empty()));
     assert!(
-        message.contains("triangle 1 (vertices [3, 4, 5]) is degenerate"),
-        "{message}"
+        imported.warnings[0]
+            .to_string()
+            .contains("primitive #1: 1 of 1")
     );
-    assert!(
-        message.contains("triangle 2 (vertices [0, 0, 1]) is degenerate"),
-        "{message}"
-    );
-    assert!(!message.contains("triangle 0 "), "{message}");
 }
 
 #[test]
@@ -799,15 +838,15 @@ fn zero_area_lightmap_triangle_is_named() {
 
 #[test]
 fn all_problems_of_a_file_are_reported_together() {
-    let mut degenerate = triangle_primitive(TRI, Some(0));
-    degenerate.positions[2] = Vec3::new(2.0, 0.0, 0.0);
+    let lines = triangle_primitive(TRI, Some(0));
     let uv_out = with_uv1(
         TRI.to_vec(),
         vec![Vec2::ZERO, Vec2::new(2.0, 0.0), Vec2::Y],
         vec![[0, 1, 2]],
     );
-    let glb = single(vec![degenerate, uv_out]);
+    let glb = single(vec![lines, uv_out]);
     let bad = edit_json(&glb, |j| {
+        j["meshes"][0]["primitives"][0]["mode"] = 1.into();
         // And a second node whose extras say dynamic: "yes".
         j["nodes"][0]["extras"] = serde_json::json!({ "lightwire": { "dynamic": "yes" } });
     });
@@ -818,7 +857,7 @@ fn all_problems_of_a_file_are_reported_together() {
     assert_eq!(issues.len(), 3, "{err}");
     let message = err.to_string();
     assert!(
-        message.contains("primitive #0") && message.contains("is degenerate"),
+        message.contains("primitive #0") && message.contains("only TRIANGLES"),
         "{message}"
     );
     assert!(

@@ -157,3 +157,86 @@ fn a_glb_without_an_emitter_is_refused() {
         .to_string();
     assert!(err.contains("has no emitter"), "{err}");
 }
+
+#[test]
+fn an_import_gives_its_materials_the_albedo_and_light_the_scene_file_says() {
+    // The atrium's floor alone has no emitter; the scene file makes its
+    // material glow and every other material grey ("*").
+    let text = r#"{
+        "name": "lit-floor",
+        "lightmap": { "texel_density": 1 },
+        "materials": [],
+        "imports": [ { "file": "meshes/atrium.glb", "nodes": ["floor", "wall-north"],
+                       "materials": { "floor": { "emission": [2, 3, 4] },
+                                      "*": { "albedo": [0.25, 0.5, 0.75] } } } ]
+    }"#;
+    let origin = scene_path("lit-floor.json").display().to_string();
+    let scene = Scene::parse(text, &origin).unwrap_or_else(|e| panic!("{e}"));
+    let material = |name: &str| {
+        scene
+            .materials
+            .iter()
+            .find(|m| m.name == name)
+            .unwrap_or_else(|| panic!("{name}"))
+    };
+    assert_eq!(material("floor").emission, glam::Vec3::new(2.0, 3.0, 4.0));
+    assert_eq!(material("stone").albedo, glam::Vec3::new(0.25, 0.5, 0.75));
+    assert_eq!(material("stone").emission, glam::Vec3::ZERO);
+    // The floor keeps its own albedo: "*" is for materials not named.
+    assert_ne!(material("floor").albedo, glam::Vec3::new(0.25, 0.5, 0.75));
+
+    // A name the file does not have, and an albedo of 1, are errors that
+    // say where.
+    let bad = text
+        .replace("\"floor\": { \"emission\"", "\"flor\": { \"emission\"")
+        .replace("[0.25, 0.5, 0.75]", "[1, 0.5, 0.75]");
+    let err = Scene::parse(&bad, &origin)
+        .expect_err("unknown material, albedo 1")
+        .to_string();
+    for needle in [
+        "import #0 \"meshes/atrium.glb\"",
+        "materials.\"flor\": the file has no material of that name (it has floor, stone",
+        "materials.\"*\"",
+        "must lie in [0, 1)",
+    ] {
+        assert!(err.contains(needle), "{needle:?} missing from:\n{err}");
+    }
+}
+
+#[test]
+fn a_mesh_triangle_with_its_corners_on_a_line_is_dropped_with_a_warning() {
+    let text = r#"{
+        "name": "sliver",
+        "lightmap": { "texel_density": 4 },
+        "materials": [ { "name": "white", "albedo": [0.7, 0.7, 0.7] },
+                       { "name": "light", "albedo": [0.5, 0.5, 0.5], "emission": [10, 10, 10] } ],
+        "surfaces": [
+            { "name": "light", "material": "light",
+              "quad": { "origin": [0.75, 2, 0.75], "u": [0.5, 0, 0], "v": [0, 0, 0.5] } },
+            { "name": "floor", "material": "white",
+              "mesh": { "positions": [[0, 0, 0], [2, 0, 0], [2, 0, -2], [1, 0, 0]],
+                        "indices": [0, 1, 2, 0, 3, 1] } }
+        ]
+    }"#;
+    let origin = scene_path("sliver.json").display().to_string();
+    let scene = Scene::parse(text, &origin).unwrap_or_else(|e| panic!("{e}"));
+    let floor: Vec<&str> = scene
+        .patches
+        .iter()
+        .filter(|p| p.name.starts_with("floor"))
+        .map(|p| p.name.as_str())
+        .collect();
+    assert_eq!(
+        floor,
+        ["floor/0"],
+        "the sound triangle, under its own number"
+    );
+    assert_eq!(scene.warnings.len(), 1, "{:?}", scene.warnings);
+    let w = scene.warnings[0].to_string();
+    assert!(
+        w.contains("surface #1 \"floor\"")
+            && w.contains("dropped 1 of 2")
+            && w.contains("#1 (indices [0, 3, 1])"),
+        "{w}"
+    );
+}

@@ -48,7 +48,7 @@ pub mod content;
 mod overlap;
 pub mod write;
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -81,6 +81,18 @@ pub const OVERLAP_AREA: f64 = 1.0 / (4096.0 * 4096.0);
 /// See [`OVERLAP_AREA`].
 pub const OVERLAP_RELATIVE: f64 = 0.25;
 
+/// Whether a triangle's corners lie on a line to within f32 precision:
+/// twice its area at most [`DEGENERATE_RATIO`] times its longest edge
+/// squared (repeated corners and NaN included).
+pub fn is_degenerate(a: Vec3, b: Vec3, c: Vec3) -> bool {
+    let twice_area = (b - a).cross(c - a).length();
+    let longest = (b - a)
+        .length_squared()
+        .max((c - b).length_squared())
+        .max((a - c).length_squared());
+    twice_area.is_nan() || twice_area <= DEGENERATE_RATIO * longest
+}
+
 /// Problems of one kind reported per primitive before the rest are counted
 /// in one line.
 const MAX_LISTED: usize = 8;
@@ -97,6 +109,9 @@ pub struct ImportOptions {
     /// Multiplies every emission (W/m² per unit of
     /// `emissiveFactor × emissive_strength`).
     pub emission_scale: f32,
+    /// New values for materials by name (`"*"`: every material not named),
+    /// applied before anything else reads them.
+    pub materials: BTreeMap<String, MaterialOverride>,
 }
 
 impl Default for ImportOptions {
@@ -105,8 +120,19 @@ impl Default for ImportOptions {
             nodes: Vec::new(),
             dynamic_nodes: Vec::new(),
             emission_scale: 1.0,
+            materials: BTreeMap::new(),
         }
     }
+}
+
+/// A material's albedo or emission as the importing scene wants them; a
+/// `None` keeps the glTF's.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MaterialOverride {
+    /// Replaces the base colour factor and texture (each channel in [0, 1)).
+    pub albedo: Option<Vec3>,
+    /// Replaces the emission, in W/m² (not multiplied by `emission_scale`).
+    pub emission: Option<Vec3>,
 }
 
 /// The triangle meshes of a glTF file, in Lightwire's units.
@@ -120,6 +146,11 @@ pub struct ImportedScene {
     pub objects: Vec<ImportedObject>,
     /// One per (node, mesh primitive), in depth-first node order.
     pub instances: Vec<MeshInstance>,
+    /// What the import dropped or changed and went on (zero-area and
+    /// duplicate triangles, clamped albedos): one entry per kind, counts per
+    /// primitive. Loading succeeds with these; `lightwire validate` prints
+    /// them.
+    pub warnings: Vec<SceneIssue>,
 }
 
 impl ImportedScene {
@@ -206,6 +237,10 @@ pub struct MeshInstance {
     pub normals: Option<Vec<Vec3>>,
     /// Counter-clockwise triangles (front face) into `positions`.
     pub indices: Vec<[u32; 3]>,
+    /// Each triangle's number in the glTF primitive (patch names use it):
+    /// the importer drops zero-area and duplicate triangles, so the `k`-th
+    /// triangle kept is not always the glTF's `k`-th.
+    pub triangle_numbers: Vec<u32>,
     /// `TEXCOORD_0`, for textures.
     pub uv0: Option<Vec<Vec2>>,
     /// `TEXCOORD_1`, the lightmap UVs, validated to lie in [0, 1] and not
@@ -287,9 +322,12 @@ pub fn import_slice(
         buffers: Vec::new(),
         primitives: HashMap::new(),
         uv_checked: HashMap::new(),
+        dropped: BTreeMap::new(),
+        clamped: Vec::new(),
     };
     importer.load_buffers(&gltf, base);
-    let scene = importer.convert(&gltf.document);
+    let mut scene = importer.convert(&gltf.document);
+    scene.warnings = importer.take_warnings();
     if importer.issues.is_empty() {
         Ok(scene)
     } else {
@@ -304,6 +342,8 @@ struct PrimitiveData {
     positions: Vec<Vec3>,
     normals: Option<Vec<Vec3>>,
     indices: Vec<[u32; 3]>,
+    /// Each kept triangle's number in the glTF primitive.
+    triangle_numbers: Vec<u32>,
     uv0: Option<Vec<Vec2>>,
     uv1: Option<Vec<Vec2>>,
     material: Option<usize>,
@@ -320,6 +360,23 @@ struct Importer<'o> {
     primitives: HashMap<(usize, usize), Option<PrimitiveData>>,
     /// Meshes whose lightmap UVs were checked for overlaps.
     uv_checked: HashMap<usize, ()>,
+    /// Triangles dropped per primitive (location → counts).
+    dropped: BTreeMap<String, Dropped>,
+    /// Materials whose base colour was clamped to [`ALBEDO_MAX`].
+    clamped: Vec<String>,
+}
+
+/// Triangles one primitive lost at import.
+#[derive(Debug, Clone, Copy, Default)]
+struct Dropped {
+    /// Zero-area or sliver: the corners on a line ([`DEGENERATE_RATIO`]).
+    degenerate: usize,
+    /// The same three corners as an earlier triangle of the primitive, in
+    /// the same turning order: it would z-fight with it and count its light
+    /// twice.
+    duplicate: usize,
+    /// The primitive's triangles before dropping.
+    of: usize,
 }
 
 /// What [`Importer::convert`] gathers while it walks the node hierarchy.
@@ -357,6 +414,7 @@ impl Gathered {
             materials,
             objects,
             instances,
+            warnings: Vec::new(),
         }
     }
 }
@@ -441,6 +499,7 @@ impl Importer<'_> {
                 materials,
                 objects: Vec::new(),
                 instances: Vec::new(),
+                warnings: Vec::new(),
             };
         };
         self.check_option_names(doc);
@@ -651,6 +710,10 @@ impl Importer<'_> {
             let Some(data) = self.primitive(node, mesh, &primitive) else {
                 continue;
             };
+            if data.indices.is_empty() {
+                // Every triangle was dropped (counted in the warnings).
+                continue;
+            }
             let material = match data.material {
                 Some(m) => m as u32,
                 None => {
@@ -718,20 +781,30 @@ impl Importer<'_> {
             emissive = emission;
             strength = 1.0;
         }
+        let chosen = (self.options.materials.get(&name))
+            .or_else(|| self.options.materials.get("*"))
+            .copied()
+            .unwrap_or_default();
+        if let Some(a) = chosen.albedo {
+            raw = a;
+        }
         let albedo = raw.clamp(Vec3::ZERO, Vec3::splat(ALBEDO_MAX));
         if albedo != raw {
-            tracing::warn!(
-                "{location}: baseColorFactor {raw:?} clamped to {albedo:?} (albedo must stay below 1)"
-            );
+            self.clamped.push(name.clone());
         }
-        let emission = emissive * strength * self.options.emission_scale;
+        let mut emission = emissive * strength * self.options.emission_scale;
+        if let Some(e) = chosen.emission {
+            emission = e;
+        }
         if !emission.is_finite() || emission.min_element() < 0.0 {
             self.report(
                 &location,
                 format!("emission {emission:?} W/m² (emissiveFactor × emissive_strength × emission_scale) must be finite and >= 0"),
             );
         }
-        let base_color_texture = pbr.base_color_texture().filter(|_| baked.is_none());
+        let base_color_texture = pbr
+            .base_color_texture()
+            .filter(|_| baked.is_none() && chosen.albedo.is_none());
         let base_color_texture = base_color_texture.map(|info| {
             let image = info.texture().source();
             let source = match image.source() {
@@ -994,6 +1067,7 @@ impl Importer<'_> {
         if !self.check_triangles(location, &positions, &indices) {
             return None;
         }
+        let (indices, triangle_numbers) = self.drop_unlit(location, &positions, indices);
         // Lightmap UVs inside [0, 1].
         if let Some(uv) = &uv1 {
             self.check_uv_range(location, uv);
@@ -1002,6 +1076,7 @@ impl Importer<'_> {
             positions,
             normals,
             indices,
+            triangle_numbers,
             uv0,
             uv1,
             material: primitive.material().index(),
@@ -1064,9 +1139,9 @@ impl Importer<'_> {
         })
     }
 
-    /// Reports non-finite positions, out-of-range indices and degenerate
-    /// triangles (in mesh space), a few of each kind. Returns whether the
-    /// positions are finite and the indices in range.
+    /// Reports non-finite positions and out-of-range indices, a few of each
+    /// kind. Returns whether the positions are finite and the indices in
+    /// range.
     fn check_triangles(
         &mut self,
         location: &str,
@@ -1095,27 +1170,119 @@ impl Importer<'_> {
         if !bad.is_empty() || !out.is_empty() {
             return false;
         }
-        // Degenerate triangles (mesh space).
-        let degenerate: Vec<usize> = (0..indices.len())
-            .filter(|&t| {
-                let [a, b, c] = indices[t].map(|v| positions[v as usize]);
-                let twice_area = (b - a).cross(c - a).length();
-                let longest = (b - a)
-                    .length_squared()
-                    .max((c - b).length_squared())
-                    .max((a - c).length_squared());
-                twice_area.is_nan() || twice_area <= DEGENERATE_RATIO * longest
-            })
-            .collect();
-        self.listed(location, &degenerate, |t| {
-            let [a, b, c] = indices[t].map(|v| positions[v as usize]);
-            format!(
-                "triangle {t} (vertices {:?}) is degenerate: area {:e} m² for corners {a}, {b}, {c}",
-                indices[t],
-                0.5 * (b - a).cross(c - a).length()
-            )
-        });
         true
+    }
+
+    /// Drops the triangles no lightmap can hold, as lightmappers do (xatlas,
+    /// Unity, Godot): zero-area and sliver ones (corners on a line to within
+    /// [`DEGENERATE_RATIO`] of the longest edge, in mesh space) and exact
+    /// duplicates (the same three corner positions in the same turning
+    /// order as an earlier triangle: z-fighting copies; a back-to-back pair,
+    /// opposite turning, is a two-sided face and stays). Counts what it
+    /// dropped for [`Importer::take_warnings`]. Returns the kept triangles
+    /// and their numbers in the primitive.
+    fn drop_unlit(
+        &mut self,
+        location: &str,
+        positions: &[Vec3],
+        indices: Vec<[u32; 3]>,
+    ) -> (Vec<[u32; 3]>, Vec<u32>) {
+        let mut dropped = Dropped {
+            of: indices.len(),
+            ..Dropped::default()
+        };
+        let mut seen: HashMap<[[u32; 3]; 3], ()> = HashMap::new();
+        let mut kept = Vec::with_capacity(indices.len());
+        let mut numbers = Vec::with_capacity(indices.len());
+        for (t, tri) in indices.into_iter().enumerate() {
+            let [a, b, c] = tri.map(|v| positions[v as usize]);
+            if is_degenerate(a, b, c) {
+                dropped.degenerate += 1;
+                continue;
+            }
+            // The corners as bit patterns, rotated so the smallest comes
+            // first: equal keys are the same triangle turning the same way.
+            let mut key = [a, b, c].map(|p| p.to_array().map(f32::to_bits));
+            let first = (0..3).min_by_key(|&i| key[i]).unwrap_or(0);
+            key.rotate_left(first);
+            if seen.insert(key, ()).is_some() {
+                dropped.duplicate += 1;
+                continue;
+            }
+            kept.push(tri);
+            numbers.push(t as u32);
+        }
+        if dropped.degenerate + dropped.duplicate > 0 {
+            self.dropped.insert(location.to_string(), dropped);
+        }
+        (kept, numbers)
+    }
+
+    /// The warnings of this import: one line per kind of dropped triangle
+    /// (counts per primitive), then the clamped base colours.
+    fn take_warnings(&mut self) -> Vec<SceneIssue> {
+        let mut out = Vec::new();
+        for (kind, count) in [
+            (
+                "zero-area or sliver (corners on a line)",
+                (|d: &Dropped| d.degenerate) as fn(&Dropped) -> usize,
+            ),
+            (
+                "duplicate (same corners as another triangle, same facing)",
+                |d: &Dropped| d.duplicate,
+            ),
+        ] {
+            let per: Vec<(&String, usize, usize)> = self
+                .dropped
+                .iter()
+                .filter(|(_, d)| count(d) > 0)
+                .map(|(at, d)| (at, count(d), d.of))
+                .collect();
+            if per.is_empty() {
+                continue;
+            }
+            let total: usize = per.iter().map(|p| p.1).sum();
+            let listed: Vec<String> = per
+                .iter()
+                .take(MAX_LISTED)
+                .map(|(at, n, of)| format!("{at}: {n} of {of}"))
+                .collect();
+            let more = per.len().saturating_sub(MAX_LISTED);
+            out.push(SceneIssue {
+                location: "triangles".to_string(),
+                problem: format!(
+                    "dropped {total} {kind} triangle(s) that no lightmap can hold: {}{}",
+                    listed.join("; "),
+                    if more > 0 {
+                        format!("; and {more} more primitives")
+                    } else {
+                        String::new()
+                    }
+                ),
+            });
+        }
+        if !self.clamped.is_empty() {
+            let listed: Vec<&str> = self
+                .clamped
+                .iter()
+                .take(MAX_LISTED)
+                .map(String::as_str)
+                .collect();
+            out.push(SceneIssue {
+                location: "materials".to_string(),
+                problem: format!(
+                    "{} base colour(s) clamped to {ALBEDO_MAX} per channel (a surface that reflects everything makes a closed room's light never settle): {}{}",
+                    self.clamped.len(),
+                    listed.join(", "),
+                    if self.clamped.len() > MAX_LISTED {
+                        format!(", and {} more", self.clamped.len() - MAX_LISTED)
+                    } else {
+                        String::new()
+                    }
+                ),
+            });
+        }
+        out
     }
 
     /// Reports lightmap UVs (`TEXCOORD_1`) outside [0, 1], a few of them.
@@ -1287,6 +1454,7 @@ impl Importer<'_> {
             positions,
             normals,
             indices,
+            triangle_numbers: data.triangle_numbers,
             uv0: data.uv0,
             lightmap_uvs: data.uv1,
         })

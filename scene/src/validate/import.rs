@@ -9,7 +9,7 @@ use glam::{Vec2, Vec3};
 
 use super::{Checker, Parts, generates_uvs};
 use crate::file::{ImportJson, SceneFile};
-use crate::gltf::{ImportOptions, ImportedScene, MeshInstance};
+use crate::gltf::{ImportOptions, ImportedScene, MaterialOverride, MeshInstance};
 use crate::texture::{AlbedoMap, Texture};
 use crate::{Charts, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, UvMesh};
 
@@ -43,13 +43,16 @@ pub(super) fn check_imports(
             Some(base) => base.join(&import.file),
             None => Path::new(&import.file).to_path_buf(),
         };
-        let imported = match crate::gltf::import(&path, &import_options(import, emission_scale)) {
+        let mut import_opts = import_options(import, emission_scale);
+        import_opts.materials = material_overrides(c, &loc, import);
+        let imported = match crate::gltf::import(&path, &import_opts) {
             Ok(imported) => imported,
             Err(e) => {
                 c.report(&loc, e.to_string());
                 continue;
             }
         };
+        unknown_materials(c, &loc, import, &imported);
         merge_import(
             c,
             &loc,
@@ -62,11 +65,67 @@ pub(super) fn check_imports(
     }
 }
 
+/// Checks an import's `materials` overrides (by name, `"*"` for every
+/// material not named) and returns them for the importer. Reports values a
+/// material may not have; a name the file lacks is reported after the
+/// import ([`unknown_materials`]).
+fn material_overrides(
+    c: &mut Checker,
+    loc: &str,
+    import: &ImportJson,
+) -> BTreeMap<String, MaterialOverride> {
+    let mut out = BTreeMap::new();
+    for (name, o) in &import.materials {
+        let at = format!("{loc}: materials.\"{name}\"");
+        let albedo = o.albedo.as_ref().and_then(|a| c.vec3(&at, "albedo", a));
+        let emission = o.emission.as_ref().and_then(|e| c.vec3(&at, "emission", e));
+        if let Some(a) = albedo {
+            if !(a.cmpge(Vec3::ZERO).all() && a.cmplt(Vec3::ONE).all()) {
+                c.report(&at, format!("albedo {a:?} must lie in [0, 1) per channel"));
+            }
+        }
+        if let Some(e) = emission {
+            if e.min_element() < 0.0 {
+                c.report(&at, format!("emission {e:?} must be >= 0 per channel"));
+            }
+        }
+        out.insert(name.clone(), MaterialOverride { albedo, emission });
+    }
+    out
+}
+
+/// Reports override names (other than `"*"`) no imported material has.
+fn unknown_materials(c: &mut Checker, loc: &str, import: &ImportJson, imported: &ImportedScene) {
+    for name in import.materials.keys() {
+        if name != "*" && !imported.materials.iter().any(|m| &m.name == name) {
+            let known: Vec<&str> = imported
+                .materials
+                .iter()
+                .map(|m| m.name.as_str())
+                .take(12)
+                .collect();
+            c.report(
+                loc,
+                format!(
+                    "materials.\"{name}\": the file has no material of that name (it has {}{})",
+                    known.join(", "),
+                    if imported.materials.len() > known.len() {
+                        ", ..."
+                    } else {
+                        ""
+                    }
+                ),
+            );
+        }
+    }
+}
+
 fn import_options(import: &ImportJson, emission_scale: f32) -> ImportOptions {
     ImportOptions {
         nodes: import.nodes.clone(),
         dynamic_nodes: import.dynamic_nodes.clone(),
         emission_scale,
+        materials: BTreeMap::new(),
     }
 }
 
@@ -75,8 +134,9 @@ fn import_options(import: &ImportJson, emission_scale: f32) -> ImportOptions {
 /// shared), its dynamic objects (names must be new), and every triangle as a
 /// patch named `<node>/<mesh>/<primitive>/<k>` (names, or `node#i`,
 /// `mesh#j`, when the glTF has none). `surface_index` is what atlas errors
-/// name the import by. The importer has already refused degenerate
-/// triangles, NaNs and bad accessors, naming file, node, mesh and primitive.
+/// name the import by. The importer has already refused NaNs and bad
+/// accessors, naming file, node, mesh and primitive, and dropped zero-area
+/// and duplicate triangles (its warnings join the scene's).
 pub(super) fn merge_import(
     c: &mut Checker,
     loc: &str,
@@ -86,6 +146,9 @@ pub(super) fn merge_import(
     surface_index: usize,
     charts: Charts,
 ) {
+    for w in &imported.warnings {
+        c.warn(&format!("{loc}: {}", w.location), w.problem.clone());
+    }
     let material_ids = merge_materials(c, loc, imported, into.materials);
     let object_ids = merge_objects(c, loc, imported, into.objects);
     let mut uv_mesh_of: HashMap<(usize, usize), usize> = HashMap::new();
@@ -306,7 +369,11 @@ fn add_instance_patches(c: &mut Checker, loc: &str, at: &Instance, patches: &mut
                 }),
         };
         patches.push(Patch {
-            name: format!("{node}/{mesh}/{}/{k}", inst.primitive),
+            name: format!(
+                "{node}/{mesh}/{}/{}",
+                inst.primitive,
+                inst.triangle_numbers.get(k).copied().unwrap_or(k as u32)
+            ),
             surface_index: at.surface_index,
             object: at.object,
             material: at.material,

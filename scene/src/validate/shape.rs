@@ -180,7 +180,7 @@ fn mesh(
     name: &str,
     m: &MeshJson,
 ) -> (Vec<(String, PatchShape)>, Option<TriangleUvs>) {
-    let shapes = mesh_shapes(c, loc, name, m);
+    let (shapes, kept) = mesh_shapes(c, loc, name, m);
     let Some(uvs) = &m.lightmap_uvs else {
         return (shapes, None);
     };
@@ -221,9 +221,11 @@ fn mesh(
         .iter()
         .map(|p| glam::DVec3::from_array(*p).as_vec3())
         .collect();
-    let tris: Vec<[Vec2; 3]> = indices
-        .chunks_exact(3)
-        .map(|t| {
+    // The kept triangles' UVs; `kept[i]` is the i-th one's number.
+    let tris: Vec<[Vec2; 3]> = kept
+        .iter()
+        .map(|&k| {
+            let t = &indices[3 * k..3 * k + 3];
             let [a, b, d] = [0, 1, 2].map(|j| positions[t[j] as usize]);
             let order = PatchShape::triangle_order(a, b, d);
             order.map(|j| Vec2::from_array(uvs[t[j] as usize]))
@@ -236,8 +238,8 @@ fn mesh(
         c.report(
             loc,
             format!(
-                "mesh triangle {k} has zero area in mesh.lightmap_uvs ({:?}): it would get no lightmap texels",
-                tris[k]
+                "mesh triangle {} has zero area in mesh.lightmap_uvs ({:?}): it would get no lightmap texels",
+                kept[k], tris[k]
             ),
         );
     }
@@ -248,8 +250,8 @@ fn mesh(
                     loc,
                     format!(
                         "mesh triangle {} overlaps triangle {} in mesh.lightmap_uvs by {:.3e} (UV units², {:.1}% of the smaller): lightmap UVs must not overlap",
-                        o.a,
-                        o.b,
+                        kept[o.a],
+                        kept[o.b],
                         o.area,
                         100.0 * o.fraction
                     ),
@@ -276,7 +278,15 @@ fn mesh(
     (shapes, Some(tris))
 }
 
-fn mesh_shapes(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(String, PatchShape)> {
+/// A mesh's triangles as patch shapes, and the number of each in the mesh:
+/// degenerate triangles are dropped with a warning. Empty when positions or
+/// indices are invalid (reported).
+fn mesh_shapes(
+    c: &mut Checker,
+    loc: &str,
+    name: &str,
+    m: &MeshJson,
+) -> (Vec<(String, PatchShape)>, Vec<usize>) {
     let mut positions = Vec::with_capacity(m.positions.len());
     let mut ok = true;
     for (k, p) in m.positions.iter().enumerate() {
@@ -300,7 +310,7 @@ fn mesh_shapes(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(Str
     };
     if indices.is_empty() {
         c.report(loc, format!("{what} holds no triangle"));
-        return Vec::new();
+        return (Vec::new(), Vec::new());
     }
     if !indices.len().is_multiple_of(3) {
         c.report(
@@ -327,23 +337,19 @@ fn mesh_shapes(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(Str
         ok = false;
     }
     if !ok {
-        return Vec::new();
+        return (Vec::new(), Vec::new());
     }
     let mut degenerate = Vec::new();
     let mut shapes = Vec::with_capacity(indices.len() / 3);
+    let mut kept = Vec::with_capacity(indices.len() / 3);
     for (k, t) in indices.chunks_exact(3).enumerate() {
         let [a, b, d] = [0, 1, 2].map(|j| positions[t[j] as usize]);
-        let twice_area = (b - a).cross(d - a).length();
-        let longest = (b - a)
-            .length_squared()
-            .max((d - b).length_squared())
-            .max((a - d).length_squared());
-        // Positions are finite here, so the comparison is never with NaN.
-        if twice_area <= crate::gltf::DEGENERATE_RATIO * longest || longest == 0.0 {
+        if crate::gltf::is_degenerate(a, b, d) {
             degenerate.push(k);
             continue;
         }
         shapes.push((format!("{name}/{k}"), PatchShape::triangle(a, b, d)));
+        kept.push(k);
     }
     if !degenerate.is_empty() {
         let listed: Vec<String> = degenerate
@@ -352,11 +358,12 @@ fn mesh_shapes(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(Str
             .map(|k| format!("#{k} (indices {:?})", &indices[3 * k..3 * k + 3]))
             .collect();
         let more = degenerate.len().saturating_sub(MAX_LISTED_TRIANGLES);
-        c.report(
+        c.warn(
             loc,
             format!(
-                "mesh has {} degenerate triangle(s), whose corners lie on a line: {}{}",
+                "dropped {} of {} mesh triangles that no lightmap can hold: zero-area or sliver (corners on a line): {}{}",
                 degenerate.len(),
+                indices.len() / 3,
                 listed.join(", "),
                 if more > 0 {
                     format!(" and {more} more")
@@ -365,7 +372,9 @@ fn mesh_shapes(c: &mut Checker, loc: &str, name: &str, m: &MeshJson) -> Vec<(Str
                 }
             ),
         );
-        return Vec::new();
     }
-    shapes
+    if shapes.is_empty() {
+        c.report(loc, "mesh has no triangle of non-zero area");
+    }
+    (shapes, kept)
 }

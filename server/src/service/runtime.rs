@@ -154,6 +154,9 @@ impl SceneRuntime {
                 charts: config.charts,
             },
         )?;
+        for w in &scene.warnings {
+            tracing::warn!("{}: {w}", path.display());
+        }
         // A keyframe must fit in one frame: bound it by its uncompressed
         // size plus per-tile overhead (zstd never grows data much).
         let texels = u64::from(atlas.width) * u64::from(atlas.height);

@@ -165,6 +165,9 @@ fn bake_command(
     }
     let started = Instant::now();
     let (scene, atlas) = load_scene(&path, load)?;
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
     let poses = scene.initial_poses();
     eprintln!(
         "baking {} ({} elements, atlas {}x{})",

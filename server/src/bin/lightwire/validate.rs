@@ -33,6 +33,9 @@ fn validate_command(paths: &[PathBuf], density_scale: f32) -> Result<()> {
     for path in paths {
         match load(path, density_scale) {
             Ok((scene, atlas)) => {
+                for w in &scene.warnings {
+                    println!("warning: {w}");
+                }
                 let dynamic = atlas.dynamic_element_count(&scene);
                 println!(
                     "{}: ok: scene \"{}\", {} surfaces, {} objects, atlas {}x{}, {} static + {} dynamic elements",
