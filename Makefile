@@ -5,6 +5,8 @@
 #   make test  installs what is missing, runs every test (Rust, the
 #              dashboard's JavaScript, and the dashboard in headless Chromium)
 #              and validates the deployment files (make deploy-check)
+#   make test-levels  the tests of the real third-party levels in $(LEVELS)
+#              (default ../shared/levels; never copied into the repository)
 #   make soak  builds, then the soak benchmark: a solver, a relay, 500 viewers
 #              and 2 drivers for 10 minutes on loopback (SOAK_FLAGS, e.g.
 #              SOAK_FLAGS="--duration 60"; report in target/soak/)
@@ -32,7 +34,7 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config chromium
 NODE_APT_PACKAGES := nodejs npm
 DASHBOARD := server/dashboard
 
-.PHONY: run bake test soak deps check-toolchain build dashboard-deps gltf-validator-deps deploy-tools deploy-check
+.PHONY: run bake test test-levels soak deps check-toolchain build dashboard-deps gltf-validator-deps deploy-tools deploy-check
 
 deps: check-toolchain
 	@missing=""; \
@@ -138,3 +140,11 @@ test: deps dashboard-deps gltf-validator-deps deploy-check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	cd $(DASHBOARD) && node --test test/
 	$(CARGO) test --workspace
+
+# The real levels (../shared/levels/README.md) stay outside the repository;
+# their tests are a feature of lightwire-server that `make test` leaves off.
+LEVELS ?= ../shared/levels
+test-levels: deps
+	@test -f "$(LEVELS)/README.md" || { echo "error: no levels at $(LEVELS) (make test-levels LEVELS=/path/to/levels)"; exit 1; }
+	$(CARGO) clippy -p lightwire-server --features levels --tests -- -D warnings
+	LEVELS="$(abspath $(LEVELS))" $(CARGO) test -p lightwire-server --features levels --test levels
