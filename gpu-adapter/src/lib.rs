@@ -19,6 +19,9 @@
 //! The device is created with the adapter's own limits (large atlases and
 //! images need more than wgpu's defaults) and no optional features.
 //!
+//! Both also draw alike, with depth, into 2D targets: [`texture_2d`],
+//! [`depth_test`], [`REVERSED_DEPTH`] and [`begin_render_pass`] are what they share of that.
+//!
 //! This crate depends on nothing of ours, only on wgpu (and thiserror): the
 //! client may not link the server, and `lightwire-protocol` knows no wgpu.
 
@@ -207,6 +210,87 @@ pub async fn request_device_with(
 /// "NAME (BACKEND)" of an adapter, for logs and benchmark reports.
 pub fn describe(info: &wgpu::AdapterInfo) -> String {
     format!("{} ({:?})", info.name, info.backend)
+}
+
+/// A 2D texture of one mip level with `samples` samples per texel: the
+/// render targets of the solvers' hemicubes and of the client's view.
+pub fn texture_2d(
+    device: &wgpu::Device,
+    label: &str,
+    (width, height): (u32, u32),
+    format: wgpu::TextureFormat,
+    samples: u32,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: samples,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+/// Depth written in `format` and tested by `compare`, no stencil.
+pub fn depth_test(
+    format: wgpu::TextureFormat,
+    compare: wgpu::CompareFunction,
+) -> wgpu::DepthStencilState {
+    wgpu::DepthStencilState {
+        format,
+        depth_write_enabled: Some(true),
+        depth_compare: Some(compare),
+        stencil: Default::default(),
+        bias: Default::default(),
+    }
+}
+
+/// How a reversed depth buffer (0 is infinitely far, nearer is larger)
+/// is used for one pass: cleared to 0 and not kept after it.
+pub const REVERSED_DEPTH: wgpu::Operations<f32> = wgpu::Operations {
+    load: wgpu::LoadOp::Clear(0.0),
+    store: wgpu::StoreOp::Discard,
+};
+
+/// Begins a render pass `label` with one colour attachment, `color`
+/// (`view`, the view it resolves to if any, and how it is loaded and
+/// stored), and the depth attachment `depth` (no stencil), without
+/// queries.
+pub fn begin_render_pass<'e>(
+    encoder: &'e mut wgpu::CommandEncoder,
+    label: &str,
+    color: (
+        &wgpu::TextureView,
+        Option<&wgpu::TextureView>,
+        wgpu::Operations<wgpu::Color>,
+    ),
+    depth: (&wgpu::TextureView, wgpu::Operations<f32>),
+) -> wgpu::RenderPass<'e> {
+    let (view, resolve_target, ops) = color;
+    encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view,
+            depth_slice: None,
+            resolve_target,
+            ops,
+        })],
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: depth.0,
+            depth_ops: Some(depth.1),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    })
 }
 
 #[cfg(test)]

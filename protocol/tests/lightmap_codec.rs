@@ -2,6 +2,9 @@
 //! publishes holds exactly the encoder's state, bit for bit, at every
 //! version; bad input changes nothing.
 
+mod common;
+
+use common::vectors::{light_field, spot};
 use lightwire_protocol::lightmap::{
     ApplyError, Encoder, Lightmap, dequantize, merge, quantize_into, residual,
 };
@@ -14,6 +17,16 @@ fn client_for(e: &Encoder) -> Lightmap {
 }
 
 /// The tiles a delta of `e`'s layout carries.
+/// An 8 x 8 encoder at a 5% budget that has published a flat lightmap,
+/// the lightmap, and a client that holds it.
+fn flat_at_5_percent() -> (Encoder, Vec<[f32; 3]>, Lightmap) {
+    let mut e = Encoder::new(8, 8, 8, PixelFormat::Rgb9e5, 0.05);
+    let rgb = vec![[1.0, 2.0, 4.0]; 64];
+    let mut client = client_for(&e);
+    client.apply_delta(&e.publish(&rgb, vec![])).unwrap();
+    (e, rgb, client)
+}
+
 fn tiles(e: &Encoder, d: &Delta) -> Vec<u32> {
     e.state()
         .layout()
@@ -73,10 +86,7 @@ fn first_publish_from_zero_sends_only_nonzero_tiles_and_keyframe_sends_all() {
 
 #[test]
 fn a_change_below_epsilon_sends_no_tile_and_the_state_keeps_the_old_value() {
-    let mut e = Encoder::new(8, 8, 8, PixelFormat::Rgb9e5, 0.05);
-    let mut rgb = vec![[1.0, 2.0, 4.0]; 64];
-    let mut client = client_for(&e);
-    client.apply_delta(&e.publish(&rgb, vec![])).unwrap();
+    let (mut e, mut rgb, mut client) = flat_at_5_percent();
     let before = e.state().clone();
 
     rgb[10] = [1.03, 2.0, 4.0]; // 3 % < 5 %
@@ -120,19 +130,19 @@ fn wrong_base_is_rejected_and_leaves_the_state_untouched() {
     let mut client = client_for(&e);
     let d1 = e.publish(&gradient(12, 12, 0.0), vec![]);
     let d2 = e.publish(&gradient(12, 12, 1.0), vec![]);
-    let pristine = client.clone();
-    assert_eq!(
-        client.apply_delta(&d2),
-        Err(ApplyError::WrongBase { have: 0, base: 1 })
-    );
-    assert_eq!(client, pristine);
+    // Refused as based on `base` while the client holds `have`, which it
+    // still holds after.
+    let refused = |client: &mut Lightmap, d: &Delta, (have, base)| {
+        let before = client.clone();
+        assert_eq!(
+            client.apply_delta(d),
+            Err(ApplyError::WrongBase { have, base })
+        );
+        assert_eq!(*client, before);
+    };
+    refused(&mut client, &d2, (0, 1));
     client.apply_delta(&d1).unwrap();
-    let after_d1 = client.clone();
-    assert_eq!(
-        client.apply_delta(&d1),
-        Err(ApplyError::WrongBase { have: 1, base: 0 })
-    );
-    assert_eq!(client, after_d1);
+    refused(&mut client, &d1, (1, 0));
     client.apply_delta(&d2).unwrap();
     assert_eq!(&client, e.state());
 }
@@ -331,21 +341,16 @@ fn worst_deviation(held: &Lightmap, target: &[[f32; 3]], floor: f32) -> f32 {
 /// throws: a smooth base, a bright spot that travels, a shadow that turns.
 fn moving_light(w: u32, h: u32, frame: u32) -> Vec<[f32; 3]> {
     let t = frame as f32 * 0.004;
-    (0..w * h)
-        .map(|i| {
-            let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
-            let spot = (-((x - 0.5 - 0.4 * t.cos()).powi(2) + (y - 0.5 - 0.4 * t.sin()).powi(2))
-                * 20.0)
-                .exp();
-            let shadow = 0.6 + 0.4 * ((x - 0.5) * t.cos() + (y - 0.5) * t.sin()).tanh();
-            let base = 0.2 + 0.3 * y;
-            [
-                (base + 2.0 * spot) * shadow,
-                (base * 0.8 + 1.5 * spot) * shadow,
-                (base * 0.5 + 0.2 * spot) * shadow + 1e-4,
-            ]
-        })
-        .collect()
+    light_field(w, h, |x, y| {
+        let spot = spot(x, y, t, 0.4, 20.0);
+        let shadow = 0.6 + 0.4 * ((x - 0.5) * t.cos() + (y - 0.5) * t.sin()).tanh();
+        let base = 0.2 + 0.3 * y;
+        [
+            (base + 2.0 * spot) * shadow,
+            (base * 0.8 + 1.5 * spot) * shadow,
+            (base * 0.5 + 0.2 * spot) * shadow + 1e-4,
+        ]
+    })
 }
 
 #[test]
@@ -443,10 +448,7 @@ fn ten_thousand_versions_stay_bit_exact_and_within_the_budget_then_converge() {
 
 #[test]
 fn what_waits_is_sent_once_the_lightmap_holds_still() {
-    let mut e = Encoder::new(8, 8, 8, PixelFormat::Rgb9e5, 0.05);
-    let mut rgb = vec![[1.0, 2.0, 4.0]; 64];
-    let mut client = client_for(&e);
-    client.apply_delta(&e.publish(&rgb, vec![])).unwrap();
+    let (mut e, mut rgb, mut client) = flat_at_5_percent();
     rgb[10] = [1.03, 2.0, 4.0];
     let d = e.publish(&rgb, vec![]);
     assert!(tiles(&e, &d).is_empty(), "3 % waits at a 5 % budget");

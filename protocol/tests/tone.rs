@@ -16,10 +16,13 @@ fn vectors() -> Value {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("parsing {}: {e}", path.display()))
 }
 
-fn list<'a>(v: &'a Value, key: &str) -> &'a [Value] {
-    v[key]
-        .as_array()
-        .unwrap_or_else(|| panic!("{key} is not an array"))
+/// The cases of the vectors' list `key`, at least `at_least` of them.
+fn cases(key: &str, at_least: usize) -> Vec<Value> {
+    let Value::Array(cases) = vectors()[key].take() else {
+        panic!("{key} is not an array");
+    };
+    assert!(cases.len() >= at_least, "{key}: {} cases", cases.len());
+    cases
 }
 
 /// A JSON number as the f32 it stands for (parsed, then rounded to f32:
@@ -81,10 +84,7 @@ fn assert_clear_of_boundaries(b: f32, exposure: f32, what: &str) {
 
 #[test]
 fn white_points_match_the_shared_vectors() {
-    let v = vectors();
-    let cases = list(&v, "white_points");
-    assert!(cases.len() >= 10);
-    for case in cases {
+    for case in cases("white_points", 10) {
         let name = case["name"].as_str().unwrap_or("?");
         let texels = texels_of(&case["texels"]);
         let want = f32_of(&case["white"]);
@@ -95,10 +95,7 @@ fn white_points_match_the_shared_vectors() {
 
 #[test]
 fn pixels_match_the_shared_vectors() {
-    let v = vectors();
-    let cases = list(&v, "pixels");
-    assert!(cases.len() >= 30);
-    for case in cases {
+    for case in cases("pixels", 30) {
         let rgb = rgb_of(&case["rgb"]);
         let exposure = f32_of(&case["exposure"]);
         let want = bytes_of(&case["bytes"]);
@@ -111,10 +108,7 @@ fn pixels_match_the_shared_vectors() {
 
 #[test]
 fn images_match_the_shared_vectors() {
-    let v = vectors();
-    let cases = list(&v, "images");
-    assert!(!cases.is_empty());
-    for case in cases {
+    for case in cases("images", 1) {
         let name = case["name"].as_str().unwrap_or("?");
         let texels = texels_of(&case["texels"]);
         let width = case["width"].as_u64().unwrap_or(0) as usize;

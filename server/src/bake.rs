@@ -32,7 +32,7 @@ use lightwire_scene::atlas::{Atlas, Chart};
 use lightwire_scene::gltf::write::{
     GlbLightmap, GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene,
 };
-use lightwire_scene::{Pose, Scene};
+use lightwire_scene::{Patch, Pose, Scene};
 
 /// Per-surface entry of `atlas.json`.
 #[derive(Debug, Serialize)]
@@ -175,6 +175,22 @@ impl BakeStats {
     }
 }
 
+/// `surface(patch, its chart, its corners' lightmap UVs)` ([`corner_uvs`])
+/// of every patch, in patch order.
+fn per_surface<T>(
+    scene: &Scene,
+    atlas: &Atlas,
+    surface: impl Fn(&Patch, &Chart, Vec<[f32; 2]>) -> T,
+) -> Vec<T> {
+    scene
+        .patches
+        .iter()
+        .zip(&atlas.charts)
+        .enumerate()
+        .map(|(k, (p, chart))| surface(p, chart, corner_uvs(atlas, k)))
+        .collect()
+}
+
 /// Describes the atlas for `atlas.json`.
 pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
     AtlasFile {
@@ -182,24 +198,18 @@ pub fn atlas_file(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> AtlasFile {
         width: atlas.width,
         height: atlas.height,
         padding: lightwire_scene::atlas::PADDING,
-        surfaces: scene
-            .patches
-            .iter()
-            .zip(&atlas.charts)
-            .enumerate()
-            .map(|(k, (p, chart))| AtlasSurface {
-                name: p.name.clone(),
-                object: scene.objects[p.object as usize].name.clone(),
-                material: scene.materials[p.material as usize].name.clone(),
-                rect: *chart,
-                corners: p
-                    .shape
-                    .transformed(&poses[p.object as usize])
-                    .quad_corners()
-                    .map(|c| c.to_array()),
-                uvs: corner_uvs(atlas, k),
-            })
-            .collect(),
+        surfaces: per_surface(scene, atlas, |p, chart, uvs| AtlasSurface {
+            name: p.name.clone(),
+            object: scene.objects[p.object as usize].name.clone(),
+            material: scene.materials[p.material as usize].name.clone(),
+            rect: *chart,
+            corners: p
+                .shape
+                .transformed(&poses[p.object as usize])
+                .quad_corners()
+                .map(|c| c.to_array()),
+            uvs,
+        }),
         uv_lightmaps: Vec::new(),
         lightmap_blocks: scene
             .uv_meshes
@@ -421,20 +431,14 @@ pub fn describe(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> SceneInfo {
                 emission: m.emission.to_array(),
             })
             .collect(),
-        surfaces: scene
-            .patches
-            .iter()
-            .zip(&atlas.charts)
-            .enumerate()
-            .map(|(k, (p, c))| SurfaceInfo {
-                name: p.name.clone(),
-                object: p.object,
-                material: p.material,
-                corners: p.shape.quad_corners().map(|c| c.to_array()),
-                rect: [c.x, c.y, c.w, c.h],
-                uvs: corner_uvs(atlas, k),
-            })
-            .collect(),
+        surfaces: per_surface(scene, atlas, |p, c, uvs| SurfaceInfo {
+            name: p.name.clone(),
+            object: p.object,
+            material: p.material,
+            corners: p.shape.quad_corners().map(|c| c.to_array()),
+            rect: [c.x, c.y, c.w, c.h],
+            uvs,
+        }),
     }
 }
 

@@ -1,6 +1,6 @@
 //! The `lightwire` command as a user runs it: real processes, real files.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use lightwire_testkit::repo;
@@ -23,6 +23,16 @@ fn lightwire_json(args: &[&str], json: &std::path::Path) -> (Output, serde_json:
     let report =
         serde_json::from_str(&std::fs::read_to_string(json).expect("written")).expect("JSON");
     (out, report)
+}
+
+/// `lightwire bake` of `scene` by `solver`, with the flags `more`, into
+/// `out`.
+fn bake(scene: &Path, solver: &str, more: &[&str], out: &Path) -> Output {
+    let mut args = vec!["bake", "--scene", scene.to_str().expect("utf-8")];
+    args.extend(["--solver", solver]);
+    args.extend(more);
+    args.extend(["--out", out.to_str().expect("utf-8")]);
+    lightwire(&args)
 }
 
 fn text(bytes: &[u8]) -> String {
@@ -153,15 +163,7 @@ fn bad_scenes_fail_with_messages_that_name_problem_and_place() {
 fn bake_writes_exr_png_atlas_and_stats() {
     let out_dir = std::env::temp_dir().join(format!("lightwire-bake-test-{}", std::process::id()));
     let scene = repo().join("scenes/plates.json");
-    let out = lightwire(&[
-        "bake",
-        "--scene",
-        scene.to_str().expect("utf-8"),
-        "--solver",
-        "reference",
-        "--out",
-        out_dir.to_str().expect("utf-8"),
-    ]);
+    let out = bake(&scene, "reference", &[], &out_dir);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(
         text(&out.stderr).contains("form factors"),
@@ -441,23 +443,21 @@ fn bake_charts_choose_a_meshs_charts() {
             "lightwire-bake-charts-{charts}-{}",
             std::process::id()
         ));
-        let out = lightwire(&[
-            "bake",
-            "--scene",
-            scene.to_str().expect("utf-8"),
-            "--solver",
+        let out = bake(
+            &scene,
             "progressive",
-            "--density-scale",
-            "0.1",
-            "--tolerance",
-            "0.05",
-            "--corrections",
-            "0",
-            "--charts",
-            charts,
-            "--out",
-            out_dir.to_str().expect("utf-8"),
-        ]);
+            &[
+                "--density-scale",
+                "0.1",
+                "--tolerance",
+                "0.05",
+                "--corrections",
+                "0",
+                "--charts",
+                charts,
+            ],
+            &out_dir,
+        );
         assert!(out.status.success(), "{charts}: {}", text(&out.stderr));
         let atlas: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(out_dir.join("atlas.json")).expect("written"),

@@ -26,9 +26,7 @@ use std::time::Instant;
 use glam::{DVec3, Vec3};
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Pose, Scene};
-use lightwire_solve::gpu::{
-    Correction, Device, GatherOptions, GatherSolver, ProgressiveOptions, ProgressiveSolver,
-};
+use lightwire_solve::gpu::{Correction, Device, GatherSolver, ProgressiveSolver};
 use lightwire_solve::pathtrace::{self, Estimate, PathTracer, SurfacePoint};
 use lightwire_solve::reference::{ReferenceSolver, Silent, SolveOptions};
 use lightwire_solve::validity::Validity;
@@ -309,16 +307,20 @@ fn reference_lightmap_at_contacts_agrees_with_the_path_tracer() {
     assert_contract(&verdict, "reference", setup.contacts.len());
 }
 
+/// What `new` builds on `gpu` over `setup` with the default options: a GPU
+/// solver or a correction.
+fn built<T, O: Default, E: std::fmt::Display>(
+    new: impl FnOnce(&Device, &Scene, &Atlas, &[Pose], O) -> Result<T, E>,
+    gpu: &Device,
+    setup: &Setup,
+) -> T {
+    new(gpu, &setup.scene, &setup.atlas, &setup.poses, O::default())
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
 /// The progressive GPU solver over `setup` with the default options.
 fn progressive(gpu: &Device, setup: &Setup) -> ProgressiveSolver {
-    ProgressiveSolver::new(
-        gpu,
-        &setup.scene,
-        &setup.atlas,
-        &setup.poses,
-        ProgressiveOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"))
+    built(ProgressiveSolver::new, gpu, setup)
 }
 
 /// The same for the progressive GPU solver converged to 1e-4 unshot.
@@ -367,14 +369,7 @@ fn corrected_progressive_lightmap_at_contacts_agrees_with_the_path_tracer() {
     let started = Instant::now();
     let mut solver = progressive(&gpu, setup);
     solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-    let mut correction = Correction::new(
-        &gpu,
-        &setup.scene,
-        &setup.atlas,
-        &setup.poses,
-        GatherOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let mut correction: Correction = built(Correction::new, &gpu, setup);
     for round in 1..=2 {
         let report = correction
             .round(&mut solver, 1e-4)
@@ -398,14 +393,7 @@ fn gather_lightmap_at_contacts_agrees_with_the_path_tracer() {
     let setup = setup();
     let gpu = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
     let started = Instant::now();
-    let mut solver = GatherSolver::new(
-        &gpu,
-        &setup.scene,
-        &setup.atlas,
-        &setup.poses,
-        GatherOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let mut solver: GatherSolver = built(GatherSolver::new, &gpu, setup);
     let report = solver.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
     let values = solver.radiosity().unwrap_or_else(|e| panic!("{e}"));
     eprintln!(

@@ -8,30 +8,6 @@ use glam::DVec3;
 use lightwire_solve::direct::{Emitters, GRID, form_factor};
 use lightwire_solve::raycast::Raycaster;
 
-/// A 1 x 1 light (E = 3) at height 1.5 over a black floor; with `plate`, a
-/// black 4 x 8 plate at height 0.75 covering x < 0 (facing down, so that
-/// it shadows the floor from the half of the light over x < 0).
-fn lamp_scene(plate: bool) -> String {
-    let plate = if plate {
-        r#", { "name": "plate", "material": "black", "quad": { "origin": [-4, 0.75, -4], "u": [4, 0, 0], "v": [0, 0, 8] } }"#
-    } else {
-        ""
-    };
-    format!(
-        r#"{{
-        "name": "lamp", "lightmap": {{ "texel_density": 2 }},
-        "materials": [
-            {{ "name": "lamp", "albedo": [0, 0, 0], "emission": [3, 3, 3] }},
-            {{ "name": "black", "albedo": [0, 0, 0] }}
-        ],
-        "surfaces": [
-            {{ "name": "lamp", "material": "lamp", "quad": {{ "origin": [-0.5, 1.5, -0.5], "u": [1, 0, 0], "v": [0, 0, 1] }} }},
-            {{ "name": "floor", "material": "black", "quad": {{ "origin": [-4, 0, -4], "u": [0, 0, 8], "v": [8, 0, 0] }} }}{plate}
-        ]
-    }}"#
-    )
-}
-
 /// The lamp's rectangle between `x0` and `x1` (its full width is -0.5..0.5).
 fn lamp(x0: f64, x1: f64) -> [DVec3; 4] {
     [
@@ -47,7 +23,7 @@ fn lamp(x0: f64, x1: f64) -> [DVec3; 4] {
 /// visible): at the axis, under the light's edge, and far to the side.
 #[test]
 fn unshadowed_irradiance_is_e_times_the_exact_form_factor() {
-    let (scene, atlas) = common::parse(&lamp_scene(false));
+    let (scene, atlas) = common::parse(&common::lamp_scene("lamp", common::SQUARE_LAMP, false));
     common::assert_floor_irradiance(&scene, &atlas, [(0.0, 0.0), (0.5, 0.3), (2.5, -1.0)], |x| {
         3.0 * form_factor(x, DVec3::Y, &lamp(-0.5, 0.5))
     });
@@ -61,7 +37,7 @@ fn unshadowed_irradiance_is_e_times_the_exact_form_factor() {
 /// the first value.
 #[test]
 fn half_shadowed_irradiance_follows_the_visible_part_of_the_light() {
-    let (scene, atlas) = common::parse(&lamp_scene(true));
+    let (scene, atlas) = common::parse(&common::lamp_scene("lamp", common::SQUARE_LAMP, true));
     let caster = Raycaster::new(&scene, &scene.initial_poses());
     let emitters = Emitters::of(&scene);
     let at = |x: DVec3| {

@@ -209,19 +209,7 @@ fn plates_irradiance_is_e_times_the_form_factor() {
 /// axis and at offsets out to where the light is at a grazing angle.
 #[test]
 fn direct_irradiance_under_a_square_light_matches_lamberts_formula() {
-    let (scene, _) = common::parse(
-        r#"{
-        "name": "lamp", "lightmap": { "texel_density": 2 },
-        "materials": [
-            { "name": "lamp", "albedo": [0, 0, 0], "emission": [3, 3, 3] },
-            { "name": "black", "albedo": [0, 0, 0] }
-        ],
-        "surfaces": [
-            { "name": "lamp", "material": "lamp", "quad": { "origin": [-0.5, 1.5, -0.5], "u": [1, 0, 0], "v": [0, 0, 1] } },
-            { "name": "floor", "material": "black", "quad": { "origin": [-4, 0, -4], "u": [0, 0, 8], "v": [8, 0, 0] } }
-        ]
-    }"#,
-    );
+    let (scene, _) = common::parse(&common::lamp_scene("lamp", common::SQUARE_LAMP, false));
     let lamp = [
         DVec3::new(-0.5, 1.5, -0.5),
         DVec3::new(0.5, 1.5, -0.5),

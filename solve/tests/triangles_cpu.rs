@@ -19,7 +19,7 @@ use lightwire_solve::validity::Validity;
 
 /// Height of the lamp.
 const LAMP_Y: f64 = 1.5;
-/// The lamp's emission (W/m²).
+/// The lamp's emission (W/m²), as `common::lamp_scene` has it.
 const LAMP_E: f64 = 3.0;
 
 /// The triangular lamp's corners, (x, z) = (-0.5, -0.5), (0.5, -0.5),
@@ -38,24 +38,12 @@ fn lamp() -> [DVec3; 3] {
 /// down, which shadows a floor point at `x0` from the lamp's part with
 /// `x < -x0`.
 fn lamp_scene(plate: bool) -> String {
-    let plate = if plate {
-        r#", { "name": "plate", "material": "black", "quad": { "origin": [-4, 0.75, -4], "u": [4, 0, 0], "v": [0, 0, 8] } }"#
-    } else {
-        ""
-    };
-    format!(
-        r#"{{
-        "name": "triangle-lamp", "lightmap": {{ "texel_density": 2 }},
-        "materials": [
-            {{ "name": "lamp", "albedo": [0, 0, 0], "emission": [{LAMP_E}, {LAMP_E}, {LAMP_E}] }},
-            {{ "name": "black", "albedo": [0, 0, 0] }}
-        ],
-        "surfaces": [
-            {{ "name": "lamp", "material": "lamp", "mesh": {{
-                "positions": [[-0.5, {LAMP_Y}, -0.5], [0.5, {LAMP_Y}, -0.5], [0.5, {LAMP_Y}, 0.5]] }} }},
-            {{ "name": "floor", "material": "black", "quad": {{ "origin": [-4, 0, -4], "u": [0, 0, 8], "v": [8, 0, 0] }} }}{plate}
-        ]
-    }}"#
+    common::lamp_scene(
+        "triangle-lamp",
+        &format!(
+            r#""mesh": {{ "positions": [[-0.5, {LAMP_Y}, -0.5], [0.5, {LAMP_Y}, -0.5], [0.5, {LAMP_Y}, 0.5]] }}"#
+        ),
+        plate,
     )
 }
 

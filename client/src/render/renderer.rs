@@ -181,28 +181,18 @@ impl Renderer {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("view"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(
-                            std::mem::size_of::<FrameUniform>() as u64,
-                        ),
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::VERTEX,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(64),
-                    },
-                    count: None,
-                },
+                buffer_entry(
+                    0,
+                    wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    wgpu::BufferBindingType::Uniform,
+                    std::mem::size_of::<FrameUniform>() as u64,
+                ),
+                buffer_entry(
+                    1,
+                    wgpu::ShaderStages::VERTEX,
+                    wgpu::BufferBindingType::Storage { read_only: true },
+                    64,
+                ),
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility: wgpu::ShaderStages::FRAGMENT,
@@ -250,14 +240,11 @@ impl Renderer {
                 cull_mode: Some(wgpu::Face::Back),
                 ..Default::default()
             },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                // Reversed-Z: nearer is larger.
-                depth_compare: Some(wgpu::CompareFunction::Greater),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
+            // Reversed-Z: nearer is larger.
+            depth_stencil: Some(lightwire_adapter::depth_test(
+                DEPTH_FORMAT,
+                wgpu::CompareFunction::Greater,
+            )),
             multisample: wgpu::MultisampleState {
                 count: samples,
                 ..Default::default()
@@ -512,22 +499,15 @@ impl Renderer {
         {
             return;
         }
-        let size = wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        };
         let texture = |label, format, samples, usage| {
-            self.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size,
-                mip_level_count: 1,
-                sample_count: samples,
-                dimension: wgpu::TextureDimension::D2,
+            lightwire_adapter::texture_2d(
+                &self.device,
+                label,
+                (width, height),
                 format,
+                samples,
                 usage,
-                view_formats: &[],
-            })
+            )
         };
         let attachment = wgpu::TextureUsages::RENDER_ATTACHMENT;
         let resolve = texture(
@@ -594,34 +574,20 @@ impl Renderer {
                 Some(msaa) => (msaa, Some(&targets.resolve_view)),
                 None => (&targets.resolve_view, None),
             };
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("view"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view,
-                    depth_slice: None,
-                    resolve_target,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a: 1.0 }),
-                        store: if resolve_target.is_some() {
-                            wgpu::StoreOp::Discard
-                        } else {
-                            wgpu::StoreOp::Store
-                        },
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &targets.depth,
-                    depth_ops: Some(wgpu::Operations {
-                        // Reversed-Z: 0 is infinitely far.
-                        load: wgpu::LoadOp::Clear(0.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            let color = wgpu::Operations {
+                load: wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a: 1.0 }),
+                store: if resolve_target.is_some() {
+                    wgpu::StoreOp::Discard
+                } else {
+                    wgpu::StoreOp::Store
+                },
+            };
+            let mut pass = lightwire_adapter::begin_render_pass(
+                &mut encoder,
+                "view",
+                (view, resolve_target, color),
+                (&targets.depth, lightwire_adapter::REVERSED_DEPTH),
+            );
             if scene.index_count > 0 {
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &group, &[]);
@@ -686,6 +652,26 @@ impl Renderer {
 }
 
 /// Checks that a lightmap fits the scene's atlas and holds all its texels.
+/// A bind group layout entry of a buffer `ty` at `binding`, seen by the
+/// stages `visibility`, of at least `min_size` bytes.
+fn buffer_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+    ty: wgpu::BufferBindingType,
+    min_size: u64,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: wgpu::BufferSize::new(min_size),
+        },
+        count: None,
+    }
+}
+
 fn check_lightmap(scene: &SceneInfo, lightmap: &LightmapTexels<'_>) -> Result<(), RenderError> {
     let (width, height) = lightmap.size();
     if (width, height) != (scene.atlas_width, scene.atlas_height) {

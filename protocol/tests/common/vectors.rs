@@ -89,15 +89,14 @@ pub const KEY_RGB: [[f32; 3]; 6] = [
     [3.0, 0.0, 0.0],
 ];
 
-/// The decoded texels, row-major, after keyframe then delta.
-pub const DELTA_RGB: [[f32; 3]; 6] = [
-    [1.0, 0.5, 0.25],
-    [0.0, 0.0, 0.0],
-    [1.0, 1.0, 1.0],
-    [2.0, 2.0, 2.0],
-    [65408.0, 0.0, 0.0],
-    [0.0, 0.0, 0.0],
-];
+/// The decoded texels, row-major, after keyframe then delta: the
+/// keyframe's with texel 2 taken to (1, 1, 1) and texel 5 to (0, 0, 0).
+pub const DELTA_RGB: [[f32; 3]; 6] = {
+    let mut rgb = KEY_RGB;
+    rgb[2] = [1.0, 1.0, 1.0];
+    rgb[5] = [0.0, 0.0, 0.0];
+    rgb
+};
 
 const QUARTER_TURN_Y: [f32; 4] = [
     0.0,
@@ -152,19 +151,29 @@ pub fn scene() -> SceneInfo {
             albedo: [0.5, 0.5, 0.5],
             emission: [1.0, 1.0, 1.0],
         }],
-        surfaces: vec![SurfaceInfo {
-            name: "top".into(),
-            object: 0,
-            material: 0,
-            corners: [
+        surfaces: vec![surface(
+            "top",
+            [
                 [0.0, 1.0, 0.0],
                 [1.0, 1.0, 0.0],
                 [1.0, 1.0, 1.0],
                 [0.0, 1.0, 1.0],
             ],
-            rect: [0, 0, 3, 2],
-            uvs: Vec::new(),
-        }],
+            Vec::new(),
+        )],
+    }
+}
+
+/// A surface of [`scene`]'s object and material with these `corners`,
+/// lit on the whole atlas, its corners' lightmap coordinates `uvs`.
+fn surface(name: &str, corners: [[f32; 3]; 4], uvs: Vec<[f32; 2]>) -> SurfaceInfo {
+    SurfaceInfo {
+        name: name.into(),
+        object: 0,
+        material: 0,
+        corners,
+        rect: [0, 0, 3, 2],
+        uvs,
     }
 }
 
@@ -173,19 +182,16 @@ pub fn scene() -> SceneInfo {
 /// (version 3).
 pub fn scene_with_uvs() -> SceneInfo {
     let mut scene = scene();
-    scene.surfaces.push(SurfaceInfo {
-        name: "floor/0".into(),
-        object: 0,
-        material: 0,
-        corners: [
+    scene.surfaces.push(surface(
+        "floor/0",
+        [
             [0.0, 0.0, 0.0],
             [1.0, 0.0, 0.0],
             [1.0, 0.0, -1.0],
             [1.0, 0.0, -1.0],
         ],
-        rect: [0, 0, 3, 2],
-        uvs: vec![[0.25, 0.75], [0.75, 0.75], [0.5, 0.25], [0.5, 0.25]],
-    });
+        vec![[0.25, 0.75], [0.75, 0.75], [0.5, 0.25], [0.5, 0.25]],
+    ));
     scene
 }
 
@@ -369,22 +375,36 @@ pub struct Sequence {
     pub final_version: u64,
 }
 
-/// The light field of the sequences: a spot travelling over a gradient.
-pub fn sequence_light(w: u32, h: u32, frame: u32) -> Vec<[f32; 3]> {
-    let t = frame as f32 * 0.15;
+/// A light field of `w` x `h` texels, row by row: `light(x, y)` with `x`
+/// and `y` the texel's place across the field, from 0 up to 1.
+pub fn light_field(w: u32, h: u32, light: impl Fn(f32, f32) -> [f32; 3]) -> Vec<[f32; 3]> {
     (0..w * h)
         .map(|i| {
             let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
-            let spot = (-((x - 0.5 - 0.3 * t.cos()).powi(2) + (y - 0.5 - 0.3 * t.sin()).powi(2))
-                * 12.0)
-                .exp();
-            [
-                0.1 + 0.4 * y + 3.0 * spot,
-                0.05 + 0.3 * x + 2.0 * spot,
-                0.02 + 0.5 * spot,
-            ]
+            light(x, y)
         })
         .collect()
+}
+
+/// A round spot's brightness at `(x, y)` (up to 1 at its centre, falling
+/// off as fast as `sharpness` says): its centre `radius` from the middle
+/// of the field at the angle `t`.
+pub fn spot(x: f32, y: f32, t: f32, radius: f32, sharpness: f32) -> f32 {
+    (-((x - 0.5 - radius * t.cos()).powi(2) + (y - 0.5 - radius * t.sin()).powi(2)) * sharpness)
+        .exp()
+}
+
+/// The light field of the sequences: a spot travelling over a gradient.
+pub fn sequence_light(w: u32, h: u32, frame: u32) -> Vec<[f32; 3]> {
+    let t = frame as f32 * 0.15;
+    light_field(w, h, |x, y| {
+        let spot = spot(x, y, t, 0.3, 12.0);
+        [
+            0.1 + 0.4 * y + 3.0 * spot,
+            0.05 + 0.3 * x + 2.0 * spot,
+            0.02 + 0.5 * spot,
+        ]
+    })
 }
 
 pub fn sequences() -> Vec<Sequence> {

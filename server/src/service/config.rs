@@ -268,6 +268,18 @@ impl Default for Config {
     }
 }
 
+/// `value`, the value of the variable `key`, parsed; the error says that
+/// it is not `what`.
+fn parsed<T>(key: &str, value: &str, what: &str) -> Result<T>
+where
+    T: std::str::FromStr,
+    T::Err: std::error::Error + Send + Sync + 'static,
+{
+    value
+        .parse()
+        .with_context(|| format!("{key}={value:?} is not {what}"))
+}
+
 impl Config {
     /// Reads a TOML config file.
     pub fn from_file(path: &std::path::Path) -> Result<Config> {
@@ -281,24 +293,20 @@ impl Config {
         for (key, value) in vars {
             match key.as_str() {
                 "LIGHTWIRE_LISTEN" => {
-                    self.listen = value.parse().with_context(|| {
-                        format!("LIGHTWIRE_LISTEN={value:?} is not an address like 127.0.0.1:8080")
-                    })?;
+                    self.listen = parsed(&key, &value, "an address like 127.0.0.1:8080")?
                 }
                 "LIGHTWIRE_SEND_BUFFER" => {
-                    self.socket_send_buffer = value.parse().with_context(|| {
-                        format!("LIGHTWIRE_SEND_BUFFER={value:?} is not a byte count")
-                    })?;
+                    self.socket_send_buffer = parsed(&key, &value, "a byte count")?
                 }
                 "LIGHTWIRE_EPSILON" => {
-                    self.epsilon = value.parse().with_context(|| {
-                        format!("LIGHTWIRE_EPSILON={value:?} is not a number (the stream's relative error budget, e.g. 0.0039)")
-                    })?;
+                    self.epsilon = parsed(
+                        &key,
+                        &value,
+                        "a number (the stream's relative error budget, e.g. 0.0039)",
+                    )?
                 }
                 "LIGHTWIRE_SETTLE_MS" => {
-                    self.settle_ms = value.parse().with_context(|| {
-                        format!("LIGHTWIRE_SETTLE_MS={value:?} is not a number of milliseconds")
-                    })?;
+                    self.settle_ms = parsed(&key, &value, "a number of milliseconds")?
                 }
                 "LIGHTWIRE_METRICS" => {
                     self.metrics = match value.as_str() {
@@ -431,17 +439,15 @@ impl Config {
 mod tests {
     use super::*;
 
+    /// `c` with the one environment variable `key` set to `value`.
+    fn set(c: &mut Config, key: &str, value: &str) -> Result<()> {
+        c.apply_env([(key.to_string(), value.to_string())].into_iter())
+    }
+
     #[test]
     fn environment_tokens_are_parsed_and_bad_ones_rejected() {
         let mut c = Config::default();
-        c.apply_env(
-            [(
-                "LIGHTWIRE_TOKENS".to_string(),
-                "viewer:a, driver:b,admin:c".to_string(),
-            )]
-            .into_iter(),
-        )
-        .expect("valid");
+        set(&mut c, "LIGHTWIRE_TOKENS", "viewer:a, driver:b,admin:c").expect("valid");
         assert_eq!(
             (
                 c.tokens.viewer[0].as_str(),
@@ -450,9 +456,7 @@ mod tests {
             ),
             ("a", "b", "c")
         );
-        let err = c
-            .apply_env([("LIGHTWIRE_TOKENS".to_string(), "root:x".to_string())].into_iter())
-            .expect_err("unknown role");
+        let err = set(&mut c, "LIGHTWIRE_TOKENS", "root:x").expect_err("unknown role");
         assert!(err.to_string().contains("unknown role"), "{err}");
     }
 
@@ -490,12 +494,7 @@ mod tests {
         }
         let mut c = Config::default();
         assert!(c.test_fail_solver.is_none(), "off unless set");
-        assert!(
-            c.apply_env(
-                [("LIGHTWIRE_TEST_FAIL_SOLVER".to_string(), "soon".to_string())].into_iter()
-            )
-            .is_err()
-        );
+        assert!(set(&mut c, "LIGHTWIRE_TEST_FAIL_SOLVER", "soon").is_err());
     }
 
     #[test]
@@ -521,12 +520,9 @@ mod tests {
         assert_eq!(c.metrics, MetricsAccess::Token);
         assert!(toml::from_str::<Config>("metrics = \"public\"").is_err());
         let mut c = Config::default();
-        c.apply_env([("LIGHTWIRE_METRICS".to_string(), "token".to_string())].into_iter())
-            .expect("valid");
+        set(&mut c, "LIGHTWIRE_METRICS", "token").expect("valid");
         assert_eq!(c.metrics, MetricsAccess::Token);
-        let err = c
-            .apply_env([("LIGHTWIRE_METRICS".to_string(), "closed".to_string())].into_iter())
-            .expect_err("unknown value");
+        let err = set(&mut c, "LIGHTWIRE_METRICS", "closed").expect_err("unknown value");
         assert!(err.to_string().contains("open or token"), "{err}");
     }
 

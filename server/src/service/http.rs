@@ -134,14 +134,14 @@ pub fn routes<S: Scenes>(scenes: Arc<S>) -> Router {
             get(uv_lightmap_file::<S>),
         )
         .route_layer(middleware::from_fn_with_state(
-            shared.clone(),
-            require_viewer,
+            (shared.clone(), Role::Viewer),
+            require,
         ));
     let mut metrics_route = Router::new().route("/metrics", get(metrics));
     if shared.config.metrics == MetricsAccess::Token {
         metrics_route = metrics_route.route_layer(middleware::from_fn_with_state(
-            shared.clone(),
-            require_admin,
+            (shared.clone(), Role::Admin),
+            require,
         ));
     }
     Router::new()
@@ -241,23 +241,14 @@ fn authorize(shared: &Shared, request: &Request, needed: Role) -> Result<(), Box
     }
 }
 
-async fn require_viewer(
-    State(shared): State<Arc<Shared>>,
+/// Middleware that lets a request on only with the state's role
+/// ([`authorize`]).
+async fn require(
+    State((shared, role)): State<(Arc<Shared>, Role)>,
     request: Request,
     next: Next,
 ) -> Response {
-    match authorize(&shared, &request, Role::Viewer) {
-        Ok(()) => next.run(request).await,
-        Err(refused) => *refused,
-    }
-}
-
-async fn require_admin(
-    State(shared): State<Arc<Shared>>,
-    request: Request,
-    next: Next,
-) -> Response {
-    match authorize(&shared, &request, Role::Admin) {
+    match authorize(&shared, &request, role) {
         Ok(()) => next.run(request).await,
         Err(refused) => *refused,
     }

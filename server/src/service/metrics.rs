@@ -21,6 +21,15 @@ pub struct SceneLabels {
     pub scene: String,
 }
 
+/// Registers fields of `metrics` in `registry`, each under its field's
+/// name with its help text, in the order given (the relay's metrics too).
+macro_rules! register_fields {
+    ($registry:expr, $metrics:expr, $($field:ident: $help:literal,)*) => {
+        $($registry.register(stringify!($field), $help, $metrics.$field.clone());)*
+    };
+}
+pub(crate) use register_fields;
+
 /// Every metric the service exports.
 pub struct Metrics {
     registry: Registry,
@@ -76,78 +85,25 @@ impl Metrics {
             scene_ready: Family::default(),
             registry: Registry::default(),
         };
-        registry.register("ticks", "Tick loop iterations, all scenes", m.ticks.clone());
-        registry.register(
-            "versions_published",
-            "Lightmap versions published",
-            m.versions_published.clone(),
-        );
-        registry.register(
-            "tick_ms",
-            "Wall time of a tick, milliseconds",
-            m.tick_ms.clone(),
-        );
-        registry.register(
-            "solve_ms",
-            "Solver time per tick, milliseconds",
-            m.solve_ms.clone(),
-        );
-        registry.register(
-            "redistribution_ms",
-            "Solver time per tick spent following moved objects, milliseconds",
-            m.redistribution_ms.clone(),
-        );
-        registry.register("clients", "Connected WebSocket clients", m.clients.clone());
-        registry.register(
-            "bytes_sent",
-            "WebSocket payload bytes sent",
-            m.bytes_sent.clone(),
-        );
-        registry.register(
-            "frames_sent",
-            "WebSocket frames sent",
-            m.frames_sent.clone(),
-        );
-        registry.register(
-            "frames_skipped",
-            "Lightmap versions slow clients skipped (they got a newer keyframe instead)",
-            m.frames_skipped.clone(),
-        );
-        registry.register(
-            "keyframes_sent",
-            "Keyframes sent (joins and resyncs)",
-            m.keyframes_sent.clone(),
-        );
-        registry.register(
-            "catch_up_deltas_sent",
-            "Merged deltas sent to clients a few versions behind (instead of a keyframe)",
-            m.catch_up_deltas_sent.clone(),
-        );
-        registry.register(
-            "bad_frames",
-            "Invalid client frames, by kind",
-            m.bad_frames.clone(),
-        );
-        registry.register(
-            "connections_closed_for_abuse",
-            "Connections closed after too many invalid frames",
-            m.connections_closed_for_abuse.clone(),
-        );
-        registry.register(
-            "solver_failures",
-            "Solver failures (lost GPU device, GPU error, panic), per scene",
-            m.solver_failures.clone(),
-        );
-        registry.register(
-            "solver_rebuilds",
-            "Attempts to rebuild a failed solver, per scene",
-            m.solver_rebuilds.clone(),
-        );
-        registry.register(
-            "scene_ready",
-            "1 while a scene serves versions, 0 while it solves its first or its solver has failed",
-            m.scene_ready.clone(),
-        );
+        register_fields! {
+            registry, m,
+            ticks: "Tick loop iterations, all scenes",
+            versions_published: "Lightmap versions published",
+            tick_ms: "Wall time of a tick, milliseconds",
+            solve_ms: "Solver time per tick, milliseconds",
+            redistribution_ms: "Solver time per tick spent following moved objects, milliseconds",
+            clients: "Connected WebSocket clients",
+            bytes_sent: "WebSocket payload bytes sent",
+            frames_sent: "WebSocket frames sent",
+            frames_skipped: "Lightmap versions slow clients skipped (they got a newer keyframe instead)",
+            keyframes_sent: "Keyframes sent (joins and resyncs)",
+            catch_up_deltas_sent: "Merged deltas sent to clients a few versions behind (instead of a keyframe)",
+            bad_frames: "Invalid client frames, by kind",
+            connections_closed_for_abuse: "Connections closed after too many invalid frames",
+            solver_failures: "Solver failures (lost GPU device, GPU error, panic), per scene",
+            solver_rebuilds: "Attempts to rebuild a failed solver, per scene",
+            scene_ready: "1 while a scene serves versions, 0 while it solves its first or its solver has failed",
+        }
         Self { registry, ..m }
     }
 

@@ -24,30 +24,17 @@ pub(super) fn non_empty<T: Zeroable + Clone>(mut v: Vec<T>) -> Vec<T> {
     v
 }
 
-/// A 2D texture of one mip level and its default view.
+/// A 2D texture of one mip level ([`lightwire_adapter::texture_2d`]) and
+/// its default view.
 pub(super) fn texture(
     device: &wgpu::Device,
     label: &str,
-    (width, height): (u32, u32),
+    size: (u32, u32),
     format: wgpu::TextureFormat,
     samples: u32,
     usage: wgpu::TextureUsages,
 ) -> wgpu::TextureView {
-    device
-        .create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: samples,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage,
-            view_formats: &[],
-        })
+    lightwire_adapter::texture_2d(device, label, size, format, samples, usage)
         .create_view(&Default::default())
 }
 
@@ -82,19 +69,33 @@ pub(super) fn read_vec4(
     count: u32,
 ) -> Result<Vec<[f32; 4]>, GpuError> {
     let size = u64::from(count.max(1)) * 16;
+    let bytes = read_back(device, queue, ("readback", size), buffer, |_| {})?;
+    let mut values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+    values.truncate(count as usize);
+    Ok(values)
+}
+
+/// Copies the first `size` bytes of `source` back to the CPU through a
+/// staging buffer `label`, in one submission after the commands `first`
+/// encodes (which may fill `source`).
+pub(super) fn read_back(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    (label, size): (&str, u64),
+    source: &wgpu::Buffer,
+    first: impl FnOnce(&mut wgpu::CommandEncoder),
+) -> Result<Vec<u8>, GpuError> {
     let staging = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("readback"),
+        label: Some(label),
         size,
         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
     let mut encoder = device.create_command_encoder(&Default::default());
-    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+    first(&mut encoder);
+    encoder.copy_buffer_to_buffer(source, 0, &staging, 0, size);
     queue.submit([encoder.finish()]);
-    let bytes = map_read(device, &staging)?;
-    let mut values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
-    values.truncate(count as usize);
-    Ok(values)
+    map_read(device, &staging)
 }
 
 /// Waits for the GPU and copies a mappable buffer's contents out.

@@ -273,13 +273,10 @@ pub(super) fn render_pipeline(
             cull_mode: None,
             ..Default::default()
         },
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: wgpu::TextureFormat::Depth32Float,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(depth_compare),
-            stencil: Default::default(),
-            bias: Default::default(),
-        }),
+        depth_stencil: Some(lightwire_adapter::depth_test(
+            wgpu::TextureFormat::Depth32Float,
+            depth_compare,
+        )),
         multisample: wgpu::MultisampleState {
             count: samples,
             ..Default::default()
@@ -334,29 +331,18 @@ pub(super) fn encode(
     triangle_vertices: u32,
     draws: Draws,
 ) {
-    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-        label: Some("hemicubes"),
-        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-            view: target.view,
-            depth_slice: None,
-            resolve_target: None,
-            ops: wgpu::Operations {
-                load: wgpu::LoadOp::Load,
-                store: wgpu::StoreOp::Store,
-            },
-        })],
-        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-            view: target.depth,
-            depth_ops: Some(wgpu::Operations {
-                load: wgpu::LoadOp::Load,
-                store: wgpu::StoreOp::Store,
-            }),
-            stencil_ops: None,
-        }),
-        timestamp_writes: None,
-        occlusion_query_set: None,
-        multiview_mask: None,
-    });
+    fn keep<V>() -> wgpu::Operations<V> {
+        wgpu::Operations {
+            load: wgpu::LoadOp::Load,
+            store: wgpu::StoreOp::Store,
+        }
+    }
+    let mut pass = lightwire_adapter::begin_render_pass(
+        encoder,
+        "hemicubes",
+        (target.view, None, keep()),
+        (target.depth, keep()),
+    );
     let res = target.resolution;
     if slots == 0 {
         return;

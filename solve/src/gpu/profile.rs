@@ -34,7 +34,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use super::buffers::map_read;
+use super::buffers::read_back;
 use super::device::{Device, GpuError};
 
 /// Timestamp queries per query set (wgpu's `QUERY_SET_MAX_QUERIES`).
@@ -516,24 +516,17 @@ impl State {
             usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let staging = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("profile timestamps readback"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&Default::default());
-        for (i, set) in self.timestamps.sets.iter().enumerate() {
-            let first = i as u32 * QUERIES_PER_SET;
-            if first >= used {
-                break;
+        let label = ("profile timestamps readback", size);
+        let bytes = read_back(device, queue, label, &resolved, |encoder| {
+            for (i, set) in self.timestamps.sets.iter().enumerate() {
+                let first = i as u32 * QUERIES_PER_SET;
+                if first >= used {
+                    break;
+                }
+                let count = (used - first).min(QUERIES_PER_SET);
+                encoder.resolve_query_set(set, 0..count, &resolved, u64::from(first) * 8);
             }
-            let count = (used - first).min(QUERIES_PER_SET);
-            encoder.resolve_query_set(set, 0..count, &resolved, u64::from(first) * 8);
-        }
-        encoder.copy_buffer_to_buffer(&resolved, 0, &staging, 0, size);
-        queue.submit([encoder.finish()]);
-        let bytes = map_read(device, &staging)?;
+        })?;
         Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 }

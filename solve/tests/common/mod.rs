@@ -169,6 +169,37 @@ pub const ROOM: &str = r#"{
     ]
 }"#;
 
+/// The square lamp's geometry in [`lamp_scene`]: 1 x 1 at height 1.5,
+/// facing down.
+pub const SQUARE_LAMP: &str =
+    r#""quad": { "origin": [-0.5, 1.5, -0.5], "u": [1, 0, 0], "v": [0, 0, 1] }"#;
+
+/// A scene named `name`: a lamp (E = 3) of geometry `lamp` (a surface's
+/// shape, e.g. [`SQUARE_LAMP`]) over a black 8 x 8 floor at height 0;
+/// with `plate`, a black 4 x 8 plate at height 0.75 covering x < 0
+/// (facing down, so that it shadows the floor from the lamp's part over
+/// x < 0).
+pub fn lamp_scene(name: &str, lamp: &str, plate: bool) -> String {
+    let plate = if plate {
+        r#", { "name": "plate", "material": "black", "quad": { "origin": [-4, 0.75, -4], "u": [4, 0, 0], "v": [0, 0, 8] } }"#
+    } else {
+        ""
+    };
+    format!(
+        r#"{{
+        "name": "{name}", "lightmap": {{ "texel_density": 2 }},
+        "materials": [
+            {{ "name": "lamp", "albedo": [0, 0, 0], "emission": [3, 3, 3] }},
+            {{ "name": "black", "albedo": [0, 0, 0] }}
+        ],
+        "surfaces": [
+            {{ "name": "lamp", "material": "lamp", {lamp} }},
+            {{ "name": "floor", "material": "black", "quad": {{ "origin": [-4, 0, -4], "u": [0, 0, 8], "v": [8, 0, 0] }} }}{plate}
+        ]
+    }}"#
+    )
+}
+
 /// Asserts that the emitters' irradiance (red channel) at the floor
 /// points `(x, 1e-6, z)`, facing up, is within 1e-5 (relative) of
 /// `expected` there.

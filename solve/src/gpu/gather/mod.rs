@@ -455,31 +455,17 @@ impl GatherSolver {
 
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("gather hemicubes"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &self.color_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        // Pixels that see nothing gather nothing.
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &self.depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        // Reversed depth: 0 is infinitely far.
-                        load: wgpu::LoadOp::Clear(0.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            let color = wgpu::Operations {
+                // Pixels that see nothing gather nothing.
+                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                store: wgpu::StoreOp::Store,
+            };
+            let mut pass = lightwire_adapter::begin_render_pass(
+                &mut encoder,
+                "gather hemicubes",
+                (&self.color_view, None, color),
+                (&self.depth_view, lightwire_adapter::REVERSED_DEPTH),
+            );
             pass.set_pipeline(&self.hemicube);
             pass.set_bind_group(0, &self.hemicube_groups[self.current], &[]);
             for slot in 0..count {

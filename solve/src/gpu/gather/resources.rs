@@ -8,7 +8,7 @@ use wgpu::util::DeviceExt;
 
 use crate::direct::direct_light;
 use crate::gpu::binding::{Kind, Pass, Resources, Slot};
-use crate::gpu::buffers::v4;
+use crate::gpu::buffers::{texture, v4};
 use crate::gpu::hemicube::{corner_order, render_pipeline};
 use crate::gpu::placement::{PatchRange, WorldPatch};
 use crate::gpu::progressive::GpuShooter;
@@ -299,33 +299,17 @@ impl GatherBuffers {
 /// radiosity seen (`Rgba32Float`) and its depth.
 pub(super) fn targets(
     device: &wgpu::Device,
-    (width, height): (u32, u32),
+    size: (u32, u32),
 ) -> (wgpu::TextureView, wgpu::TextureView) {
-    let size = wgpu::Extent3d {
-        width,
-        height,
-        depth_or_array_layers: 1,
+    let target = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
+        texture(device, label, size, format, 1, usage)
     };
-    let texture = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
-        device
-            .create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size,
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage,
-                view_formats: &[],
-            })
-            .create_view(&Default::default())
-    };
-    let color_view = texture(
+    let color_view = target(
         "gather hemicubes",
         wgpu::TextureFormat::Rgba32Float,
         wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
     );
-    let depth_view = texture(
+    let depth_view = target(
         "gather depth",
         wgpu::TextureFormat::Depth32Float,
         wgpu::TextureUsages::RENDER_ATTACHMENT,

@@ -209,7 +209,6 @@ impl Tiling<'_> {
         if !patch.triangle && patch.lightmap.is_none() {
             return;
         }
-        let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
         // On its own chart, a texel of the tile lies above the diagonal
         // (b > a); on a mesh's own lightmap, an edge of the triangle (or of
         // the parallelogram) crosses the tile (`atlas/uv.rs`).
@@ -218,20 +217,10 @@ impl Tiling<'_> {
             None => t[3] - 1 > t[0],
         };
         while tiles.len() < limit {
-            let Some(k) = (0..tiles.len())
-                .filter(|&k| size(&tiles[k]) > 1 && crossed(&tiles[k]))
-                .max_by_key(|&k| (size(&tiles[k]), std::cmp::Reverse(k)))
-            else {
+            let Some(k) = largest(tiles, crossed) else {
                 break;
             };
-            let [a0, b0, a1, b1] = tiles[k];
-            let halves = if a1 - a0 >= b1 - b0 {
-                let m = (a0 + a1) / 2;
-                [[a0, b0, m, b1], [m, b0, a1, b1]]
-            } else {
-                let m = (b0 + b1) / 2;
-                [[a0, b0, a1, m], [a0, m, a1, b1]]
-            };
+            let halves = halves(tiles[k]);
             tiles.swap_remove(k);
             tiles.extend(halves.into_iter().filter(|t| self.covers_surface(patch, t)));
         }
@@ -271,7 +260,6 @@ impl Tiling<'_> {
     /// cornell-large 3.32%, 1.83%, 1.75%, 1.73%; cornell-low 3.44%,
     /// 2.20%, 2.18%, 2.17%; hence [`contact_limit`]'s 1.5.
     fn split_contacts(&self, patch: &WorldPatch, tiles: &mut Vec<[u32; 4]>, limit: usize) {
-        let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
         let mixed = |t: &[u32; 4]| {
             let (mut valid, mut invalid) = (false, false);
             for b in t[1]..t[3] {
@@ -290,22 +278,12 @@ impl Tiling<'_> {
             valid && invalid
         };
         while tiles.len() < limit {
-            let Some(k) = (0..tiles.len())
-                .filter(|&k| size(&tiles[k]) > 1 && mixed(&tiles[k]))
-                .max_by_key(|&k| (size(&tiles[k]), std::cmp::Reverse(k)))
-            else {
+            let Some(k) = largest(tiles, mixed) else {
                 break;
             };
-            let [a0, b0, a1, b1] = tiles[k];
-            if a1 - a0 >= b1 - b0 {
-                let m = (a0 + a1) / 2;
-                tiles[k] = [a0, b0, m, b1];
-                tiles.push([m, b0, a1, b1]);
-            } else {
-                let m = (b0 + b1) / 2;
-                tiles[k] = [a0, b0, a1, m];
-                tiles.push([a0, m, a1, b1]);
-            }
+            let [first, second] = halves(tiles[k]);
+            tiles[k] = first;
+            tiles.push(second);
         }
     }
 
@@ -568,6 +546,27 @@ fn lightmap_edges(map: &ChartMap, triangle: bool, tile: [u32; 4]) -> Vec<[f32; 3
 
 pub(super) fn contact_limit((gx, gy): (u32, u32), capacity: u32) -> usize {
     ((3 * gx * gy).div_ceil(2)).min(capacity) as usize
+}
+
+/// The tile of `tiles` to split next: the largest of more than one texel
+/// for which `wanted`, the first of the largest.
+fn largest(tiles: &[[u32; 4]], wanted: impl Fn(&[u32; 4]) -> bool) -> Option<usize> {
+    let size = |t: &[u32; 4]| (t[2] - t[0]) * (t[3] - t[1]);
+    (0..tiles.len())
+        .filter(|&k| size(&tiles[k]) > 1 && wanted(&tiles[k]))
+        .max_by_key(|&k| (size(&tiles[k]), std::cmp::Reverse(k)))
+}
+
+/// Tile `[a0, b0, a1, b1]` halved along its longer side (along `a` when
+/// the sides are equal), the half nearer the origin first.
+fn halves([a0, b0, a1, b1]: [u32; 4]) -> [[u32; 4]; 2] {
+    if a1 - a0 >= b1 - b0 {
+        let m = (a0 + a1) / 2;
+        [[a0, b0, m, b1], [m, b0, a1, b1]]
+    } else {
+        let m = (b0 + b1) / 2;
+        [[a0, b0, a1, m], [a0, m, a1, b1]]
+    }
 }
 
 #[cfg(test)]
