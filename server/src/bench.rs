@@ -32,6 +32,7 @@
 
 pub mod codec;
 pub mod dynamic;
+pub mod eye;
 pub mod meshes;
 
 use std::path::Path;

@@ -551,3 +551,86 @@ fn bake_with_the_gather_solver_writes_its_stats() {
     assert_eq!(stats["residual_fraction"], 0.0);
     let _ = std::fs::remove_dir_all(&out_dir);
 }
+
+/// `bench eye` reads a bake where a player looks: a converged bake of a
+/// closed room agrees with the path tracer within its noise, a black
+/// lightmap is 100% off, and a lightmap of another atlas is refused.
+#[test]
+fn bench_eye_reads_a_bake_where_a_player_looks() {
+    let dir = std::env::temp_dir().join(format!("lightwire-bench-eye-{}", std::process::id()));
+    let scene = repo().join("scenes/cornell-large.json");
+    let out = bake(&scene, "progressive", &["--density-scale", "0.5"], &dir);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let exr = dir.join("lightmap.exr");
+    let eye = |lightmap: &Path, json: &Path| {
+        lightwire(&[
+            "bench",
+            "eye",
+            "--scene",
+            scene.to_str().expect("utf-8"),
+            "--lightmap",
+            lightmap.to_str().expect("utf-8"),
+            "--density-scale",
+            "0.5",
+            "--points",
+            "120",
+            "--spp",
+            "2048",
+            "--json",
+            json.to_str().expect("utf-8"),
+        ])
+    };
+    let report = |json: &Path| -> serde_json::Value {
+        let all: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(json).expect("written")).expect("JSON");
+        all[0].clone()
+    };
+    let json = dir.join("eye.json");
+    let out = eye(&exr, &json);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let r = report(&json);
+    let (nrmse, noise) = (
+        r["nrmse"].as_f64().expect("nrmse"),
+        r["truth_noise"].as_f64().expect("noise"),
+    );
+    let compared = r["points"].as_u64().expect("points");
+    assert!(compared >= 100, "{r}");
+    assert_eq!(
+        r["samples"].as_array().map(Vec::len),
+        Some(compared as usize)
+    );
+    assert!(nrmse < 0.03 + 2.0 * noise, "NRMSE {nrmse}, noise {noise}");
+
+    // The same atlas, all black: every point is 100% off.
+    let (w, h) = exr_size(&exr);
+    let (w, h) = (w as usize, h as usize);
+    let black = dir.join("black.exr");
+    exr::prelude::write_rgb_file(&black, w, h, |_, _| (0.0f32, 0.0f32, 0.0f32)).expect("write");
+    let out = eye(&black, &dir.join("black.json"));
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let r = report(&dir.join("black.json"));
+    assert!(
+        (r["nrmse"].as_f64().expect("nrmse") - 1.0).abs() < 1e-9,
+        "{r}"
+    );
+    assert_eq!(r["over_25"].as_f64(), Some(1.0), "{r}");
+
+    // Another size: refused, naming both.
+    let small = dir.join("small.exr");
+    exr::prelude::write_rgb_file(&small, 4, 4, |_, _| (1.0f32, 1.0f32, 1.0f32)).expect("write");
+    let out = eye(&small, &dir.join("small.json"));
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("the image is 4x4 but"),
+        "{}",
+        text(&out.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An OpenEXR file's width and height.
+fn exr_size(path: &Path) -> (u32, u32) {
+    let meta = exr::meta::MetaData::read_from_file(path, false).expect("EXR header");
+    let size = meta.headers[0].layer_size;
+    (size.width() as u32, size.height() as u32)
+}

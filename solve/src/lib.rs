@@ -18,6 +18,7 @@
 
 pub mod accuracy;
 pub mod direct;
+pub mod eye;
 pub mod gpu;
 pub mod pathtrace;
 pub mod raycast;

@@ -35,6 +35,70 @@ pub(crate) enum BenchCommand {
     /// codecs over the recording side by side: bytes per version, encode
     /// and decode time, and the deviation a viewer sees.
     Codec(CodecArgs),
+    /// Where a player looks: a lightmap (`lightwire bake`'s lightmap.exr,
+    /// or the service's /api/scenes/{id}/lightmap.exr) read as a client
+    /// reads it, bilinearly, at random points in view, against the path
+    /// tracer at the same points: NRMSE, median and p95 relative error,
+    /// the share of points more than 10% and 25% off.
+    Eye(EyeArgs),
+}
+
+/// `lightwire bench eye`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct EyeArgs {
+    /// The scene file the lightmap was made from.
+    #[arg(long)]
+    scene: PathBuf,
+    /// The lightmap: an OpenEXR image of the scene's atlas.
+    #[arg(long)]
+    lightmap: PathBuf,
+    /// Points in view.
+    #[arg(long, default_value_t = 300)]
+    points: usize,
+    /// Path tracer paths per point.
+    #[arg(long, default_value_t = 4096)]
+    spp: u32,
+    /// Seeds the points and the paths.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Eyes stay this far (m) inside the static world's bounding box.
+    #[arg(long, default_value_t = 0.1)]
+    margin: f64,
+    /// The density scale the lightmap was baked at.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    #[command(flatten)]
+    charts: ChartsArg,
+    /// Also write every point (where, lightmap, truth) as JSON here
+    /// [default: eye.json beside the lightmap].
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+impl EyeArgs {
+    fn run(self) -> Result<()> {
+        if self.points == 0 || self.spp < 2 {
+            anyhow::bail!("--points must be at least 1 and --spp at least 2");
+        }
+        let settings = bench::eye::Settings {
+            points: self.points,
+            spp: self.spp,
+            seed: self.seed,
+            margin: self.margin,
+            load: LoadOptions {
+                density_scale: self.density_scale,
+                charts: self.charts.charts,
+            },
+        };
+        let result = bench::eye::run(&self.scene, &self.lightmap, &settings)?;
+        bench::eye::print(&result);
+        let json = self
+            .json
+            .unwrap_or_else(|| bench::eye::default_json(&self.lightmap));
+        bench::write_json(&json, std::slice::from_ref(&result))?;
+        println!("  points: {}", json.display());
+        Ok(())
+    }
 }
 
 impl BenchCommand {
@@ -44,6 +108,7 @@ impl BenchCommand {
             Self::Dynamic(args) => args.run(),
             Self::Meshes(args) => args.run(),
             Self::Codec(args) => bench_codec_command(args),
+            Self::Eye(args) => args.run(),
         }
     }
 }
