@@ -243,6 +243,13 @@ pub fn build<'a>(
                 }
             });
             if rounds > 0 {
+                progress.note(&format!(
+                    "after refinement, {rounds} gathered correction round(s): each draws the \
+                     {1} patches into a hemicube at every one of the {0} elements, then \
+                     refines (no progress is shown within a round)",
+                    atlas.elements.len(),
+                    scene.patches.len()
+                ));
                 // The gather sweep at its own default resolution: 64 changed
                 // nothing measurable on cornell-large or cornell-blocks.
                 let started = Instant::now();
