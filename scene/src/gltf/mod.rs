@@ -48,7 +48,7 @@ pub mod content;
 mod overlap;
 pub mod write;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -1191,7 +1191,7 @@ impl Importer<'_> {
             of: indices.len(),
             ..Dropped::default()
         };
-        let mut seen: HashMap<[[u32; 3]; 3], ()> = HashMap::new();
+        let mut seen: HashSet<[[u32; 3]; 3]> = HashSet::new();
         let mut kept = Vec::with_capacity(indices.len());
         let mut numbers = Vec::with_capacity(indices.len());
         for (t, tri) in indices.into_iter().enumerate() {
@@ -1205,7 +1205,7 @@ impl Importer<'_> {
             let mut key = [a, b, c].map(|p| p.to_array().map(f32::to_bits));
             let first = (0..3).min_by_key(|&i| key[i]).unwrap_or(0);
             key.rotate_left(first);
-            if seen.insert(key, ()).is_some() {
+            if !seen.insert(key) {
                 dropped.duplicate += 1;
                 continue;
             }
@@ -1222,16 +1222,20 @@ impl Importer<'_> {
     /// (counts per primitive), then the clamped base colours.
     fn take_warnings(&mut self) -> Vec<SceneIssue> {
         let mut out = Vec::new();
-        for (kind, count) in [
-            (
-                "zero-area or sliver (corners on a line)",
-                (|d: &Dropped| d.degenerate) as fn(&Dropped) -> usize,
-            ),
+        for (kind, duplicates) in [
+            ("zero-area or sliver (corners on a line)", false),
             (
                 "duplicate (same corners as another triangle, same facing)",
-                |d: &Dropped| d.duplicate,
+                true,
             ),
         ] {
+            let count = |d: &Dropped| {
+                if duplicates {
+                    d.duplicate
+                } else {
+                    d.degenerate
+                }
+            };
             let per: Vec<(&String, usize, usize)> = self
                 .dropped
                 .iter()
