@@ -170,3 +170,83 @@ fn a_level_scene_loads_to_the_same_atlas_every_time() {
         "the same elements in the same places"
     );
 }
+
+/// The three.js example (`server/tests/threejs.rs` runs it on a repository
+/// scene) on the garage: `lightwire serve --dev` on the level, and
+/// `server/dashboard/e2e/threejs.e2e.mjs` in headless Chromium checks that
+/// three.js draws the level lit by the stream (not black, not the
+/// placeholder), that moving the crate changes the picture, and that no
+/// console error happens. Screenshots in `target/threejs-artifacts/`.
+#[test]
+fn three_js_draws_the_garage_lit_by_the_stream() {
+    use lightwire_testkit::http::blocking;
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+
+    // The first solve of the level takes minutes on lavapipe (BENCHMARKS.md §9).
+    const READY: Duration = Duration::from_secs(900);
+    const E2E: Duration = Duration::from_secs(600);
+    let path = level_scene("garage", &temp_dir("levels-threejs"));
+    let server = lightwire_testkit::lightwire!().serve_dev_on(&path, &[]);
+    let started = Instant::now();
+    while blocking::get_with(&server.addr, "/readyz", &[]).map(|r| r.status) != Some(200) {
+        assert!(
+            started.elapsed() < READY,
+            "the garage is not ready after {READY:?}"
+        );
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    eprintln!("garage ready after {:.0?}", started.elapsed());
+    let dashboard = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("dashboard");
+    let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
+    assert!(
+        Path::new(&chromium).exists() && dashboard.join("node_modules/playwright-core").is_dir(),
+        "needs Chromium at {chromium} and `npm ci` in {} (make test does both)",
+        dashboard.display()
+    );
+    let artifacts = lightwire_testkit::lightwire!()
+        .target_dir()
+        .join("threejs-artifacts");
+    let started = Instant::now();
+    // The crate, 1 m towards the lit +x wall and turned by 30°: still on
+    // the open floor.
+    let mut node = Command::new("node")
+        .current_dir(&dashboard)
+        .arg("e2e/threejs.e2e.mjs")
+        .arg("--url")
+        .arg(server.url("/examples/threejs/?scene=garage"))
+        .args(["--name", "garage", "--move", "1,0,0,30", "--timeout", "300"])
+        .arg("--artifacts")
+        .arg(&artifacts)
+        .arg("--chromium")
+        .arg(&chromium)
+        .stdout(Stdio::inherit())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot run node (install nodejs): {e}"));
+    let status = loop {
+        if let Some(status) = node.try_wait().expect("wait for node") {
+            break status;
+        }
+        if started.elapsed() > E2E {
+            let _ = node.kill();
+            let _ = node.wait();
+            panic!("the browser test did not finish within {E2E:?}");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert!(
+        status.success(),
+        "the three.js example failed on the garage ({status}); see its output above and the screenshots in {}",
+        artifacts.display()
+    );
+    for shot in ["placeholder", "lit", "moved"] {
+        let shot = artifacts.join(format!("garage-{shot}.png"));
+        let size = std::fs::metadata(&shot).map(|m| m.len()).unwrap_or(0);
+        assert!(
+            size > 1_000,
+            "screenshot {} is missing or empty",
+            shot.display()
+        );
+    }
+}

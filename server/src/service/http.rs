@@ -1,7 +1,7 @@
 //! HTTP routes: health, readiness, metrics, the REST API, lightmap
 //! snapshots and the lit scene as glTF (`scene.glb`), the WebSocket
-//! upgrade and the dashboard (its embedded files are in
-//! [`super::dashboard`]).
+//! upgrade, the dashboard and the three.js example (their embedded files
+//! are in [`super::dashboard`]).
 //!
 //! Every route but `/readyz` is served by [`routes`] on anything that
 //! implements [`Scenes`]: a solver's scenes ([`AppState`]) or a relay's
@@ -14,7 +14,7 @@
 //! a foreign browser `Origin` like the upgrade; [`request_token`] reads
 //! the token for both. `/metrics` is open or needs an admin token
 //! (`metrics` in [`super::config`]). `/healthz`, `/readyz` and the
-//! dashboard's files (no data in them) are open.
+//! dashboard's and the three.js example's files (no data in them) are open.
 
 use std::collections::HashMap;
 use std::io::Cursor;
@@ -147,6 +147,9 @@ pub fn routes<S: Scenes>(scenes: Arc<S>) -> Router {
     Router::new()
         .route("/", get(dashboard::index))
         .route("/dashboard/{*path}", get(dashboard::file))
+        .route("/examples/threejs", get(dashboard::example_index))
+        .route("/examples/threejs/", get(dashboard::example_index))
+        .route("/examples/threejs/{*path}", get(dashboard::example))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/ws/scenes/{id}", get(websocket::<S>))
         .merge(api)
