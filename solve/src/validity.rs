@@ -14,7 +14,15 @@
 //!   invalid when more than [`BACK_FACE_LIMIT`] of them (cosine-weighted)
 //!   first hit the *back* of a surface. Surfaces are one-sided and face
 //!   where light is, so a point that sees mostly backs is enclosed: inside a
-//!   block, under it, or sandwiched between a lamp and the ceiling.
+//!   block, under it, or sandwiched between a lamp and the ceiling. A texel
+//!   is also invalid when it is *outside* the level: more than
+//!   [`OUTSIDE_LIMIT`] of its rays see backs or nothing, at least
+//!   [`OUTSIDE_BACK_SHARE`] of them backs. Real levels model floor and
+//!   ceiling slabs that run on past the walls (the garage's floor 0.4 to
+//!   1.5 m, its ceiling 0.2 m): such texels are not lit, were not filled,
+//!   and were read dark into the corners beside them (a ceiling 1.5 cm from
+//!   a wall at a third of its light), and a shooter tile reaching past a
+//!   wall put its hemicube eye outside and shot its power away.
 //! - **Exclusion**: the GPU solver neither lets invalid elements receive
 //!   nor shoot (their area and power leave the solve), and the accuracy
 //!   metric leaves them out ([`Validity::keep`]).
@@ -48,6 +56,15 @@ use lightwire_scene::{Pose, Scene};
 pub const RAYS: usize = 64;
 /// Fraction of rays that may see back faces before a texel is invalid.
 pub const BACK_FACE_LIMIT: f64 = 0.5;
+/// A texel whose rays see backs *or nothing* is outside the level when at
+/// least this share of them see backs: the floor of a room
+/// modelled to run on past its walls, the ceiling slab over them, a wall's
+/// end behind the wall it meets. Seen from there the walls show their
+/// backs and the rest is void; a texel of a courtyard open to the sky sees
+/// void too, but the fronts of the walls around it, so it stays valid.
+pub const OUTSIDE_BACK_SHARE: f64 = 0.1;
+/// ... and when more than this share of its rays see backs or nothing.
+pub const OUTSIDE_LIMIT: f64 = 0.75;
 /// Ray origins leave the surface by this fraction of the scene's extent
 /// (and move as far towards the patch centre), as the solvers' samples do.
 const OFFSET: f64 = 1e-5;
@@ -394,23 +411,31 @@ fn encloses(
     static DIRECTIONS: LazyLock<CosineGrid> =
         LazyLock::new(|| CosineGrid::new((RAYS as f64).sqrt() as usize));
     let total = DIRECTIONS.len();
-    // Invalid when more than `limit` rays see backs; decided as soon as the
-    // rays left cannot change the answer (about half of them for a texel
-    // in the open).
+    // Invalid when more than `limit` rays see backs, or more than
+    // `outside` see backs or nothing at all with at least `outside_backs`
+    // of them on backs ([`OUTSIDE_BACK_SHARE`]); decided as soon as the rays left
+    // cannot change the answer (about half of them for a texel in the
+    // open).
     let limit = (BACK_FACE_LIMIT * total as f64).floor() as usize;
-    let (mut back, mut cast) = (0, 0);
+    let outside = (OUTSIDE_LIMIT * total as f64).floor() as usize;
+    let outside_backs = (OUTSIDE_BACK_SHARE * total as f64).ceil() as usize;
+    let (mut back, mut lost, mut cast) = (0, 0, 0);
     for d in DIRECTIONS.around(n) {
-        if back > limit || back + (total - cast) <= limit {
-            break;
+        let left = total - cast;
+        if back > limit || (back >= outside_backs && back + lost > outside) {
+            return true;
+        }
+        if back + left <= limit && (back + left < outside_backs || back + lost + left <= outside) {
+            return false;
         }
         cast += 1;
-        back += usize::from(
-            caster
-                .closest_hit(origin, d, f64::INFINITY)
-                .is_some_and(|hit| !hit.front),
-        );
+        match caster.closest_hit(origin, d, f64::INFINITY) {
+            Some(hit) if !hit.front => back += 1,
+            Some(_) => {}
+            None => lost += 1,
+        }
     }
-    back > limit
+    back > limit || (back >= outside_backs && back + lost > outside)
 }
 
 #[cfg(test)]
@@ -455,6 +480,85 @@ mod tests {
                 d(a).total_cmp(&d(b))
             })
             .expect("floor texels")
+    }
+
+    /// A 4 x 4 floor with a 2 x 2 room of 1.5 m walls in its middle, the
+    /// floor running on 1 m past them as a level's floor slab does; closed
+    /// by a ceiling, or open to the sky (a courtyard). A lamp hangs inside.
+    fn floor_past_the_walls(ceiling: bool) -> (Scene, Atlas, Validity) {
+        let top = if ceiling {
+            r#"{ "name": "ceiling", "material": "white",
+                 "quad": { "origin": [1, 1.5, 1], "u": [2, 0, 0], "v": [0, 0, 2] } },"#
+        } else {
+            ""
+        };
+        let json = format!(
+            r#"{{
+          "name": "slab", "lightmap": {{ "texel_density": 10 }},
+          "materials": [
+            {{ "name": "white", "albedo": [0.5, 0.5, 0.5] }},
+            {{ "name": "light", "albedo": [0, 0, 0], "emission": [10, 10, 10] }}
+          ],
+          "surfaces": [
+            {{ "name": "floor", "material": "white",
+               "quad": {{ "origin": [0, 0, 0], "u": [0, 0, 4], "v": [4, 0, 0] }} }},
+            {{ "name": "west", "material": "white",
+               "quad": {{ "origin": [1, 0, 1], "u": [0, 1.5, 0], "v": [0, 0, 2] }} }},
+            {{ "name": "east", "material": "white",
+               "quad": {{ "origin": [3, 0, 1], "u": [0, 0, 2], "v": [0, 1.5, 0] }} }},
+            {{ "name": "north", "material": "white",
+               "quad": {{ "origin": [1, 0, 1], "u": [2, 0, 0], "v": [0, 1.5, 0] }} }},
+            {{ "name": "south", "material": "white",
+               "quad": {{ "origin": [1, 0, 3], "u": [0, 1.5, 0], "v": [2, 0, 0] }} }},
+            {top}
+            {{ "name": "lamp", "material": "light",
+               "quad": {{ "origin": [1.5, 1.4, 1.5], "u": [1, 0, 0], "v": [0, 0, 1] }} }}
+          ]
+        }}"#
+        );
+        let scene = Scene::parse(&json, "slab").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let v = Validity::compute(&scene, &atlas, &scene.initial_poses());
+        (scene, atlas, v)
+    }
+
+    #[test]
+    fn a_floor_running_on_past_the_walls_is_invalid_outside_them_and_valid_inside() {
+        for ceiling in [true, false] {
+            let (scene, atlas, v) = floor_past_the_walls(ceiling);
+            let poses = scene.initial_poses();
+            let at = |x, z| floor_texel_at(&atlas, &poses, x, z);
+            // Outside: the walls' backs and the void. Right by a wall, a
+            // metre from it, and by the room's corner.
+            for (x, z) in [(0.95, 2.0), (0.05, 2.0), (3.5, 2.0), (2.0, 0.3), (3.2, 3.2)] {
+                assert!(
+                    v.is_invalid(at(x, z)),
+                    "ceiling {ceiling}: the floor at ({x}, {z}) is outside the room"
+                );
+            }
+            // Inside, under the ceiling or the open sky: the walls' fronts.
+            for (x, z) in [(2.0, 2.0), (1.05, 2.0), (2.95, 2.95), (1.5, 1.05)] {
+                assert!(
+                    !v.is_invalid(at(x, z)),
+                    "ceiling {ceiling}: the floor at ({x}, {z}) is in the room"
+                );
+            }
+            // A wall's texels are in the room, even by the ceiling or the
+            // open top.
+            let west = scene
+                .patches
+                .iter()
+                .position(|p| p.name == "west")
+                .expect("west wall") as u32;
+            let walls: Vec<usize> = (0..atlas.elements.len())
+                .filter(|&i| atlas.elements[i].patch == west)
+                .collect();
+            assert!(!walls.is_empty());
+            assert!(
+                walls.iter().all(|&i| !v.is_invalid(i)),
+                "ceiling {ceiling}: every texel of the west wall is valid"
+            );
+        }
     }
 
     #[test]
