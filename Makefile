@@ -10,6 +10,9 @@
 #   make soak  builds, then the soak benchmark: a solver, a relay, 500 viewers
 #              and 2 drivers for 10 minutes on loopback (SOAK_FLAGS, e.g.
 #              SOAK_FLAGS="--duration 60"; report in target/soak/)
+#   make benchmarks  every measurement BENCHMARKS.md reports, one after the
+#              other on this machine (1.5-2 hours; nothing else should run;
+#              output in target/bench-report/, LEVELS for section 9)
 #
 # System packages are installed with apt (idempotently: only what is
 # missing, and `apt-get update` only when something is).
@@ -34,7 +37,7 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 vulkan-tools pkg-config chromium
 NODE_APT_PACKAGES := nodejs npm
 DASHBOARD := server/dashboard
 
-.PHONY: run bake test test-levels soak deps check-toolchain build dashboard-deps gltf-validator-deps deploy-tools deploy-check
+.PHONY: run bake test test-levels soak benchmarks deps check-toolchain build dashboard-deps gltf-validator-deps deploy-tools deploy-check
 
 deps: check-toolchain
 	@missing=""; \
@@ -94,6 +97,10 @@ bake: build
 SOAK_FLAGS ?=
 soak: build
 	client/bench/soak.sh $(SOAK_FLAGS)
+
+# BENCHMARKS.md's figures, measured again together; the script builds first.
+benchmarks: deps
+	LEVELS=$(LEVELS) client/bench/report.sh
 
 # Validators for deploy/, from PyPI into a venv under target/ (reinstalled
 # only when the pinned versions change). Both work offline once installed:

@@ -1,0 +1,148 @@
+#!/usr/bin/env bash
+# Every measurement BENCHMARKS.md reports, one after the other, on one
+# machine in one run: the "Measuring again" list of BENCHMARKS.md as a
+# script (`make benchmarks`). Nothing else should run on the machine
+# meanwhile. On 2 cores with llvmpipe it takes about 75 minutes, and the
+# codec step over an hour more (it records 90 versions of four scenes under
+# two scripts at about 4.5 s a version).
+#
+#   client/bench/report.sh                       # everything, into target/bench-report
+#   OUT=target/r2 ONLY="solve dynamic" client/bench/report.sh
+#   LEVELS=/path/to/levels client/bench/report.sh  # section 9 (default ../shared/levels)
+#   MESH_CHARTS="pairs triangles" ONLY=meshes client/bench/report.sh
+#
+# Steps (ONLY takes their names): solve accuracy dynamic roundtrip latency
+# codec viewers relay soak meshes seams levels. It builds first (release, the
+# binaries, examples and test binaries it runs) so that no build runs beside
+# a measurement; each step's output goes to OUT/NAME.txt, with the time it
+# started, its load average and its duration in OUT/steps.tsv.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+OUT=${OUT:-target/bench-report}
+ONLY=${ONLY:-"solve accuracy dynamic roundtrip latency codec viewers relay soak meshes seams levels"}
+LEVELS=${LEVELS:-../shared/levels}
+# The chart modes of `bench meshes`; BENCHMARKS.md's older rows (pairs,
+# triangles) take up to 120 s per size each.
+MESH_CHARTS=${MESH_CHARTS:-"lightmap-uvs generated parallelograms"}
+BIN=target/release
+mkdir -p "$OUT"
+
+wanted() { [[ " $ONLY " == *" $1 "* ]]; }
+
+{
+  echo "commit $(git rev-parse --short HEAD)$(git diff --quiet || echo ' (with local changes)')"
+  echo "date $(date -u +%FT%TZ)"
+  grep -m1 'model name' /proc/cpuinfo
+  echo "cpus $(nproc)"
+} > "$OUT/machine.txt"
+
+echo "building (release)" >&2
+cargo build --release --workspace --bins --examples >&2
+cargo test --release -p lightwire-solve --test accuracy --test path_tracer --test textures --no-run >&2
+cargo test -p lightwire-solve --test round_trip --no-run >&2
+vulkaninfo --summary 2>/dev/null | grep -m1 deviceName >> "$OUT/machine.txt" || true
+
+printf 'step\tstarted\tload average\tseconds\tstatus\n' > "$OUT/steps.tsv"
+# step NAME COMMAND...: runs COMMAND with its output in OUT/NAME.txt.
+step() {
+  local name=$1
+  shift
+  local start load status=ok
+  start=$(date +%s)
+  load=$(cut -d' ' -f1-3 /proc/loadavg)
+  echo "[$(date +%T)] $name: $*" >&2
+  echo "\$ $*" >> "$OUT/$name.txt"
+  "$@" >> "$OUT/$name.txt" 2>&1 || status="failed ($?)"
+  printf '%s\t%s\t%s\t%s\t%s\n' "$name" "$(date -d "@$start" +%T)" "$load" \
+    "$(($(date +%s) - start))" "$status" >> "$OUT/steps.tsv"
+}
+
+# serve_and_load NAME SCENE LOAD-ARGS...: a server of its own for one load run.
+serve_and_load() {
+  local name=$1 scene=$2
+  shift 2
+  "$BIN/lightwire" serve --dev --listen 127.0.0.1:0 --scene "$scene" \
+    > "$OUT/$name.serve.out" 2> "$OUT/$name.serve.err" &
+  local server=$! addr=""
+  for _ in $(seq 1 600); do
+    addr=$(sed -n 's#^lightwire listening on http://\([^ ]*\).*#\1#p' "$OUT/$name.serve.out")
+    [ -n "$addr" ] && curl -sf "http://$addr/readyz" > /dev/null && break
+    sleep 0.1
+  done
+  step "$name" "$BIN/lightwire-client" load "http://$addr" "$@" --report "$OUT/$name.json"
+  kill "$server" 2> /dev/null || true
+  wait "$server" 2> /dev/null || true
+}
+
+if wanted solve; then
+  step solve "$BIN/lightwire" bench solve
+  step solve-glb "$BIN/lightwire" bench solve --scene scenes/meshes/cornell-large.glb --density-scale 0.5
+  for c in lightmap-uvs generated parallelograms; do
+    step "solve-atrium-$c" "$BIN/lightwire" bench solve --scene scenes/meshes/atrium.glb --density-scale 0.3 --charts "$c"
+  done
+fi
+if wanted accuracy; then
+  step accuracy-tests cargo test --release -p lightwire-solve --test accuracy --test path_tracer --test textures -- --nocapture
+  step pt-cornell-large "$BIN/examples/solvers_vs_path_tracer" scenes/cornell-large.json 0.35
+  step pt-cornell-blocks "$BIN/examples/solvers_vs_path_tracer" scenes/cornell-blocks.json 0.5
+fi
+if wanted dynamic; then
+  for s in cornell-low cornell-large cornell-small indirect-light; do
+    step "dynamic-$s" "$BIN/lightwire" bench dynamic --scene "scenes/$s.json" --methods progressive,incremental,cross --frames 5
+  done
+  step dynamic-gather "$BIN/lightwire" bench dynamic --frames 5 --methods gather
+  step dynamic-glb "$BIN/lightwire" bench dynamic --scene scenes/meshes/cornell-dynamic.glb --methods progressive,cross --frames 5
+fi
+if wanted roundtrip; then
+  for s in cornell-low cornell-large; do
+    step "roundtrip-$s-cross" "$BIN/examples/round_trip" "scenes/$s.json"
+    step "roundtrip-$s-incremental" "$BIN/examples/round_trip" "scenes/$s.json" --methods incremental --jumps 16
+  done
+  step roundtrip-settled cargo test -p lightwire-solve --test round_trip a_settled_scene -- --nocapture
+fi
+if wanted latency; then
+  serve_and_load latency-cornell-low scenes/cornell-low.json --scene cornell-low \
+    --script scenes/scripts/orbit.json --drivers 1 --viewers 100 --rate 30 --duration 20s
+  serve_and_load latency-cornell-large scenes/cornell-large.json --scene cornell-large \
+    --script scenes/scripts/orbit.json --drivers 1 --viewers 10 --rate 10 --duration 20s
+  serve_and_load bandwidth-cornell-large scenes/cornell-large.json --scene cornell-large \
+    --script scenes/scripts/rotate.json --drivers 1 --viewers 10 --rate 30 --duration 20s
+fi
+if wanted codec; then
+  step codec "$BIN/lightwire" bench codec --tile-sizes 8,16 --levels 3,9 --json "$OUT/codec.json"
+fi
+if wanted viewers; then
+  step viewers env NS="1 100 400 800 1600" REPS=3 SKIP_BUILD=1 OUT="$OUT/load-ladder" client/bench/load-ladder.sh
+fi
+if wanted relay; then
+  step relay "$BIN/examples/relay_bench" --viewers 250,350,500,750 --duration 10
+  step relay-light "$BIN/examples/relay_bench" --viewers 1000 --duration 10 --light-viewers
+fi
+if wanted soak; then
+  step soak client/bench/soak.sh --out "$OUT/soak"
+fi
+if wanted meshes; then
+  for c in $MESH_CHARTS; do
+    step "meshes-$c" "$BIN/lightwire" bench meshes --triangles 1000,10000,100000 --max-seconds 120 --charts "$c"
+  done
+fi
+if wanted seams; then
+  step seams-10 "$BIN/examples/seam_cost" 10
+  step seams-20 "$BIN/examples/seam_cost" 20
+fi
+if wanted levels; then
+  if [ -d "$LEVELS" ]; then
+    for l in garage pandora zdm2; do
+      step "levels-validate-$l" env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" validate "scenes/levels/$l.json"
+    done
+    step levels-bake-garage env LEVELS="$LEVELS" "$BIN/lightwire" bake --scene scenes/levels/garage.json \
+      --solver progressive --tolerance 1e-2 --out "$OUT/garage-progressive"
+    step levels-eye-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
+      --lightmap "$OUT/garage-progressive/lightmap.exr" --points 400 --spp 4096
+  else
+    echo "no levels at $LEVELS: section 9 skipped" >&2
+  fi
+fi
+echo "done: $OUT/steps.tsv" >&2
+column -t -s$'\t' "$OUT/steps.tsv" >&2
