@@ -23,7 +23,8 @@ OUT=${OUT:-target/bench-report}
 ONLY=${ONLY:-"solve accuracy dynamic roundtrip latency codec viewers relay soak meshes seams levels"}
 LEVELS=${LEVELS:-../shared/levels}
 # The chart modes of `bench meshes`; BENCHMARKS.md's older rows (pairs,
-# triangles) take up to 120 s per size each.
+# triangles, the latter also without clusters) take up to 120 s per size
+# each.
 MESH_CHARTS=${MESH_CHARTS:-"lightmap-uvs generated parallelograms"}
 BIN=target/release
 mkdir -p "$OUT"
@@ -126,6 +127,10 @@ if wanted meshes; then
   for c in $MESH_CHARTS; do
     step "meshes-$c" "$BIN/lightwire" bench meshes --triangles 1000,10000,100000 --max-seconds 120 --charts "$c"
   done
+  # A patch per triangle, also without its shooting clusters.
+  if [[ " $MESH_CHARTS " == *" triangles "* ]]; then
+    step meshes-no-clusters "$BIN/lightwire" bench meshes --triangles 1000,10000,100000 --max-seconds 120 --charts triangles --no-clusters
+  fi
 fi
 if wanted seams; then
   step seams-10 "$BIN/examples/seam_cost" 10
