@@ -23,15 +23,15 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{LoadOptions, Scene};
 use lightwire_solve::gpu;
-use lightwire_solve::raycast::Raycaster;
+use lightwire_solve::raycast::{CosineGrid, Raycaster};
 use lightwire_solve::validity::Validity;
 
-/// Rays per texel for its open share.
-const OPEN_RAYS: u32 = 64;
+/// Rays per side of each texel's cosine grid for its open share (64 rays).
+const OPEN_GRID: usize = 8;
 /// Texels more open than this are not judged.
 const OPEN_LIMIT: f64 = 0.02;
 
@@ -80,6 +80,7 @@ fn main() -> Result<()> {
     // The open share of each valid texel's hemisphere.
     let caster = Raycaster::new(&scene, &poses);
     let reach = caster.extent() * 4.0;
+    let grid = CosineGrid::new(OPEN_GRID);
     let open: Vec<f64> = atlas
         .elements
         .iter()
@@ -91,22 +92,11 @@ fn main() -> Result<()> {
             let pose = &poses[e.object as usize];
             let n = pose.transform_normal(e.normal).as_dvec3().normalize();
             let x = pose.transform_point(e.position).as_dvec3() + n * 1e-4;
-            let (t, b) = frame(n);
-            let mut escaped = 0;
-            for k in 0..OPEN_RAYS {
-                // A stratified cosine-weighted direction (Malley).
-                let side = (OPEN_RAYS as f64).sqrt().ceil() as u32;
-                let (a, c) = (k % side, k / side);
-                let u1 = (f64::from(a) + 0.5) / f64::from(side);
-                let u2 = (f64::from(c) + 0.5) / f64::from(side);
-                let r = u1.sqrt();
-                let phi = std::f64::consts::TAU * u2;
-                let d = t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).sqrt();
-                if caster.closest_hit(x, d, reach).is_none() {
-                    escaped += 1;
-                }
-            }
-            f64::from(escaped) / f64::from(OPEN_RAYS)
+            let escaped = grid
+                .around(n)
+                .filter(|&d| caster.closest_hit(x, d, reach).is_none())
+                .count();
+            escaped as f64 / grid.len() as f64
         })
         .collect();
 
@@ -218,11 +208,4 @@ fn main() -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// Two unit tangents completing `n` to an orthonormal frame.
-fn frame(n: DVec3) -> (DVec3, DVec3) {
-    let a = if n.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
-    let t = n.cross(a).normalize();
-    (t, n.cross(t))
 }
