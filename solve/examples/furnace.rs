@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release -p lightwire-solve --example furnace -- \
 //!     scenes/levels/garage.json [--albedo 0.5] [--tolerance 1e-3] \
-//!     [--density-scale S] [--resolution PIXELS] [--worst N]
+//!     [--density-scale S] [--resolution PIXELS] [--worst N] [--no-clusters]
 //! ```
 //!
 //! Every material is replaced by one that emits `E = 1` W/m² and reflects
@@ -56,6 +56,7 @@ fn main() -> Result<()> {
                 options.hemicube_resolution = number("--resolution", args.next())? as u32
             }
             "--worst" => worst = number("--worst", args.next())? as usize,
+            "--no-clusters" => options.cluster_triangles = false,
             flag if flag.starts_with("--") => bail!("unknown option {flag}"),
             path => scene_path = Some(PathBuf::from(path)),
         }
@@ -64,7 +65,7 @@ fn main() -> Result<()> {
         bail!("--albedo {albedo}: must be in [0, 1)");
     }
     let path = scene_path.context(
-        "usage: furnace SCENE [--albedo A] [--tolerance T] [--density-scale S] [--resolution PIXELS] [--worst N]",
+        "usage: furnace SCENE [--albedo A] [--tolerance T] [--density-scale S] [--resolution PIXELS] [--worst N] [--no-clusters]",
     )?;
     let mut scene = Scene::load_with(&path, LoadOptions::scaled(density))
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
@@ -110,6 +111,10 @@ fn main() -> Result<()> {
 
     let mean = |v: Vec3| f64::from(v.x + v.y + v.z) / 3.0;
     let (mut judged, mut area_all, mut area_invalid) = (Vec::new(), 0.0, 0.0);
+    // What a texel receives against what its closed surroundings send:
+    // H / B_exact with H = (B − E) / ρ. With the surroundings exact it is
+    // one bounce's delivery; at a small ρ (0.05) they nearly are.
+    let mut delivered = Vec::new();
     for (i, e) in atlas.elements.iter().enumerate() {
         let a = f64::from(e.area);
         if !e.covers_surface() {
@@ -120,14 +125,18 @@ fn main() -> Result<()> {
             area_invalid += a;
         } else if open[i] <= OPEN_LIMIT {
             judged.push((mean(b[i]) / exact, a, i));
+            if albedo > 0.0 {
+                delivered.push(((mean(b[i]) - 1.0) / (f64::from(albedo) * exact), a, i));
+            }
         }
     }
     let judged_area: f64 = judged.iter().map(|j| j.1).sum();
     let weighted_mean = judged.iter().map(|j| j.0 * j.1).sum::<f64>() / judged_area.max(1e-30);
     judged.sort_by(|x, y| x.0.total_cmp(&y.0));
-    let quantile = |q: f64| {
+    delivered.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let quantile_of = |judged: &[(f64, f64, usize)], q: f64| {
         let mut acc = 0.0;
-        for j in &judged {
+        for j in judged {
             acc += j.1;
             if acc >= q * judged_area {
                 return j.0;
@@ -163,6 +172,7 @@ fn main() -> Result<()> {
         100.0 * open_area / (area_all - area_invalid).max(1e-30),
         100.0 * OPEN_LIMIT
     );
+    let quantile = |q: f64| quantile_of(&judged, q);
     println!(
         "B / exact, area-weighted: mean {weighted_mean:.4}, p1 {:.4}, p5 {:.4}, p25 {:.4}, median {:.4}, p75 {:.4}, p95 {:.4}, p99 {:.4}",
         quantile(0.01),
@@ -173,6 +183,45 @@ fn main() -> Result<()> {
         quantile(0.95),
         quantile(0.99)
     );
+    if !delivered.is_empty() {
+        let q = |p: f64| quantile_of(&delivered, p);
+        let mean = delivered.iter().map(|j| j.0 * j.1).sum::<f64>() / judged_area.max(1e-30);
+        println!(
+            "received / sent by the surroundings, (B − E) / (ρ B_exact): mean {mean:.4}, p1 {:.4}, p5 {:.4}, p25 {:.4}, median {:.4}, p75 {:.4}, p95 {:.4}, p99 {:.4}",
+            q(0.01),
+            q(0.05),
+            q(0.25),
+            q(0.5),
+            q(0.75),
+            q(0.95),
+            q(0.99)
+        );
+        let dark: Vec<_> = delivered.iter().filter(|j| j.0 < 0.25).collect();
+        let dark_area: f64 = dark.iter().map(|j| j.1).sum();
+        println!(
+            "{} texels ({:.2}% of the judged area) receive less than a quarter; a spread of them:",
+            dark.len(),
+            100.0 * dark_area / judged_area.max(1e-30)
+        );
+        for j in dark
+            .iter()
+            .step_by((dark.len() / worst.max(1)).max(1))
+            .take(worst)
+        {
+            let e = &atlas.elements[j.2];
+            println!(
+                "  {:.4} at {:.3} {:.3} {:.3} facing {:.2} {:.2} {:.2}, {}",
+                j.0,
+                e.position.x,
+                e.position.y,
+                e.position.z,
+                e.normal.x,
+                e.normal.y,
+                e.normal.z,
+                scene.patches[e.patch as usize].name
+            );
+        }
+    }
     // Per surface: the area-weighted mean ratio, worst first by lost power.
     let mut per_patch = vec![(0.0f64, 0.0f64, 0usize); scene.patches.len()];
     for &(r, a, i) in &judged {

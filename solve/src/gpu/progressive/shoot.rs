@@ -189,7 +189,7 @@ impl ProgressiveSolver {
                         }
                         let limit = limit(grid).min(spare + 1);
                         spare -= limit - 1;
-                        taken.extend(tiling.shooters(id, patch, &self.areas, grid, limit));
+                        taken.extend(tiling.fitted_shooters(id, patch, &self.areas, grid, limit));
                         first_patch.get_or_insert(id);
                     }
                     Piece::Members { start, end, .. } => {
@@ -280,7 +280,7 @@ impl ProgressiveSolver {
             if limit > room || (!first && limit > SHARED_TILES) {
                 continue;
             }
-            shooters.extend(tiling.shooters(id, patch, &self.areas, grid, limit));
+            shooters.extend(tiling.fitted_shooters(id, patch, &self.areas, grid, limit));
             shot_power += f64::from(power);
         }
         self.submit_batch(&shooters, first, shot_power)?;
