@@ -3,8 +3,9 @@
 # machine in one run: the "Measuring again" list of BENCHMARKS.md as a
 # script (`make benchmarks`). Nothing else should run on the machine
 # meanwhile. On 2 cores with llvmpipe it takes about 75 minutes, and the
-# codec step over an hour more (it records 90 versions of four scenes under
-# two scripts at about 4.5 s a version).
+# codec step about 45 minutes more (it records 90 versions of four scenes
+# under two scripts at about 4.5 s a version, and caches the recordings in
+# bench-out/codec/recordings/).
 #
 #   client/bench/report.sh                       # everything, into target/bench-report
 #   OUT=target/r2 ONLY="solve dynamic" client/bench/report.sh
