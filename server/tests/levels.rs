@@ -250,3 +250,82 @@ fn three_js_draws_the_garage_lit_by_the_stream() {
         );
     }
 }
+
+/// Where a player looks, the garage's progressive bake (to 1e-2 unshot, as
+/// BENCHMARKS.md §9 bakes it) reads close to the path tracer: `lightwire
+/// bench eye` at 400 seeded points in view, 4,096 paths each. Before shooter
+/// tiles were fitted to their valid texels the median point was 8.9% off
+/// and 43% of points more than 10% off (fitted: 7.2% and 34%); the bounds
+/// hold the gain, not the target (5% NRMSE, p95 15%).
+#[test]
+fn the_garage_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
+    let dir = temp_dir("levels-eye");
+    let scene = level_scene("garage", &dir);
+    let out = dir.join("bake");
+    let run = |args: &[&str]| {
+        let output = lightwire_testkit::lightwire!()
+            .command()
+            .args(args)
+            .output()
+            .expect("runs");
+        let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+        assert!(
+            output.status.success(),
+            "{args:?}: {stdout}{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        stdout
+    };
+    let scene = scene.to_str().expect("utf-8");
+    run(&[
+        "bake",
+        "--scene",
+        scene,
+        "--solver",
+        "progressive",
+        "--tolerance",
+        "1e-2",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ]);
+    let lightmap = out.join("lightmap.exr");
+    let report = run(&[
+        "bench",
+        "eye",
+        "--scene",
+        scene,
+        "--lightmap",
+        lightmap.to_str().expect("utf-8"),
+        "--points",
+        "400",
+        "--spp",
+        "4096",
+    ]);
+    // "  NRMSE 18.1%  median 7.2%  p95 40.3%  >10% off: 34%  >25% off: 10%"
+    let figure = |name: &str| -> f64 {
+        let line = report
+            .lines()
+            .find(|l| l.trim_start().starts_with("NRMSE"))
+            .unwrap_or_else(|| panic!("no NRMSE line in {report}"));
+        let at = line
+            .find(name)
+            .unwrap_or_else(|| panic!("no {name} in {line}"));
+        line[at + name.len()..]
+            .trim_start()
+            .split('%')
+            .next()
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or_else(|| panic!("no number after {name} in {line}"))
+    };
+    let (nrmse, median, off10) = (figure("NRMSE"), figure("median"), figure(">10% off:"));
+    eprintln!("garage where a player looks: NRMSE {nrmse}%, median {median}%, >10% off {off10}%");
+    assert!(
+        median <= 8.0,
+        "median point {median}% off (at most 8%): {report}"
+    );
+    assert!(
+        off10 <= 40.0,
+        "{off10}% of points more than 10% off (at most 40%): {report}"
+    );
+    assert!(nrmse <= 19.0, "NRMSE {nrmse}% (at most 19%): {report}");
+}
