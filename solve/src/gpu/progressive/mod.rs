@@ -733,7 +733,8 @@ fn batch_capacity(
 /// start poses, [`Validity`]): what an emitter emits inside a wall or under
 /// a block reaches no one in the room, and shot from the tile it shares
 /// with valid elements it would (a closed level whose every surface emits,
-/// `examples/furnace.rs`, read up to 27% too bright with it).
+/// `examples/furnace.rs` on the garage, read 27% too bright at its 99th
+/// percentile with it).
 fn start_radiosity(
     atlas: &Atlas,
     emission: &[[f32; 4]],

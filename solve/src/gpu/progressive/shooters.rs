@@ -231,9 +231,10 @@ impl Tiling<'_> {
     /// power shot is the same, but it leaves from where the surface is in
     /// the room. Shot from the whole rectangle, the part under the block
     /// sent its share of the tile's average towards the block's sides, from
-    /// behind them, where it reached nothing: a closed level lit by every
-    /// surface (`examples/furnace.rs`, garage) received 0.934 of the exact
-    /// answer on average.
+    /// behind them, where it reached nothing. With this and the texels
+    /// under geometry dark (`start_radiosity`), the garage's median point
+    /// where a player looks went from 8.9% to 7.2% off the path tracer
+    /// (BENCHMARKS.md §9; the dark texels alone: 11.7%).
     pub(super) fn fitted(
         &self,
         patch_id: u32,
@@ -323,8 +324,10 @@ impl Tiling<'_> {
     /// Such a tile shoots the average of its elements from one hemicube:
     /// whatever the block hides from that eye is lost for the whole tile,
     /// although the tile's elements beside the block see it, and its
-    /// rectangle includes the part under the block that holds no light.
-    /// Measured on cornell-blocks x0.5 closed by a front wall (release,
+    /// rectangle includes the part under the block that holds no light
+    /// (progressive refinement's own shots now shoot from the rectangle of
+    /// the valid elements instead, [`Self::fitted`]; the figures below are
+    /// from before that). Measured on cornell-blocks x0.5 closed by a front wall (release,
     /// `examples/accuracy_by_surface`): a shot delivered 98.3% of its power
     /// with the power-only split, 99.3% with at most twice the tiles split
     /// here, 99.7% with every patch shot from 128 tiles (ten times the
