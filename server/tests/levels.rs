@@ -252,11 +252,12 @@ fn three_js_draws_the_garage_lit_by_the_stream() {
 }
 
 /// Where a player looks, the garage's progressive bake (to 1e-2 unshot, as
-/// BENCHMARKS.md §9 bakes it) reads close to the path tracer: `lightwire
-/// bench eye` at 400 seeded points in view, 4,096 paths each. Before shooter
-/// tiles were fitted to their valid texels the median point was 8.9% off
-/// and 43% of points more than 10% off (fitted: 7.2% and 34%); the bounds
-/// hold the gain, not the issue's target (5% NRMSE, p95 15%).
+/// BENCHMARKS.md §9 bakes it, with its two gathered corrections, swept by
+/// rays on a level) reads close to the path tracer: `lightwire bench eye`
+/// at 400 seeded points in view, 4,096 paths each. Uncorrected, the median
+/// point was 7.2% off, 34% of points more than 10% off, p95 40.3% and
+/// NRMSE 18.1%; corrected by rays 4.9%, 14%, 16.8% and 11.7%. The bounds
+/// hold that gain, not yet the issue's target (5% NRMSE, p95 15%).
 #[test]
 fn the_garage_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
     let dir = temp_dir("levels-eye");
@@ -301,7 +302,7 @@ fn the_garage_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
         "--spp",
         "4096",
     ]);
-    // "  NRMSE 18.1%  median 7.2%  p95 40.3%  >10% off: 34%  >25% off: 10%"
+    // "  NRMSE 11.7%  median 4.9%  p95 16.8%  >10% off: 14%  >25% off: 3%"
     let figure = |name: &str| -> f64 {
         let line = report
             .lines()
@@ -317,15 +318,24 @@ fn the_garage_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
             .and_then(|v| v.trim().parse().ok())
             .unwrap_or_else(|| panic!("no number after {name} in {line}"))
     };
-    let (nrmse, median, off10) = (figure("NRMSE"), figure("median"), figure(">10% off:"));
-    eprintln!("garage where a player looks: NRMSE {nrmse}%, median {median}%, >10% off {off10}%");
-    assert!(
-        median <= 8.0,
-        "median point {median}% off (at most 8%): {report}"
+    let (nrmse, median, p95, off10) = (
+        figure("NRMSE"),
+        figure("median"),
+        figure("p95"),
+        figure(">10% off:"),
+    );
+    eprintln!(
+        "garage where a player looks: NRMSE {nrmse}%, median {median}%, p95 {p95}%, \
+         >10% off {off10}%"
     );
     assert!(
-        off10 <= 40.0,
-        "{off10}% of points more than 10% off (at most 40%): {report}"
+        median <= 6.0,
+        "median point {median}% off (at most 6%): {report}"
     );
-    assert!(nrmse <= 19.0, "NRMSE {nrmse}% (at most 19%): {report}");
+    assert!(p95 <= 20.0, "p95 {p95}% (at most 20%): {report}");
+    assert!(
+        off10 <= 20.0,
+        "{off10}% of points more than 10% off (at most 20%): {report}"
+    );
+    assert!(nrmse <= 13.0, "NRMSE {nrmse}% (at most 13%): {report}");
 }

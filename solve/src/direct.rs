@@ -108,6 +108,8 @@ impl Emitters {
         value: impl Fn(usize) -> Vec3,
     ) -> Vec3 {
         let mut h = Vec3::ZERO;
+        // The same points for the same receiver, whatever ran before.
+        let seed = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
         for &p in &self.patches {
             let wp = &caster.patches()[p as usize];
             if wp.area.is_nan() || wp.area <= 0.0 {
@@ -119,7 +121,7 @@ impl Emitters {
                 continue;
             }
             let (mut seen, mut total) = (Vec3::ZERO, 0.0f64);
-            for (y, share) in grid_points(wp, grid) {
+            for (y, share) in sample_points(wp, grid, Some(seed)) {
                 let to = y - x;
                 let r2 = to.length_squared();
                 if r2 <= 0.0 {
@@ -202,22 +204,51 @@ pub fn form_factor(x: DVec3, n: DVec3, corners: &[DVec3]) -> f64 {
 /// its centre), a cell on the diagonal for its lower half twice (`1 /
 /// grid²`, at that half's centroid, inside the triangle).
 pub fn grid_points(wp: &WorldPatch, grid: usize) -> impl Iterator<Item = (DVec3, f64)> + '_ {
+    sample_points(wp, grid, None)
+}
+
+/// [`grid_points`], each point placed at random within its cell (within
+/// the cell's lower half on a triangle's diagonal) by a generator seeded
+/// with `seed`, or at the cell's centre without one. A fixed point per
+/// cell aliases with a regular occluder in front of an emitter (the
+/// garage's panel behind a grille: 8² cell centres saw 100% of it from
+/// the floor where the path tracer saw 81%, and the direct light of its
+/// floor read 27% high); a point at random in each cell keeps the
+/// stratification and has no bias.
+pub fn sample_points(
+    wp: &WorldPatch,
+    grid: usize,
+    seed: Option<u64>,
+) -> impl Iterator<Item = (DVec3, f64)> + '_ {
     let g = grid as f64;
     let cell = 1.0 / (g * g);
     let triangle = wp.is_triangle();
-    (0..grid).flat_map(move |a| {
-        let rows = if triangle { a + 1 } else { grid };
-        (0..rows).map(move |b| {
+    let mut rng = seed.map(fastrand::Rng::with_seed);
+    let mut offset = move || match rng.as_mut() {
+        Some(r) => (r.f64(), r.f64()),
+        None => (0.5, 0.5),
+    };
+    (0..grid)
+        .flat_map(move |a| {
+            let rows = if triangle { a + 1 } else { grid };
+            (0..rows).map(move |b| (a, b))
+        })
+        .map(move |(a, b)| {
             let (a, b) = (a as f64, b as f64);
+            let (u, v) = offset();
             if !triangle {
-                (wp.at((a + 0.5) / g, (b + 0.5) / g), cell)
+                (wp.at((a + u) / g, (b + v) / g), cell)
             } else if b < a {
-                (wp.at((a + 0.5) / g, (b + 0.5) / g), 2.0 * cell)
-            } else {
+                (wp.at((a + u) / g, (b + v) / g), 2.0 * cell)
+            } else if seed.is_none() {
                 (wp.at((a + 2.0 / 3.0) / g, (a + 1.0 / 3.0) / g), cell)
+            } else {
+                // Uniform over the cell's half below the diagonal: a point
+                // above it is mirrored onto it.
+                let (u, v) = if v > u { (v, u) } else { (u, v) };
+                (wp.at((a + u) / g, (a + v) / g), cell)
             }
         })
-    })
 }
 
 /// The element of `patch` nearest to the world point `x` on it (`caster`
@@ -663,6 +694,86 @@ mod tests {
           "box": { "center": [0, 0, 0], "size": [0.5, 0.5, 0.5] } }
       ]
     }"#;
+
+    /// A lamp behind a grille of eight slats that cover 40% of it, set
+    /// so that every cell centre of an 8 x 8 grid falls in a gap: sampled
+    /// at the centres it looks unobstructed (the garage's panel read 27%
+    /// too bright on its floor so), sampled at a point at random in each
+    /// cell it shows the 60% that is open, at every receiver on average.
+    #[test]
+    fn a_grille_in_front_of_a_lamp_shows_what_it_covers() {
+        let mut surfaces = vec![
+            r#"{ "name": "floor", "material": "white",
+                "quad": { "origin": [0, 0, 0], "u": [0, 0, 2], "v": [2, 0, 0] } }"#
+                .to_string(),
+            r#"{ "name": "light", "material": "light",
+                "quad": { "origin": [0.5, 2, 0.5], "u": [1, 0, 0], "v": [0, 0, 1] } }"#
+                .to_string(),
+        ];
+        for k in 0..8 {
+            let x = 0.5 + k as f64 / 8.0;
+            surfaces.push(format!(
+                r#"{{ "name": "slat{k}", "material": "white",
+                    "quad": {{ "origin": [{x}, 1.999, 0.5], "u": [0.05, 0, 0], "v": [0, 0, 1] }} }}"#
+            ));
+        }
+        let json = format!(
+            r#"{{ "name": "grille", "lightmap": {{ "texel_density": 4 }},
+              "materials": [
+                {{ "name": "white", "albedo": [0.5, 0.5, 0.5] }},
+                {{ "name": "light", "albedo": [0, 0, 0], "emission": [10, 10, 10] }}
+              ],
+              "surfaces": [{}] }}"#,
+            surfaces.join(",")
+        );
+        let scene = Scene::parse(&json, "grille").expect("scene");
+        let atlas = Atlas::build(&scene).expect("atlas");
+        let poses = scene.initial_poses();
+        let caster = Raycaster::new(&scene, &poses);
+        let emitters = Emitters::of(&scene);
+        let light = scene
+            .patches
+            .iter()
+            .position(|p| p.name == "light")
+            .expect("light") as u32;
+        let lamp = &caster.patches()[light as usize];
+        let n = DVec3::Y;
+        let (mut centres, mut jittered, mut irradiance) = (0.0, 0.0, 0.0);
+        let receivers: Vec<DVec3> = (0..5)
+            .flat_map(|i| (0..5).map(move |j| (i, j)))
+            .map(|(i, j)| DVec3::new(0.6 + 0.2 * i as f64, 1e-4, 0.6 + 0.2 * j as f64))
+            .collect();
+        for &x in &receivers {
+            let open = |seed: Option<u64>| {
+                let (mut seen, mut all) = (0.0, 0.0);
+                for (y, share) in sample_points(lamp, 8, seed) {
+                    let to = y - x;
+                    let w = share * n.dot(to.normalize()) / to.length_squared();
+                    all += w;
+                    let hit = caster.closest_hit(x, to.normalize(), to.length() * (1.0 - 1e-6));
+                    if hit.is_none_or(|h| h.patch == light) {
+                        seen += w;
+                    }
+                }
+                seen / all
+            };
+            centres += open(None) / receivers.len() as f64;
+            jittered +=
+                open(Some(x.x.to_bits() ^ x.z.to_bits().rotate_left(7))) / receivers.len() as f64;
+            let h = emitters.irradiance(&caster, &atlas, x, n, 8, |j| atlas.elements[j].emission);
+            let exact = form_factor(x, n, lamp.corners()) * 10.0;
+            irradiance += f64::from(h.x) / exact / receivers.len() as f64;
+        }
+        assert!(centres > 0.99, "cell centres see {centres:.3} of the lamp");
+        assert!(
+            (jittered - 0.6).abs() < 0.03,
+            "points at random see {jittered:.3}"
+        );
+        assert!(
+            (irradiance - 0.6).abs() < 0.03,
+            "irradiance {irradiance:.3} of unobstructed"
+        );
+    }
 
     /// Kept static hits change nothing: after every move (the crate
     /// placed, moved, taken out, put back), the cached gather gives each

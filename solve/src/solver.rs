@@ -83,8 +83,9 @@ pub struct SolverSettings {
     /// Path tracer: paths per element (default [`pathtrace::DEFAULT_SPP`]).
     pub spp: Option<u32>,
     /// Progressive: gathered correction rounds after refinement
-    /// ([`gpu::Correction`]; default [`DEFAULT_CORRECTIONS`], or none
-    /// where a sweep is too large, [`gpu::corrections_affordable`]).
+    /// ([`gpu::Correction`]; default [`DEFAULT_CORRECTIONS`]), swept with
+    /// hemicubes or, where that is too slow, with rays
+    /// ([`gpu::corrections_affordable`]).
     pub corrections: Option<u32>,
 }
 
@@ -227,34 +228,34 @@ pub fn build<'a>(
                 ..defaults.with_hints(&scene.solver)
             };
             let mut solver = Progressive::new(&gpu, scene, atlas, poses, options)?;
-            let rounds = settings.corrections.unwrap_or_else(|| {
-                if gpu::corrections_affordable(scene, atlas) {
-                    DEFAULT_CORRECTIONS
+            let rounds = settings.corrections.unwrap_or(DEFAULT_CORRECTIONS);
+            if rounds > 0 {
+                let started = Instant::now();
+                let correction = if gpu::corrections_affordable(scene, atlas) {
+                    progress.note(&format!(
+                        "after refinement, {rounds} gathered correction round(s): each draws the \
+                         {1} patches into a hemicube at every one of the {0} elements, then \
+                         refines (no progress is shown within a round)",
+                        atlas.elements.len(),
+                        scene.patches.len()
+                    ));
+                    // The gather sweep at its own default resolution: 64
+                    // changed nothing measurable on cornell-large or
+                    // cornell-blocks.
+                    gpu::Correction::new(&gpu, scene, atlas, poses, gpu::GatherOptions::default())?
                 } else {
                     progress.note(&format!(
-                        "no gathered corrections by default: {} elements x {} patches is \
-                         above {} (a gather sweep would take very long); --corrections N \
-                         asks for them",
+                        "after refinement, {rounds} gathered correction round(s) by rays: \
+                         {} elements x {} patches is above {} for hemicubes, so each of the \
+                         {0} elements casts {} rays on the CPU, then refinement spreads the \
+                         difference (no progress is shown within a round)",
                         atlas.elements.len(),
                         scene.patches.len(),
-                        gpu::MAX_DEFAULT_SWEEP
+                        gpu::MAX_DEFAULT_SWEEP,
+                        gpu::RAY_SIDE * gpu::RAY_SIDE,
                     ));
-                    0
-                }
-            });
-            if rounds > 0 {
-                progress.note(&format!(
-                    "after refinement, {rounds} gathered correction round(s): each draws the \
-                     {1} patches into a hemicube at every one of the {0} elements, then \
-                     refines (no progress is shown within a round)",
-                    atlas.elements.len(),
-                    scene.patches.len()
-                ));
-                // The gather sweep at its own default resolution: 64 changed
-                // nothing measurable on cornell-large or cornell-blocks.
-                let started = Instant::now();
-                let gather = gpu::GatherOptions::default();
-                let correction = gpu::Correction::new(&gpu, scene, atlas, poses, gather)?;
+                    gpu::Correction::by_rays(&solver.solver)
+                };
                 solver = solver.with_corrections(correction, rounds);
                 solver.seconds += started.elapsed().as_secs_f64();
             }

@@ -13,6 +13,7 @@
 
 mod common;
 
+use lightwire_solve::gpu;
 use lightwire_solve::reference::{ReferenceSolver, Silent, SolveOptions};
 use lightwire_solve::solver::{self, SolverKind, SolverSettings};
 
@@ -44,7 +45,36 @@ fn against_reference(name: &str) {
         );
         assert!(error.nrmse <= 0.01, "{name}, {}: {error}", kind.name());
     }
+    // The corrections a level gets, where a hemicube sweep is too large
+    // (`gpu::Correction::by_rays`), on the same scene: refinement, then
+    // the bake's two rounds with rays instead of hemicubes.
+    let gpu = gpu::Device::new(None).unwrap_or_else(|e| panic!("{e}"));
+    let options = gpu::ProgressiveOptions::default().with_hints(&scene.solver);
+    let mut progressive = gpu::ProgressiveSolver::new(&gpu, &scene, &atlas, &poses, options)
+        .unwrap_or_else(|e| panic!("{e}"));
+    progressive.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    let before = progressive.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let before = common::visible_accuracy(&scene, &atlas, &poses, &before, &expected);
+    let mut correction = gpu::Correction::by_rays(&progressive);
+    for _ in 0..solver::DEFAULT_CORRECTIONS {
+        correction
+            .round(&mut progressive, 1e-4)
+            .unwrap_or_else(|e| panic!("{e}"));
+    }
+    let values = progressive.radiosity().unwrap_or_else(|e| panic!("{e}"));
+    let error = common::visible_accuracy(&scene, &atlas, &poses, &values, &expected);
+    eprintln!("{name}: progressive {before}, corrected by rays {error}");
+    assert!(
+        error.nrmse <= RAY_BOUND,
+        "{name}, corrected by rays: {error}"
+    );
+    assert!(error.nrmse < before.nrmse, "{name}: {before} -> {error}");
 }
+
+/// How far the progressive solver corrected by ray-cast sweeps may read
+/// from the reference: the sweep's 256 rays per texel leave noise the
+/// hemicube sweep does not have.
+const RAY_BOUND: f64 = 0.015;
 
 #[test]
 fn cornell_blocks_progressive_and_gather_within_one_percent_of_the_reference() {

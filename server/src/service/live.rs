@@ -245,12 +245,12 @@ impl<T: Clone> GpuLive<T> {
             ..Default::default()
         };
         if options.corrections > 0 && !lightwire_solve::gpu::corrections_affordable(scene, atlas) {
-            tracing::warn!(
+            tracing::info!(
                 scene = %scene.name,
                 elements = atlas.elements.len(),
                 patches = scene.patches.len(),
-                "states are published without gathered corrections: a gather sweep over this \
-                 many elements and patches is too slow (more than {} of their product)",
+                "gathered corrections by rays: a hemicube sweep over this many elements and \
+                 patches would be too slow (more than {} of their product)",
                 lightwire_solve::gpu::MAX_DEFAULT_SWEEP
             );
         }

@@ -26,18 +26,27 @@
 //! 0.74% at the files' densities, converging to the gather solver's own
 //! accuracy in a fraction of its time.
 //!
-//! The gather solver is built at the progressive solver's poses and does
-//! not follow moves: corrections serve solves at fixed poses (`bake`,
-//! `bench solve`) and the first solve of a cross session
-//! (`gpu::DynamicSolver`), whose static light then stays corrected while
-//! moves redistribute the moving objects' share of it.
+//! The sweep is built at the progressive solver's poses and does not
+//! follow moves: corrections serve solves at fixed poses (`bake`, `bench
+//! solve`) and a live session's state whenever it holds still
+//! (`gpu::DynamicSolver`).
+//!
+//! A sweep draws hemicubes (the gather solver, thesis §4.2) where elements
+//! x patches is at most [`MAX_DEFAULT_SWEEP`], and casts rays beyond
+//! ([`Correction::by_rays`]: `direct::gather`, cosine-distributed rays
+//! against the bounding volume hierarchy, the emitters by next-event
+//! estimation): on the garage level (63,617 elements, 9,183 patches) a
+//! ray-cast sweep takes about 10 s on two cores, and two rounds took the
+//! lightmap from 18.1% to 11.7% NRMSE against the path tracer where a
+//! player looks (BENCHMARKS.md, section 9).
 
 use glam::Vec3;
 
 use super::device::{Device, GpuError};
 use super::gather::{GatherOptions, GatherSolver};
-use super::placement::world_areas;
+use super::placement::{emitted_power, world_areas};
 use super::progressive::ProgressiveSolver;
+use crate::direct::{Lookup, gather};
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Pose, Scene};
 
@@ -56,7 +65,7 @@ pub struct CorrectionReport {
 
 /// Gather sweeps that correct a [`ProgressiveSolver`]'s solution.
 pub struct Correction {
-    gather: GatherSolver,
+    sweep: Sweep,
     /// World area per element.
     areas: Vec<f32>,
     /// Object per element.
@@ -64,8 +73,8 @@ pub struct Correction {
     emitted: f64,
 }
 
-/// Most `elements x patches` a correction takes on unless asked for: a
-/// gather sweep renders every patch into one hemicube per element, so its
+/// Most `elements x patches` a correction sweeps with hemicubes (beyond,
+/// it casts rays, [`Correction::by_rays`]): a gather sweep renders every patch into one hemicube per element, so its
 /// cost grows with both, about a microsecond per unit on lavapipe (the
 /// 864-triangle box of `bench meshes` at x0.5, 18,000 x 864, took about
 /// 15 s a round): at this bound a round takes a minute or two. The quad
@@ -75,10 +84,50 @@ pub struct Correction {
 /// round of hours: a service on it would sit in the sweep).
 pub const MAX_DEFAULT_SWEEP: u64 = 100_000_000;
 
-/// Whether gathered corrections of `scene` over `atlas` run by default
-/// (see [`MAX_DEFAULT_SWEEP`]).
+/// Whether a correction of `scene` over `atlas` sweeps with hemicubes
+/// (see [`MAX_DEFAULT_SWEEP`]); otherwise with rays.
 pub fn corrections_affordable(scene: &Scene, atlas: &Atlas) -> bool {
     (atlas.elements.len() as u64).saturating_mul(scene.patches.len() as u64) <= MAX_DEFAULT_SWEEP
+}
+
+/// Cosine-distributed rays per receiver of a ray-cast sweep, as a
+/// `RAY_SIDE` x `RAY_SIDE` stratified grid (`raycast::CosineGrid`).
+pub const RAY_SIDE: usize = 16;
+/// Samples per emitting patch for a ray-cast sweep's direct light,
+/// `RAY_GRID` x `RAY_GRID` (`direct::Emitters::irradiance`).
+pub const RAY_GRID: usize = 16;
+/// Receivers a ray-cast sweep gathers per [`Correction::sweep_pass`] (a
+/// live session's slice between moves; [`Correction::round`] gathers all
+/// in one): on the garage about a tenth of a second on two cores.
+const RAY_CHUNK: usize = 512;
+
+/// How a correction's sweep integrates each receiver's hemisphere.
+enum Sweep {
+    /// The gather solver's hemicubes (thesis §4.2), on the GPU: its cost
+    /// grows with elements x patches ([`MAX_DEFAULT_SWEEP`]).
+    Hemicube(Box<GatherSolver>),
+    /// Rays from each valid element's sample point against the bounding
+    /// volume hierarchy (`direct::gather`), on the CPU: its cost grows
+    /// with elements x rays x log(patches), so it serves the levels a
+    /// hemicube sweep cannot.
+    Rays(RaySweep),
+}
+
+/// A ray-cast sweep in progress.
+#[derive(Default)]
+struct RaySweep {
+    /// The radiosity the rays read where they land (negative light as
+    /// none, invalid texels filled from their valid neighbours, as
+    /// published).
+    seen: Vec<[f32; 4]>,
+    /// The valid elements that stand for surface, which gather.
+    receivers: Vec<usize>,
+    /// Receivers gathered so far.
+    next: usize,
+    /// Receivers per [`Correction::sweep_pass`].
+    chunk: usize,
+    /// `G(B)` per element: the sweep's start where no receiver gathered.
+    gathered: Vec<Vec3>,
 }
 
 impl Correction {
@@ -106,11 +155,42 @@ impl Correction {
         let areas = world_areas(&local, &objects, poses);
         let emitted = gather.emitted_power();
         Ok(Self {
-            gather,
+            sweep: Sweep::Hemicube(Box::new(gather)),
             areas,
             objects,
             emitted,
         })
+    }
+
+    /// A correction whose sweep casts rays on the CPU instead of drawing
+    /// hemicubes ([`RAY_SIDE`]² cosine-distributed rays per receiver, the
+    /// emitters by next-event estimation with [`RAY_GRID`]² samples each,
+    /// `direct::gather`), for `solver`'s scene at its poses. A hemicube
+    /// sweep draws every patch once per element; rays find what they meet
+    /// in the bounding volume hierarchy, so a level of 11,000 triangles
+    /// and 63,000 elements takes seconds (BENCHMARKS.md, section 9) where
+    /// a hemicube sweep would take many minutes.
+    pub fn by_rays(solver: &ProgressiveSolver) -> Self {
+        let (scene, atlas, poses, _) = solver.world();
+        let local: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
+        let objects: Vec<u32> = atlas
+            .elements
+            .iter()
+            .map(|e| scene.patches[e.patch as usize].object)
+            .collect();
+        let areas = world_areas(&local, &objects, poses);
+        let emitted = emitted_power(atlas, &areas);
+        Self {
+            sweep: Sweep::Rays(RaySweep::default()),
+            areas,
+            objects,
+            emitted,
+        }
+    }
+
+    /// Whether the sweep casts rays ([`Correction::by_rays`]).
+    pub fn casts_rays(&self) -> bool {
+        matches!(self.sweep, Sweep::Rays(_))
     }
 
     /// One round: a gather sweep from `solver`'s radiosity, its difference
@@ -137,7 +217,12 @@ impl Correction {
         frozen: &[bool],
     ) -> Result<CorrectionReport, GpuError> {
         let b = self.begin(solver)?;
-        self.gather.bounce()?;
+        // All receivers in one pass here: a pass builds the bounding
+        // volume hierarchy again.
+        if let Sweep::Rays(rays) = &mut self.sweep {
+            rays.chunk = usize::MAX;
+        }
+        while !self.sweep_pass(solver)? {}
         let residual_fraction = self.hand_over(solver, &b, frozen)?;
         let report = solver.solve(threshold)?;
         Ok(CorrectionReport {
@@ -152,16 +237,62 @@ impl Correction {
     /// `solver`'s radiosity, which is returned for [`Correction::hand_over`].
     pub fn begin(&mut self, solver: &ProgressiveSolver) -> Result<Vec<Vec3>, GpuError> {
         let b = solver.total_radiosity()?;
-        self.gather.start_from(&b);
+        match &mut self.sweep {
+            Sweep::Hemicube(gather) => gather.start_from(&b),
+            Sweep::Rays(rays) => {
+                let (_, atlas, _, _) = solver.world();
+                let valid = solver.validity();
+                let mut seen: Vec<Vec3> = b.iter().map(|v| v.max(Vec3::ZERO)).collect();
+                valid.dilate(atlas, &mut seen);
+                *rays = RaySweep {
+                    seen: seen.iter().map(|v| [v.x, v.y, v.z, 0.0]).collect(),
+                    receivers: (0..b.len())
+                        .filter(|&i| !valid.is_invalid(i) && atlas.elements[i].covers_surface())
+                        .collect(),
+                    next: 0,
+                    chunk: RAY_CHUNK,
+                    gathered: b.clone(),
+                };
+            }
+        }
         Ok(b)
     }
 
-    /// One pass of the sweep [`Correction::begin`] started; returns whether
-    /// the sweep is complete.
-    pub fn sweep_pass(&mut self) -> Result<bool, GpuError> {
-        let before = self.gather.total_bounces();
-        self.gather.step(std::time::Duration::ZERO)?;
-        Ok(self.gather.total_bounces() > before)
+    /// One pass of the sweep [`Correction::begin`] started (a hemicube
+    /// sweep's pass, or [`RAY_CHUNK`] receivers' rays); returns whether the
+    /// sweep is complete. `solver` must be the one `begin` read, at the
+    /// same poses.
+    pub fn sweep_pass(&mut self, solver: &ProgressiveSolver) -> Result<bool, GpuError> {
+        match &mut self.sweep {
+            Sweep::Hemicube(gather) => {
+                let before = gather.total_bounces();
+                gather.step(std::time::Duration::ZERO)?;
+                Ok(gather.total_bounces() > before)
+            }
+            Sweep::Rays(rays) => {
+                let (scene, atlas, poses, absent) = solver.world();
+                let end = rays
+                    .next
+                    .saturating_add(rays.chunk)
+                    .min(rays.receivers.len());
+                let chunk = &rays.receivers[rays.next..end];
+                let lit = gather(
+                    scene,
+                    atlas,
+                    (poses, absent),
+                    &rays.seen,
+                    chunk,
+                    RAY_SIDE,
+                    RAY_GRID,
+                    Lookup::Bilinear,
+                );
+                for (&i, g) in chunk.iter().zip(lit) {
+                    rays.gathered[i] = g;
+                }
+                rays.next = end;
+                Ok(rays.next == rays.receivers.len())
+            }
+        }
     }
 
     /// Hands the residual of the completed sweep from `b` (what
@@ -176,7 +307,10 @@ impl Correction {
         b: &[Vec3],
         frozen: &[bool],
     ) -> Result<f64, GpuError> {
-        let gathered = self.gather.total_radiosity()?;
+        let gathered = match &mut self.sweep {
+            Sweep::Hemicube(gather) => gather.total_radiosity()?,
+            Sweep::Rays(rays) => std::mem::take(&mut rays.gathered),
+        };
         let is_frozen = |o: u32| frozen.get(o as usize).copied().unwrap_or(false);
         let all: Vec<Vec3> = gathered.iter().zip(b).map(|(g, b)| *g - *b).collect();
         let valid = solver.validity();

@@ -271,7 +271,7 @@ impl<T: Clone> DynamicSolver<T> {
             next_level: 0,
             versions: 0,
             since_anchor: 0,
-            corrected: options.corrections == 0 || !super::corrections_affordable(scene, atlas),
+            corrected: options.corrections == 0,
             residuals: Vec::new(),
             profile: Profiler::disabled(),
         })
@@ -578,13 +578,20 @@ impl<T: Clone> DynamicSolver<T> {
         };
         let round = match round {
             Round::Building => {
-                let mut correction = Box::new(Correction::new(
-                    &self.gpu,
-                    &self.scene,
-                    &self.atlas,
-                    self.solver.poses(),
-                    GatherOptions::default(),
-                )?);
+                // Hemicubes where a sweep is affordable, rays beyond
+                // (`Correction::by_rays`): a level is corrected too.
+                let mut correction =
+                    Box::new(if super::corrections_affordable(&self.scene, &self.atlas) {
+                        Correction::new(
+                            &self.gpu,
+                            &self.scene,
+                            &self.atlas,
+                            self.solver.poses(),
+                            GatherOptions::default(),
+                        )?
+                    } else {
+                        Correction::by_rays(&self.solver)
+                    });
                 let from = correction.begin(&self.solver)?;
                 Round::Sweeping { correction, from }
             }
@@ -592,7 +599,7 @@ impl<T: Clone> DynamicSolver<T> {
                 mut correction,
                 from,
             } => {
-                if correction.sweep_pass()? {
+                if correction.sweep_pass(&self.solver)? {
                     let residual = correction.hand_over(&mut self.solver, &from, &frozen)?;
                     self.residuals.push(residual);
                     Round::Spreading {
@@ -640,7 +647,7 @@ impl<T: Clone> DynamicSolver<T> {
             self.reflected = self.working.clone();
             return Ok(());
         }
-        if self.options.corrections > 0 && super::corrections_affordable(&self.scene, &self.atlas) {
+        if self.options.corrections > 0 {
             self.corrected = false;
         }
         let mut method = self.options.method;

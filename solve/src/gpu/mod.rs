@@ -67,7 +67,9 @@ pub mod profile;
 mod progressive;
 mod shaders;
 
-pub use correct::{Correction, CorrectionReport, MAX_DEFAULT_SWEEP, corrections_affordable};
+pub use correct::{
+    Correction, CorrectionReport, MAX_DEFAULT_SWEEP, RAY_GRID, RAY_SIDE, corrections_affordable,
+};
 pub use device::{Device, GpuError};
 pub use dynamic::{CORRECTED_RESIDUAL, DynamicOptions, DynamicSolver, DynamicStep};
 pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};

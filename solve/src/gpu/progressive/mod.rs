@@ -496,6 +496,12 @@ impl ProgressiveSolver {
         &self.validity
     }
 
+    /// The scene, atlas, poses and absent objects the solver lights, for
+    /// gathers on the CPU (`gpu::Correction`'s ray-cast sweep).
+    pub(crate) fn world(&self) -> (&Scene, &Atlas, &[Pose], &[bool]) {
+        (&self.scene, &self.atlas, &self.poses, &self.absent)
+    }
+
     /// Re-tests validity near the objects flagged in `moving` after the
     /// poses changed from `old` to the current ones, and uploads the
     /// elements whose state changed.
