@@ -135,6 +135,17 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
     assert_eq!(driver.role, Some(Role::Driver));
     // A viewer of a ready scene gets a version.
     viewer.pump_until_version(1, generous).await;
+    // Left alone, the solver refines and corrects, then has nothing to do.
+    wait_for(
+        "the solver to be idle",
+        generous,
+        &mut [&mut viewer],
+        || async {
+            let r = server.get("/metrics").await;
+            metric(&r.text(), "lightwire_solver_idle") == Some(1.0)
+        },
+    )
+    .await;
 
     // The transform that makes the hook destroy the device.
     driver.transform(BOX, FAIL_AT, pose_at(1)).await;
@@ -169,6 +180,7 @@ async fn a_lost_device_is_reported_served_through_and_rebuilt() {
         .assert_metrics(&[
             ("lightwire_solver_failures_total", 1.0),
             ("lightwire_scene_ready", 0.0),
+            ("lightwire_solver_idle", 0.0),
         ])
         .await;
 

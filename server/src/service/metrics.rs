@@ -54,6 +54,8 @@ pub struct Metrics {
     pub solver_rebuilds: Family<SceneLabels, Counter>,
     /// 1 while a scene serves versions, 0 while solving or failed.
     pub scene_ready: Family<SceneLabels, Gauge>,
+    /// 1 while a scene's solver has nothing left to do at its poses.
+    pub solver_idle: Family<SceneLabels, Gauge>,
 }
 
 impl Default for Metrics {
@@ -83,6 +85,7 @@ impl Metrics {
             solver_failures: Family::default(),
             solver_rebuilds: Family::default(),
             scene_ready: Family::default(),
+            solver_idle: Family::default(),
             registry: Registry::default(),
         };
         register_fields! {
@@ -103,6 +106,7 @@ impl Metrics {
             solver_failures: "Solver failures (lost GPU device, GPU error, panic), per scene",
             solver_rebuilds: "Attempts to rebuild a failed solver, per scene",
             scene_ready: "1 while a scene serves versions, 0 while it solves its first or its solver has failed",
+            solver_idle: "1 while a scene's solver has nothing left to do at its poses (refined and corrected: the light is as accurate as it will get until something moves), 0 while it works or has failed",
         }
         Self { registry, ..m }
     }

@@ -225,6 +225,8 @@ impl SceneRuntime {
         let rebuilds = metrics.solver_rebuilds.get_or_create(&labels).clone();
         let ready = metrics.scene_ready.get_or_create(&labels).clone();
         ready.set(0);
+        let idle = metrics.solver_idle.get_or_create(&labels).clone();
+        idle.set(0);
         let tick = TickLoop {
             runtime: runtime.clone(),
             name: solver.name(),
@@ -239,6 +241,7 @@ impl SceneRuntime {
             failures,
             rebuilds,
             ready,
+            idle,
             encoder: Encoder::new(
                 runtime.atlas.width,
                 runtime.atlas.height,
@@ -310,6 +313,8 @@ struct TickLoop {
     failures: prometheus_client::metrics::counter::Counter,
     rebuilds: prometheus_client::metrics::counter::Counter,
     ready: prometheus_client::metrics::gauge::Gauge,
+    /// `lightwire_solver_idle{scene}`.
+    idle: prometheus_client::metrics::gauge::Gauge,
     encoder: Encoder,
     poses: Vec<Pose>,
     /// Latest seq per object, handed to the solver as the poses' tag.
@@ -375,6 +380,7 @@ impl TickLoop {
         }
         self.failures.inc();
         self.ready.set(0);
+        self.idle.set(0);
         let id = &self.runtime.info.id;
         let version = self.encoder.state().version;
         match &mut self.episode {
@@ -532,6 +538,7 @@ impl TickLoop {
             } else if idle_since.is_none() {
                 idle_since = Some(Instant::now());
             }
+            self.idle.set(i64::from(idle_since.is_some()));
             let settle = self.has_state
                 && idle_since.is_some_and(|t| t.elapsed() >= self.settle)
                 && self.encoder.pending_texels() > 0;
