@@ -89,8 +89,9 @@ impl Emitters {
     /// (Lambert's contour integral over the part of the patch above `x`'s
     /// tangent plane, thesis §2.2.2; the triangle's three corners for a
     /// triangle, wallner §2's meshes), and a `grid` x `grid` stratification
-    /// of the patch ([`grid_points`]), a shadow ray to each cell centre
-    /// (anything but the patch itself blocks), gives the visible,
+    /// of the patch ([`sample_points`]), a shadow ray to a point at random
+    /// in each cell, the same points for the same `x` (anything but the
+    /// patch itself blocks), gives the visible,
     /// radiosity-weighted share of it: `H += F Σ_k w_k V_k value_k /
     /// Σ_k w_k` with the point-to-area kernel `w_k = a_k cos θ_x cos θ_y /
     /// r²`, `a_k` the share of the patch's area the cell stands for.

@@ -35,8 +35,8 @@
 //! x patches is at most [`MAX_DEFAULT_SWEEP`], and casts rays beyond
 //! ([`Correction::by_rays`]: `direct::gather`, cosine-distributed rays
 //! against the bounding volume hierarchy, the emitters by next-event
-//! estimation): on the garage level (63,617 elements, 9,183 patches) a
-//! ray-cast sweep takes about 10 s on two cores, and two rounds took the
+//! estimation): on the garage level (63,617 elements, 9,188 patches) a
+//! ray-cast sweep takes 7-9 s on two cores, and two rounds took the
 //! lightmap from 18.1% to 11.7% NRMSE against the path tracer where a
 //! player looks (BENCHMARKS.md, section 9).
 
@@ -74,8 +74,9 @@ pub struct Correction {
 }
 
 /// Most `elements x patches` a correction sweeps with hemicubes (beyond,
-/// it casts rays, [`Correction::by_rays`]): a gather sweep renders every patch into one hemicube per element, so its
-/// cost grows with both, about a microsecond per unit on lavapipe (the
+/// it casts rays, [`Correction::by_rays`]): a gather sweep renders every
+/// patch into one hemicube per element, so its cost grows with both,
+/// about a microsecond per unit on lavapipe (the
 /// 864-triangle box of `bench meshes` at x0.5, 18,000 x 864, took about
 /// 15 s a round): at this bound a round takes a minute or two. The quad
 /// scenes and the mesh box (`scenes/meshes/cornell-dynamic.glb`) are
@@ -186,11 +187,6 @@ impl Correction {
             objects,
             emitted,
         }
-    }
-
-    /// Whether the sweep casts rays ([`Correction::by_rays`]).
-    pub fn casts_rays(&self) -> bool {
-        matches!(self.sweep, Sweep::Rays(_))
     }
 
     /// One round: a gather sweep from `solver`'s radiosity, its difference
