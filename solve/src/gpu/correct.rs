@@ -147,6 +147,17 @@ impl Correction {
             ..options
         };
         let gather = GatherSolver::new(gpu, scene, atlas, poses, options)?;
+        Ok(Self::with_sweep(
+            Sweep::Hemicube(Box::new(gather)),
+            scene,
+            atlas,
+            poses,
+        ))
+    }
+
+    /// `sweep` with the world area and object of every element and the
+    /// emitted power of `scene` at `poses`.
+    fn with_sweep(sweep: Sweep, scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> Self {
         let local: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
         let objects: Vec<u32> = atlas
             .elements
@@ -154,13 +165,13 @@ impl Correction {
             .map(|e| scene.patches[e.patch as usize].object)
             .collect();
         let areas = world_areas(&local, &objects, poses);
-        let emitted = gather.emitted_power();
-        Ok(Self {
-            sweep: Sweep::Hemicube(Box::new(gather)),
+        let emitted = emitted_power(atlas, &areas);
+        Self {
+            sweep,
             areas,
             objects,
             emitted,
-        })
+        }
     }
 
     /// A correction whose sweep casts rays on the CPU instead of drawing
@@ -173,20 +184,7 @@ impl Correction {
     /// a hemicube sweep would take many minutes.
     pub fn by_rays(solver: &ProgressiveSolver) -> Self {
         let (scene, atlas, poses, _) = solver.world();
-        let local: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
-        let objects: Vec<u32> = atlas
-            .elements
-            .iter()
-            .map(|e| scene.patches[e.patch as usize].object)
-            .collect();
-        let areas = world_areas(&local, &objects, poses);
-        let emitted = emitted_power(atlas, &areas);
-        Self {
-            sweep: Sweep::Rays(RaySweep::default()),
-            areas,
-            objects,
-            emitted,
-        }
+        Self::with_sweep(Sweep::Rays(RaySweep::default()), scene, atlas, poses)
     }
 
     /// One round: a gather sweep from `solver`'s radiosity, its difference
