@@ -178,6 +178,12 @@ if wanted levels; then
       --solver progressive --tolerance 1e-2 --out "$OUT/garage-progressive"
     step levels-eye-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
       --lightmap "$OUT/garage-progressive/lightmap.exr" --points 400 --spp 4096
+    for l in garage pandora; do
+      step "levels-bake-rays-$l" env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \
+        --scene "scenes/levels/$l.json" --solver rays --tolerance 1e-3 --out "$OUT/$l-rays"
+    done
+    step levels-eye-rays-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
+      --lightmap "$OUT/garage-rays/lightmap.exr" --points 400 --spp 4096
     serve_until_idle levels-serve-garage scenes/levels/garage.json garage
     step levels-eye-served-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
       --scene scenes/levels/garage.json --lightmap "$OUT/levels-serve-garage.exr" --points 400 --spp 4096

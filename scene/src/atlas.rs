@@ -722,7 +722,19 @@ impl Atlas {
     /// invalid texels already filled, see `Validity::dilate`) read
     /// bilinearly at patch parameters `(s, t)` of `patch`, clamped to its
     /// chart (texel centres sit at `s = a / (w - 1)`).
-    pub fn sample(&self, values: &[Vec3], patch: u32, [s, t]: [f32; 2]) -> Vec3 {
+    pub fn sample(&self, values: &[Vec3], patch: u32, st: [f32; 2]) -> Vec3 {
+        self.sample_weights(patch, st)
+            .iter()
+            .map(|&(i, w)| values[i] * w)
+            .sum()
+    }
+
+    /// The four elements [`Atlas::sample`] blends at patch parameters
+    /// `(s, t)` of `patch` and their bilinear weights (summing to 1), for
+    /// whoever keeps a lookup to apply it to many radiosities (the ray
+    /// solver's kept rays, `lightwire_solve::rays`). The chart must be at
+    /// least 2 x 2.
+    pub fn sample_weights(&self, patch: u32, [s, t]: [f32; 2]) -> [(usize, f32); 4] {
         let chart = self.charts[patch as usize];
         let first = self.patch_elements[patch as usize] as usize;
         let xy = self.chart_map(patch).to_chart(Vec2::new(s, t));
@@ -733,10 +745,13 @@ impl Atlas {
         };
         let ((a, fa), (b, fb)) = (axis(xy.x, chart.w), axis(xy.y, chart.h));
         // Elements are row-major within their chart.
-        let at = |a: u32, b: u32| values[first + (b * chart.w + a) as usize];
-        let top = at(a, b).lerp(at(a + 1, b), fa);
-        let bottom = at(a, b + 1).lerp(at(a + 1, b + 1), fa);
-        top.lerp(bottom, fb)
+        let at = |a: u32, b: u32| first + (b * chart.w + a) as usize;
+        [
+            (at(a, b), (1.0 - fa) * (1.0 - fb)),
+            (at(a + 1, b), fa * (1.0 - fb)),
+            (at(a, b + 1), (1.0 - fa) * fb),
+            (at(a + 1, b + 1), fa * fb),
+        ]
     }
 
     /// Scatters one value per element into a row-major RGB image of the

@@ -6,7 +6,8 @@
 //! ([`raycast`]), [`direct`] light, which texels are valid ([`validity`]),
 //! the GPU solvers on wgpu ([`gpu`]: progressive refinement, gather, the
 //! redistribution of light when objects move) with their WGSL shaders
-//! beside the Rust that binds them, one batch interface over all of them
+//! beside the Rust that binds them, the CPU ray solver for levels
+//! ([`rays`]: gathering over rays cast once and kept), one batch interface over all of them
 //! ([`solver`]) and the metric every claim of accuracy uses ([`accuracy`]).
 //!
 //! Its input is `lightwire-scene`'s [`Scene`](lightwire_scene::Scene) and
@@ -22,6 +23,7 @@ pub mod eye;
 pub mod gpu;
 pub mod pathtrace;
 pub mod raycast;
+pub mod rays;
 pub mod reference;
 pub mod solver;
 pub mod validity;

@@ -15,6 +15,7 @@
 //! | progressive | unshot power | shooters shot | batches until the budget is spent |
 //! | gather | power changed by the last bounce | bounces | passes until the budget is spent |
 //! | pathtrace | noise NRMSE of the estimates | paths per element | all the work in the first step |
+//! | rays | power still to come, extrapolated from the last two bounces | bounces | casting the rays, then bounces until the budget is spent |
 //!
 //! The progressive batch solver ends with gathered corrections
 //! ([`gpu::Correction`], [`SolverSettings::corrections`]): after
@@ -32,6 +33,7 @@ use glam::Vec3;
 
 use crate::gpu::{self, Device, GatherSolver, ProgressiveSolver};
 use crate::pathtrace::{self, Estimate, PathTracer, StdErrorFile};
+use crate::rays::{self, RaySolver};
 use crate::reference::{self, ReferenceSolver, Solution, SolveOptions};
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Pose, Scene};
@@ -50,6 +52,11 @@ pub enum SolverKind {
     /// CPU: Monte Carlo path tracing with next-event estimation at every
     /// element's sample point; also writes std_error.json.
     Pathtrace,
+    /// CPU: gathering over kept rays, each element's cosine rays cast once
+    /// against the bounding volume hierarchy and the emitters by
+    /// next-event estimation, then Jacobi bounces over what the rays hit
+    /// (`rays`): for levels, where hemicubes per element are too slow.
+    Rays,
 }
 
 impl SolverKind {
@@ -60,6 +67,7 @@ impl SolverKind {
             Self::Progressive => "progressive",
             Self::Gather => "gather",
             Self::Pathtrace => "pathtrace",
+            Self::Rays => "rays",
         }
     }
 
@@ -108,6 +116,8 @@ pub trait Progress: Sync {
     fn iteration(&self, _iteration: usize, _residual: f64) {}
     /// Path tracer: `done` of `total` elements estimated.
     fn points(&self, _done: usize, _total: usize) {}
+    /// Ray solver: `done` of `total` elements' rays cast.
+    fn rays(&self, _done: usize, _total: usize) {}
 }
 
 /// Progress that goes nowhere.
@@ -284,6 +294,7 @@ pub fn build<'a>(
             settings.spp.unwrap_or(pathtrace::DEFAULT_SPP),
             progress,
         )),
+        SolverKind::Rays => Box::new(Rays::new(scene, atlas, poses, progress)),
     })
 }
 
@@ -761,6 +772,141 @@ impl BatchSolver for PathTraced<'_> {
         let path = dir.join("std_error.json");
         let text = serde_json::to_string_pretty(errors)?;
         std::fs::write(&path, text + "\n").with_context(|| format!("writing {}", path.display()))
+    }
+}
+
+/// [`RaySolver`] as a [`BatchSolver`]: the rays are cast in the first
+/// step (or solve), which reports them to [`Progress::rays`].
+pub struct Rays<'a> {
+    scene: &'a Scene,
+    atlas: &'a Atlas,
+    poses: &'a [Pose],
+    progress: &'a dyn Progress,
+    solver: Option<RaySolver>,
+    /// Casting and bouncing so far.
+    seconds: f64,
+}
+
+impl<'a> Rays<'a> {
+    /// Nothing cast yet.
+    pub fn new(
+        scene: &'a Scene,
+        atlas: &'a Atlas,
+        poses: &'a [Pose],
+        progress: &'a dyn Progress,
+    ) -> Self {
+        Self {
+            scene,
+            atlas,
+            poses,
+            progress,
+            solver: None,
+            seconds: 0.0,
+        }
+    }
+
+    /// The solver, its rays cast now if they were not.
+    fn cast(&mut self) -> &mut RaySolver {
+        let (scene, atlas, poses, progress) = (self.scene, self.atlas, self.poses, self.progress);
+        let seconds = &mut self.seconds;
+        self.solver.get_or_insert_with(|| {
+            let started = Instant::now();
+            let solver = RaySolver::new(
+                scene,
+                atlas,
+                poses,
+                (rays::SIDE, crate::direct::GRID),
+                &|done, total| progress.rays(done, total),
+            );
+            *seconds += started.elapsed().as_secs_f64();
+            solver
+        })
+    }
+
+    fn solver(&self) -> Result<&RaySolver> {
+        self.solver
+            .as_ref()
+            .context("the ray solver has not cast its rays yet")
+    }
+}
+
+impl BatchSolver for Rays<'_> {
+    fn name(&self) -> &'static str {
+        SolverKind::Rays.name()
+    }
+
+    fn solve(&mut self, tolerance: f64) -> Result<()> {
+        let (atlas, progress) = (self.atlas, self.progress);
+        let solver = self.cast();
+        let started = Instant::now();
+        solver.solve(atlas, tolerance, None, &|k, r| progress.iteration(k, r));
+        self.seconds += started.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// The first step casts the rays; each later one bounces until
+    /// `budget` is spent, and there is nothing left to do once a bounce
+    /// changes nothing.
+    fn step(&mut self, budget: Duration) -> Result<bool> {
+        if self.solver.is_none() {
+            self.cast();
+            return Ok(true);
+        }
+        if self.residual_fraction() <= 0.0 {
+            return Ok(false);
+        }
+        let (atlas, progress) = (self.atlas, self.progress);
+        let started = Instant::now();
+        self.cast()
+            .solve(atlas, 0.0, Some(budget), &|k, r| progress.iteration(k, r));
+        self.seconds += started.elapsed().as_secs_f64();
+        Ok(true)
+    }
+
+    fn residual_fraction(&self) -> f64 {
+        self.solver
+            .as_ref()
+            .map_or(1.0, RaySolver::residual_fraction)
+    }
+
+    fn work(&self) -> u64 {
+        self.solver.as_ref().map_or(0, |s| s.sweeps() as u64)
+    }
+
+    fn radiosity(&self) -> Result<Vec<Vec3>> {
+        Ok(self.solver()?.radiosity().to_vec())
+    }
+
+    fn energy_balance(&self) -> Result<Power> {
+        let (emitted, absorbed) = self.solver()?.power();
+        Ok(Power {
+            emitted,
+            absorbed,
+            escaped: (emitted - absorbed).max(0.0),
+        })
+    }
+
+    fn stats(&self) -> SolveStats {
+        SolveStats {
+            iterations: self.work() as usize,
+            residual_fraction: self.residual_fraction(),
+            form_factor_seconds: 0.0,
+            solve_seconds: self.seconds,
+        }
+    }
+
+    fn summary(&self) -> String {
+        match &self.solver {
+            None => "no rays cast yet".to_string(),
+            Some(s) => format!(
+                "{} bounces over {} kept ray hits ({:.0} MB), {:.2e} of the emitted power still to come, {:.2} s",
+                s.sweeps(),
+                s.kept_entries(),
+                s.kept_entries() as f64 * 8.0 / 1e6,
+                s.residual_fraction(),
+                self.seconds
+            ),
+        }
     }
 }
 

@@ -1,7 +1,8 @@
 //! Issue 15's accuracy target for the GPU batch solvers: on cornell-blocks
 //! and cornell-large at the files' densities, the progressive solver (as
 //! `lightwire bake` runs it, with its gathered corrections) and the gather
-//! solver agree with the CPU reference solver within 1% NRMSE
+//! solver agree with the CPU reference solver within 1% NRMSE, and the ray
+//! solver (`--solver rays`, for levels) within 1.5%
 //! ([`lightwire_solve::accuracy::accuracy`]: area-weighted, over the
 //! visible non-emitting elements).
 //!
@@ -26,7 +27,11 @@ fn against_reference(name: &str) {
     let reference =
         ReferenceSolver::new(&scene, &atlas, &poses, &Silent).unwrap_or_else(|e| panic!("{e}"));
     let expected = reference.solve(SolveOptions::default(), &Silent).radiosity;
-    for kind in [SolverKind::Progressive, SolverKind::Gather] {
+    for kind in [
+        SolverKind::Progressive,
+        SolverKind::Gather,
+        SolverKind::Rays,
+    ] {
         let settings = SolverSettings::default();
         let mut solver = solver::build(kind, &scene, &atlas, &poses, &settings, &solver::Silent)
             .unwrap_or_else(|e| panic!("{}: {e}", kind.name()));
@@ -43,7 +48,14 @@ fn against_reference(name: &str) {
             kind.name(),
             solver.summary()
         );
-        assert!(error.nrmse <= 0.01, "{name}, {}: {error}", kind.name());
+        // The ray solver's 256 rays per texel leave noise hemicubes do not
+        // have.
+        let bound = if kind == SolverKind::Rays {
+            RAY_BOUND
+        } else {
+            0.01
+        };
+        assert!(error.nrmse <= bound, "{name}, {}: {error}", kind.name());
     }
     // The corrections a level gets, where a hemicube sweep is too large
     // (`gpu::Correction::by_rays`), on the same scene: refinement, then
@@ -71,9 +83,9 @@ fn against_reference(name: &str) {
     assert!(error.nrmse < before.nrmse, "{name}: {before} -> {error}");
 }
 
-/// How far the progressive solver corrected by ray-cast sweeps may read
-/// from the reference: the sweep's 256 rays per texel leave noise the
-/// hemicube sweep does not have.
+/// How far the progressive solver corrected by ray-cast sweeps, and the
+/// ray solver, may read from the reference: 256 rays per texel leave noise
+/// a hemicube does not have.
 const RAY_BOUND: f64 = 0.015;
 
 #[test]

@@ -36,7 +36,9 @@ pub(crate) struct BakeArgs {
     /// Reference: stop when one sweep adds less than this fraction of
     /// the emitted power. Progressive: stop when the unshot power is
     /// below this fraction of the emitted power. Gather: stop when one
-    /// bounce changes less than this fraction of the emitted power.
+    /// bounce changes less than this fraction of the emitted power. Rays:
+    /// stop when the power the bounces still have to add (extrapolated
+    /// from the last two) is below this fraction of the emitted power.
     #[arg(long, default_value_t = 1e-4)]
     tolerance: f64,
     /// GPU solvers: use the adapter whose name contains this
@@ -95,8 +97,9 @@ pub(crate) struct SolveSettings {
 /// How often a GPU solve prints how far it is.
 const PROGRESS_EVERY: Duration = Duration::from_secs(5);
 
-/// Prints solver progress to stderr: every 10% of the form factors or of
-/// the path-traced elements, and every tenth sweep.
+/// Prints solver progress to stderr: every 10% of the form factors, of
+/// the path-traced elements or of the elements casting rays, and every
+/// tenth sweep.
 struct StderrProgress {
     started: Instant,
     last_decile: AtomicUsize,
@@ -121,6 +124,15 @@ impl solver::Progress for StderrProgress {
         if let Some(decile) = self.new_decile(done, total) {
             eprintln!(
                 "  path tracing: {:3}% ({done}/{total} elements, {:.1} s)",
+                decile * 10,
+                self.started.elapsed().as_secs_f64()
+            );
+        }
+    }
+    fn rays(&self, done: usize, total: usize) {
+        if let Some(decile) = self.new_decile(done, total) {
+            eprintln!(
+                "  casting rays: {:3}% ({done}/{total} elements, {:.1} s)",
                 decile * 10,
                 self.started.elapsed().as_secs_f64()
             );
