@@ -8,8 +8,15 @@
 //! ([`Raycaster::occluded`], for shadow rays; either face blocks).
 //!
 //! The acceleration structure is a bounding volume hierarchy built top-down
-//! by splitting the primitives at the median centroid along the longest
-//! axis of their centroid bounds; leaves hold up to [`LEAF_SIZE`] patches.
+//! along the longest axis of the primitives' centroid bounds, split where
+//! the surface area heuristic (the summed areas of the two children's
+//! boxes, each times its primitive count: what a random ray expects to
+//! test) is least among [`SAH_BINS`] bins of centroids; leaves hold up to
+//! [`LEAF_SIZE`] patches. A level's triangles range from a wall to a
+//! screw, and a median split put them in boxes that many rays enter: with
+//! the surface area heuristic `lightwire bake --solver rays` took 11 s on
+//! the garage level instead of 17, and 150 s on pandora instead of 197
+//! (BENCHMARKS.md, section 9).
 //! Traversal visits the nearer child first and skips every box that starts
 //! beyond the closest hit found so far. Its users are the path tracer
 //! ([`crate::pathtrace`]) and the contact test of [`crate::validity`]; the
@@ -26,6 +33,13 @@ use lightwire_scene::{PatchShape, Pose, Scene};
 
 /// Most patches in one leaf of the hierarchy.
 pub const LEAF_SIZE: usize = 4;
+
+/// Bins of centroids a split considers (binned surface area heuristic).
+pub const SAH_BINS: usize = 16;
+
+/// Depth below which splits take the median instead of the surface area
+/// heuristic's choice.
+const SAH_DEPTH: usize = 40;
 
 /// A patch placed in the world: the parallelogram `origin + s u + t v`,
 /// `s, t ∈ [0, 1]`, or, for a triangle, its half `0 <= t <= s <= 1`
@@ -203,6 +217,12 @@ impl Aabb {
         (self.min + self.max) * 0.5
     }
 
+    /// Surface area (0 for an empty box).
+    fn area(&self) -> f64 {
+        let d = (self.max - self.min).max(DVec3::ZERO);
+        2.0 * (d.x * d.y + d.y * d.z + d.z * d.x)
+    }
+
     /// Entry distance of the ray `origin + t dir` (with `inv = 1 / dir`)
     /// into the box, if it enters before `t_max`. A small tolerance keeps
     /// flat boxes (a single axis-aligned quad) hittable; NaNs from
@@ -284,7 +304,7 @@ impl Raycaster {
         let mut order: Vec<u32> = (0..patches.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * patches.len().max(1));
         if !patches.is_empty() {
-            build(&bounds, &mut order, 0, &mut nodes);
+            build(&bounds, &mut order, (0, 0), &mut nodes);
         }
         Self {
             patches,
@@ -371,8 +391,9 @@ impl Raycaster {
             return;
         }
         let inv = dir.recip();
-        // Depth is bounded by log2(patches) + 1 for a median split; 64 is
-        // more than any scene that fits an atlas.
+        // A median split bounds the depth by log2(patches) + 1; the
+        // surface area heuristic's is rarely much deeper, and a deeper
+        // tree still traverses correctly (`visit_all`).
         let mut stack = [0u32; 64];
         let mut top = 0usize;
         let mut current = 0u32;
@@ -395,7 +416,7 @@ impl Raycaster {
                             current = near;
                             continue;
                         }
-                        // Unreachable for a median-split tree; stay correct.
+                        // Deeper than the stack: stay correct.
                         self.visit_all(far, origin, dir, limit, &mut on_hit);
                         current = near;
                         continue;
@@ -473,7 +494,12 @@ impl Raycaster {
 
 /// Builds the subtree over `order[first..first + ids.len()]` depth-first
 /// into `nodes`; returns its index.
-fn build(bounds: &[Aabb], ids: &mut [u32], first: usize, nodes: &mut Vec<Node>) -> u32 {
+fn build(
+    bounds: &[Aabb],
+    ids: &mut [u32],
+    (first, depth): (usize, usize),
+    nodes: &mut Vec<Node>,
+) -> u32 {
     let index = nodes.len() as u32;
     let total = ids
         .iter()
@@ -487,6 +513,28 @@ fn build(bounds: &[Aabb], ids: &mut [u32], first: usize, nodes: &mut Vec<Node>) 
         });
         return index;
     }
+    let mid = split(bounds, ids, depth);
+    nodes.push(Node {
+        bounds: total,
+        first: 0,
+        count: 0,
+        right: 0,
+    });
+    let (left, right) = ids.split_at_mut(mid);
+    build(bounds, left, (first, depth + 1), nodes);
+    let r = build(bounds, right, (first + mid, depth + 1), nodes);
+    nodes[index as usize].right = r;
+    index
+}
+
+/// Orders `ids` so that the first `mid` go left, and returns `mid`: the
+/// cheapest split by the surface area heuristic among [`SAH_BINS`] bins
+/// of the centroids along their longest axis, or the median when the
+/// centroids coincide, every bin boundary leaves one side empty, or the
+/// node is deeper than [`SAH_DEPTH`] (a split by area may cut off one
+/// primitive at a time; the median halves, so the tree stays shallow
+/// and its build's recursion bounded).
+fn split(bounds: &[Aabb], ids: &mut [u32], depth: usize) -> usize {
     let mut centroids = Aabb::EMPTY;
     for &i in ids.iter() {
         centroids.grow(bounds[i as usize].centre());
@@ -499,21 +547,64 @@ fn build(bounds: &[Aabb], ids: &mut [u32], first: usize, nodes: &mut Vec<Node>) 
     } else {
         2
     };
-    let mid = ids.len() / 2;
-    ids.select_nth_unstable_by(mid, |&a, &b| {
-        bounds[a as usize].centre()[axis].total_cmp(&bounds[b as usize].centre()[axis])
-    });
-    nodes.push(Node {
-        bounds: total,
-        first: 0,
-        count: 0,
-        right: 0,
-    });
-    let (left, right) = ids.split_at_mut(mid);
-    build(bounds, left, first, nodes);
-    let r = build(bounds, right, first + mid, nodes);
-    nodes[index as usize].right = r;
-    index
+    let median = |ids: &mut [u32]| {
+        let mid = ids.len() / 2;
+        ids.select_nth_unstable_by(mid, |&a, &b| {
+            bounds[a as usize].centre()[axis].total_cmp(&bounds[b as usize].centre()[axis])
+        });
+        mid
+    };
+    if extent[axis].partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || depth >= SAH_DEPTH {
+        return median(ids);
+    }
+    let (lo, scale) = (centroids.min[axis], SAH_BINS as f64 / extent[axis]);
+    let bin = |i: u32| -> usize {
+        let c = bounds[i as usize].centre()[axis];
+        (((c - lo) * scale) as usize).min(SAH_BINS - 1)
+    };
+    let mut boxes = [Aabb::EMPTY; SAH_BINS];
+    let mut counts = [0usize; SAH_BINS];
+    for &i in ids.iter() {
+        let b = bin(i);
+        boxes[b] = boxes[b].union(&bounds[i as usize]);
+        counts[b] += 1;
+    }
+    // Cost of splitting after bin k: left area x count + right area x
+    // count (the parent's area divides both, so it is left out).
+    let mut right_area = [0.0f64; SAH_BINS];
+    let (mut acc, mut n) = (Aabb::EMPTY, 0usize);
+    for k in (1..SAH_BINS).rev() {
+        acc = acc.union(&boxes[k]);
+        n += counts[k];
+        right_area[k] = if n > 0 { acc.area() * n as f64 } else { 0.0 };
+    }
+    let (mut best, mut best_cost) = (None, f64::INFINITY);
+    let (mut acc, mut n) = (Aabb::EMPTY, 0usize);
+    for k in 0..SAH_BINS - 1 {
+        acc = acc.union(&boxes[k]);
+        n += counts[k];
+        if n == 0 || n == ids.len() {
+            continue;
+        }
+        let cost = acc.area() * n as f64 + right_area[k + 1];
+        if cost < best_cost {
+            (best, best_cost) = (Some(k), cost);
+        }
+    }
+    let Some(best) = best else {
+        return median(ids);
+    };
+    // Partition: bins up to `best` first.
+    let (mut i, mut j) = (0, ids.len());
+    while i < j {
+        if bin(ids[i]) <= best {
+            i += 1;
+        } else {
+            j -= 1;
+            ids.swap(i, j);
+        }
+    }
+    i
 }
 
 /// `side`² cosine-distributed directions over the hemisphere of a unit
