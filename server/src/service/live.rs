@@ -244,13 +244,13 @@ impl<T: Clone> GpuLive<T> {
                 .with_hints(&scene.solver),
             ..Default::default()
         };
-        if options.corrections > 0 && !lightwire_solve::gpu::corrections_affordable(scene, atlas) {
+        if !lightwire_solve::gpu::corrections_affordable(scene, atlas) {
             tracing::info!(
                 scene = %scene.name,
                 elements = atlas.elements.len(),
                 patches = scene.patches.len(),
-                "gathered corrections by rays: a hemicube sweep over this many elements and \
-                 patches would be too slow (more than {} of their product)",
+                "first light and gathered corrections by rays on the CPU: hemicubes over this \
+                 many elements and patches would be too slow (more than {} of their product)",
                 lightwire_solve::gpu::MAX_DEFAULT_SWEEP
             );
         }

@@ -39,6 +39,15 @@
 //!   shooter was blocked by the objects where they stood, so the next
 //!   move's removal unblocks all of its shot radiosity, as it does.
 //!
+//! - A cross session lights its static set first, without the moving
+//!   objects, and then inserts them (thesis §4.5.2). On a level
+//!   ([`Seed::Auto`]: where a hemicube correction sweep is too slow) the
+//!   ray solver does the first part (`crate::rays`, a slice of texels per
+//!   step) and the progressive solver adopts its light as converged
+//!   ([`ProgressiveSolver::adopt`]): the garage level's first state came
+//!   after more than four minutes of refinement, now after about 15 s
+//!   (BENCHMARKS.md §9).
+//!
 //! - Whenever the scene holds still at poses it was not corrected at (the
 //!   first solve, and every move once its state is complete and refined),
 //!   the session corrects its state by gathering
@@ -67,6 +76,7 @@ use super::gather::GatherOptions;
 use super::profile::{Profiler, Stage, Unit};
 use super::progressive::{Move, ProgressiveOptions, ProgressiveSolver, Redistribution};
 use super::{Device, GpuError};
+use crate::rays::{self, RaySolver};
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Pose, Scene};
 
@@ -112,9 +122,36 @@ pub struct DynamicOptions {
     /// was 1.8e-3 of the emitted power), at 5.2 and 8.4 s from the return
     /// to the corrected state (`examples/round_trip.rs`). 0: none.
     pub corrections: u32,
+    /// How a cross session lights its static set before the moving
+    /// objects go in.
+    pub seed: Seed,
     /// The progressive solver underneath.
     pub progressive: ProgressiveOptions,
 }
+
+/// How a cross session computes the static set's light it starts from
+/// (the full and incremental methods always refine).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Seed {
+    /// Rays where a hemicube correction sweep is unaffordable
+    /// ([`super::corrections_affordable`]: a level), refinement elsewhere.
+    #[default]
+    Auto,
+    /// Progressive refinement to the last publication level (thesis
+    /// §4.5.2). On the garage level that took more than four minutes
+    /// before the first state, every shot drawing the whole level.
+    Refinement,
+    /// The ray solver (`crate::rays`): every valid static texel casts its
+    /// rays once, a slice per step, bounces run over the kept hits until
+    /// what they would still add is below the last publication level, and
+    /// the progressive solver adopts the result as converged
+    /// ([`ProgressiveSolver::adopt`]). Seconds on the garage level.
+    Rays,
+}
+
+/// Receivers whose rays a seeding step casts (a slice between ticks):
+/// about a tenth of a second on the garage level on two cores.
+const SEED_CHUNK: usize = 256;
 
 impl Default for DynamicOptions {
     fn default() -> Self {
@@ -123,6 +160,7 @@ impl Default for DynamicOptions {
             publish_at: [1e-2, 1e-3],
             reanchor_every: 10,
             corrections: 3,
+            seed: Seed::Auto,
             progressive: ProgressiveOptions::default(),
         }
     }
@@ -160,6 +198,11 @@ enum Phase {
     /// Cross: progressive iterations on the static scene without the
     /// moving objects until `level` (the first solve).
     Refining { level: f64, after_move: bool },
+    /// Cross with [`Seed::Rays`]: the ray solver lights the static scene
+    /// without the moving objects (the first solve), a slice per step;
+    /// the progressive solver then adopts its light and the objects go in
+    /// as after [`Phase::Refining`].
+    Seeding(Box<RaySolver>),
     /// Cross: moving objects are being inserted again.
     Inserting(Move, bool),
     /// Gathered corrections at poses that hold still, `left` rounds to go
@@ -258,6 +301,25 @@ impl<T: Clone> DynamicSolver<T> {
         if options.method == Redistribution::Cross {
             solver.set_passive(&dynamic)?;
         }
+        let seed_by_rays = match options.seed {
+            Seed::Auto => !super::corrections_affordable(scene, atlas),
+            Seed::Refinement => false,
+            Seed::Rays => true,
+        };
+        let phase = if options.method == Redistribution::Cross
+            && seed_by_rays
+            && !options.progressive.indirect_only
+        {
+            Phase::Seeding(Box::new(RaySolver::prepare(
+                scene,
+                atlas,
+                (poses, &dynamic),
+                solver.validity().clone(),
+                (rays::SIDE, crate::direct::GRID),
+            )))
+        } else {
+            phase
+        };
         Ok(Self {
             gpu: gpu.clone(),
             scene: scene.clone(),
@@ -404,6 +466,7 @@ impl<T: Clone> DynamicSolver<T> {
             Phase::Idle | Phase::Moving(_) => Unit::Move,
             Phase::Converging { .. }
             | Phase::Refining { .. }
+            | Phase::Seeding(_)
             | Phase::Settling
             | Phase::Correcting { .. } => Unit::Refinement,
             Phase::Inserting(..) => Unit::Insertion,
@@ -425,6 +488,7 @@ impl<T: Clone> DynamicSolver<T> {
             }
             Phase::Settling => self.settle(report),
             Phase::Refining { level, after_move } => self.refine(level, after_move),
+            Phase::Seeding(rays) => self.seed(rays),
             Phase::Inserting(mut mv, after_move) => {
                 if self.solver.move_step(&mut mv)? {
                     self.phase = Phase::Inserting(mv, after_move);
@@ -531,6 +595,28 @@ impl<T: Clone> DynamicSolver<T> {
             self.phase = Phase::Settling;
         } else {
             self.complete(report);
+        }
+        Ok((true, false))
+    }
+
+    /// A slice of [`Phase::Seeding`]: rays for a slice of receivers, or
+    /// one bounce; once what the bounces would still add is below the last
+    /// publication level, the progressive solver adopts the light and the
+    /// objects are inserted ([`Phase::Refining`] finds nothing unshot).
+    fn seed(&mut self, mut rays: Box<RaySolver>) -> Result<(bool, bool), GpuError> {
+        let level = self.options.publish_at[1];
+        if !rays.is_cast() {
+            rays.cast_next(&self.scene, &self.atlas, self.solver.poses(), SEED_CHUNK);
+            self.phase = Phase::Seeding(rays);
+        } else if rays.sweeps() < 2 || rays.residual_fraction() > level {
+            rays.sweep(&self.atlas);
+            self.phase = Phase::Seeding(rays);
+        } else {
+            self.solver.adopt(rays.radiosity())?;
+            self.phase = Phase::Refining {
+                level,
+                after_move: false,
+            };
         }
         Ok((true, false))
     }

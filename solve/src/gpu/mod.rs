@@ -71,7 +71,7 @@ pub use correct::{
     Correction, CorrectionReport, MAX_DEFAULT_SWEEP, RAY_GRID, RAY_SIDE, corrections_affordable,
 };
 pub use device::{Device, GpuError};
-pub use dynamic::{CORRECTED_RESIDUAL, DynamicOptions, DynamicSolver, DynamicStep};
+pub use dynamic::{CORRECTED_RESIDUAL, DynamicOptions, DynamicSolver, DynamicStep, Seed};
 pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};
 pub use progressive::{
     EnergyBalance, Move, ProgressiveOptions, ProgressiveSolver, Redistribution, StepReport,

@@ -656,6 +656,41 @@ impl ProgressiveSolver {
         Ok(())
     }
 
+    /// Takes `b` (one value per element, atlas order) as the light of
+    /// every valid element of the present objects, with nothing left
+    /// unshot: as if refinement had converged to it, each patch having
+    /// shot all it shows. For a session that starts from a solution
+    /// computed otherwise (`gpu::DynamicSolver` on a level starts from the
+    /// ray solver's, `crate::rays`); what moves take back later is this
+    /// light, as for any converged state (thesis §4.4, §4.5).
+    ///
+    /// # Panics
+    /// If `b` does not hold one value per element.
+    pub fn adopt(&mut self, b: &[Vec3]) -> Result<(), GpuError> {
+        assert_eq!(
+            b.len(),
+            self.element_count as usize,
+            "one value per element"
+        );
+        let mut radiosity = self.read_vec4(&self.buffers.radiosity)?;
+        let mut unshot = self.read_vec4(&self.buffers.unshot)?;
+        for (i, v) in b.iter().enumerate() {
+            let object = self.element_objects[i] as usize;
+            if self.validity.is_invalid(i) || self.absent.get(object).copied().unwrap_or(false) {
+                continue;
+            }
+            radiosity[i] = [v.x, v.y, v.z, radiosity[i][3]];
+            unshot[i] = [0.0, 0.0, 0.0, unshot[i][3]];
+        }
+        if !radiosity.is_empty() {
+            self.queue
+                .write_buffer(&self.buffers.radiosity, 0, bytemuck::cast_slice(&radiosity));
+            self.queue
+                .write_buffer(&self.buffers.unshot, 0, bytemuck::cast_slice(&unshot));
+        }
+        self.reselect()
+    }
+
     /// Radiosity B per element (W/m² per channel), direct light included.
     pub fn total_radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
         Ok(self
