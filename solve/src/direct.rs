@@ -215,10 +215,7 @@ fn seen_share(
         }
         let w = share * cos_x * cos_y / r2;
         total += w;
-        let blocked = caster
-            .closest_hit(x, dir, r * (1.0 - 1e-6))
-            .is_some_and(|hit| hit.patch != p);
-        if blocked {
+        if caster.occluded_except(x, dir, r * (1.0 - 1e-6), p) {
             continue;
         }
         if let Some(j) = element_at(caster, atlas, p, y) {

@@ -353,6 +353,21 @@ impl Raycaster {
         blocked
     }
 
+    /// Whether any patch but `except`, either face, lies on the ray
+    /// `origin + t dir` for `0 < t < t_max`: a shadow ray towards a point
+    /// of patch `except` (an emitter), which stops at the first blocker
+    /// instead of looking for the closest hit. `dir` must be a unit
+    /// vector.
+    pub fn occluded_except(&self, origin: DVec3, dir: DVec3, t_max: f64, except: u32) -> bool {
+        let mut blocked = false;
+        let mut limit = t_max;
+        self.traverse(origin, dir, &mut limit, |id, _| {
+            blocked = id != except;
+            blocked
+        });
+        blocked
+    }
+
     /// [`Self::closest_hit`] by testing every patch: what the hierarchy
     /// must agree with (tests, and a check for new shapes).
     pub fn closest_hit_brute_force(&self, origin: DVec3, dir: DVec3, t_max: f64) -> Option<Hit> {
@@ -745,6 +760,19 @@ mod tests {
                 "ray {k} from {origin} along {dir}: {a:?} vs {b:?}"
             );
             assert_eq!(rc.occluded(origin, dir, t_max), b.is_some(), "ray {k}");
+            // A shadow ray towards a patch: blocked by any other, whether
+            // or not the excepted one comes first.
+            let except = (k % 300) as u32;
+            let others = (0..300u32).filter(|&id| id != except).any(|id| {
+                rc.patches()[id as usize]
+                    .intersect(origin, dir, t_max)
+                    .is_some()
+            });
+            assert_eq!(
+                rc.occluded_except(origin, dir, t_max, except),
+                others,
+                "ray {k} except {except}"
+            );
             if let Some(h) = b {
                 hits += 1;
                 fronts += usize::from(h.front);
