@@ -184,6 +184,8 @@ if wanted levels; then
     done
     step levels-eye-rays-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
       --lightmap "$OUT/garage-rays/lightmap.exr" --points 400 --spp 4096
+    step levels-dynamic-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench dynamic \
+      --scene scenes/levels/garage.json --methods cross --frames 10 --out "$OUT/dynamic-levels"
     serve_until_idle levels-serve-garage scenes/levels/garage.json garage
     step levels-eye-served-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
       --scene scenes/levels/garage.json --lightmap "$OUT/levels-serve-garage.exr" --points 400 --spp 4096
