@@ -11,7 +11,7 @@
 #              and 2 drivers for 10 minutes on loopback (SOAK_FLAGS, e.g.
 #              SOAK_FLAGS="--duration 60"; report in target/soak/)
 #   make benchmarks  every measurement BENCHMARKS.md reports, one after the
-#              other on this machine (about 85 minutes, the codec step about
+#              other on this machine (about 80 minutes, the codec step about
 #              45 more; nothing else should run; output in
 #              target/bench-report/, LEVELS for section 9)
 #

@@ -2,7 +2,7 @@
 # Every measurement BENCHMARKS.md reports, one after the other, on one
 # machine in one run: the "Measuring again" list of BENCHMARKS.md as a
 # script (`make benchmarks`). Nothing else should run on the machine
-# meanwhile. On 2 cores with llvmpipe it takes about 85 minutes, and the
+# meanwhile. On 2 cores with llvmpipe it takes about 80 minutes, and the
 # codec step about 45 minutes more (it records 90 versions of four scenes
 # under two scripts at about 4.5 s a version, and caches the recordings in
 # bench-out/codec/recordings/).
