@@ -187,6 +187,8 @@ if wanted levels; then
     step levels-dynamic-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench dynamic \
       --scene scenes/levels/garage.json --methods cross --frames 10 --out "$OUT/dynamic-levels"
     serve_until_idle levels-serve-garage scenes/levels/garage.json garage
+    LEVELS="$LEVELS" serve_and_load levels-latency-garage scenes/levels/garage.json --scene garage \
+      --script scenes/scripts/garage/rotate.json --drivers 1 --viewers 10 --rate 10 --duration 60s
     step levels-eye-served-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
       --scene scenes/levels/garage.json --lightmap "$OUT/levels-serve-garage.exr" --points 400 --spp 4096
   else

@@ -183,7 +183,8 @@ fn three_js_draws_the_garage_lit_by_the_stream() {
     use std::process::{Command, Stdio};
     use std::time::{Duration, Instant};
 
-    // The first solve of the level takes minutes on lavapipe (BENCHMARKS.md §9).
+    // The first state of the level comes after about 15 s in a release
+    // build (BENCHMARKS.md §9); a generous bound for slower hosts.
     const READY: Duration = Duration::from_secs(900);
     const E2E: Duration = Duration::from_secs(600);
     let path = level_scene("garage", &temp_dir("levels-threejs"));
@@ -306,18 +307,35 @@ fn garage_bake_where_a_player_looks(solver: &str, tolerance: &str) {
         out.to_str().expect("utf-8"),
     ]);
     let lightmap = out.join("lightmap.exr");
-    let report = run(&[
-        "bench",
-        "eye",
-        "--scene",
-        scene,
-        "--lightmap",
-        lightmap.to_str().expect("utf-8"),
-        "--points",
-        "400",
-        "--spp",
-        "4096",
-    ]);
+    eye_within_bounds(scene, &lightmap, solver);
+}
+
+/// Runs `bench eye` on `lightmap` of `scene` (400 seeded points in view,
+/// 4,096 paths each) and asserts the bounds above; `what` names the
+/// lightmap in messages.
+fn eye_within_bounds(scene: &str, lightmap: &Path, what: &str) {
+    let output = lightwire_testkit::lightwire!()
+        .command()
+        .args([
+            "bench",
+            "eye",
+            "--scene",
+            scene,
+            "--lightmap",
+            lightmap.to_str().expect("utf-8"),
+            "--points",
+            "400",
+            "--spp",
+            "4096",
+        ])
+        .output()
+        .expect("runs");
+    let report = String::from_utf8_lossy(&output.stdout).into_owned();
+    assert!(
+        output.status.success(),
+        "bench eye on {what}: {report}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     // "  NRMSE 11.7%  median 4.9%  p95 16.8%  >10% off: 14%  >25% off: 3%"
     let figure = |name: &str| -> f64 {
         let line = report
@@ -341,7 +359,7 @@ fn garage_bake_where_a_player_looks(solver: &str, tolerance: &str) {
         figure(">10% off:"),
     );
     eprintln!(
-        "garage baked by {solver}, where a player looks: NRMSE {nrmse}%, median {median}%, \
+        "garage, {what}, where a player looks: NRMSE {nrmse}%, median {median}%, \
          p95 {p95}%, >10% off {off10}%"
     );
     assert!(
@@ -354,4 +372,48 @@ fn garage_bake_where_a_player_looks(solver: &str, tolerance: &str) {
         "{off10}% of points more than 10% off (at most 20%): {report}"
     );
     assert!(nrmse <= 13.0, "NRMSE {nrmse}% (at most 13%): {report}");
+}
+
+/// The lightmap the live service publishes for the garage, once the
+/// session is idle (`lightwire_solver_idle` 1: its static set lit by the
+/// ray solver, the crate inserted by cross redistribution, the gathered
+/// corrections run), reads as close to the path tracer where a player
+/// looks as the bakes above, by the same bounds: what a viewer of the
+/// level gets, not only `bake`. It came idle after 35-38 s in a release
+/// build (BENCHMARKS.md §9) and read 11.2%, 4.4% median, 16.6% p95.
+#[test]
+fn the_served_garage_once_idle_reads_close_to_the_path_tracer_where_a_player_looks() {
+    use lightwire_testkit::http::blocking;
+    use std::time::{Duration, Instant};
+
+    const IDLE: Duration = Duration::from_secs(900);
+    let dir = temp_dir("levels-served-eye");
+    let path = level_scene("garage", &dir);
+    let server = lightwire_testkit::lightwire!().serve_dev_on(&path, &[]);
+    let started = Instant::now();
+    let idle = |metrics: &str| {
+        metrics
+            .lines()
+            .any(|l| l.trim() == "lightwire_solver_idle{scene=\"garage\"} 1")
+    };
+    loop {
+        let metrics = blocking::get_with(&server.addr, "/metrics", &[]).map(|r| r.text());
+        if metrics.as_deref().is_some_and(idle) {
+            break;
+        }
+        assert!(
+            started.elapsed() < IDLE,
+            "the served garage is not idle after {IDLE:?}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    eprintln!("served garage idle after {:.0?}", started.elapsed());
+    // Texels the stream's encoder held back within its error budget are
+    // published once the session holds still (`settle_ms`, 500 ms).
+    std::thread::sleep(Duration::from_millis(1500));
+    let response = blocking::get(&server.addr, "/api/scenes/garage/lightmap.exr", None);
+    assert_eq!(response.status, 200, "{}", response.text());
+    let lightmap = dir.join("served.exr");
+    std::fs::write(&lightmap, &response.body).expect("write the lightmap");
+    eye_within_bounds(path.to_str().expect("utf-8"), &lightmap, "served once idle");
 }
