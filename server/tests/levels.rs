@@ -274,28 +274,31 @@ fn the_garage_ray_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
     garage_bake_where_a_player_looks("rays", "1e-3");
 }
 
+/// Runs `lightwire ARGS`, asserts that it succeeded, and returns its
+/// standard output.
+fn run_lightwire(args: &[&str]) -> String {
+    let output = lightwire_testkit::lightwire!()
+        .command()
+        .args(args)
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    assert!(
+        output.status.success(),
+        "{args:?}: {stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    stdout
+}
+
 /// Bakes the garage with `solver` to `tolerance`, runs `bench eye` on the
 /// lightmap and asserts the bounds above.
 fn garage_bake_where_a_player_looks(solver: &str, tolerance: &str) {
     let dir = temp_dir(&format!("levels-eye-{solver}"));
     let scene = level_scene("garage", &dir);
     let out = dir.join("bake");
-    let run = |args: &[&str]| {
-        let output = lightwire_testkit::lightwire!()
-            .command()
-            .args(args)
-            .output()
-            .expect("runs");
-        let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
-        assert!(
-            output.status.success(),
-            "{args:?}: {stdout}{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        stdout
-    };
     let scene = scene.to_str().expect("utf-8");
-    run(&[
+    run_lightwire(&[
         "bake",
         "--scene",
         scene,
@@ -314,28 +317,18 @@ fn garage_bake_where_a_player_looks(solver: &str, tolerance: &str) {
 /// 4,096 paths each) and asserts the bounds above; `what` names the
 /// lightmap in messages.
 fn eye_within_bounds(scene: &str, lightmap: &Path, what: &str) {
-    let output = lightwire_testkit::lightwire!()
-        .command()
-        .args([
-            "bench",
-            "eye",
-            "--scene",
-            scene,
-            "--lightmap",
-            lightmap.to_str().expect("utf-8"),
-            "--points",
-            "400",
-            "--spp",
-            "4096",
-        ])
-        .output()
-        .expect("runs");
-    let report = String::from_utf8_lossy(&output.stdout).into_owned();
-    assert!(
-        output.status.success(),
-        "bench eye on {what}: {report}{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let report = run_lightwire(&[
+        "bench",
+        "eye",
+        "--scene",
+        scene,
+        "--lightmap",
+        lightmap.to_str().expect("utf-8"),
+        "--points",
+        "400",
+        "--spp",
+        "4096",
+    ]);
     // "  NRMSE 11.7%  median 4.9%  p95 16.8%  >10% off: 14%  >25% off: 3%"
     let figure = |name: &str| -> f64 {
         let line = report

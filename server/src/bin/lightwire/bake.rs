@@ -111,6 +111,17 @@ impl StderrProgress {
         let decile = done * 10 / total.max(1);
         (self.last_decile.fetch_max(decile, Ordering::Relaxed) < decile).then_some(decile)
     }
+
+    /// `  WHAT:  NN% (done/total UNIT, S s)` once per new decile.
+    fn decile_line(&self, what: &str, unit: &str, done: usize, total: usize) {
+        if let Some(decile) = self.new_decile(done, total) {
+            eprintln!(
+                "  {what}: {:3}% ({done}/{total} {unit}, {:.1} s)",
+                decile * 10,
+                self.started.elapsed().as_secs_f64()
+            );
+        }
+    }
 }
 
 impl solver::Progress for StderrProgress {
@@ -121,31 +132,13 @@ impl solver::Progress for StderrProgress {
         eprintln!("  {text}");
     }
     fn points(&self, done: usize, total: usize) {
-        if let Some(decile) = self.new_decile(done, total) {
-            eprintln!(
-                "  path tracing: {:3}% ({done}/{total} elements, {:.1} s)",
-                decile * 10,
-                self.started.elapsed().as_secs_f64()
-            );
-        }
+        self.decile_line("path tracing", "elements", done, total);
     }
     fn rays(&self, done: usize, total: usize) {
-        if let Some(decile) = self.new_decile(done, total) {
-            eprintln!(
-                "  casting rays: {:3}% ({done}/{total} elements, {:.1} s)",
-                decile * 10,
-                self.started.elapsed().as_secs_f64()
-            );
-        }
+        self.decile_line("casting rays", "elements", done, total);
     }
     fn form_factors(&self, done: usize, total: usize) {
-        if let Some(decile) = self.new_decile(done, total) {
-            eprintln!(
-                "  form factors: {:3}% ({done}/{total} rows, {:.1} s)",
-                decile * 10,
-                self.started.elapsed().as_secs_f64()
-            );
-        }
+        self.decile_line("form factors", "rows", done, total);
     }
     fn iteration(&self, iteration: usize, residual: f64) {
         if iteration.is_multiple_of(10) || iteration == 1 {
