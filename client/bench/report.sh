@@ -177,20 +177,26 @@ if wanted levels; then
     step levels-bake-garage env LEVELS="$LEVELS" "$BIN/lightwire" bake --scene scenes/levels/garage.json \
       --solver progressive --tolerance 1e-2 --out "$OUT/garage-progressive"
     step levels-eye-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
-      --lightmap "$OUT/garage-progressive/lightmap.exr" --points 400 --spp 4096
+      --lightmap "$OUT/garage-progressive/lightmap.exr" --points 2000 --spp 8192
     for l in garage pandora; do
       step "levels-bake-rays-$l" env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \
         --scene "scenes/levels/$l.json" --solver rays --tolerance 1e-3 --out "$OUT/$l-rays"
     done
     step levels-eye-rays-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
-      --lightmap "$OUT/garage-rays/lightmap.exr" --points 400 --spp 4096
+      --lightmap "$OUT/garage-rays/lightmap.exr" --points 2000 --spp 8192
+    # Twice the texel density: what the representation of the light, not
+    # the solver, still costs where a player looks.
+    step levels-bake-rays-garage-x2 env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \
+      --scene scenes/levels/garage.json --solver rays --tolerance 1e-3 --density-scale 2 --out "$OUT/garage-rays-x2"
+    step levels-eye-rays-garage-x2 env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
+      --density-scale 2 --lightmap "$OUT/garage-rays-x2/lightmap.exr" --points 2000 --spp 8192
     step levels-dynamic-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench dynamic \
       --scene scenes/levels/garage.json --methods cross --frames 10 --out "$OUT/dynamic-levels"
     serve_until_idle levels-serve-garage scenes/levels/garage.json garage
     LEVELS="$LEVELS" serve_and_load levels-latency-garage scenes/levels/garage.json --scene garage \
       --script scenes/scripts/garage/rotate.json --drivers 1 --viewers 10 --rate 10 --duration 60s
     step levels-eye-served-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
-      --scene scenes/levels/garage.json --lightmap "$OUT/levels-serve-garage.exr" --points 400 --spp 4096
+      --scene scenes/levels/garage.json --lightmap "$OUT/levels-serve-garage.exr" --points 2000 --spp 8192
   else
     echo "no levels at $LEVELS: section 9 skipped" >&2
   fi

@@ -9,7 +9,9 @@ use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use lightwire_scene::LoadOptions;
 use lightwire_scene::load::load_scene;
-use lightwire_solve::eye::{EyeReport, VisiblePoint, compare, lightmap_at, visible_points};
+use lightwire_solve::eye::{
+    EyeReport, VisiblePoint, compare, lightmap_at, texel_at, visible_points,
+};
 use lightwire_solve::pathtrace::{PathTracer, Silent, SurfacePoint};
 use serde::Serialize;
 
@@ -32,6 +34,9 @@ pub struct Settings {
 pub struct PointResult {
     #[serde(flatten)]
     pub at: VisiblePoint,
+    /// Where the lightmap was read: atlas image coordinates, texel
+    /// `(x, y)`'s centre at `(x, y)` (bilinear between the four around).
+    pub texel: Option<[f32; 2]>,
     pub lightmap: [f32; 3],
     pub truth: [f32; 3],
     pub truth_std_error: [f32; 3],
@@ -124,6 +129,7 @@ pub fn run(scene_path: &Path, lightmap: &Path, settings: &Settings) -> Result<Ey
             .zip(&truth)
             .map(|((p, v), t)| PointResult {
                 at: *p,
+                texel: texel_at(&atlas, p.patch, p.st).map(|xy| xy.to_array()),
                 lightmap: v.to_array(),
                 truth: t.mean.to_array(),
                 truth_std_error: t.std_error.to_array(),
@@ -170,6 +176,12 @@ pub fn print(result: &EyeResult) {
         100.0 * r.over_10,
         100.0 * r.over_25,
         100.0 * r.truth_noise
+    );
+    println!(
+        "  over resampled points (5-95%) the NRMSE reads {:.1}-{:.1}%; the worst point carries {:.0}% of the squared error",
+        100.0 * r.nrmse_interval[0],
+        100.0 * r.nrmse_interval[1],
+        100.0 * r.worst_share
     );
 }
 
