@@ -44,9 +44,9 @@ use serde::Serialize;
 
 use lightwire_scene::LoadOptions;
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::load::load_scene;
 use lightwire_solve::accuracy::accuracy_where;
 use lightwire_solve::gpu::{Correction, Device, GatherOptions, ProgressiveOptions};
+use lightwire_solve::load::load_scene;
 use lightwire_solve::reference::{self, ReferenceSolver, SolveOptions};
 use lightwire_solve::solver::{BatchSolver, DEFAULT_CORRECTIONS, Gather, Progressive};
 use lightwire_solve::validity::Validity;

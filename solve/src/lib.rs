@@ -9,6 +9,8 @@
 //! beside the Rust that binds them, the CPU ray solver for levels
 //! ([`rays`]: gathering over rays cast once and kept), one batch interface over all of them
 //! ([`solver`]) and the metric every claim of accuracy uses ([`accuracy`]).
+//! [`load`] loads a scene for solving: its samples inside geometry moved
+//! out ([`validity::relocate`]).
 //!
 //! Its input is `lightwire-scene`'s [`Scene`](lightwire_scene::Scene) and
 //! [`Atlas`](lightwire_scene::atlas::Atlas); its output is radiosity per
@@ -21,6 +23,7 @@ pub mod accuracy;
 pub mod direct;
 pub mod eye;
 pub mod gpu;
+pub mod load;
 pub mod pathtrace;
 pub mod raycast;
 pub mod rays;

@@ -45,7 +45,7 @@
 
 use std::sync::LazyLock;
 
-use glam::Vec3;
+use glam::{DVec3, Vec2, Vec3};
 
 use crate::raycast::{CosineGrid, Raycaster};
 use lightwire_scene::atlas::Atlas;
@@ -388,6 +388,132 @@ fn bounds(scene: &Scene, object: u32, pose: &Pose) -> Option<(Vec3, Vec3)> {
 
 /// Whether element `i`'s sample sees back faces over more than
 /// [`BACK_FACE_LIMIT`] of its cosine-weighted hemisphere.
+/// Candidate sample points per side of an element's region that
+/// [`relocate`] tries.
+pub const RELOCATE_GRID: usize = 4;
+/// A static element whose sample sees the backs of surfaces over more than
+/// this share of its hemisphere is partly enclosed, and [`relocate`] looks
+/// for a more open point of its texel.
+pub const RELOCATE_BACK_SHARE: f64 = 0.2;
+/// Rays [`relocate`] measures a point's share of backs with (a stratified
+/// 4 x 4 grid over the cosine-weighted hemisphere): a texel in the open
+/// sees no back and costs these alone.
+pub const RELOCATE_RAYS: usize = 16;
+
+/// Moves the sample of every static element that the static world
+/// encloses, wholly or in part, to the point of its own texel that sees
+/// the fewest backs of surfaces, and returns how many moved.
+///
+/// An element's sample is one point of the region its texel covers: the
+/// point of its patch nearest to the texel's centre. Where geometry passes
+/// through that region (a frame's bar through the strip it stands on, a
+/// panel set into a frame, a prop sunk into a wall), the point can fall
+/// inside or behind it while the rest of the texel is in view. Enclosed,
+/// the texel is invalid and takes its chart's light by dilation, and a
+/// chart every sample of which is enclosed has none to take; half
+/// enclosed (the garage's lamp: a bar's face 3 cm wide, its texels' samples
+/// on the 1.7 cm behind the emitting panel, the 1.5 cm in front of it in
+/// full light), it is valid and dark. Either way a player sees black where
+/// the light is brightest. Bakers move such samples out of geometry; here,
+/// for each element whose sample sees backs over more than
+/// [`RELOCATE_BACK_SHARE`] of its hemisphere (measured with
+/// [`RELOCATE_RAYS`] rays; or sees some and is enclosed by [`Validity`]'s
+/// rule), the [`RELOCATE_GRID`]² points of its region that lie on its
+/// patch and in its own texel are measured the same way, and the one that
+/// sees the fewest backs (the nearest of equals) and is not enclosed becomes its
+/// sample, position and patch parameters, if it sees fewer than the sample
+/// did. Dynamic objects are left out on both sides (they move;
+/// [`Validity::update_near`] follows them), so a texel under the crate keeps
+/// its sample and is invalid only while the crate is there. Texels wholly
+/// inside or under geometry keep theirs.
+pub fn relocate(scene: &Scene, atlas: &mut Atlas) -> usize {
+    use rayon::prelude::*;
+    let poses = scene.initial_poses();
+    let absent: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
+    let caster = Raycaster::with_absent(scene, &poses, &absent);
+    let extent = caster.extent();
+    let grid = RELOCATE_GRID as f32;
+    let atlas_ref: &Atlas = atlas;
+    let moves: Vec<(usize, Vec2, Vec3)> = (0..atlas_ref.elements.len())
+        .into_par_iter()
+        .filter_map(|i| {
+            let e = &atlas_ref.elements[i];
+            let static_world = scene
+                .objects
+                .get(e.object as usize)
+                .is_some_and(|o| !o.dynamic);
+            if !static_world || !e.covers_surface() {
+                return None;
+            }
+            let shape = &scene.patches[e.patch as usize].shape;
+            let centre = shape.centre().as_dvec3();
+            let n = e.normal.as_dvec3();
+            let share = |x: Vec3| back_share(&caster, (x.as_dvec3(), n), centre, extent);
+            let here = share(e.position);
+            if here == 0.0
+                || (here <= RELOCATE_BACK_SHARE
+                    && !encloses(&caster, scene, atlas_ref, &poses, i, extent))
+            {
+                return None;
+            }
+            let (o, u, v) = shape.frame();
+            let [s0, t0, s1, t1] = e.region;
+            let at = Vec2::from(e.st);
+            let metres = |st: Vec2| (u * (st.x - at.x) + v * (st.y - at.y)).length_squared();
+            (0..RELOCATE_GRID * RELOCATE_GRID)
+                .map(|k| {
+                    let (a, b) = ((k % RELOCATE_GRID) as f32, (k / RELOCATE_GRID) as f32);
+                    Vec2::new(
+                        s0 + (a + 0.5) / grid * (s1 - s0),
+                        t0 + (b + 0.5) / grid * (t1 - t0),
+                    )
+                })
+                .filter(|st| {
+                    shape.contains(st.x, st.y)
+                        && atlas_ref.element_of(e.patch, shape.is_triangle(), *st) == Some(i)
+                })
+                .map(|st| {
+                    let position = o + u * st.x + v * st.y;
+                    (share(position), metres(st), st, position)
+                })
+                .filter(|c| {
+                    c.0 < here && !encloses_at(&caster, (c.3.as_dvec3(), n), centre, extent)
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)))
+                .map(|(_, _, st, position)| (i, st, position))
+        })
+        .collect();
+    for &(i, st, position) in &moves {
+        let e = &mut atlas.elements[i];
+        e.st = st.to_array();
+        e.position = position;
+    }
+    moves.len()
+}
+
+/// The share of [`RELOCATE_RAYS`] cosine-distributed rays from the world
+/// point `x` with normal `n` (nudged as [`encloses`] nudges it) that first
+/// meet the back of a surface.
+fn back_share(caster: &Raycaster, (x, n): (DVec3, DVec3), centre: DVec3, extent: f64) -> f64 {
+    static FEW: LazyLock<CosineGrid> =
+        LazyLock::new(|| CosineGrid::new((RELOCATE_RAYS as f64).sqrt() as usize));
+    let inward = (centre - x).normalize_or_zero();
+    let origin = x + (n + inward) * (OFFSET * extent);
+    let backs = FEW
+        .around(n)
+        .filter(|&d| {
+            caster
+                .closest_hit(origin, d, f64::INFINITY)
+                .is_some_and(|hit| !hit.front)
+        })
+        .count();
+    backs as f64 / FEW.len().max(1) as f64
+}
+
+/// [`RAYS`] directions, stratified over the cosine-weighted hemisphere.
+static DIRECTIONS: LazyLock<CosineGrid> =
+    LazyLock::new(|| CosineGrid::new((RAYS as f64).sqrt() as usize));
+
 fn encloses(
     caster: &Raycaster,
     scene: &Scene,
@@ -406,10 +532,14 @@ fn encloses(
     let n = pose.transform_normal(e.normal).as_dvec3();
     let x = pose.transform_point(e.position).as_dvec3();
     let centre = patch.shape.transformed(pose).centre().as_dvec3();
+    encloses_at(caster, (x, n), centre, extent)
+}
+
+/// Whether the world point `x` with normal `n` on a patch whose centre is
+/// `centre` is enclosed, by [`encloses`]'s rule.
+fn encloses_at(caster: &Raycaster, (x, n): (DVec3, DVec3), centre: DVec3, extent: f64) -> bool {
     let inward = (centre - x).normalize_or_zero();
     let origin = x + (n + inward) * (OFFSET * extent);
-    static DIRECTIONS: LazyLock<CosineGrid> =
-        LazyLock::new(|| CosineGrid::new((RAYS as f64).sqrt() as usize));
     let total = DIRECTIONS.len();
     // Invalid when more than `limit` rays see backs, or more than
     // `outside` see backs or nothing at all with at least `outside_backs`
@@ -520,6 +650,65 @@ mod tests {
         let atlas = Atlas::build(&scene).expect("atlas");
         let v = Validity::compute(&scene, &atlas, &scene.initial_poses());
         (scene, atlas, v)
+    }
+
+    #[test]
+    fn relocation_moves_samples_out_of_static_geometry_into_their_texels_open_part() {
+        // The block made part of the static world.
+        let json = BLOCK
+            .replace(r#""objects": [{ "name": "crate", "pose": { "translation": [1.03, 0.25, 1.03] } }],"#, "")
+            .replace(r#""object": "crate",
+          "box": { "center": [0, 0, 0]"#, r#""box": { "center": [1.03, 0.25, 1.03]"#);
+        let scene = Scene::parse(&json, "static block").expect("scene");
+        assert!(scene.objects.iter().all(|o| !o.dynamic), "{json}");
+        let poses = scene.initial_poses();
+        let mut atlas = Atlas::build(&scene).expect("atlas");
+        let before = Validity::compute(&scene, &atlas, &poses);
+        let original = atlas.elements.clone();
+        let moved = relocate(&scene, &mut atlas);
+        let after = Validity::compute(&scene, &atlas, &poses);
+        let under = |p: Vec3| (0.78..=1.28).contains(&p.x) && (0.78..=1.28).contains(&p.z);
+        assert!(moved > 0, "texels straddle the block's edges");
+        let mut changed = 0;
+        for (i, (old, new)) in original.iter().zip(&atlas.elements).enumerate() {
+            if old.position == new.position {
+                // Unmoved: valid before, or wholly under the block.
+                assert_eq!(before.is_invalid(i), after.is_invalid(i), "element {i}");
+                continue;
+            }
+            changed += 1;
+            assert!(
+                before.is_invalid(i) && !after.is_invalid(i),
+                "element {i} moved"
+            );
+            assert_eq!(old.patch, 0, "only the floor meets the block");
+            assert!(
+                under(old.position) && !under(new.position),
+                "{old:?} -> {new:?}"
+            );
+            // Within its own region and texel.
+            let [s0, t0, s1, t1] = new.region;
+            assert!((s0..=s1).contains(&new.st[0]) && (t0..=t1).contains(&new.st[1]));
+            let shape = &scene.patches[0].shape;
+            assert_eq!(
+                atlas.element_of(0, shape.is_triangle(), Vec2::from(new.st)),
+                Some(i)
+            );
+            let (o, u, v) = shape.frame();
+            assert!((o + u * new.st[0] + v * new.st[1] - new.position).length() < 1e-5);
+        }
+        assert_eq!(changed, moved);
+        // The floor under the block's middle keeps its sample and stays
+        // invalid.
+        let middle = floor_texel_at(&atlas, &poses, 1.03, 1.03);
+        assert!(after.is_invalid(middle));
+        assert_eq!(after.count(), before.count() - moved);
+
+        // A dynamic crate: neither its texels nor the floor's under it move
+        // (the crate is left out, and will move).
+        let scene = Scene::parse(BLOCK, "contact").expect("scene");
+        let mut atlas = Atlas::build(&scene).expect("atlas");
+        assert_eq!(relocate(&scene, &mut atlas), 0);
     }
 
     #[test]

@@ -43,9 +43,9 @@ use serde::Serialize;
 use crate::service::live::{GpuLive, LiveSolver};
 use crate::service::wire::from_wire;
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::load::load_scene;
 use lightwire_scene::{LoadOptions, Scene};
 use lightwire_solve::gpu::{Device, Redistribution};
+use lightwire_solve::load::load_scene;
 
 /// What to run.
 #[derive(Debug, Clone)]

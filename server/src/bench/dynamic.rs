@@ -51,7 +51,6 @@ use crate::bake::{white_point, write_png_with};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::{DEFAULT_TILE_SIZE, PixelFormat};
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::load::load_scene;
 use lightwire_scene::{Charts, LoadOptions, Pose, Scene, SolverHints};
 use lightwire_solve::accuracy::accuracy_where;
 use lightwire_solve::gpu::profile::{Clock, FrameProfile, Profiler, Stage, Unit};
@@ -59,6 +58,7 @@ use lightwire_solve::gpu::{
     Correction, Device, DynamicOptions, DynamicSolver, GatherOptions, GatherSolver,
     ProgressiveOptions, ProgressiveSolver, Redistribution,
 };
+use lightwire_solve::load::load_scene;
 use lightwire_solve::rays::{self, RaySolver};
 use lightwire_solve::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
 use lightwire_solve::solver::DEFAULT_CORRECTIONS;

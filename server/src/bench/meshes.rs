@@ -14,9 +14,9 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 
 use lightwire_scene::gltf::content;
-use lightwire_scene::load::load_scene;
 use lightwire_scene::{Charts, LoadOptions};
 use lightwire_solve::gpu::{Device, ProgressiveOptions};
+use lightwire_solve::load::load_scene;
 use lightwire_solve::solver::{BatchSolver, Progressive};
 
 /// One mesh's results (`--json`).

@@ -58,8 +58,8 @@ use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
 use super::wire::{from_wire, newly_reflected, scene_info, to_wire};
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::load::load_scene;
 use lightwire_scene::{LoadOptions, Pose, Scene};
+use lightwire_solve::load::load_scene;
 use lightwire_solve::reference::MAX_ELEMENTS;
 
 /// A running scene: its description and the [`Feed`] its sessions serve.

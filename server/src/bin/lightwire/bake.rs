@@ -14,7 +14,7 @@ use lightwire_solve::solver::{self, SolverSettings};
 use lightwire_scene::LoadOptions;
 
 use crate::args::ChartsArg;
-use lightwire_scene::load::load_scene;
+use lightwire_solve::load::load_scene;
 
 /// `lightwire bake`'s arguments.
 #[derive(clap::Args)]
