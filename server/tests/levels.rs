@@ -255,10 +255,12 @@ fn three_js_draws_the_garage_lit_by_the_stream() {
 /// Where a player looks, the garage's progressive bake (to 1e-2 unshot, as
 /// BENCHMARKS.md §9 bakes it, with its two gathered corrections, swept by
 /// rays on a level) reads close to the path tracer: `lightwire bench eye`
-/// at 400 seeded points in view, 4,096 paths each. Uncorrected, the median
-/// point was 7.2% off, 34% of points more than 10% off, p95 40.3% and
-/// NRMSE 18.1%; corrected by rays 4.9%, 14%, 16.8% and 11.7%. The bounds
-/// hold that gain, not yet the issue's target (5% NRMSE, p95 15%).
+/// at 2,000 seeded points in view, 8,192 paths each. With every sample
+/// where the nearest point of its patch fell (`validity::relocate` not
+/// run), the lamp's frame read black beside the emitting panel: NRMSE
+/// 53.2%, median 4.7%, p95 16.4%, 14% of points more than 10% off; with
+/// samples moved out of geometry 9.0%, 3.0%, 13.8% and 8%. The bounds hold
+/// that, and the issue's p95 of 15% (not yet its 5% NRMSE).
 #[test]
 fn the_garage_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
     garage_bake_where_a_player_looks("progressive", "1e-2");
@@ -268,7 +270,9 @@ fn the_garage_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
 /// power still to come), which bakes the garage in about a tenth of the
 /// progressive bake's time (BENCHMARKS.md §9): it converges the ray-cast
 /// gather the progressive bake's corrections only step towards, and reads
-/// at least as close (4.4%, 13%, 15.9% and 11.2% when it landed).
+/// at least as close (NRMSE 9.0%, median 3.0%, p95 13.3%, 8% of points
+/// more than 10% off, with samples moved out of geometry; 53.2%, 4.2%,
+/// 15.6% and 12% without).
 #[test]
 fn the_garage_ray_bake_reads_close_to_the_path_tracer_where_a_player_looks() {
     garage_bake_where_a_player_looks("rays", "1e-3");
@@ -313,9 +317,10 @@ fn garage_bake_where_a_player_looks(solver: &str, tolerance: &str) {
     eye_within_bounds(scene, &lightmap, solver);
 }
 
-/// Runs `bench eye` on `lightmap` of `scene` (400 seeded points in view,
-/// 4,096 paths each) and asserts the bounds above; `what` names the
-/// lightmap in messages.
+/// Runs `bench eye` on `lightmap` of `scene` (2,000 seeded points in view,
+/// 8,192 paths each: at 400 the NRMSE of one lightmap read 11% or 29% with
+/// the points drawn, BENCHMARKS.md §9) and asserts the bounds above;
+/// `what` names the lightmap in messages.
 fn eye_within_bounds(scene: &str, lightmap: &Path, what: &str) {
     let report = run_lightwire(&[
         "bench",
@@ -325,9 +330,9 @@ fn eye_within_bounds(scene: &str, lightmap: &Path, what: &str) {
         "--lightmap",
         lightmap.to_str().expect("utf-8"),
         "--points",
-        "400",
+        "2000",
         "--spp",
-        "4096",
+        "8192",
     ]);
     // "  NRMSE 11.7%  median 4.9%  p95 16.8%  >10% off: 14%  >25% off: 3%"
     let figure = |name: &str| -> f64 {
@@ -356,15 +361,15 @@ fn eye_within_bounds(scene: &str, lightmap: &Path, what: &str) {
          p95 {p95}%, >10% off {off10}%"
     );
     assert!(
-        median <= 6.0,
-        "median point {median}% off (at most 6%): {report}"
+        median <= 4.5,
+        "median point {median}% off (at most 4.5%): {report}"
     );
-    assert!(p95 <= 20.0, "p95 {p95}% (at most 20%): {report}");
+    assert!(p95 <= 15.0, "p95 {p95}% (at most 15%): {report}");
     assert!(
-        off10 <= 20.0,
-        "{off10}% of points more than 10% off (at most 20%): {report}"
+        off10 <= 12.0,
+        "{off10}% of points more than 10% off (at most 12%): {report}"
     );
-    assert!(nrmse <= 13.0, "NRMSE {nrmse}% (at most 13%): {report}");
+    assert!(nrmse <= 12.0, "NRMSE {nrmse}% (at most 12%): {report}");
 }
 
 /// The lightmap the live service publishes for the garage, once the
@@ -373,7 +378,8 @@ fn eye_within_bounds(scene: &str, lightmap: &Path, what: &str) {
 /// corrections run), reads as close to the path tracer where a player
 /// looks as the bakes above, by the same bounds: what a viewer of the
 /// level gets, not only `bake`. It came idle after 35-38 s in a release
-/// build (BENCHMARKS.md §9) and read 11.2%, 4.4% median, 16.6% p95.
+/// build (BENCHMARKS.md §9) and read 53.2%, 4.3% median, 15.7% p95 before
+/// samples were moved out of geometry.
 #[test]
 fn the_served_garage_once_idle_reads_close_to_the_path_tracer_where_a_player_looks() {
     use lightwire_testkit::http::blocking;
