@@ -386,8 +386,6 @@ fn bounds(scene: &Scene, object: u32, pose: &Pose) -> Option<(Vec3, Vec3)> {
     out
 }
 
-/// Whether element `i`'s sample sees back faces over more than
-/// [`BACK_FACE_LIMIT`] of its cosine-weighted hemisphere.
 /// Candidate sample points per side of an element's region that
 /// [`relocate`] tries.
 pub const RELOCATE_GRID: usize = 4;
@@ -445,6 +443,8 @@ pub fn relocate(scene: &Scene, atlas: &mut Atlas) -> usize {
             if !static_world || !e.covers_surface() {
                 return None;
             }
+            // The static world's pose is the identity: its object space is
+            // the world.
             let shape = &scene.patches[e.patch as usize].shape;
             let centre = shape.centre().as_dvec3();
             let n = e.normal.as_dvec3();
@@ -514,6 +514,8 @@ fn back_share(caster: &Raycaster, (x, n): (DVec3, DVec3), centre: DVec3, extent:
 static DIRECTIONS: LazyLock<CosineGrid> =
     LazyLock::new(|| CosineGrid::new((RAYS as f64).sqrt() as usize));
 
+/// Whether element `i`'s sample sees back faces over more than
+/// [`BACK_FACE_LIMIT`] of its cosine-weighted hemisphere.
 fn encloses(
     caster: &Raycaster,
     scene: &Scene,
