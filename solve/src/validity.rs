@@ -497,8 +497,7 @@ pub fn relocate(scene: &Scene, atlas: &mut Atlas) -> usize {
 fn back_share(caster: &Raycaster, (x, n): (DVec3, DVec3), centre: DVec3, extent: f64) -> f64 {
     static FEW: LazyLock<CosineGrid> =
         LazyLock::new(|| CosineGrid::new((RELOCATE_RAYS as f64).sqrt() as usize));
-    let inward = (centre - x).normalize_or_zero();
-    let origin = x + (n + inward) * (OFFSET * extent);
+    let origin = ray_origin((x, n), centre, extent);
     let backs = FEW
         .around(n)
         .filter(|&d| {
@@ -508,6 +507,14 @@ fn back_share(caster: &Raycaster, (x, n): (DVec3, DVec3), centre: DVec3, extent:
         })
         .count();
     backs as f64 / FEW.len().max(1) as f64
+}
+
+/// Where the rays of the surface point `x` with normal `n` leave from: a
+/// hair ([`OFFSET`] of the scene's `extent`) above it and as far towards its
+/// patch's `centre`.
+fn ray_origin((x, n): (DVec3, DVec3), centre: DVec3, extent: f64) -> DVec3 {
+    let inward = (centre - x).normalize_or_zero();
+    x + (n + inward) * (OFFSET * extent)
 }
 
 /// [`RAYS`] directions, stratified over the cosine-weighted hemisphere.
@@ -540,8 +547,7 @@ fn encloses(
 /// Whether the world point `x` with normal `n` on a patch whose centre is
 /// `centre` is enclosed, by [`encloses`]'s rule.
 fn encloses_at(caster: &Raycaster, (x, n): (DVec3, DVec3), centre: DVec3, extent: f64) -> bool {
-    let inward = (centre - x).normalize_or_zero();
-    let origin = x + (n + inward) * (OFFSET * extent);
+    let origin = ray_origin((x, n), centre, extent);
     let total = DIRECTIONS.len();
     // Invalid when more than `limit` rays see backs, or more than
     // `outside` see backs or nothing at all with at least `outside_backs`
