@@ -190,6 +190,24 @@ if wanted levels; then
       --scene scenes/levels/garage.json --solver rays --tolerance 1e-3 --density-scale 2 --out "$OUT/garage-rays-x2"
     step levels-eye-rays-garage-x2 env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
       --density-scale 2 --lightmap "$OUT/garage-rays-x2/lightmap.exr" --points 2000 --spp 8192
+    # Lightmap UVs by the uvunwrap crate beside the projection (the
+    # default): charts, atlas and elements on every level, and the garage
+    # at the eye at three seeds of points, each the same for both.
+    for l in garage pandora zdm2; do
+      step "levels-validate-uvunwrap-$l" env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" validate \
+        --charts uvunwrap "scenes/levels/$l.json"
+    done
+    step levels-bake-rays-garage-uvunwrap env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \
+      --scene scenes/levels/garage.json --solver rays --tolerance 1e-3 --charts uvunwrap --out "$OUT/garage-rays-uvunwrap"
+    for seed in 2 3; do
+      step "levels-eye-rays-garage-seed$seed" env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
+        --scene scenes/levels/garage.json --lightmap "$OUT/garage-rays/lightmap.exr" --points 2000 --spp 8192 --seed $seed
+    done
+    for seed in 1 2 3; do
+      step "levels-eye-rays-garage-uvunwrap-seed$seed" env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
+        --scene scenes/levels/garage.json --charts uvunwrap --lightmap "$OUT/garage-rays-uvunwrap/lightmap.exr" \
+        --points 2000 --spp 8192 --seed $seed
+    done
     step levels-dynamic-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench dynamic \
       --scene scenes/levels/garage.json --methods cross --frames 10 --out "$OUT/dynamic-levels"
     serve_until_idle levels-serve-garage scenes/levels/garage.json garage

@@ -161,6 +161,9 @@ pub struct UvMesh {
     /// brought none, or `--charts generated` asked: no asset holds them,
     /// so no lightmap is resampled into them for a client.
     pub generated: bool,
+    /// How many charts the generated UVs cut the mesh into (0 for UVs an
+    /// asset or a scene file brought).
+    pub charts: usize,
     /// Edges (object space, end to end) where the asset's vertex normals
     /// say the surface is smooth (`unwrap::smooth_edges`): where such an
     /// edge is a seam between two islands, its two sides are stitched
@@ -500,6 +503,20 @@ pub enum Charts {
     /// packed with gaps), its own `TEXCOORD_1` ignored (an asset whose
     /// lightmap UVs overlap or are too coarse).
     Generated,
+    /// As `generated`, with the charts of the `uvunwrap` crate
+    /// (segmentation, conformal flattening, packing by shape) instead of
+    /// Lightwire's own projection: measured against it in BENCHMARKS.md.
+    Uvunwrap,
+}
+
+impl Charts {
+    /// The unwrapper that generates lightmap UVs under these charts.
+    pub fn unwrapper(self) -> unwrap::Unwrapper {
+        match self {
+            Charts::Uvunwrap => unwrap::Unwrapper::Uvunwrap,
+            _ => unwrap::Unwrapper::Projected,
+        }
+    }
 }
 
 /// Options applied while loading, for tests and benchmarks that want a

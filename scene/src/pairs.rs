@@ -509,8 +509,10 @@ pub fn charts(mut patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
     // Triangles on their lightmap pair and merge where their UVs are affine
     // over the union (`join_uvs`, `extend_uvs`).
     for p in &mut patches {
-        if !matches!(charts, Charts::LightmapUvs | Charts::Generated)
-            || p.object != super::STATIC_OBJECT
+        if !matches!(
+            charts,
+            Charts::LightmapUvs | Charts::Generated | Charts::Uvunwrap
+        ) || p.object != super::STATIC_OBJECT
         {
             p.lightmap = None;
         }
@@ -518,7 +520,7 @@ pub fn charts(mut patches: Vec<Patch>, charts: Charts) -> Vec<Patch> {
     match charts {
         Charts::Triangles => patches,
         Charts::Pairs => pair_triangles(patches),
-        Charts::Parallelograms | Charts::LightmapUvs | Charts::Generated => {
+        Charts::Parallelograms | Charts::LightmapUvs | Charts::Generated | Charts::Uvunwrap => {
             merge_parallelograms(pair_triangles(patches))
         }
     }

@@ -66,10 +66,39 @@ pub struct Unwrap {
     pub side: f32,
 }
 
+mod lscm;
+
+pub use lscm::{MAX_CHART_ANGLE, PADDING};
+
+/// Which unwrapper generates a mesh's lightmap UVs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Unwrapper {
+    /// This module's own projected charts ([`project`]): the default, as
+    /// accurate at a player's eye on the real levels as the crate's and
+    /// with a smaller atlas (BENCHMARKS.md §9).
+    #[default]
+    Projected,
+    /// The `uvunwrap` crate (`unwrap/lscm.rs`): segmentation, conformal
+    /// flattening, packing by shape; fewer charts and elements, most on
+    /// curved surfaces.
+    Uvunwrap,
+}
+
+/// Generates lightmap UVs for `triangles` (each triangle's front is the
+/// side its corners run counter-clockwise around) at `density` texels per
+/// metre, with `unwrapper`.
+pub fn unwrap(triangles: &[[Vec3; 3]], density: f32, unwrapper: Unwrapper) -> Unwrap {
+    match unwrapper {
+        Unwrapper::Uvunwrap => lscm::unwrap(triangles, density),
+        Unwrapper::Projected => project(triangles, density),
+    }
+}
+
 /// Generates lightmap UVs for `triangles` (any corner order; each
 /// triangle's front is the side its corners run counter-clockwise around)
-/// at `density` texels per metre.
-pub fn unwrap(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
+/// at `density` texels per metre by projecting near-planar charts (the
+/// module's three steps).
+pub fn project(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
     let n = triangles.len();
     let normals: Vec<Vec3> = triangles
         .iter()
@@ -175,6 +204,26 @@ type EdgeTriangles = HashMap<(u32, u32), Vec<u32>>;
 /// [`WELD`] of the extent): per welded edge (its two vertex ids, smaller
 /// first), the triangles that have it, and per triangle its corners' ids.
 fn welded_edges(triangles: &[[Vec3; 3]]) -> (EdgeTriangles, Vec<[u32; 3]>) {
+    let (corners, _) = weld(triangles);
+    let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
+    for (t, v) in corners.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (v[k], v[(k + 1) % 3]);
+            if a != b {
+                edges
+                    .entry((a.min(b), a.max(b)))
+                    .or_default()
+                    .push(t as u32);
+            }
+        }
+    }
+    (edges, corners)
+}
+
+/// A triangle soup's corners welded (equal to [`WELD`] of its extent): per
+/// triangle its corners' vertex ids, and per id the first corner's
+/// position.
+fn weld(triangles: &[[Vec3; 3]]) -> (Vec<[u32; 3]>, Vec<Vec3>) {
     let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     for t in triangles {
         for p in t {
@@ -191,19 +240,17 @@ fn welded_edges(triangles: &[[Vec3; 3]]) -> (EdgeTriangles, Vec<[u32; 3]>) {
         *ids.entry(key).or_insert(next)
     };
     let corners: Vec<[u32; 3]> = triangles.iter().map(|tri| tri.map(&mut id)).collect();
-    let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
-    for (t, v) in corners.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (v[k], v[(k + 1) % 3]);
-            if a != b {
-                edges
-                    .entry((a.min(b), a.max(b)))
-                    .or_default()
-                    .push(t as u32);
+    let mut positions = vec![Vec3::ZERO; ids.len()];
+    let mut seen = vec![false; ids.len()];
+    for (tri, v) in triangles.iter().zip(&corners) {
+        for (p, &k) in tri.iter().zip(v) {
+            if !seen[k as usize] {
+                seen[k as usize] = true;
+                positions[k as usize] = *p;
             }
         }
     }
-    (edges, corners)
+    (corners, positions)
 }
 
 /// Each triangle's neighbours across its edges (corners welded to [`WELD`]
@@ -498,7 +545,7 @@ mod tests {
     #[test]
     fn a_flat_grid_is_one_chart_and_its_uvs_are_affine() {
         let tris = grid(6);
-        let u = unwrap(&tris, 4.0);
+        let u = project(&tris, 4.0);
         assert_eq!(u.charts, 1);
         // An affine map sends the cell corners to a square grid: every
         // cell's two triangles have equal UV area, in texels 4² each.
@@ -617,7 +664,7 @@ mod tests {
             tris.push([a, b, d]);
             tris.push([a, d, e]);
         }
-        let u = unwrap(&tris, 8.0);
+        let u = project(&tris, 8.0);
         assert_eq!(u.charts, 6);
         check(&tris, &u, 8.0);
     }
@@ -625,7 +672,7 @@ mod tests {
     #[test]
     fn a_sphere_is_cut_into_near_planar_charts_that_do_not_overlap() {
         let tris = sphere(32, 16);
-        let u = unwrap(&tris, 20.0);
+        let u = project(&tris, 20.0);
         check(&tris, &u, 20.0);
         // Far fewer charts than triangles (each a patch of its own on
         // Lightwire's charts), more than the six of a cube.
@@ -652,7 +699,7 @@ mod tests {
             tris.push([a, b, c]);
             tris.push([a, c, d]);
         }
-        let u = unwrap(&tris, 10.0);
+        let u = project(&tris, 10.0);
         check(&tris, &u, 10.0);
         // Nearly flat (the ramp rises 1 cm per 7.5°, its normal within 5°
         // of vertical): the normal alone would make it one chart.
@@ -663,7 +710,7 @@ mod tests {
     fn a_mesh_too_large_for_the_largest_block_is_scaled_down_to_it() {
         let tris = grid(8);
         // 8 m at 1,000 texels/m would be 8,000 texels.
-        let u = unwrap(&tris, 1000.0);
+        let u = project(&tris, 1000.0);
         assert!(u.side <= MAX_SIDE && u.side > MAX_SIDE * 0.9, "{}", u.side);
         assert_eq!(u.charts, 1);
     }
@@ -734,5 +781,124 @@ mod tests {
                 "a diagonal"
             );
         }
+    }
+
+    /// A unit cube's twelve triangles, counter-clockwise from outside.
+    fn cube() -> Vec<[Vec3; 3]> {
+        let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+        let quad = |a: Vec3, b: Vec3, d: Vec3, e: Vec3| [[a, b, d], [a, d, e]];
+        [
+            quad(c(0., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(0., 1., 1.)),
+            quad(c(1., 0., 0.), c(0., 0., 0.), c(0., 1., 0.), c(1., 1., 0.)),
+            quad(c(1., 0., 1.), c(1., 0., 0.), c(1., 1., 0.), c(1., 1., 1.)),
+            quad(c(0., 0., 0.), c(0., 0., 1.), c(0., 1., 1.), c(0., 1., 0.)),
+            quad(c(0., 1., 1.), c(1., 1., 1.), c(1., 1., 0.), c(0., 1., 0.)),
+            quad(c(0., 0., 0.), c(1., 0., 0.), c(1., 0., 1.), c(0., 0., 1.)),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
+
+    /// What the crate's unwrap must give the atlas: UVs in [0, 1], each
+    /// triangle the same orientation in UV as in space, no overlaps, every
+    /// triangle near the chart angle of its chart's mean normal, a block
+    /// `uv::block_side` will not make smaller than the packing, and the
+    /// texels two charts overlap at least 3 apart (each island's own
+    /// texels, then one ring of gutter each) on that block. Charts packed
+    /// by shape nest, so the gap is checked texel by texel, not on boxes.
+    fn check_uvunwrap(tris: &[[Vec3; 3]], u: &Unwrap, density: f32) {
+        assert_eq!(u.uvs.len(), tris.len());
+        for uv in &u.uvs {
+            for p in uv {
+                assert!((0.0..=1.0).contains(&p.x) && (0.0..=1.0).contains(&p.y));
+            }
+            assert!(crate::uv::uv_area(uv) > 0.0, "{uv:?} is turned over");
+        }
+        let overlaps = crate::gltf::find_uv_overlaps(&u.uvs, 4).expect("checkable");
+        assert!(overlaps.is_empty(), "{overlaps:?}");
+        // The crate bounds the angle on crease-preserving smoothed normals
+        // against its own running average: on face normals against the
+        // area-weighted mean a sphere's charts reach 44° at 30°.
+        let cos_max = (1.5 * MAX_CHART_ANGLE).to_radians().cos();
+        assert_eq!(u.axes.len(), u.charts);
+        for (t, &c) in tris.iter().zip(&u.chart) {
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+            assert!(n.dot(u.axes[c as usize]) >= cos_max, "{t:?} on chart {c}");
+        }
+        let area: f32 = tris
+            .iter()
+            .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
+            .sum();
+        let uv_area: f32 = u.uvs.iter().map(crate::uv::uv_area).sum();
+        let side = density * (area / uv_area).sqrt();
+        assert!(side >= u.side - 1e-2, "block {side} < packed {}", u.side);
+        // Per texel, the chart whose triangles overlap it.
+        let mut owner: HashMap<(i32, i32), u32> = HashMap::new();
+        for (uv, &c) in u.uvs.iter().zip(&u.chart) {
+            let q = uv.map(|p| p * side);
+            let lo = q[0].min(q[1]).min(q[2]).floor();
+            let hi = q[0].max(q[1]).max(q[2]).ceil();
+            for j in lo.y as i32..hi.y as i32 {
+                for i in lo.x as i32..hi.x as i32 {
+                    if crate::atlas::uv::covered(&q, i as u32, j as u32).0 > 0.0 {
+                        owner.insert((i, j), c);
+                    }
+                }
+            }
+        }
+        for (&(i, j), &c) in &owner {
+            for dj in -2..=2 {
+                for di in -2..=2 {
+                    if let Some(&d) = owner.get(&(i + di, j + dj)) {
+                        assert_eq!(d, c, "texel ({i}, {j}) of chart {c} is near chart {d}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn uvunwrap_keeps_a_flat_grid_one_chart_at_the_density_asked() {
+        let tris = grid(6);
+        let u = unwrap(&tris, 4.0, Unwrapper::Uvunwrap);
+        check_uvunwrap(&tris, &u, 4.0);
+        assert_eq!(u.charts, 1);
+        for (t, uv) in tris.iter().zip(&u.uvs) {
+            let area = crate::uv::uv_area(uv) * u.side * u.side;
+            assert!((area - 8.0).abs() < 0.05, "{t:?}: {area}");
+        }
+    }
+
+    #[test]
+    fn uvunwrap_cuts_a_cube_at_its_edges() {
+        let tris = cube();
+        let u = unwrap(&tris, 8.0, Unwrapper::Uvunwrap);
+        check_uvunwrap(&tris, &u, 8.0);
+        assert_eq!(u.charts, 6);
+    }
+
+    /// Where a conformal map pays: a sphere unfolds into fewer charts than
+    /// the projection's, none overlapping or closer than the gap.
+    #[test]
+    fn uvunwrap_unfolds_a_sphere_into_fewer_charts_than_the_projection() {
+        let tris = sphere(32, 16);
+        let u = unwrap(&tris, 20.0, Unwrapper::Uvunwrap);
+        check_uvunwrap(&tris, &u, 20.0);
+        let projected = project(&tris, 20.0);
+        assert!(
+            u.charts >= 2 && u.charts < projected.charts,
+            "{} charts, {} projected",
+            u.charts,
+            projected.charts
+        );
+    }
+
+    #[test]
+    fn uvunwrap_scales_a_mesh_too_large_for_the_largest_block_down_to_it() {
+        let tris = grid(8);
+        let u = unwrap(&tris, 1000.0, Unwrapper::Uvunwrap);
+        assert!(u.side <= MAX_SIDE && u.side > MAX_SIDE * 0.9, "{}", u.side);
+        assert_eq!(u.charts, 1);
     }
 }

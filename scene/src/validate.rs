@@ -391,9 +391,12 @@ fn add_surface(
             })
             .collect()
     };
+    let mut generated_charts = 0;
     if generate {
         // In the patches' corner order, as given ones are.
-        lightmap_uvs = Some(super::unwrap::unwrap(&triangles(), s.density).uvs);
+        let unwrap = super::unwrap::unwrap(&triangles(), s.density, charts.unwrapper());
+        generated_charts = unwrap.charts;
+        lightmap_uvs = Some(unwrap.uvs);
     }
     let uv_mesh = lightmap_uvs.as_ref().map(|uvs| {
         uv_meshes.push(UvMesh {
@@ -403,6 +406,7 @@ fn add_surface(
             triangles: triangles(),
             uvs: uvs.clone(),
             generated: generate,
+            charts: generated_charts,
             smooth_edges: Vec::new(),
         });
         (uv_meshes.len() - 1) as u32
@@ -506,7 +510,7 @@ fn generates_uvs(charts: Charts, object: u32, has_own: bool) -> bool {
     object == super::STATIC_OBJECT
         && match charts {
             Charts::LightmapUvs => !has_own,
-            Charts::Generated => true,
+            Charts::Generated | Charts::Uvunwrap => true,
             Charts::Triangles | Charts::Pairs | Charts::Parallelograms => false,
         }
 }

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use lightwire_scene::gltf::{ImportOptions, import};
 use lightwire_scene::load::load_scene;
-use lightwire_scene::{LoadOptions, SceneIssue};
+use lightwire_scene::{Charts, LoadOptions, SceneIssue};
 use lightwire_testkit::repo;
 
 /// The levels folder: `$LEVELS`, else `../shared/levels` beside the
@@ -151,6 +151,59 @@ fn the_level_scene_files_load_lit_with_a_dynamic_object() {
             "{name}: {elements} static elements, fewer than {min_elements}"
         );
         assert!(dynamic > 0, "{name}: the dynamic object has texels");
+    }
+}
+
+/// Issue 58, item 2: the `uvunwrap` crate's charts (`--charts uvunwrap`)
+/// on every level: it loads, its generated UVs overlap nowhere, it cuts
+/// fewer charts than Lightwire's projection, and it unwraps the same way
+/// twice (no thread-count or hash-order dependence).
+#[test]
+fn every_level_unwraps_with_the_uvunwrap_crate_into_fewer_charts() {
+    let dir = temp_dir("levels-uvunwrap");
+    for name in ["garage", "pandora", "zdm2"] {
+        let path = level_scene(name, &dir);
+        let load = |charts| {
+            load_scene(
+                &path,
+                LoadOptions {
+                    charts,
+                    ..LoadOptions::default()
+                },
+            )
+            .unwrap_or_else(|e| panic!("{name}: {e}"))
+        };
+        let charts = |scene: &lightwire_scene::Scene| -> usize {
+            scene
+                .uv_meshes
+                .iter()
+                .filter(|m| m.generated)
+                .map(|m| m.charts)
+                .sum()
+        };
+        let (projected, _) = load(Charts::Generated);
+        let (scene, atlas) = load(Charts::Uvunwrap);
+        let (_, again) = load(Charts::Uvunwrap);
+        assert!(
+            charts(&scene) > 0 && charts(&scene) < charts(&projected),
+            "{name}: {} charts, {} projected",
+            charts(&scene),
+            charts(&projected)
+        );
+        for mesh in scene.uv_meshes.iter().filter(|m| m.generated) {
+            let overlaps = lightwire_scene::gltf::find_uv_overlaps(&mesh.uvs, 4)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(overlaps.is_empty(), "{name} {}: {overlaps:?}", mesh.name);
+        }
+        assert_eq!(
+            (atlas.width, atlas.height),
+            (again.width, again.height),
+            "{name}"
+        );
+        assert!(
+            atlas.elements == again.elements,
+            "{name}: the same elements in the same places"
+        );
     }
 }
 

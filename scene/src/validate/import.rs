@@ -184,6 +184,7 @@ pub(super) fn merge_import(
                     triangles: Vec::new(),
                     uvs: Vec::new(),
                     generated: false,
+                    charts: 0,
                     smooth_edges: Vec::new(),
                 });
                 into.uv_meshes.len() - 1
@@ -476,7 +477,7 @@ fn generate_import_uvs(
             ranges.push(start..triangles.len());
         }
         let first = &imported.instances[members[0]];
-        let unwrap = crate::unwrap::unwrap(&triangles, density);
+        let unwrap = crate::unwrap::unwrap(&triangles, density, charts.unwrapper());
         let m = uv_meshes.len();
         for (&n, range) in members.iter().zip(ranges) {
             out[n] = Some((m, unwrap.uvs[range].to_vec()));
@@ -492,6 +493,7 @@ fn generate_import_uvs(
             triangles,
             uvs: unwrap.uvs,
             generated: true,
+            charts: unwrap.charts,
         });
     }
     out

@@ -542,6 +542,7 @@ mod tests {
             ("parallelograms", Charts::Parallelograms),
             ("lightmap-uvs", Charts::LightmapUvs),
             ("generated", Charts::Generated),
+            ("uvunwrap", Charts::Uvunwrap),
         ] {
             let c: Config = toml::from_str(&format!("charts = \"{name}\"")).expect(name);
             assert_eq!(c.charts, charts);

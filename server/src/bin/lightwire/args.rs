@@ -9,7 +9,8 @@ pub(crate) struct ChartsArg {
     /// two that form a parallelogram one (`pairs`), or pairs merged
     /// into the largest parallelograms they tile (`parallelograms`); or
     /// the static meshes on lightmap UVs: their own, else generated ones
-    /// (`lightmap-uvs`, the default), or always generated (`generated`).
+    /// (`lightmap-uvs`, the default), or always generated (`generated`,
+    /// by Lightwire's own projection; `uvunwrap`, by the uvunwrap crate).
     #[arg(long, value_enum, default_value_t = Charts::default())]
     pub(crate) charts: Charts,
 }

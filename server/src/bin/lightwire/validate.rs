@@ -3,9 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use lightwire_scene::atlas::Atlas;
+use lightwire_scene::LoadOptions;
 use lightwire_scene::load::load_scene;
-use lightwire_scene::{LoadOptions, Scene};
 
 /// `lightwire validate`'s arguments.
 #[derive(clap::Args)]
@@ -16,35 +15,49 @@ pub(crate) struct ValidateArgs {
     /// Multiply every texel density by this factor.
     #[arg(long, default_value_t = 1.0)]
     density_scale: f32,
+    #[command(flatten)]
+    charts: crate::args::ChartsArg,
 }
 
 impl ValidateArgs {
     pub(crate) fn run(self) -> Result<()> {
-        validate_command(&self.scenes, self.density_scale)
+        let options = LoadOptions {
+            density_scale: self.density_scale,
+            charts: self.charts.charts,
+        };
+        validate_command(&self.scenes, options)
     }
 }
 
-pub(crate) fn load(path: &std::path::Path, density_scale: f32) -> Result<(Scene, Atlas)> {
-    Ok(load_scene(path, LoadOptions::scaled(density_scale))?)
-}
-
-fn validate_command(paths: &[PathBuf], density_scale: f32) -> Result<()> {
+fn validate_command(paths: &[PathBuf], options: LoadOptions) -> Result<()> {
     let mut failed = 0;
     for path in paths {
-        match load(path, density_scale) {
+        match load_scene(path, options) {
             Ok((scene, atlas)) => {
                 for w in &scene.warnings {
                     println!("warning: {w}");
                 }
                 let dynamic = atlas.dynamic_element_count(&scene);
+                let generated: Vec<_> = scene.uv_meshes.iter().filter(|m| m.generated).collect();
+                let charts = if generated.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        ", {} generated charts on {} meshes",
+                        generated.iter().map(|m| m.charts).sum::<usize>(),
+                        generated.len()
+                    )
+                };
                 println!(
-                    "{}: ok: scene \"{}\", {} surfaces, {} objects, atlas {}x{}, {} static + {} dynamic elements",
+                    "{}: ok: scene \"{}\", {} surfaces, {} objects, atlas {}x{} ({:.0}% of its texels elements), {} static + {} dynamic elements{charts}",
                     path.display(),
                     scene.name,
                     scene.patches.len(),
                     scene.objects.len(),
                     atlas.width,
                     atlas.height,
+                    100.0 * atlas.elements.len() as f64
+                        / (f64::from(atlas.width) * f64::from(atlas.height)).max(1.0),
                     atlas.elements.len() - dynamic,
                     dynamic
                 );
