@@ -41,6 +41,45 @@ pub struct SceneFile {
     /// Solver settings measured for this scene (see `SolverJson`).
     #[serde(default)]
     pub solver: SolverJson,
+    /// Point and spot lights of the static world, besides emitting
+    /// surfaces.
+    #[serde(default)]
+    pub lights: Vec<LightJson>,
+}
+
+/// A punctual light (KHR_lights_punctual's point and spot, in radiometric
+/// units).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightJson {
+    pub name: String,
+    /// `"point"` or `"spot"`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    /// Where the light is, in metres.
+    pub position: Vec3Json,
+    /// Linear colour, each channel >= 0; multiplies `intensity`.
+    #[serde(default = "white")]
+    pub color: Vec3Json,
+    /// Radiant intensity on the axis, W/sr (>= 0).
+    pub intensity: f64,
+    /// Distance at which the light fades to nothing (glTF's `range`);
+    /// absent: the inverse square law alone.
+    #[serde(default)]
+    pub range: Option<f64>,
+    /// A spot's axis (any length > 0).
+    #[serde(default)]
+    pub direction: Option<Vec3Json>,
+    /// A spot's full-intensity cone, degrees from the axis (default 0).
+    #[serde(default)]
+    pub inner_cone_deg: Option<f64>,
+    /// A spot's cut-off, degrees from the axis (default 45, at most 90).
+    #[serde(default)]
+    pub outer_cone_deg: Option<f64>,
+}
+
+fn white() -> Vec3Json {
+    [1.0, 1.0, 1.0]
 }
 
 /// Settings of the GPU solver's cross redistribution chosen for this scene

@@ -29,6 +29,7 @@ pub mod atlas;
 pub mod error;
 pub mod file;
 pub mod gltf;
+pub mod light;
 pub mod load;
 mod pairs;
 pub mod texture;
@@ -42,6 +43,7 @@ use std::path::Path;
 use glam::{Quat, Vec2, Vec3};
 
 pub use error::{SceneError, SceneIssue};
+pub use light::{Light, LightKind};
 
 /// The id of the static world in [`Scene::objects`].
 pub const STATIC_OBJECT: u32 = 0;
@@ -71,6 +73,8 @@ pub struct Scene {
     /// at its own texel density: empty when it states none or when the
     /// scene was loaded at another density (`LoadOptions::density_scale`).
     pub solver: SolverHints,
+    /// Point and spot lights (`light.rs`), besides the emitting surfaces.
+    pub lights: Vec<Light>,
     /// What loading dropped or changed and went on past (zero-area and
     /// duplicate triangles of a mesh, clamped albedos), one entry per kind
     /// and source; `lightwire validate` and `bake` print them, `serve` logs

@@ -17,11 +17,12 @@ use super::file::{
 };
 use super::gltf::ImportOptions;
 use super::{
-    Charts, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene,
+    Charts, Light, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene,
     SceneIssue, SolverHints, UvMesh,
 };
 
 mod import;
+mod lights;
 mod shape;
 
 /// Largest atlas edge a scene may ask for.
@@ -173,7 +174,8 @@ pub fn validate(
     };
     import::check_imports(&mut c, &raw, options, base, texel_density, into);
 
-    check_lit(&mut c, &raw, &patches, &materials);
+    let lights = lights::check_lights(&mut c, &raw.lights);
+    check_lit(&mut c, &raw, &patches, &materials, &lights);
     if !c.issues.is_empty() {
         return Err(c.issues);
     }
@@ -188,6 +190,7 @@ pub fn validate(
         patches,
         uv_meshes,
         solver,
+        lights,
         warnings: c.warnings,
     })
 }
@@ -432,17 +435,24 @@ fn add_surface(
 
 /// Reports a scene without surfaces or imports, and, when nothing else is
 /// wrong, one that no patch lights.
-fn check_lit(c: &mut Checker, raw: &SceneFile, patches: &[Patch], materials: &[Material]) {
+fn check_lit(
+    c: &mut Checker,
+    raw: &SceneFile,
+    patches: &[Patch],
+    materials: &[Material],
+    lights: &[Light],
+) {
     if raw.surfaces.is_empty() && raw.imports.is_empty() {
         c.report("scene", "has no surfaces");
     } else if c.issues.is_empty()
         && !patches
             .iter()
             .any(|p| materials[p.material as usize].is_emitter())
+        && !lights.iter().any(|l| l.intensity.max_element() > 0.0)
     {
         c.report(
             "scene",
-            "has no emitter: no surface uses a material with emission > 0, so everything would be black",
+            "has no light: give a surface a material with emission > 0, or add a point or spot light (\"lights\"), or everything would be black",
         );
     }
 }
@@ -571,6 +581,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         patches: Vec::new(),
         uv_meshes: Vec::new(),
         solver: SolverHints::default(),
+        lights: Vec::new(),
         warnings: Vec::new(),
     };
     let mut into = Parts {

@@ -23,6 +23,7 @@ pub mod accuracy;
 pub mod direct;
 pub mod eye;
 pub mod gpu;
+pub mod lights;
 pub mod load;
 pub mod pathtrace;
 pub mod raycast;

@@ -91,6 +91,11 @@ pub struct RaySolver {
     areas: Vec<f32>,
     validity: Validity,
     emitted: f64,
+    /// With point or spot lights: the power of the direct light (theirs
+    /// and the emitting surfaces') the receivers reflect, which the sweeps'
+    /// changes are measured against beside the emitted power (a scene lit
+    /// only by lights emits nothing from its surfaces).
+    lit: f64,
     sweeps: usize,
     /// Power the last sweep changed, and the one before, as fractions of
     /// the emitted power.
@@ -184,6 +189,7 @@ impl RaySolver {
             areas,
             validity,
             emitted,
+            lit: 0.0,
             sweeps: 0,
             changes: (1.0, 1.0),
             casting: Some(Casting {
@@ -217,6 +223,12 @@ impl RaySolver {
             .collect();
         for ((d, (c, w)), &i) in cast.into_iter().zip(&self.receivers[done..end]) {
             self.radiosity[i as usize] = self.emission[i as usize] + self.albedo[i as usize] * d;
+            if !scene.lights.is_empty() {
+                // The lights' power enters as the first reflection of
+                // their direct light (the emitters' as their emission).
+                let reflected = self.albedo[i as usize] * d;
+                self.lit += f64::from(self.areas[i as usize]) * f64::from(reflected.element_sum());
+            }
             self.direct.push(d);
             self.columns.extend(c);
             self.weights.extend(w);
@@ -273,11 +285,8 @@ impl RaySolver {
             self.radiosity[i] = b;
         }
         self.irradiance = irradiance;
-        let change = if self.emitted > 0.0 {
-            change / self.emitted
-        } else {
-            0.0
-        };
+        let source = self.emitted + self.lit;
+        let change = if source > 0.0 { change / source } else { 0.0 };
         self.changes = (change, self.changes.0);
         self.sweeps += 1;
     }
@@ -386,7 +395,7 @@ impl Casting {
             (x, n),
             (self.grid, self.grid * self.grid),
             |j| emission[j],
-        );
+        ) + crate::lights::irradiance_at(scene, caster, (x, n));
         let per_ray = 1.0 / self.directions.len().max(1) as f32;
         let mut hits: Vec<(u32, f32)> = Vec::with_capacity(self.directions.len() * 4);
         for d in self.directions.around(n) {

@@ -142,6 +142,7 @@ impl Correction {
         poses: &[Pose],
         options: GatherOptions,
     ) -> Result<Self, GpuError> {
+        crate::gpu::device::refuse_lights(scene)?;
         let options = GatherOptions {
             indirect_only: false,
             ..options

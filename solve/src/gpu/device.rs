@@ -34,6 +34,24 @@ pub enum GpuError {
     /// The problem does not fit the device (too many elements, ...).
     #[error("{0}")]
     TooLarge(String),
+    /// The scene holds something the GPU solvers do not compute yet.
+    #[error("{0}")]
+    Unsupported(String),
+}
+
+/// Refuses a scene with point or spot lights: the GPU solvers (and so the
+/// live service) do not light them yet (issue 59); the CPU reference, the
+/// path tracer and the ray solver do.
+pub fn refuse_lights(scene: &lightwire_scene::Scene) -> Result<(), GpuError> {
+    match scene.lights.first() {
+        None => Ok(()),
+        Some(light) => Err(GpuError::Unsupported(format!(
+            "scene \"{}\" has {} point or spot light(s) (\"{}\" first): the GPU solvers and the live service do not light them yet; bake it with --solver rays, reference or pathtrace",
+            scene.name,
+            scene.lights.len(),
+            light.name
+        ))),
+    }
 }
 
 /// A device and queue on the chosen adapter, with what was chosen.

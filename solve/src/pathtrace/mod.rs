@@ -198,6 +198,8 @@ pub struct PathTracer {
     emitters: Vec<Emitter>,
     /// Per patch: the probability that next-event estimation picks it.
     selection: Vec<f64>,
+    /// The scene's point and spot lights.
+    lights: Vec<lightwire_scene::Light>,
 }
 
 impl PathTracer {
@@ -246,6 +248,7 @@ impl PathTracer {
             textures,
             emitters,
             selection,
+            lights: scene.lights.clone(),
         }
     }
 
@@ -462,10 +465,40 @@ impl PathTracer {
         self.selection[patch] / self.rays.patches()[patch].area * distance * distance / cos_y
     }
 
-    /// Next-event estimate of the direct irradiance at `x` (off its
-    /// surface) with normal `n`: one point on one emitter, one shadow ray,
-    /// weighted against the bounce that could have found the same point.
+    /// The direct irradiance at `x` (off its surface) with normal `n`:
+    /// the emitting surfaces' by next-event estimation, and every point
+    /// or spot light's exactly (a light is a point: one shadow ray each,
+    /// and no bounce can find it, so nothing to weigh).
     fn direct(&self, x: DVec3, n: DVec3, rng: &mut fastrand::Rng) -> DVec3 {
+        self.surface_direct(x, n, rng) + self.punctual_direct(x, n)
+    }
+
+    /// `Σ I(ω) cos θ / d²` over the lights `x` sees in front of it, with
+    /// the spot cone and range window of `lightwire_scene::Light`.
+    fn punctual_direct(&self, x: DVec3, n: DVec3) -> DVec3 {
+        let mut e = DVec3::ZERO;
+        for light in &self.lights {
+            let d = light.position.as_dvec3() - x;
+            let r2 = d.length_squared();
+            if r2 <= 0.0 {
+                continue;
+            }
+            let r = r2.sqrt();
+            let dir = d / r;
+            let cos = n.dot(dir);
+            if cos <= 0.0 || self.rays.occluded(x, dir, r * (1.0 - 1e-9)) {
+                continue;
+            }
+            e += light.intensity_towards(-dir.as_vec3(), r as f32).as_dvec3() * (cos / r2);
+        }
+        e
+    }
+
+    /// Next-event estimate of the emitting surfaces' direct irradiance at
+    /// `x` (off its surface) with normal `n`: one point on one emitter,
+    /// one shadow ray, weighted against the bounce that could have found
+    /// the same point.
+    fn surface_direct(&self, x: DVec3, n: DVec3, rng: &mut fastrand::Rng) -> DVec3 {
         let u = rng.f64();
         let k = self.emitters.partition_point(|e| e.cdf <= u);
         let Some(emitter) = self.emitters.get(k) else {

@@ -119,6 +119,9 @@ struct WorldElement {
     /// The region the element emits from and receives on.
     region: Region,
     albedo: DVec3,
+    /// What the element sends before any bounce: its emission, plus the
+    /// direct light of the scene's point and spot lights it reflects
+    /// (`ρ D`, `crate::lights`). The energy balance counts it as emitted.
     emission: DVec3,
 }
 
@@ -467,6 +470,10 @@ impl ReferenceSolver {
                 }
             })
             .collect();
+        // The lights' direct light, reflected: a source like the emission
+        // (`crate::lights`).
+        let caster =
+            (!scene.lights.is_empty()).then(|| crate::raycast::Raycaster::new(scene, poses));
         let elements: Vec<WorldElement> = atlas
             .elements
             .iter()
@@ -505,7 +512,11 @@ impl ReferenceSolver {
                     patch: e.patch,
                     region,
                     albedo: dvec(e.albedo),
-                    emission: dvec(e.emission),
+                    emission: dvec(e.emission)
+                        + dvec(e.albedo)
+                            * caster.as_ref().map_or(DVec3::ZERO, |c| {
+                                dvec(crate::lights::irradiance_at(scene, c, (x, wp.normal)))
+                            }),
                 }
             })
             .collect();

@@ -198,6 +198,7 @@ impl GatherSolver {
         poses: &[Pose],
         options: GatherOptions,
     ) -> Result<Self, GpuError> {
+        crate::gpu::device::refuse_lights(scene)?;
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         let limits = &gpu.limits;

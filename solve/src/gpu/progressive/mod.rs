@@ -212,6 +212,7 @@ impl ProgressiveSolver {
         absent: &[bool],
         options: ProgressiveOptions,
     ) -> Result<Self, GpuError> {
+        crate::gpu::device::refuse_lights(scene)?;
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         let res = options.hemicube_resolution.max(1);

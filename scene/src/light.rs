@@ -1,0 +1,129 @@
+//! Punctual lights a scene brings besides its emitting surfaces (issue 59):
+//! point and spot lights as glTF's `KHR_lights_punctual` defines them, in
+//! Lightwire's radiometric units. A light is a point; what it gives a
+//! surface is direct irradiance, `E = I(ω) cos θ / d²` times the range
+//! window, which the solvers compute per element with visibility and then
+//! treat as reflected light to pass on (`lightwire_solve::lights`).
+
+use glam::Vec3;
+
+/// What kind of punctual light, and its geometry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LightKind {
+    /// Radiates equally in every direction.
+    Point,
+    /// Radiates into a cone about `direction` (unit): full intensity within
+    /// `inner` of it, none beyond `outer` (radians, `0 <= inner < outer <=
+    /// π/2`), glTF's smooth falloff between.
+    Spot {
+        direction: Vec3,
+        inner: f32,
+        outer: f32,
+    },
+}
+
+/// A point or spot light of the static world.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Light {
+    pub name: String,
+    pub kind: LightKind,
+    /// Where the light is (world space).
+    pub position: Vec3,
+    /// Radiant intensity per channel on its axis, W/sr: its colour times
+    /// its intensity.
+    pub intensity: Vec3,
+    /// glTF's `range`: beyond it the light gives nothing, and it fades
+    /// towards it by glTF's recommended window; `None`: no cut-off (the
+    /// inverse square alone).
+    pub range: Option<f32>,
+}
+
+impl Light {
+    /// Radiant intensity (W/sr per channel) the light sends in the unit
+    /// direction `towards` (from the light), at distance `distance`, with
+    /// the range window folded in: what, divided by `distance²` and times
+    /// the cosine at the receiver, is the irradiance there.
+    pub fn intensity_towards(&self, towards: Vec3, distance: f32) -> Vec3 {
+        let window = self.range.map_or(1.0, |range| {
+            // KHR_lights_punctual's recommended smooth cut-off:
+            // clamp(1 - (d / range)⁴, 0, 1)².
+            let r = (distance / range).powi(4);
+            (1.0 - r).clamp(0.0, 1.0).powi(2)
+        });
+        self.intensity * (self.cone(towards) * window)
+    }
+
+    /// The spot's angular falloff in the unit direction `towards` (1 for a
+    /// point light): KHR_lights_punctual's, a smoothstep-like square of the
+    /// cosine's linear ramp from the outer to the inner cone.
+    pub fn cone(&self, towards: Vec3) -> f32 {
+        match self.kind {
+            LightKind::Point => 1.0,
+            LightKind::Spot {
+                direction,
+                inner,
+                outer,
+            } => {
+                let (cos_inner, cos_outer) = (inner.cos(), outer.cos());
+                let scale = 1.0 / (cos_inner - cos_outer).max(1e-3);
+                let t = ((direction.dot(towards) - cos_outer) * scale).clamp(0.0, 1.0);
+                t * t
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spot(inner_deg: f32, outer_deg: f32) -> Light {
+        Light {
+            name: "spot".into(),
+            kind: LightKind::Spot {
+                direction: Vec3::NEG_Y,
+                inner: inner_deg.to_radians(),
+                outer: outer_deg.to_radians(),
+            },
+            position: Vec3::ZERO,
+            intensity: Vec3::splat(2.0),
+            range: None,
+        }
+    }
+
+    #[test]
+    fn a_spot_is_full_inside_its_inner_cone_dark_outside_its_outer_and_smooth_between() {
+        let s = spot(20.0, 40.0);
+        let at = |deg: f32| {
+            let a = deg.to_radians();
+            s.cone(Vec3::new(a.sin(), -a.cos(), 0.0))
+        };
+        assert_eq!(at(0.0), 1.0);
+        assert_eq!(at(19.9), 1.0);
+        assert_eq!(at(40.1), 0.0);
+        assert_eq!(at(90.0), 0.0);
+        // glTF's falloff: the square of the cosine's ramp.
+        let c = |deg: f32| deg.to_radians().cos();
+        let t = (c(30.0) - c(40.0)) / (c(20.0) - c(40.0));
+        assert!((at(30.0) - t * t).abs() < 1e-5, "{}", at(30.0));
+        // Monotone between.
+        let mut last = 1.0;
+        for k in 0..=40 {
+            let v = at(20.0 + k as f32 * 0.5);
+            assert!(v <= last + 1e-6);
+            last = v;
+        }
+    }
+
+    #[test]
+    fn the_range_window_is_gltfs_and_cuts_at_the_range() {
+        let mut p = spot(20.0, 40.0);
+        p.kind = LightKind::Point;
+        p.range = Some(4.0);
+        let i = |d: f32| p.intensity_towards(Vec3::X, d).x / 2.0;
+        assert!((i(0.0) - 1.0).abs() < 1e-6);
+        assert!((i(2.0) - (1.0f32 - 1.0 / 16.0).powi(2)).abs() < 1e-6);
+        assert_eq!(i(4.0), 0.0);
+        assert_eq!(i(5.0), 0.0);
+    }
+}
