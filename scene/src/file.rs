@@ -41,35 +41,56 @@ pub struct SceneFile {
     /// Solver settings measured for this scene (see `SolverJson`).
     #[serde(default)]
     pub solver: SolverJson,
-    /// Point and spot lights of the static world, besides emitting
-    /// surfaces.
+    /// Point, spot and directional lights of the static world, besides
+    /// emitting surfaces.
     #[serde(default)]
     pub lights: Vec<LightJson>,
+    /// Radiance from the directions the scene leaves open.
+    #[serde(default)]
+    pub sky: Option<SkyJson>,
 }
 
-/// A punctual light (KHR_lights_punctual's point and spot, in radiometric
-/// units).
+/// A sky: radiance (W/(m² sr) per channel) at the zenith and at the
+/// horizon, `+y` up.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkyJson {
+    pub zenith: Vec3Json,
+    /// Default: the zenith's (a uniform sky).
+    #[serde(default)]
+    pub horizon: Option<Vec3Json>,
+}
+
+/// A light (KHR_lights_punctual's point, spot and directional, in
+/// radiometric units).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LightJson {
     pub name: String,
-    /// `"point"` or `"spot"`.
+    /// `"point"`, `"spot"` or `"directional"`.
     #[serde(rename = "type")]
     pub kind: String,
-    /// Where the light is, in metres.
-    pub position: Vec3Json,
+    /// Where a point or spot light is, in metres.
+    #[serde(default)]
+    pub position: Option<Vec3Json>,
     /// Linear colour, each channel >= 0; multiplies `intensity`.
     #[serde(default = "white")]
     pub color: Vec3Json,
-    /// Radiant intensity on the axis, W/sr (>= 0).
+    /// Radiant intensity on the axis, W/sr (>= 0); a directional light's
+    /// irradiance at normal incidence, W/m².
     pub intensity: f64,
     /// Distance at which the light fades to nothing (glTF's `range`);
     /// absent: the inverse square law alone.
     #[serde(default)]
     pub range: Option<f64>,
-    /// A spot's axis (any length > 0).
+    /// A spot's axis, or the direction a directional light's light
+    /// travels (any length > 0).
     #[serde(default)]
     pub direction: Option<Vec3Json>,
+    /// A directional light's disc, degrees across (default 0: hard
+    /// shadows; the sun's is 0.53).
+    #[serde(default)]
+    pub angular_diameter_deg: Option<f64>,
     /// A spot's full-intensity cone, degrees from the axis (default 0).
     #[serde(default)]
     pub inner_cone_deg: Option<f64>,
@@ -119,6 +140,10 @@ pub struct ImportJson {
     /// `KHR_materials_emissive_strength`).
     #[serde(default = "unit_scale")]
     pub emission_scale: f64,
+    /// Multiplies every `KHR_lights_punctual` light of the file after its
+    /// photometric units become radiometric (683 lm/W).
+    #[serde(default = "unit_scale")]
+    pub light_scale: f64,
     /// Overrides the scene's texel density for these triangles.
     #[serde(default)]
     pub texel_density: Option<f64>,

@@ -43,7 +43,7 @@ use std::path::Path;
 use glam::{Quat, Vec2, Vec3};
 
 pub use error::{SceneError, SceneIssue};
-pub use light::{Light, LightKind};
+pub use light::{Light, LightKind, Sky};
 
 /// The id of the static world in [`Scene::objects`].
 pub const STATIC_OBJECT: u32 = 0;
@@ -73,8 +73,11 @@ pub struct Scene {
     /// at its own texel density: empty when it states none or when the
     /// scene was loaded at another density (`LoadOptions::density_scale`).
     pub solver: SolverHints,
-    /// Point and spot lights (`light.rs`), besides the emitting surfaces.
+    /// Point, spot and directional lights (`light.rs`), besides the
+    /// emitting surfaces.
     pub lights: Vec<Light>,
+    /// The sky, if the scene is lit by one.
+    pub sky: Option<Sky>,
     /// What loading dropped or changed and went on past (zero-area and
     /// duplicate triangles of a mesh, clamped albedos), one entry per kind
     /// and source; `lightwire validate` and `bake` print them, `serve` logs

@@ -1,9 +1,12 @@
-//! Punctual lights a scene brings besides its emitting surfaces (issue 59):
-//! point and spot lights as glTF's `KHR_lights_punctual` defines them, in
-//! Lightwire's radiometric units. A light is a point; what it gives a
-//! surface is direct irradiance, `E = I(ω) cos θ / d²` times the range
-//! window, which the solvers compute per element with visibility and then
-//! treat as reflected light to pass on (`lightwire_solve::lights`).
+//! Lights a scene brings besides its emitting surfaces (issue 59): point,
+//! spot and directional lights as glTF's `KHR_lights_punctual` defines
+//! them, in Lightwire's radiometric units, and a sky. A point or spot
+//! light gives a surface the direct irradiance `E = I(ω) cos θ / d²` times
+//! the range window; a directional light (the sun) `E_n cos θ` where its
+//! disc is not hidden; the sky `∫ L(ω) cos θ dω` over the directions the
+//! scene leaves open. The solvers compute it per element with visibility
+//! and then treat it as reflected light to pass on
+//! (`lightwire_solve::lights`).
 
 use glam::Vec3;
 
@@ -20,17 +23,27 @@ pub enum LightKind {
         inner: f32,
         outer: f32,
     },
+    /// Light arriving from a distant disc (the sun): travelling along
+    /// `direction` (unit), from directions within `angular_radius`
+    /// (radians; 0: a point, hard shadows) of `-direction`. Its
+    /// `intensity` is the irradiance at normal incidence (W/m²) and its
+    /// position is unused.
+    Directional {
+        direction: Vec3,
+        angular_radius: f32,
+    },
 }
 
-/// A point or spot light of the static world.
+/// A point, spot or directional light of the static world.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Light {
     pub name: String,
     pub kind: LightKind,
     /// Where the light is (world space).
     pub position: Vec3,
-    /// Radiant intensity per channel on its axis, W/sr: its colour times
-    /// its intensity.
+    /// Radiant intensity per channel on its axis, W/sr (a directional
+    /// light's irradiance at normal incidence, W/m²): its colour times its
+    /// intensity.
     pub intensity: Vec3,
     /// glTF's `range`: beyond it the light gives nothing, and it fades
     /// towards it by glTF's recommended window; `None`: no cut-off (the
@@ -58,7 +71,7 @@ impl Light {
     /// cosine's linear ramp from the outer to the inner cone.
     pub fn cone(&self, towards: Vec3) -> f32 {
         match self.kind {
-            LightKind::Point => 1.0,
+            LightKind::Point | LightKind::Directional { .. } => 1.0,
             LightKind::Spot {
                 direction,
                 inner,
@@ -70,6 +83,32 @@ impl Light {
                 t * t
             }
         }
+    }
+}
+
+/// Radiance from every direction the scene leaves open (W/(m² sr) per
+/// channel), `+y` up: `horizon + (zenith - horizon) cos θ` at `θ` from the
+/// zenith above the horizon, black below it (the ground is the scene's
+/// own geometry, or nothing).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sky {
+    pub zenith: Vec3,
+    pub horizon: Vec3,
+}
+
+impl Sky {
+    /// The radiance arriving from the unit direction `from` (pointing
+    /// away from the receiver, towards the sky).
+    pub fn radiance(&self, from: Vec3) -> Vec3 {
+        if from.y <= 0.0 {
+            return Vec3::ZERO;
+        }
+        self.horizon + (self.zenith - self.horizon) * from.y
+    }
+
+    /// Whether any channel is lit.
+    pub fn is_lit(&self) -> bool {
+        self.zenith.max_element() > 0.0 || self.horizon.max_element() > 0.0
     }
 }
 
@@ -113,6 +152,23 @@ mod tests {
             assert!(v <= last + 1e-6);
             last = v;
         }
+    }
+
+    #[test]
+    fn the_sky_runs_from_horizon_to_zenith_and_is_black_below() {
+        let sky = Sky {
+            zenith: Vec3::splat(2.0),
+            horizon: Vec3::splat(1.0),
+        };
+        assert_eq!(sky.radiance(Vec3::Y), Vec3::splat(2.0));
+        assert_eq!(
+            sky.radiance(Vec3::new(1.0, 1.0, 0.0).normalize()).x,
+            1.0 + 0.5f32.sqrt()
+        );
+        assert_eq!(
+            sky.radiance(Vec3::new(1.0, -0.01, 0.0).normalize()),
+            Vec3::ZERO
+        );
     }
 
     #[test]

@@ -17,7 +17,7 @@ use super::file::{
 };
 use super::gltf::ImportOptions;
 use super::{
-    Charts, Light, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene,
+    Charts, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene,
     SceneIssue, SolverHints, UvMesh,
 };
 
@@ -165,17 +165,22 @@ pub fn validate(
     let mut objects = check_objects(&mut c, &raw.objects);
     let (mut patches, mut uv_meshes) = check_surfaces(&mut c, &raw, options, texel_density);
 
-    // glTF imports: their materials and dynamic nodes join the scene's.
+    let mut lights = lights::check_lights(&mut c, &raw.lights);
+    // glTF imports: their materials, dynamic nodes and lights join the
+    // scene's.
     let into = Parts {
         materials: &mut materials,
         objects: &mut objects,
         patches: &mut patches,
         uv_meshes: &mut uv_meshes,
+        lights: &mut lights,
     };
     import::check_imports(&mut c, &raw, options, base, texel_density, into);
 
-    let lights = lights::check_lights(&mut c, &raw.lights);
-    check_lit(&mut c, &raw, &patches, &materials, &lights);
+    let sky = lights::check_sky(&mut c, raw.sky.as_ref());
+    let lit =
+        lights.iter().any(|l| l.intensity.max_element() > 0.0) || sky.is_some_and(|s| s.is_lit());
+    check_lit(&mut c, &raw, &patches, &materials, lit);
     if !c.issues.is_empty() {
         return Err(c.issues);
     }
@@ -191,6 +196,7 @@ pub fn validate(
         uv_meshes,
         solver,
         lights,
+        sky,
         warnings: c.warnings,
     })
 }
@@ -440,7 +446,7 @@ fn check_lit(
     raw: &SceneFile,
     patches: &[Patch],
     materials: &[Material],
-    lights: &[Light],
+    lit_by_lights: bool,
 ) {
     if raw.surfaces.is_empty() && raw.imports.is_empty() {
         c.report("scene", "has no surfaces");
@@ -448,11 +454,11 @@ fn check_lit(
         && !patches
             .iter()
             .any(|p| materials[p.material as usize].is_emitter())
-        && !lights.iter().any(|l| l.intensity.max_element() > 0.0)
+        && !lit_by_lights
     {
         c.report(
             "scene",
-            "has no light: give a surface a material with emission > 0, or add a point or spot light (\"lights\"), or everything would be black",
+            "has no light: give a surface a material with emission > 0, add a point, spot or directional light (\"lights\") or a sky (\"sky\"), or everything will be black",
         );
     }
 }
@@ -511,6 +517,7 @@ struct Parts<'a> {
     objects: &'a mut Vec<Object>,
     patches: &'a mut Vec<Patch>,
     uv_meshes: &'a mut Vec<UvMesh>,
+    lights: &'a mut Vec<crate::Light>,
 }
 
 /// Whether a mesh surface of `object` gets generated lightmap UVs
@@ -582,6 +589,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         uv_meshes: Vec::new(),
         solver: SolverHints::default(),
         lights: Vec::new(),
+        sky: None,
         warnings: Vec::new(),
     };
     let mut into = Parts {
@@ -589,6 +597,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         objects: &mut scene.objects,
         patches: &mut scene.patches,
         uv_meshes: &mut scene.uv_meshes,
+        lights: &mut scene.lights,
     };
     import::merge_import(
         &mut c,
@@ -605,10 +614,11 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         .patches
         .iter()
         .any(|p| scene.materials[p.material as usize].is_emitter())
+        && !scene.lights.iter().any(|l| l.intensity.max_element() > 0.0)
     {
         c.report(
             &loc,
-            "has no emitter: no material has an emissiveFactor > 0, so everything would be black",
+            "has no light: no material has an emissiveFactor > 0 and no node a KHR_lights_punctual light, so everything would be black",
         );
     }
     if !c.issues.is_empty() {

@@ -1089,3 +1089,70 @@ fn a_texture_beside_the_gltf_loads_and_a_missing_one_is_named() {
         assert!(message.contains(part), "missing {part:?} in: {message}");
     }
 }
+
+/// Issue 59: a glTF's `KHR_lights_punctual` lights join the scene at their
+/// nodes' world transforms (a light shines along its node's `-z`), their
+/// photometric units read at 683 lm/W (683 cd is 1 W/sr, 683 lux 1
+/// W/m²) times the import's `light_scale`.
+#[test]
+fn khr_lights_punctual_lights_import_at_their_nodes_in_radiometric_units() {
+    let gltf = r#"{
+      "asset": { "version": "2.0" },
+      "extensionsUsed": ["KHR_lights_punctual"],
+      "extensions": { "KHR_lights_punctual": { "lights": [
+        { "type": "point", "color": [1, 0.5, 0.5], "intensity": 683, "range": 10 },
+        { "type": "spot", "intensity": 1366, "spot": { "innerConeAngle": 0.2, "outerConeAngle": 0.6 } },
+        { "type": "directional", "intensity": 683 }
+      ] } },
+      "buffers": [{ "byteLength": 60, "uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAACAPwAAAAAAAIC/AAAAAAAAAAAAAIC/AAABAAIAAAACAAMA" }],
+      "bufferViews": [
+        { "buffer": 0, "byteOffset": 0, "byteLength": 48 },
+        { "buffer": 0, "byteOffset": 48, "byteLength": 12 }
+      ],
+      "accessors": [
+        { "bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0] },
+        { "bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR" }
+      ],
+      "meshes": [{ "name": "floor", "primitives": [{ "attributes": { "POSITION": 0 }, "indices": 1 }] }],
+      "nodes": [
+        { "name": "floor", "mesh": 0 },
+        { "name": "bulb", "translation": [0.5, 2, -0.5], "extensions": { "KHR_lights_punctual": { "light": 0 } } },
+        { "name": "spot", "translation": [0.5, 3, -0.5], "rotation": [-0.70710678, 0, 0, 0.70710678],
+          "extensions": { "KHR_lights_punctual": { "light": 1 } } },
+        { "name": "sun", "rotation": [-0.70710678, 0, 0, 0.70710678], "extensions": { "KHR_lights_punctual": { "light": 2 } } }
+      ],
+      "scenes": [{ "nodes": [0, 1, 2, 3] }]
+    }"#;
+    let options = ImportOptions {
+        light_scale: 2.0,
+        ..ImportOptions::default()
+    };
+    let imported = import_slice(gltf.as_bytes(), None, "lights.gltf", &options).expect("import");
+    let lights = &imported.lights;
+    assert_eq!(lights.len(), 3, "{lights:?}");
+    let near = |a: glam::Vec3, b: glam::Vec3| (a - b).length() < 1e-5;
+    assert_eq!(lights[0].name, "bulb");
+    assert!(near(lights[0].position, glam::Vec3::new(0.5, 2.0, -0.5)));
+    assert!(
+        near(lights[0].intensity, glam::Vec3::new(2.0, 1.0, 1.0)),
+        "{:?}",
+        lights[0]
+    );
+    assert_eq!(lights[0].range, Some(10.0));
+    let lightwire_scene::LightKind::Spot {
+        direction,
+        inner,
+        outer,
+    } = lights[1].kind
+    else {
+        panic!("a spot: {:?}", lights[1])
+    };
+    assert!(near(direction, glam::Vec3::NEG_Y), "{direction}");
+    assert!((inner - 0.2).abs() < 1e-6 && (outer - 0.6).abs() < 1e-6);
+    assert!(near(lights[1].intensity, glam::Vec3::splat(4.0)));
+    let lightwire_scene::LightKind::Directional { direction, .. } = lights[2].kind else {
+        panic!("directional: {:?}", lights[2])
+    };
+    assert!(near(direction, glam::Vec3::NEG_Y), "{direction}");
+    assert!(near(lights[2].intensity, glam::Vec3::splat(2.0)));
+}

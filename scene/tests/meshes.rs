@@ -155,7 +155,7 @@ fn a_glb_without_an_emitter_is_refused() {
     let err = Scene::parse(text, &origin)
         .expect_err("no emitter")
         .to_string();
-    assert!(err.contains("has no emitter"), "{err}");
+    assert!(err.contains("has no light"), "{err}");
 }
 
 #[test]

@@ -662,6 +662,29 @@ impl CosineGrid {
         self.local.is_empty()
     }
 
+    /// The directions around the unit normal `n` with the grid shifted by
+    /// `shift` (each in [0, 1)) on the unit square before it is lifted (a
+    /// Cranley-Patterson rotation): still one direction per cell of a
+    /// `side` x `side` grid of the square, so still stratified, but a
+    /// different set for every shift. Receivers that each take their own
+    /// shift see a bright small source through different directions, so
+    /// their shared error is noise, not the streaks one fixed set of
+    /// directions draws across a surface. Computed on the fly (a square
+    /// root, a sine and a cosine per direction).
+    pub fn around_shifted(&self, n: DVec3, shift: (f64, f64)) -> impl Iterator<Item = DVec3> {
+        let side = (self.local.len() as f64).sqrt().round().max(1.0) as usize;
+        let t1 = n.any_orthonormal_vector();
+        let t2 = n.cross(t1);
+        (0..side * side).map(move |c| {
+            let (j, k) = (c / side, c % side);
+            let u1 = ((j as f64 + 0.5) / side as f64 + shift.0).fract();
+            let u2 = ((k as f64 + 0.5) / side as f64 + shift.1).fract();
+            let r = u1.sqrt();
+            let phi = std::f64::consts::TAU * u2;
+            t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()
+        })
+    }
+
     /// The directions around the unit normal `n`, cell by cell.
     pub fn around(&self, n: DVec3) -> impl Iterator<Item = DVec3> + '_ {
         let t1 = n.any_orthonormal_vector();

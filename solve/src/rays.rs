@@ -223,7 +223,7 @@ impl RaySolver {
             .collect();
         for ((d, (c, w)), &i) in cast.into_iter().zip(&self.receivers[done..end]) {
             self.radiosity[i as usize] = self.emission[i as usize] + self.albedo[i as usize] * d;
-            if !scene.lights.is_empty() {
+            if crate::lights::any(scene) {
                 // The lights' power enters as the first reflection of
                 // their direct light (the emitters' as their emission).
                 let reflected = self.albedo[i as usize] * d;
@@ -398,8 +398,20 @@ impl Casting {
         ) + crate::lights::irradiance_at(scene, caster, (x, n));
         let per_ray = 1.0 / self.directions.len().max(1) as f32;
         let mut hits: Vec<(u32, f32)> = Vec::with_capacity(self.directions.len() * 4);
-        for d in self.directions.around(n) {
+        let mut sky = Vec3::ZERO;
+        // Each receiver its own shift of the stratified grid: a small
+        // bright patch (the sun through a window) then reads as noise
+        // across a wall, not as streaks (`CosineGrid::around_shifted`).
+        let mut rng = fastrand::Rng::with_seed(u64::from(i).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let shift = (rng.f64(), rng.f64());
+        for d in self.directions.around_shifted(n, shift) {
             let Some(hit) = caster.closest_hit(x, d, f64::INFINITY) else {
+                // A ray that leaves the scene sees the sky: with
+                // cosine-distributed rays, π times the mean radiance they
+                // find is its irradiance.
+                if let Some(s) = &scene.sky {
+                    sky += s.radiance(d.as_vec3()) * (std::f32::consts::PI * per_ray);
+                }
                 continue;
             };
             // A back face gives nothing (the inside of a closed prop).
@@ -414,6 +426,7 @@ impl Casting {
                 );
             }
         }
+        let direct = direct + sky;
         hits.sort_unstable_by_key(|h| h.0);
         let mut row: Row = (Vec::new(), Vec::new());
         for (j, w) in hits {

@@ -112,6 +112,9 @@ pub struct ImportOptions {
     /// New values for materials by name (`"*"`: every material not named),
     /// applied before anything else reads them.
     pub materials: BTreeMap<String, MaterialOverride>,
+    /// Multiplies every `KHR_lights_punctual` light after its photometric
+    /// units become radiometric ([`LUMENS_PER_WATT`]).
+    pub light_scale: f32,
 }
 
 impl Default for ImportOptions {
@@ -121,9 +124,15 @@ impl Default for ImportOptions {
             dynamic_nodes: Vec::new(),
             emission_scale: 1.0,
             materials: BTreeMap::new(),
+            light_scale: 1.0,
         }
     }
 }
+
+/// Lumens per watt at which glTF's photometric light units become
+/// Lightwire's radiometric ones, as physically based engines read them:
+/// 683 cd is 1 W/sr, 683 lux is 1 W/m².
+pub const LUMENS_PER_WATT: f32 = 683.0;
 
 /// A material's albedo or emission as the importing scene wants them; a
 /// `None` keeps the glTF's.
@@ -146,6 +155,9 @@ pub struct ImportedScene {
     pub objects: Vec<ImportedObject>,
     /// One per (node, mesh primitive), in depth-first node order.
     pub instances: Vec<MeshInstance>,
+    /// The nodes' `KHR_lights_punctual` lights, in world space and
+    /// radiometric units, named after their nodes.
+    pub lights: Vec<crate::Light>,
     /// What the import dropped or changed and went on (zero-area and
     /// duplicate triangles, clamped albedos): one entry per kind, counts per
     /// primitive. Loading succeeds with these; `lightwire validate` prints
@@ -324,6 +336,7 @@ pub fn import_slice(
         uv_checked: HashMap::new(),
         dropped: BTreeMap::new(),
         clamped: Vec::new(),
+        light_warnings: Vec::new(),
     };
     importer.load_buffers(&gltf, base);
     let mut scene = importer.convert(&gltf.document);
@@ -364,6 +377,9 @@ struct Importer<'o> {
     dropped: BTreeMap<String, Dropped>,
     /// Materials whose base colour was clamped to [`ALBEDO_MAX`].
     clamped: Vec<String>,
+    /// Nodes whose light sits under a dynamic object (left where it
+    /// starts).
+    light_warnings: Vec<String>,
 }
 
 /// Triangles one primitive lost at import.
@@ -388,6 +404,7 @@ struct Gathered {
     used_default: bool,
     objects: Vec<ImportedObject>,
     instances: Vec<MeshInstance>,
+    lights: Vec<crate::Light>,
 }
 
 impl Gathered {
@@ -399,6 +416,7 @@ impl Gathered {
             used_default,
             objects,
             instances,
+            lights,
             ..
         } = self;
         if used_default {
@@ -414,6 +432,7 @@ impl Gathered {
             materials,
             objects,
             instances,
+            lights,
             warnings: Vec::new(),
         }
     }
@@ -499,6 +518,7 @@ impl Importer<'_> {
                 materials,
                 objects: Vec::new(),
                 instances: Vec::new(),
+                lights: Vec::new(),
                 warnings: Vec::new(),
             };
         };
@@ -514,6 +534,7 @@ impl Importer<'_> {
                 pose: Pose::IDENTITY,
             }],
             instances: Vec::new(),
+            lights: Vec::new(),
         };
         self.walk_nodes(doc, &scene, &mut gathered);
         gathered.into_scene()
@@ -605,6 +626,9 @@ impl Importer<'_> {
                     let to_object = object_from_world * world;
                     self.instance_mesh(&node, &mesh, &location, to_object, object, gathered);
                 }
+                if let Some(light) = node.light() {
+                    self.light(&node, &light, &location, world, object, gathered);
+                }
             }
             for child in node.children().collect::<Vec<_>>().into_iter().rev() {
                 stack.push(Frame {
@@ -616,6 +640,89 @@ impl Importer<'_> {
                 });
             }
         }
+    }
+
+    /// A node's `KHR_lights_punctual` light at its world transform `world`
+    /// (a glTF light shines along its node's `-z`), in radiometric units
+    /// times the import's `light_scale`. A light under a dynamic object
+    /// stays where the object starts, with a warning (lights do not move
+    /// yet); one whose numbers are not finite or negative is reported.
+    fn light(
+        &mut self,
+        node: &::gltf::Node,
+        light: &::gltf::khr_lights_punctual::Light,
+        location: &str,
+        world: Mat4,
+        object: u32,
+        gathered: &mut Gathered,
+    ) {
+        use ::gltf::khr_lights_punctual::Kind;
+        let scale = self.options.light_scale / LUMENS_PER_WATT;
+        let color = Vec3::from_array(light.color());
+        let intensity = color * light.intensity() * scale;
+        let position = world.transform_point3(Vec3::ZERO);
+        let direction = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+        let range = light.range();
+        if !intensity.is_finite()
+            || intensity.min_element() < 0.0
+            || !position.is_finite()
+            || range.is_some_and(|r| !(r.is_finite() && r > 0.0))
+        {
+            self.report(
+                location,
+                format!(
+                    "light {}: colour {color}, intensity {} or range {range:?} is not a finite number >= 0 (a range > 0)",
+                    light.index(),
+                    light.intensity()
+                ),
+            );
+            return;
+        }
+        if direction == Vec3::ZERO && !matches!(light.kind(), Kind::Point) {
+            self.report(
+                location,
+                "its light has no direction (a degenerate transform)",
+            );
+            return;
+        }
+        let kind = match light.kind() {
+            Kind::Point => crate::LightKind::Point,
+            Kind::Directional => crate::LightKind::Directional {
+                direction,
+                angular_radius: 0.0,
+            },
+            Kind::Spot {
+                inner_cone_angle,
+                outer_cone_angle,
+            } => {
+                let outer = outer_cone_angle.clamp(1e-4, std::f32::consts::FRAC_PI_2);
+                crate::LightKind::Spot {
+                    direction,
+                    inner: inner_cone_angle.clamp(0.0, outer * 0.999),
+                    outer,
+                }
+            }
+        };
+        if object != 0 {
+            self.light_warnings.push(location.to_string());
+        }
+        gathered.lights.push(crate::Light {
+            name: node
+                .name()
+                .map_or_else(|| format!("node#{}", node.index()), str::to_string),
+            kind,
+            position: if matches!(kind, crate::LightKind::Directional { .. }) {
+                Vec3::ZERO
+            } else {
+                position
+            },
+            intensity,
+            range: if matches!(kind, crate::LightKind::Directional { .. }) {
+                None
+            } else {
+                range
+            },
+        });
     }
 
     /// Makes a node marked dynamic, with world transform `world`, a dynamic
@@ -1283,6 +1390,16 @@ impl Importer<'_> {
                     } else {
                         String::new()
                     }
+                ),
+            });
+        }
+        if !self.light_warnings.is_empty() {
+            out.push(SceneIssue {
+                location: "lights".to_string(),
+                problem: format!(
+                    "{} light(s) under a dynamic object stay where the object starts (lights do not move yet): {}",
+                    self.light_warnings.len(),
+                    self.light_warnings.join(", ")
                 ),
             });
         }

@@ -36,14 +36,22 @@ pub(super) fn check_imports(
                 c.report(&loc, format!("emission_scale = {e} must be >= 0"));
             }
         }
-        let (Some(density), Some(emission_scale)) = (density, emission_scale) else {
+        let light_scale = c.finite(&loc, "light_scale", import.light_scale);
+        if let Some(l) = light_scale
+            && l < 0.0
+        {
+            c.report(&loc, format!("light_scale = {l} must be >= 0"));
+        }
+        let (Some(density), Some(emission_scale), Some(light_scale)) =
+            (density, emission_scale, light_scale)
+        else {
             continue;
         };
         let path = match base {
             Some(base) => base.join(&import.file),
             None => Path::new(&import.file).to_path_buf(),
         };
-        let mut import_opts = import_options(import, emission_scale);
+        let mut import_opts = import_options(import, emission_scale, light_scale);
         import_opts.materials = material_overrides(c, &loc, import);
         let imported = match crate::gltf::import(&path, &import_opts) {
             Ok(imported) => imported,
@@ -120,12 +128,13 @@ fn unknown_materials(c: &mut Checker, loc: &str, import: &ImportJson, imported: 
     }
 }
 
-fn import_options(import: &ImportJson, emission_scale: f32) -> ImportOptions {
+fn import_options(import: &ImportJson, emission_scale: f32, light_scale: f32) -> ImportOptions {
     ImportOptions {
         nodes: import.nodes.clone(),
         dynamic_nodes: import.dynamic_nodes.clone(),
         emission_scale,
         materials: BTreeMap::new(),
+        light_scale,
     }
 }
 
@@ -149,6 +158,7 @@ pub(super) fn merge_import(
     for w in &imported.warnings {
         c.warn(&format!("{loc}: {}", w.location), w.problem.clone());
     }
+    into.lights.extend(imported.lights.iter().cloned());
     let material_ids = merge_materials(c, loc, imported, into.materials);
     let object_ids = merge_objects(c, loc, imported, into.objects);
     let mut uv_mesh_of: HashMap<(usize, usize), usize> = HashMap::new();

@@ -1,26 +1,47 @@
-//! The scene file's `"lights"`: point and spot lights, checked.
+//! The scene file's `"lights"` (point, spot and directional) and `"sky"`,
+//! checked.
 
 use super::Checker;
-use crate::file::LightJson;
-use crate::light::{Light, LightKind};
+use crate::file::{LightJson, SkyJson};
+use crate::light::{Light, LightKind, Sky};
 
 /// Checks every light and returns the valid ones: a unique name, a type of
-/// `point` or `spot`, a finite position, colour and intensity (>= 0), a
-/// range > 0 if any; for a spot a direction of non-zero length and cones
-/// with `0 <= inner < outer <= 90` degrees (and no spot keys on a point).
+/// `point`, `spot` or `directional`, a finite colour and intensity (>= 0);
+/// a point or spot light's finite position and range > 0 if any; a spot's
+/// or directional light's direction of non-zero length; a spot's cones
+/// with `0 <= inner < outer <= 90` degrees, a directional light's angular
+/// diameter from 0 to 20 degrees; and no key of another type.
 pub(super) fn check_lights(c: &mut Checker, raw: &[LightJson]) -> Vec<Light> {
     c.unique("light", raw.iter().map(|l| l.name.as_str()));
     let mut out = Vec::new();
     for (i, l) in raw.iter().enumerate() {
         let loc = format!("light #{i} \"{}\"", l.name);
-        let position = c.vec3(&loc, "position", &l.position);
+        let directional = l.kind == "directional";
+        let position = match (&l.position, directional) {
+            (Some(p), false) => c.vec3(&loc, "position", p),
+            (None, false) => {
+                c.report(&loc, format!("a {} light needs a position", l.kind));
+                None
+            }
+            (Some(_), true) => {
+                c.report(
+                    &loc,
+                    "a directional light has no position (it is infinitely far)",
+                );
+                None
+            }
+            (None, true) => Some(glam::Vec3::ZERO),
+        };
         let color = c.vec3(&loc, "color", &l.color);
         if color.is_some_and(|v| v.min_element() < 0.0) {
             c.report(&loc, "color must be >= 0 per channel");
         }
         let intensity = c.finite(&loc, "intensity", l.intensity);
         if intensity.is_some_and(|v| v < 0.0) {
-            c.report(&loc, "intensity must be >= 0 (W/sr)");
+            c.report(
+                &loc,
+                "intensity must be >= 0 (W/sr; W/m² for a directional light)",
+            );
         }
         let range = match l.range {
             None => Some(None),
@@ -36,27 +57,33 @@ pub(super) fn check_lights(c: &mut Checker, raw: &[LightJson]) -> Vec<Light> {
                 None => None,
             },
         };
-        let kind = match l.kind.as_str() {
-            "point" => {
-                for (key, given) in [
-                    ("direction", l.direction.is_some()),
-                    ("inner_cone_deg", l.inner_cone_deg.is_some()),
-                    ("outer_cone_deg", l.outer_cone_deg.is_some()),
-                ] {
-                    if given {
-                        c.report(
-                            &loc,
-                            format!("{key} is for a spot light; a point light has none"),
-                        );
-                    }
-                }
-                Some(LightKind::Point)
+        let own: &[&str] = match l.kind.as_str() {
+            "point" => &["range"],
+            "spot" => &["range", "direction", "inner_cone_deg", "outer_cone_deg"],
+            "directional" => &["direction", "angular_diameter_deg"],
+            _ => &[],
+        };
+        for (key, given) in [
+            ("range", l.range.is_some()),
+            ("direction", l.direction.is_some()),
+            ("inner_cone_deg", l.inner_cone_deg.is_some()),
+            ("outer_cone_deg", l.outer_cone_deg.is_some()),
+            ("angular_diameter_deg", l.angular_diameter_deg.is_some()),
+        ] {
+            if given && !own.is_empty() && !own.contains(&key) {
+                c.report(&loc, format!("{key} is not for a {} light", l.kind));
             }
+        }
+        let kind = match l.kind.as_str() {
+            "point" => Some(LightKind::Point),
             "spot" => spot(c, &loc, l),
+            "directional" => sun(c, &loc, l),
             other => {
                 c.report(
                     &loc,
-                    format!("type \"{other}\" is not a light type: \"point\" or \"spot\""),
+                    format!(
+                        "type \"{other}\" is not a light type: \"point\", \"spot\" or \"directional\""
+                    ),
                 );
                 None
             }
@@ -76,9 +103,10 @@ pub(super) fn check_lights(c: &mut Checker, raw: &[LightJson]) -> Vec<Light> {
     out
 }
 
-fn spot(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
+/// A light's direction: given, finite, of non-zero length; unit.
+fn direction(c: &mut Checker, loc: &str, l: &LightJson) -> Option<glam::Vec3> {
     let Some(direction) = &l.direction else {
-        c.report(loc, "a spot light needs a direction");
+        c.report(loc, format!("a {} light needs a direction", l.kind));
         return None;
     };
     let direction = c.vec3(loc, "direction", direction)?;
@@ -86,6 +114,51 @@ fn spot(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
         c.report(loc, format!("direction {direction} has no length"));
         return None;
     }
+    Some(direction.normalize())
+}
+
+/// Largest angular diameter of a directional light's disc (degrees).
+pub const MAX_ANGULAR_DIAMETER_DEG: f32 = 20.0;
+
+fn sun(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
+    let direction = direction(c, loc, l)?;
+    let diameter = c.finite(
+        loc,
+        "angular_diameter_deg",
+        l.angular_diameter_deg.unwrap_or(0.0),
+    )?;
+    if !(0.0..=MAX_ANGULAR_DIAMETER_DEG).contains(&diameter) {
+        c.report(
+            loc,
+            format!(
+                "angular_diameter_deg = {diameter} must be from 0 to {MAX_ANGULAR_DIAMETER_DEG} (the sun's is 0.53)"
+            ),
+        );
+        return None;
+    }
+    Some(LightKind::Directional {
+        direction,
+        angular_radius: (0.5 * diameter).to_radians(),
+    })
+}
+
+/// The scene file's sky: finite radiances, each channel >= 0.
+pub(super) fn check_sky(c: &mut Checker, raw: Option<&SkyJson>) -> Option<Sky> {
+    let raw = raw?;
+    let zenith = c.vec3("sky", "zenith", &raw.zenith)?;
+    let horizon = match &raw.horizon {
+        Some(h) => c.vec3("sky", "horizon", h)?,
+        None => zenith,
+    };
+    if zenith.min_element() < 0.0 || horizon.min_element() < 0.0 {
+        c.report("sky", "radiance must be >= 0 per channel (W/(m² sr))");
+        return None;
+    }
+    Some(Sky { zenith, horizon })
+}
+
+fn spot(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
+    let direction = direction(c, loc, l)?;
     let inner = c.finite(loc, "inner_cone_deg", l.inner_cone_deg.unwrap_or(0.0))?;
     let outer = c.finite(loc, "outer_cone_deg", l.outer_cone_deg.unwrap_or(45.0))?;
     if !(0.0..90.0).contains(&inner) || inner >= outer || outer > 90.0 {
@@ -98,7 +171,7 @@ fn spot(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
         return None;
     }
     Some(LightKind::Spot {
-        direction: direction.normalize(),
+        direction,
         inner: inner.to_radians(),
         outer: outer.to_radians(),
     })
@@ -146,6 +219,46 @@ mod tests {
     }
 
     #[test]
+    fn a_sun_and_a_sky_load() {
+        let text = r#"{ "name": "t", "lightmap": { "texel_density": 4 },
+            "materials": [{ "name": "m", "albedo": [0.5, 0.5, 0.5] }],
+            "surfaces": [{ "name": "floor", "material": "m",
+                "quad": { "origin": [0, 0, 0], "u": [0, 0, 1], "v": [1, 0, 0] } }],
+            "lights": [{ "name": "sun", "type": "directional", "direction": [1, -1, 0],
+                         "intensity": 800, "angular_diameter_deg": 0.53 }],
+            "sky": { "zenith": [0.1, 0.2, 0.4], "horizon": [0.3, 0.3, 0.3] } }"#;
+        let s = Scene::parse(text, "t.json").expect("loads");
+        let LightKind::Directional {
+            direction,
+            angular_radius,
+        } = s.lights[0].kind
+        else {
+            panic!("directional")
+        };
+        assert!((direction - glam::Vec3::new(1.0, -1.0, 0.0).normalize()).length() < 1e-6);
+        assert!((angular_radius - 0.265f32.to_radians()).abs() < 1e-7);
+        let sky = s.sky.expect("a sky");
+        assert_eq!(sky.horizon, glam::Vec3::splat(0.3));
+        // A sky alone lights a scene.
+        let sky_only = text.replace(
+            r#""lights": [{ "name": "sun", "type": "directional", "direction": [1, -1, 0],
+                         "intensity": 800, "angular_diameter_deg": 0.53 }],"#,
+            "",
+        );
+        assert!(
+            Scene::parse(&sky_only, "t.json")
+                .expect("loads")
+                .lights
+                .is_empty()
+        );
+        let bad_sky = text.replace("[0.1, 0.2, 0.4]", "[0.1, -0.2, 0.4]");
+        let err = Scene::parse(&bad_sky, "t.json")
+            .expect_err("negative sky")
+            .to_string();
+        assert!(err.contains("sky: radiance must be >= 0"), "{err}");
+    }
+
+    #[test]
     fn bad_lights_are_reported_by_name_and_what_is_wrong() {
         for (light, says) in [
             (
@@ -171,7 +284,27 @@ mod tests {
             ),
             (
                 r#"{ "name": "a", "type": "point", "position": [0, 1, 0], "direction": [0, -1, 0], "intensity": 1 }"#,
-                "direction is for a spot light",
+                "direction is not for a point light",
+            ),
+            (
+                r#"{ "name": "a", "type": "directional", "direction": [0, -1, 0], "position": [0, 1, 0], "intensity": 1 }"#,
+                "a directional light has no position",
+            ),
+            (
+                r#"{ "name": "a", "type": "directional", "intensity": 1 }"#,
+                "a directional light needs a direction",
+            ),
+            (
+                r#"{ "name": "a", "type": "directional", "direction": [0, -1, 0], "intensity": 1, "angular_diameter_deg": 30 }"#,
+                "angular_diameter_deg = 30 must be from 0 to 20",
+            ),
+            (
+                r#"{ "name": "a", "type": "directional", "direction": [0, -1, 0], "intensity": 1, "range": 3 }"#,
+                "range is not for a directional light",
+            ),
+            (
+                r#"{ "name": "a", "type": "point", "intensity": 1 }"#,
+                "a point light needs a position",
             ),
             (
                 r#"{ "name": "a", "type": "point", "position": [0, 1, 0], "intensity": 1, "range": 0 }"#,
@@ -200,7 +333,9 @@ mod tests {
         let err = scene(dark).expect_err("dark");
         assert!(err.contains("has no light"), "{err}");
         assert!(
-            err.contains("emission > 0") && err.contains("point or spot light"),
+            err.contains("emission > 0")
+                && err.contains("directional light")
+                && err.contains("sky"),
             "{err}"
         );
     }

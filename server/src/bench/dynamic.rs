@@ -543,7 +543,7 @@ impl<'a> SceneBench<'a> {
     /// The reference at `poses`, and what it is: the CPU reference where
     /// the scene is small enough for it; on a level, where a hemicube
     /// correction sweep is too slow, the ray solver converged to 1e-4
-    /// (`lightwire_solve::rays`, within 1.5% of the CPU reference on the
+    /// (`lightwire_solve::rays`, within 2% of the CPU reference on the
     /// Cornell scenes); else a high-quality corrected progressive solve.
     fn reference(&self, poses: &[Pose]) -> Result<(String, Vec<Vec3>)> {
         let (gpu, scene, atlas) = (self.gpu, &self.scene, &self.atlas);

@@ -39,19 +39,19 @@ pub enum GpuError {
     Unsupported(String),
 }
 
-/// Refuses a scene with point or spot lights: the GPU solvers (and so the
-/// live service) do not light them yet (issue 59); the CPU reference, the
-/// path tracer and the ray solver do.
+/// Refuses a scene with point, spot or directional lights or a sky: the
+/// GPU solvers (and so the live service) do not light them yet (issue 59);
+/// the CPU reference, the path tracer and the ray solver do.
 pub fn refuse_lights(scene: &lightwire_scene::Scene) -> Result<(), GpuError> {
-    match scene.lights.first() {
-        None => Ok(()),
-        Some(light) => Err(GpuError::Unsupported(format!(
-            "scene \"{}\" has {} point or spot light(s) (\"{}\" first): the GPU solvers and the live service do not light them yet; bake it with --solver rays, reference or pathtrace",
-            scene.name,
-            scene.lights.len(),
-            light.name
-        ))),
-    }
+    let what = match (scene.lights.first(), scene.sky.is_some()) {
+        (None, false) => return Ok(()),
+        (Some(light), _) => format!("{} light(s) (\"{}\" first)", scene.lights.len(), light.name),
+        (None, true) => "a sky".to_string(),
+    };
+    Err(GpuError::Unsupported(format!(
+        "scene \"{}\" has {what}: the GPU solvers and the live service light only emitting surfaces yet; bake it with --solver rays, reference or pathtrace",
+        scene.name
+    )))
 }
 
 /// A device and queue on the chosen adapter, with what was chosen.

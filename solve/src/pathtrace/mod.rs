@@ -198,8 +198,9 @@ pub struct PathTracer {
     emitters: Vec<Emitter>,
     /// Per patch: the probability that next-event estimation picks it.
     selection: Vec<f64>,
-    /// The scene's point and spot lights.
+    /// The scene's point, spot and directional lights, and its sky.
     lights: Vec<lightwire_scene::Light>,
+    sky: Option<lightwire_scene::Sky>,
 }
 
 impl PathTracer {
@@ -249,6 +250,7 @@ impl PathTracer {
             emitters,
             selection,
             lights: scene.lights.clone(),
+            sky: scene.sky,
         }
     }
 
@@ -414,6 +416,11 @@ impl PathTracer {
             h += throughput * self.direct(x, n, rng);
             let dir = cosine_direction(n, rng);
             let Some(hit) = self.rays.closest_hit(x, dir, f64::INFINITY) else {
+                // The path leaves the scene: the sky's radiance over the
+                // direction's density cos θ / π, times the cosine, is π L.
+                if let Some(sky) = &self.sky {
+                    h += throughput * sky.radiance(dir.as_vec3()).as_dvec3() * std::f64::consts::PI;
+                }
                 break;
             };
             if !hit.front {
@@ -470,14 +477,39 @@ impl PathTracer {
     /// or spot light's exactly (a light is a point: one shadow ray each,
     /// and no bounce can find it, so nothing to weigh).
     fn direct(&self, x: DVec3, n: DVec3, rng: &mut fastrand::Rng) -> DVec3 {
-        self.surface_direct(x, n, rng) + self.punctual_direct(x, n)
+        self.surface_direct(x, n, rng) + self.punctual_direct(x, n, rng)
     }
 
-    /// `Σ I(ω) cos θ / d²` over the lights `x` sees in front of it, with
-    /// the spot cone and range window of `lightwire_scene::Light`.
-    fn punctual_direct(&self, x: DVec3, n: DVec3) -> DVec3 {
+    /// `Σ I(ω) cos θ / d²` over the point and spot lights `x` sees in front
+    /// of it, with the spot cone and range window of
+    /// `lightwire_scene::Light`; and `E_n cos θ` for each directional
+    /// light whose disc, at one direction drawn uniformly over it, is open.
+    fn punctual_direct(&self, x: DVec3, n: DVec3, rng: &mut fastrand::Rng) -> DVec3 {
         let mut e = DVec3::ZERO;
         for light in &self.lights {
+            if let lightwire_scene::LightKind::Directional {
+                direction,
+                angular_radius,
+            } = light.kind
+            {
+                let centre = -direction.as_dvec3();
+                let cos = n.dot(centre);
+                if cos <= 0.0 {
+                    continue;
+                }
+                let mut dir = centre;
+                if angular_radius > 0.0 {
+                    let t1 = centre.any_orthonormal_vector();
+                    let t2 = centre.cross(t1);
+                    let r = rng.f64().sqrt() * f64::from(angular_radius).tan();
+                    let phi = std::f64::consts::TAU * rng.f64();
+                    dir = (centre + (t1 * phi.cos() + t2 * phi.sin()) * r).normalize();
+                }
+                if n.dot(dir) > 0.0 && !self.rays.occluded(x, dir, f64::INFINITY) {
+                    e += light.intensity.as_dvec3() * cos;
+                }
+                continue;
+            }
             let d = light.position.as_dvec3() - x;
             let r2 = d.length_squared();
             if r2 <= 0.0 {

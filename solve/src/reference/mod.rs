@@ -473,7 +473,8 @@ impl ReferenceSolver {
         // The lights' direct light, reflected: a source like the emission
         // (`crate::lights`).
         let caster =
-            (!scene.lights.is_empty()).then(|| crate::raycast::Raycaster::new(scene, poses));
+            crate::lights::any(scene).then(|| crate::raycast::Raycaster::new(scene, poses));
+        let sky_directions = crate::raycast::CosineGrid::new(crate::lights::SKY_SIDE);
         let elements: Vec<WorldElement> = atlas
             .elements
             .iter()
@@ -515,7 +516,16 @@ impl ReferenceSolver {
                     emission: dvec(e.emission)
                         + dvec(e.albedo)
                             * caster.as_ref().map_or(DVec3::ZERO, |c| {
-                                dvec(crate::lights::irradiance_at(scene, c, (x, wp.normal)))
+                                let at = (x, wp.normal);
+                                dvec(
+                                    crate::lights::irradiance_at(scene, c, at)
+                                        + crate::lights::sky_irradiance_at(
+                                            scene,
+                                            c,
+                                            at,
+                                            &sky_directions,
+                                        ),
+                                )
                             }),
                 }
             })
