@@ -1,11 +1,11 @@
 //! Direct light from a scene's point, spot and directional lights and its
 //! sky (issue 59), for the radiosity solvers: per element, the irradiance
-//! each gives its sample point, with shadow rays. The solvers then treat `ρ D` as light
-//! the element sends on, unshot, so every bounce after the first is the
-//! radiosity solution's (the reference solver adds it to the source term,
-//! the ray solver to its direct irradiance). The path tracer computes the
-//! same irradiance on its own (`pathtrace`), so that it stays an
-//! independent oracle.
+//! each gives its sample point, with shadow rays. The solvers then treat
+//! `ρ D` as light the element sends on, unshot, so every bounce after the
+//! first is the radiosity solution's (the reference solver adds it to the
+//! source term, the ray solver to its direct irradiance, taking the sky
+//! from its own kept rays). The path tracer computes the same irradiance
+//! on its own (`pathtrace`), so that it stays an independent oracle.
 
 use glam::{DVec3, Vec3};
 
@@ -17,8 +17,8 @@ use lightwire_scene::{LightKind, Scene};
 /// resolved to 1/16 of the disc.
 pub const SUN_SIDE: usize = 4;
 
-/// Cosine rays per side for the sky of [`element_irradiance`] (the
-/// reference solver's): 1,024 per element.
+/// Cosine rays per side for the reference solver's sky
+/// ([`sky_irradiance_at`]): 1,024 per element.
 pub const SKY_SIDE: usize = 32;
 
 /// The irradiance (W/m² per channel) the point, spot and directional

@@ -67,6 +67,13 @@
 //!   error of the weighted estimator at a furnace face centre, 4096 paths).
 //!   Weighted, every contribution is bounded: at most `E/2` from a
 //!   next-event sample and `E` from a bounce.
+//! - **Lights and sky** (issue 59): a point or spot light is a point that
+//!   no bounce can hit, so every vertex adds each one's `I(ω) cos θ / d²`
+//!   through one shadow ray, nothing to weigh; a directional light (the
+//!   sun) adds `E cos θ` if the shadow ray towards one direction drawn
+//!   uniformly over its disc leaves the scene; a bounce that leaves the
+//!   scene adds the sky's `π L` in its direction (its radiance over the
+//!   cosine density). The sky holds no sun, so nothing is counted twice.
 //! - **Russian roulette** (Arvo and Kirk, "Particle transport and image
 //!   synthesis", SIGGRAPH 1990) after [`ROULETTE_AFTER`] bounces: the
 //!   path continues with probability `q = min(max_c throughput_c, 0.95)`
