@@ -152,7 +152,7 @@ test: deps dashboard-deps gltf-validator-deps deploy-check
 # The real levels (../shared/levels/README.md) stay outside the repository;
 # their tests are a feature of lightwire-server that `make test` leaves off.
 LEVELS ?= ../shared/levels
-test-levels: deps
+test-levels: deps dashboard-deps
 	@test -f "$(LEVELS)/README.md" || { echo "error: no levels at $(LEVELS) (make test-levels LEVELS=/path/to/levels)"; exit 1; }
 	$(CARGO) clippy -p lightwire-server --features levels --tests -- -D warnings
 	LEVELS="$(abspath $(LEVELS))" $(CARGO) test -p lightwire-server --features levels --test levels
