@@ -584,13 +584,11 @@ mod tests {
         out
     }
 
-    /// What every unwrap must give: UVs in [0, 1], each triangle the same
-    /// orientation in UV as in space (seen from its front), no two
-    /// triangles overlapping (the check `TEXCOORD_1` gets), every
-    /// triangle's normal within the angle of its chart's first, and
-    /// different charts at least [`GAP`] texels apart at the side
-    /// `uv::block_side` will give the block.
-    fn check(tris: &[[Vec3; 3]], u: &Unwrap, density: f32) {
+    /// What both unwrappers must give: UVs in [0, 1], each triangle the
+    /// same orientation in UV as in space (seen from its front), no two
+    /// triangles overlapping (the check `TEXCOORD_1` gets), and every
+    /// triangle's normal within `cos_max` of its chart's axis.
+    fn check_charts(tris: &[[Vec3; 3]], u: &Unwrap, cos_max: f32) {
         assert_eq!(u.uvs.len(), tris.len());
         for uv in &u.uvs {
             for p in uv {
@@ -603,12 +601,21 @@ mod tests {
         }
         let overlaps = crate::gltf::find_uv_overlaps(&u.uvs, 4).expect("checkable");
         assert!(overlaps.is_empty(), "{overlaps:?}");
-        let cos_max = MAX_ANGLE_DEG.to_radians().cos() - 1e-5;
         assert_eq!(u.axes.len(), u.charts);
         for (t, &c) in tris.iter().zip(&u.chart) {
             let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
             assert!(n.dot(u.axes[c as usize]) >= cos_max, "{t:?} on chart {c}");
         }
+    }
+
+    /// What every unwrap must give: UVs in [0, 1], each triangle the same
+    /// orientation in UV as in space (seen from its front), no two
+    /// triangles overlapping (the check `TEXCOORD_1` gets), every
+    /// triangle's normal within the angle of its chart's first, and
+    /// different charts at least [`GAP`] texels apart at the side
+    /// `uv::block_side` will give the block.
+    fn check(tris: &[[Vec3; 3]], u: &Unwrap, density: f32) {
+        check_charts(tris, u, MAX_ANGLE_DEG.to_radians().cos() - 1e-5);
         // Gaps between charts, in texels of the block the atlas will give.
         let area: f32 = tris
             .iter()
@@ -649,21 +656,7 @@ mod tests {
 
     #[test]
     fn a_box_is_six_charts() {
-        let mut tris = Vec::new();
-        let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
-        // Each face as two triangles, counter-clockwise from outside.
-        let faces = [
-            [c(0., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(0., 1., 1.)],
-            [c(1., 0., 0.), c(0., 0., 0.), c(0., 1., 0.), c(1., 1., 0.)],
-            [c(1., 0., 1.), c(1., 0., 0.), c(1., 1., 0.), c(1., 1., 1.)],
-            [c(0., 0., 0.), c(0., 0., 1.), c(0., 1., 1.), c(0., 1., 0.)],
-            [c(0., 1., 1.), c(1., 1., 1.), c(1., 1., 0.), c(0., 1., 0.)],
-            [c(0., 0., 0.), c(1., 0., 0.), c(1., 0., 1.), c(0., 0., 1.)],
-        ];
-        for [a, b, d, e] in faces {
-            tris.push([a, b, d]);
-            tris.push([a, d, e]);
-        }
+        let tris = cube();
         let u = project(&tris, 8.0);
         assert_eq!(u.charts, 6);
         check(&tris, &u, 8.0);
@@ -750,21 +743,7 @@ mod tests {
         assert_eq!(smooth_edges(&tris, &some).len(), all.len() - 3);
         // A box whose corners carry averaged normals (every corner the same
         // normal for all its faces) still meets at 90°: no smooth edge.
-        let cube: Vec<[Vec3; 3]> = {
-            let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
-            let quad = |a: Vec3, b: Vec3, d: Vec3, e: Vec3| [[a, b, d], [a, d, e]];
-            [
-                quad(c(0., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(0., 1., 1.)),
-                quad(c(1., 0., 0.), c(0., 0., 0.), c(0., 1., 0.), c(1., 1., 0.)),
-                quad(c(1., 0., 1.), c(1., 0., 0.), c(1., 1., 0.), c(1., 1., 1.)),
-                quad(c(0., 0., 0.), c(0., 0., 1.), c(0., 1., 1.), c(0., 1., 0.)),
-                quad(c(0., 1., 1.), c(1., 1., 1.), c(1., 1., 0.), c(0., 1., 0.)),
-                quad(c(0., 0., 0.), c(1., 0., 0.), c(1., 0., 1.), c(0., 0., 1.)),
-            ]
-            .into_iter()
-            .flatten()
-            .collect()
-        };
+        let cube = cube();
         let averaged: Vec<Option<[Vec3; 3]>> = cube
             .iter()
             .map(|t| Some(t.map(|p| (p - Vec3::splat(0.5)).normalize())))
@@ -808,24 +787,10 @@ mod tests {
     /// texels, then one ring of gutter each) on that block. Charts packed
     /// by shape nest, so the gap is checked texel by texel, not on boxes.
     fn check_uvunwrap(tris: &[[Vec3; 3]], u: &Unwrap, density: f32) {
-        assert_eq!(u.uvs.len(), tris.len());
-        for uv in &u.uvs {
-            for p in uv {
-                assert!((0.0..=1.0).contains(&p.x) && (0.0..=1.0).contains(&p.y));
-            }
-            assert!(crate::uv::uv_area(uv) > 0.0, "{uv:?} is turned over");
-        }
-        let overlaps = crate::gltf::find_uv_overlaps(&u.uvs, 4).expect("checkable");
-        assert!(overlaps.is_empty(), "{overlaps:?}");
         // The crate bounds the angle on crease-preserving smoothed normals
         // against its own running average: on face normals against the
         // area-weighted mean a sphere's charts reach 44° at 30°.
-        let cos_max = (1.5 * MAX_CHART_ANGLE).to_radians().cos();
-        assert_eq!(u.axes.len(), u.charts);
-        for (t, &c) in tris.iter().zip(&u.chart) {
-            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
-            assert!(n.dot(u.axes[c as usize]) >= cos_max, "{t:?} on chart {c}");
-        }
+        check_charts(tris, u, (1.5 * MAX_CHART_ANGLE).to_radians().cos());
         let area: f32 = tris
             .iter()
             .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
