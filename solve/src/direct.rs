@@ -435,8 +435,14 @@ pub fn gather_cached(
         .map(|(&i, &(x, n))| {
             let e = &atlas.elements[i];
             let mut h = Vec3::ZERO;
-            for hit in rays.hits(&caster, i, x, n) {
+            let directions = rays.directions.around(n);
+            for (hit, d) in rays.hits(&caster, i, x, n).zip(directions) {
                 let Some(hit) = hit else {
+                    // Left the scene: the sky, if it has one, as the
+                    // radiosity π L of a surface of its radiance.
+                    if let Some(sky) = &scene.sky {
+                        h += sky.radiance(d.as_vec3()) * std::f32::consts::PI;
+                    }
                     continue;
                 };
                 // Emitters are sampled on their own below.
@@ -449,6 +455,7 @@ pub fn gather_cached(
             }
             h /= rays.count() as f32;
             h += emitters.irradiance(&caster, atlas, x, n, grid, value);
+            h += crate::lights::irradiance_at(scene, &caster, (x, n));
             e.emission + e.albedo * h
         })
         .collect()
@@ -737,7 +744,8 @@ pub fn at_contact(
 
 /// The irradiance from the emitters' emission at the sample points of
 /// `elements` ([`Emitters::irradiance`], `grid`² samples per emitting
-/// patch) against the scene at `poses` without the objects flagged in
+/// patch), and from the lights and the sky (`crate::lights::direct_at`),
+/// against the scene at `poses` without the objects flagged in
 /// `absent`, in parallel: the direct light of cross redistribution's
 /// moving texels, each its own, where a tile's hemicube would give them
 /// one value for all (`gpu/progressive/redistribute.rs`).
@@ -750,11 +758,18 @@ pub fn element_direct_light(
 ) -> Vec<Vec3> {
     let caster = Raycaster::with_absent(scene, poses, absent);
     let emitters = Emitters::of(scene);
+    let sky = CosineGrid::new(crate::lights::SKY_SIDE);
+    let lit = crate::lights::any(scene);
     elements
         .par_iter()
         .map(|&i| {
             let (x, n) = sample_point(scene, &caster, atlas, poses, i);
-            emitters.irradiance(&caster, atlas, x, n, grid, |j| atlas.elements[j].emission)
+            let e = emitters.irradiance(&caster, atlas, x, n, grid, |j| atlas.elements[j].emission);
+            if lit {
+                e + crate::lights::direct_at(scene, &caster, (x, n), &sky)
+            } else {
+                e
+            }
         })
         .collect()
 }

@@ -373,7 +373,7 @@ impl Validity {
 
 /// World bounds of object `object`'s patches at `pose` (`None` if it has
 /// none).
-fn bounds(scene: &Scene, object: u32, pose: &Pose) -> Option<(Vec3, Vec3)> {
+pub(crate) fn bounds(scene: &Scene, object: u32, pose: &Pose) -> Option<(Vec3, Vec3)> {
     let mut out: Option<(Vec3, Vec3)> = None;
     for p in scene.patches.iter().filter(|p| p.object == object) {
         for c in p.shape.transformed(pose).corners() {

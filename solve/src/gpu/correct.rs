@@ -44,7 +44,7 @@ use glam::Vec3;
 
 use super::device::{Device, GpuError};
 use super::gather::{GatherOptions, GatherSolver};
-use super::placement::{emitted_power, world_areas};
+use super::placement::world_areas;
 use super::progressive::ProgressiveSolver;
 use crate::direct::{Lookup, gather};
 use lightwire_scene::atlas::Atlas;
@@ -142,23 +142,28 @@ impl Correction {
         poses: &[Pose],
         options: GatherOptions,
     ) -> Result<Self, GpuError> {
-        crate::gpu::device::refuse_lights(scene)?;
         let options = GatherOptions {
             indirect_only: false,
             ..options
         };
         let gather = GatherSolver::new(gpu, scene, atlas, poses, options)?;
+        let emitted = gather.emitted_power();
         Ok(Self::with_sweep(
             Sweep::Hemicube(Box::new(gather)),
-            scene,
-            atlas,
-            poses,
+            (scene, atlas, poses),
+            emitted,
         ))
     }
 
-    /// `sweep` with the world area and object of every element and the
-    /// emitted power of `scene` at `poses`.
-    fn with_sweep(sweep: Sweep, scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> Self {
+    /// `sweep` with the world area and object of every element of `scene`
+    /// at `poses`, and the power its sources put in (`emitted`: the
+    /// emission and the lights' reflected direct light), which residuals
+    /// are measured against.
+    fn with_sweep(
+        sweep: Sweep,
+        (scene, atlas, poses): (&Scene, &Atlas, &[Pose]),
+        emitted: f64,
+    ) -> Self {
         let local: Vec<f32> = atlas.elements.iter().map(|e| e.area).collect();
         let objects: Vec<u32> = atlas
             .elements
@@ -166,7 +171,6 @@ impl Correction {
             .map(|e| scene.patches[e.patch as usize].object)
             .collect();
         let areas = world_areas(&local, &objects, poses);
-        let emitted = emitted_power(atlas, &areas);
         Self {
             sweep,
             areas,
@@ -185,7 +189,11 @@ impl Correction {
     /// a hemicube sweep would take many minutes.
     pub fn by_rays(solver: &ProgressiveSolver) -> Self {
         let (scene, atlas, poses, _) = solver.world();
-        Self::with_sweep(Sweep::Rays(RaySweep::default()), scene, atlas, poses)
+        Self::with_sweep(
+            Sweep::Rays(RaySweep::default()),
+            (scene, atlas, poses),
+            solver.emitted_power(),
+        )
     }
 
     /// One round: a gather sweep from `solver`'s radiosity, its difference

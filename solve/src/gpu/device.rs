@@ -34,24 +34,6 @@ pub enum GpuError {
     /// The problem does not fit the device (too many elements, ...).
     #[error("{0}")]
     TooLarge(String),
-    /// The scene holds something the GPU solvers do not compute yet.
-    #[error("{0}")]
-    Unsupported(String),
-}
-
-/// Refuses a scene with point, spot or directional lights or a sky: the
-/// GPU solvers (and so the live service) do not light them yet (issue 59);
-/// the CPU reference, the path tracer and the ray solver do.
-pub fn refuse_lights(scene: &lightwire_scene::Scene) -> Result<(), GpuError> {
-    let what = match (scene.lights.first(), scene.sky.is_some()) {
-        (None, false) => return Ok(()),
-        (Some(light), _) => format!("{} light(s) (\"{}\" first)", scene.lights.len(), light.name),
-        (None, true) => "a sky".to_string(),
-    };
-    Err(GpuError::Unsupported(format!(
-        "scene \"{}\" has {what}: the GPU solvers and the live service light only emitting surfaces yet; bake it with --solver rays, reference or pathtrace",
-        scene.name
-    )))
 }
 
 /// A device and queue on the chosen adapter, with what was chosen.

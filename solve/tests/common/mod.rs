@@ -69,6 +69,14 @@ pub fn parse(text: &str) -> (Scene, Atlas) {
     (scene, atlas)
 }
 
+/// [`parse`] at a density scale, as [`load`] loads a file.
+pub fn parse_scaled(text: &str, density_scale: f32) -> (Scene, Atlas) {
+    let scene = Scene::parse_with(text, "inline", LoadOptions::scaled(density_scale))
+        .unwrap_or_else(|e| panic!("inline scene must load: {e}"));
+    let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("inline scene must fit: {e}"));
+    (scene, atlas)
+}
+
 /// Furnace check: every element of `b` within `tolerance` (relative, per
 /// channel) of `expected`; returns the largest relative error.
 pub fn assert_uniform(atlas: &Atlas, b: &[Vec3], expected: Vec3, tolerance: f32) -> f32 {

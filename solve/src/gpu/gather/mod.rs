@@ -198,7 +198,6 @@ impl GatherSolver {
         poses: &[Pose],
         options: GatherOptions,
     ) -> Result<Self, GpuError> {
-        crate::gpu::device::refuse_lights(scene)?;
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         let limits = &gpu.limits;
@@ -229,8 +228,17 @@ impl GatherSolver {
         let areas = world_areas(&local_areas, &objects, poses);
         let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
         let emission: Vec<Vec3> = atlas.elements.iter().map(|e| e.emission).collect();
-        let emitted = placement::emitted_power(atlas, &areas);
-        let elements = gather_elements((scene, atlas, poses), &receivers, &areas);
+        // The lights' and the sky's direct light, with the emitters' in
+        // `D` (issue 59).
+        let lit = crate::lights::element_irradiance(
+            scene,
+            atlas,
+            (poses, &[]),
+            &(0..n).collect::<Vec<_>>(),
+        );
+        let emitted = placement::emitted_power(atlas, &areas)
+            + crate::lights::reflected_power(atlas, &lit, &areas);
+        let elements = gather_elements((scene, atlas, poses), &receivers, &areas, &lit);
         let vertices = world_triangles(&patches);
         let triangle_vertices = vertices.len() as u32;
 

@@ -133,12 +133,14 @@ pub(super) fn receivers(patches: &[WorldPatch], atlas: &Atlas, offset: f32) -> V
 
 /// Every element's emission and world area `areas`, albedo, and the
 /// direct light of the emission at its receiving point (`receivers`), by
-/// next-event estimation (`crate::direct`): the hemicubes gather only the
-/// reflected part `B - E` of what they see.
+/// next-event estimation (`crate::direct`), plus `lit`, the lights' and
+/// the sky's (`crate::lights::element_irradiance`): the hemicubes gather
+/// only the reflected part `B - E` of what they see.
 pub(super) fn gather_elements(
     (scene, atlas, poses): (&Scene, &Atlas, &[Pose]),
     receivers: &[GpuShooter],
     areas: &[f32],
+    lit: &[Vec3],
 ) -> Vec<GatherElement> {
     let points: Vec<(DVec3, DVec3)> = receivers
         .iter()
@@ -153,10 +155,11 @@ pub(super) fn gather_elements(
         .iter()
         .zip(areas)
         .zip(&direct)
-        .map(|((e, a), d)| GatherElement {
+        .zip(lit)
+        .map(|(((e, a), d), l)| GatherElement {
             emission: v4(e.emission, *a),
             albedo: v4(e.albedo, 0.0),
-            direct: v4(*d, 0.0),
+            direct: v4(*d + *l, 0.0),
         })
         .collect()
 }

@@ -212,7 +212,6 @@ impl ProgressiveSolver {
         absent: &[bool],
         options: ProgressiveOptions,
     ) -> Result<Self, GpuError> {
-        crate::gpu::device::refuse_lights(scene)?;
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         let res = options.hemicube_resolution.max(1);
@@ -241,7 +240,30 @@ impl ProgressiveSolver {
         let albedo: Vec<Vec3> = atlas.elements.iter().map(|e| e.albedo).collect();
         let emission = non_empty(atlas.elements.iter().map(|e| v4(e.emission, 0.0)).collect());
         let areas = world_areas(&local_areas, &element_objects, poses);
-        let emitted = placement::emitted_power(atlas, &areas);
+        // The lights' and the sky's direct light, reflected (issue 59):
+        // unshot light the elements start with besides their emission. It
+        // is reflected light, so the emission buffer (what redistribution
+        // resets a moved texel to and leaves out of what tiles gather)
+        // keeps only the materials' emission.
+        let lit = crate::lights::element_irradiance(
+            scene,
+            atlas,
+            (poses, &absent),
+            &(0..n).collect::<Vec<_>>(),
+        );
+        let emitted = placement::emitted_power(atlas, &areas)
+            + crate::lights::reflected_power(atlas, &lit, &areas);
+        let source: Vec<[f32; 4]> = emission
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                let own = match (atlas.elements.get(i), lit.get(i)) {
+                    (Some(el), Some(d)) => el.albedo * *d,
+                    _ => Vec3::ZERO,
+                };
+                [e[0] + own.x, e[1] + own.y, e[2] + own.z, e[3]]
+            })
+            .collect();
         let clusters = clusters(scene, &patches, &table, &options);
         let buffers = Buffers::new(
             &device,
@@ -249,7 +271,7 @@ impl ProgressiveSolver {
                 members: clusters.order(),
                 locals: &locals,
                 emission: &emission,
-                start: &start_radiosity(atlas, &emission, &absent, &validity),
+                start: &start_radiosity(atlas, &source, &absent, &validity),
                 patch_ranges: &table.ranges(),
                 patch_frames: &table.frames(),
                 vertices: &vertices,
@@ -506,12 +528,13 @@ impl ProgressiveSolver {
     /// Re-tests validity near the objects flagged in `moving` after the
     /// poses changed from `old` to the current ones, and uploads the
     /// elements whose state changed.
-    pub(super) fn update_validity(&mut self, old: &[Pose], moving: &[bool]) {
+    pub(super) fn update_validity(&mut self, old: &[Pose], moving: &[bool]) -> Vec<usize> {
         let objects: Vec<u32> = (0..moving.len() as u32)
             .filter(|&o| moving[o as usize])
             .collect();
+        let mut flipped = Vec::new();
         if objects.is_empty() {
-            return;
+            return flipped;
         }
         let before = self.validity.clone();
         // Two texels' reach (the coarsest texel spacing of the scene):
@@ -542,6 +565,7 @@ impl ProgressiveSolver {
         for i in 0..before.mask().len() {
             let now = self.validity.is_invalid(i);
             if now != before.is_invalid(i) {
+                flipped.push(i);
                 let flag = invalid_flag(now).to_le_bytes();
                 self.queue.write_buffer(
                     &self.buffers.local_elements,
@@ -555,6 +579,7 @@ impl ProgressiveSolver {
                 );
             }
         }
+        flipped
     }
 
     /// Shoots every emitting patch once, in patch order, and remembers what
@@ -769,8 +794,9 @@ fn batch_capacity(
     Ok(batch_capacity)
 }
 
-/// `B` and `B^u` of every element at the start: its `emission` (padded as
-/// the buffers are). Absent objects start dark: they neither hold nor
+/// `B` and `B^u` of every element at the start: its `source`, the
+/// emission plus the lights' direct light reflected (padded as the
+/// buffers are). Absent objects start dark: they neither hold nor
 /// shoot light; so do invalid elements (under or inside geometry at the
 /// start poses, [`Validity`]): what an emitter emits inside a wall or under
 /// a block reaches no one in the room, and shot from the tile it shares
@@ -779,11 +805,11 @@ fn batch_capacity(
 /// percentile with it).
 fn start_radiosity(
     atlas: &Atlas,
-    emission: &[[f32; 4]],
+    source: &[[f32; 4]],
     absent: &[bool],
     validity: &Validity,
 ) -> Vec<[f32; 4]> {
-    emission
+    source
         .iter()
         .enumerate()
         .map(|(i, e)| {

@@ -29,6 +29,9 @@ impl ProgressiveSolver {
             // A move without jobs (nothing of M faces anything).
             self.write_moving_direct(&mv.moving);
         }
+        // The shadows M casts from the lights and the sky, before the
+        // static texels near it gather again (`lights.rs`).
+        self.relight(mv)?;
         let mut encoder = self.device.create_command_encoder(&Default::default());
         if mv.method == Redistribution::Cross && !mv.is_empty_move() {
             // While M is still marked: the tiles' gathered light, read

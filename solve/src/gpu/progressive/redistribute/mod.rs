@@ -70,6 +70,8 @@
 //! - `gather.rs`: the light M's texels gather (direct light per texel, the
 //!   tiles' gathers after the move, the smoothing between tile centres)
 //!   and the end of a move;
+//! - `lights.rs`: the lights' and the sky's direct light the move changes
+//!   (shadows on the static set, the moved faces under incremental);
 //! - `redistribute.wgsl`: the compute passes of all of this.
 
 use std::collections::VecDeque;
@@ -85,6 +87,7 @@ use lightwire_scene::Pose;
 mod cross;
 mod gather;
 mod incremental;
+mod lights;
 mod plan;
 mod resources;
 
@@ -208,6 +211,9 @@ pub struct Move {
     /// (`write_moving_direct`): the first cross job does it on the CPU
     /// while the GPU draws its hemicubes.
     direct_due: bool,
+    /// The elements whose validity the move changed (covered or
+    /// uncovered by M), ascending.
+    flipped: Vec<usize>,
     /// Batches run so far.
     pub batches: u32,
 }
@@ -274,13 +280,14 @@ impl ProgressiveSolver {
             jobs: VecDeque::new(),
             tiles: Vec::new(),
             direct_due: false,
+            flipped: Vec::new(),
             batches: 0,
         };
         if mv.is_empty_move() {
             return Ok(mv);
         }
         // Contacts move with the objects (crate::validity).
-        self.update_validity(&mv.old_poses, &mv.moving);
+        mv.flipped = self.update_validity(&mv.old_poses, &mv.moving);
         // Incremental: total power per patch before the move (one
         // readback), to size the shooter grids. Cross tiles do not depend
         // on power.

@@ -1,0 +1,122 @@
+//! The lights' and the sky's direct light after a move (issue 59).
+//!
+//! The solver starts each element with `ρ D` of the lights and the sky as
+//! reflected light (`crate::lights::element_irradiance`). A moved object
+//! changes `D` where it now casts a shadow or no longer does, and on its
+//! own faces. Neither is light a patch shot, so neither redistribution
+//! method sees it: incremental reshooting and cross projection move what
+//! surfaces send, not what a point light or the sun sends. So when a move
+//! ends, the change `ρ ΔD` of every static element whose shadow rays pass
+//! through the moved objects' bounds before or after
+//! (`crate::lights::irradiance_change`: only those rays are cast again,
+//! every other texel is left to the bit) is added to its radiosity and
+//! its unshot radiosity, as any change of `B` is (thesis §2.2.5);
+//! refinement then carries its bounces. Cross relights the moved faces
+//! itself (their direct light per texel includes the lights,
+//! `crate::direct::element_direct_light`); incremental resets them to
+//! their emission, so they get `ρ D` at the new pose here as unshot light.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::{Move, Redistribution};
+use crate::gpu::GpuError;
+use crate::gpu::progressive::ProgressiveSolver;
+use crate::raycast::{CosineGrid, Raycaster};
+
+impl ProgressiveSolver {
+    /// Adds what `mv` changed of the lights' and the sky's direct light,
+    /// reflected, as unshot radiosity (see the module documentation).
+    /// Nothing for a scene without lights or a move of nothing.
+    pub(super) fn relight(&mut self, mv: &Move) -> Result<(), GpuError> {
+        if !crate::lights::any(&self.scene) || mv.is_empty_move() {
+            return Ok(());
+        }
+        let scene = &self.scene;
+        let mut boxes = Vec::new();
+        for (o, _) in mv.moving.iter().enumerate().filter(|(_, m)| **m) {
+            let placed = [
+                (&mv.old_poses[o], mv.old_absent[o]),
+                (&self.poses[o], self.absent[o]),
+            ];
+            for (pose, absent) in placed {
+                if let (false, Some((lo, hi))) =
+                    (absent, crate::validity::bounds(scene, o as u32, pose))
+                {
+                    let pad = 1e-4 * f64::from((hi - lo).length()).max(1e-6);
+                    boxes.push((lo.as_dvec3() - pad, hi.as_dvec3() + pad));
+                }
+            }
+        }
+        if boxes.is_empty() {
+            return Ok(());
+        }
+        let old = Raycaster::with_absent(scene, &mv.old_poses, &mv.old_absent);
+        let new = Raycaster::with_absent(scene, &self.poses, &self.absent);
+        let sky = CosineGrid::new(crate::lights::SKY_SIDE);
+        let moving = |i: usize| {
+            mv.moving
+                .get(self.element_objects[i] as usize)
+                .copied()
+                .unwrap_or(false)
+        };
+        let reset_moving = mv.method == Redistribution::Incremental;
+        let delta: Vec<Vec3> = (0..self.element_count as usize)
+            .into_par_iter()
+            .map(|i| {
+                let e = &self.atlas.elements[i];
+                if !e.covers_surface() {
+                    return Vec3::ZERO;
+                }
+                let object = self.element_objects[i] as usize;
+                let at = crate::direct::sample_point(scene, &new, &self.atlas, &self.poses, i);
+                if mv.flipped.binary_search(&i).is_ok() && !moving(i) {
+                    // An invalid texel holds none of the lights' light
+                    // (the solver starts it dark): one M covers gives
+                    // back what it had, one M uncovers takes all of it.
+                    // (Cross then zeroes the one and gathers the other
+                    // anew, `regather.rs`.)
+                    return if self.validity.is_invalid(i) {
+                        -e.albedo * crate::lights::direct_at(scene, &old, at, &sky)
+                    } else {
+                        e.albedo * crate::lights::direct_at(scene, &new, at, &sky)
+                    };
+                }
+                if self.validity.is_invalid(i) {
+                    return Vec3::ZERO;
+                }
+                if !moving(i) {
+                    e.albedo
+                        * crate::lights::irradiance_change(scene, (&old, &new), at, &boxes, &sky)
+                } else if reset_moving && !self.absent[object] {
+                    e.albedo * crate::lights::direct_at(scene, &new, at, &sky)
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect();
+        if delta.iter().all(|d| *d == Vec3::ZERO) {
+            return Ok(());
+        }
+        // As `add_unshot`, and a covered texel's radiosity too (it shoots
+        // nothing).
+        let mut b = self.read_vec4(&self.buffers.radiosity)?;
+        let mut u = self.read_vec4(&self.buffers.unshot)?;
+        for (i, d) in delta.iter().enumerate() {
+            if *d == Vec3::ZERO {
+                continue;
+            }
+            for c in 0..3 {
+                b[i][c] += d[c];
+                if !self.validity.is_invalid(i) {
+                    u[i][c] += d[c];
+                }
+            }
+        }
+        self.queue
+            .write_buffer(&self.buffers.radiosity, 0, bytemuck::cast_slice(&b));
+        self.queue
+            .write_buffer(&self.buffers.unshot, 0, bytemuck::cast_slice(&u));
+        self.reselect()
+    }
+}
