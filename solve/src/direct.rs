@@ -455,7 +455,7 @@ pub fn gather_cached(
             }
             h /= rays.count() as f32;
             h += emitters.irradiance(&caster, atlas, x, n, grid, value);
-            h += crate::lights::irradiance_at(scene, &caster, (x, n));
+            h += crate::lights::texel_irradiance(scene, &caster, (atlas, poses), i, (x, n));
             e.emission + e.albedo * h
         })
         .collect()
@@ -744,7 +744,7 @@ pub fn at_contact(
 
 /// The irradiance from the emitters' emission at the sample points of
 /// `elements` ([`Emitters::irradiance`], `grid`² samples per emitting
-/// patch), and from the lights and the sky (`crate::lights::direct_at`),
+/// patch), and from the lights and the sky (`crate::lights::element_direct_at`),
 /// against the scene at `poses` without the objects flagged in
 /// `absent`, in parallel: the direct light of cross redistribution's
 /// moving texels, each its own, where a tile's hemicube would give them
@@ -766,7 +766,13 @@ pub fn element_direct_light(
             let (x, n) = sample_point(scene, &caster, atlas, poses, i);
             let e = emitters.irradiance(&caster, atlas, x, n, grid, |j| atlas.elements[j].emission);
             if lit {
-                e + crate::lights::direct_at(scene, &caster, (x, n), &sky)
+                e + crate::lights::element_direct_at(
+                    scene,
+                    &caster,
+                    (atlas, poses),
+                    (i, (x, n)),
+                    &sky,
+                )
             } else {
                 e
             }

@@ -38,11 +38,25 @@ pub fn irradiance_at(scene: &Scene, caster: &Raycaster, (x, n): (DVec3, DVec3)) 
 /// shadow ray from `x` reaches its light.
 fn lights_irradiance(
     scene: &Scene,
+    at: (DVec3, DVec3),
+    open: impl FnMut(DVec3, f64) -> bool,
+) -> Vec3 {
+    lights_seen(scene, at, open, &mut Vec::new())
+}
+
+/// [`lights_irradiance`], with how many of each light's shadow rays are
+/// open in `seen` (cleared first; 0 for a light that faces away): what a
+/// shadow edge changes.
+fn lights_seen(
+    scene: &Scene,
     (x, n): (DVec3, DVec3),
     mut open: impl FnMut(DVec3, f64) -> bool,
+    seen: &mut Vec<u32>,
 ) -> Vec3 {
+    seen.clear();
     let mut e = Vec3::ZERO;
     for light in &scene.lights {
+        seen.push(0);
         if let LightKind::Directional {
             direction,
             angular_radius,
@@ -54,11 +68,14 @@ fn lights_irradiance(
                 continue;
             }
             let directions = disc_directions(to_sun, f64::from(angular_radius));
-            let seen = directions
+            let count = directions
                 .iter()
                 .filter(|&&d| n.dot(d) > 0.0 && open(d, f64::INFINITY))
                 .count();
-            e += light.intensity * (cos * seen as f64 / directions.len() as f64) as f32;
+            if let Some(last) = seen.last_mut() {
+                *last = count as u32;
+            }
+            e += light.intensity * (cos * count as f64 / directions.len() as f64) as f32;
             continue;
         }
         let d = light.position.as_dvec3() - x;
@@ -71,49 +88,216 @@ fn lights_irradiance(
         if cos <= 0.0 || !open(dir, r * (1.0 - 1e-9)) {
             continue;
         }
+        if let Some(last) = seen.last_mut() {
+            *last = 1;
+        }
         let i = light.intensity_towards(-dir.as_vec3(), r as f32);
         e += i * (cos / (r * r)) as f32;
     }
     e
 }
 
-/// How the irradiance of the lights and the sky at `at` changes when the
-/// scene placed as `old` becomes the scene placed as `new`, where all
-/// that moved lies in `boxes` (world bounds, `(min, max)`, of the moved
-/// objects before and after): `D_new − D_old`. Only the shadow rays
-/// ([`irradiance_at`]'s, and [`sky_irradiance_at`]'s over `sky`) that
-/// pass through a box are cast again, against both; a point none of whose
-/// rays does gets exactly zero, so a far texel is not touched by a move.
+/// Sub-samples per side of a texel that a shadow edge crosses
+/// ([`texel_irradiance`]): 16 points.
+pub const EDGE_SIDE: usize = 4;
+
+/// The sub-sample points of element `i`'s texel: the centres of an
+/// [`EDGE_SIDE`]² grid of cells over its region (on a triangle's chart,
+/// those below the diagonal), placed by `poses` and lifted `lift` off the
+/// surface along `n`. Empty for a texel without a rectangular region in
+/// its patch (a mesh's own lightmap UVs, a texel above a triangle's
+/// diagonal).
+fn texel_points(
+    scene: &Scene,
+    atlas: &Atlas,
+    poses: &[Pose],
+    (i, n, lift): (usize, DVec3, f64),
+) -> Vec<DVec3> {
+    let e = &atlas.elements[i];
+    if !e.covers_surface() || atlas.lightmap_region(i).is_some() {
+        return Vec::new();
+    }
+    let patch = &scene.patches[e.patch as usize];
+    let placed = patch.shape.transformed(&poses[e.object as usize]);
+    let (o, u, v) = placed.frame();
+    let (o, u, v) = (o.as_dvec3(), u.as_dvec3(), v.as_dvec3());
+    let [s0, t0, s1, t1] = e.region.map(f64::from);
+    let side = EDGE_SIDE as f64;
+    let mut points = Vec::with_capacity(EDGE_SIDE * EDGE_SIDE);
+    for b in 0..EDGE_SIDE {
+        for a in 0..EDGE_SIDE {
+            let s = s0 + (s1 - s0) * (a as f64 + 0.5) / side;
+            let t = t0 + (t1 - t0) * (b as f64 + 0.5) / side;
+            if placed.is_triangle() && t > s {
+                continue;
+            }
+            points.push(o + u * s + v * t + n * lift);
+        }
+    }
+    points
+}
+
+/// The irradiance the point, spot and directional lights (not the sky)
+/// give element `i`, with `open(x, direction, distance)` saying whether
+/// a shadow ray from `x` reaches its light: at the element's sample `at`
+/// where the four corner sub-samples of its texel ([`texel_points`]) see
+/// the same shadow rays open as the sample does (no shadow edge crosses
+/// the texel), and otherwise the mean over all its sub-samples, the
+/// texel's area average (Coombe §39.3 refines where the light changes;
+/// Wallner's shadow-boundary test, here as "do the corners see the light
+/// alike"). A texel half in a hard shadow holds half the light instead of
+/// all or nothing, so the edge reads as a ramp a texel wide rather than a
+/// staircase.
+fn texel_lights(
+    scene: &Scene,
+    (atlas, poses): (&Atlas, &[Pose]),
+    (i, at, lift): (usize, (DVec3, DVec3), f64),
+    (open, caster): (impl Fn(DVec3, DVec3, f64) -> bool, &Raycaster),
+) -> Vec3 {
+    let (x, n) = at;
+    let mut seen = Vec::new();
+    let centre = lights_seen(scene, at, |d, max| open(x, d, max), &mut seen);
+    let points = texel_points(scene, atlas, poses, (i, n, lift));
+    if points.len() < 4 {
+        return centre;
+    }
+    let corners = [0, EDGE_SIDE - 1, points.len() - EDGE_SIDE, points.len() - 1];
+    let mut probe = Vec::new();
+    let edge = corners.iter().any(|&c| {
+        let p = points[c];
+        lights_seen(scene, (p, n), |d, max| open(p, d, max), &mut probe);
+        probe != seen
+    });
+    if !edge {
+        return centre;
+    }
+    // Sub-samples inside geometry (under a block resting on the floor:
+    // straight up they meet a face from behind) are no surface anyone
+    // sees; the texel's average is over the rest (the invalid-texel rule,
+    // `crate::validity`, within a texel).
+    let (sum, count) = points
+        .iter()
+        .filter(|&&p| {
+            caster
+                .closest_hit(p, n, f64::INFINITY)
+                .is_none_or(|hit| hit.front)
+        })
+        .fold((Vec3::ZERO, 0usize), |(sum, count), &p| {
+            (
+                sum + lights_irradiance(scene, (p, n), |d, max| open(p, d, max)),
+                count + 1,
+            )
+        });
+    if count == 0 {
+        return centre;
+    }
+    sum / count as f32
+}
+
+/// [`texel_lights`] against `caster`: the point, spot and directional
+/// lights' irradiance of element `i` whose sample point is `at` (off its
+/// surface, `crate::direct::sample_point`), its texel's area average
+/// where a shadow edge crosses it.
+pub fn texel_irradiance(
+    scene: &Scene,
+    caster: &Raycaster,
+    (atlas, poses): (&Atlas, &[Pose]),
+    i: usize,
+    at: (DVec3, DVec3),
+) -> Vec3 {
+    if scene.lights.is_empty() {
+        return Vec3::ZERO;
+    }
+    texel_lights(
+        scene,
+        (atlas, poses),
+        (i, at, lift(caster)),
+        (|x, d, max| !caster.occluded(x, d, max), caster),
+    )
+}
+
+/// How far sub-samples are lifted off their surface: as the sample point
+/// is (`crate::direct::sample_point`).
+fn lift(caster: &Raycaster) -> f64 {
+    1e-5 * caster.extent()
+}
+
+/// Element `i`'s direct irradiance from the lights ([`texel_irradiance`])
+/// and the sky ([`sky_irradiance_at`] at its sample point `at`).
+pub fn element_direct_at(
+    scene: &Scene,
+    caster: &Raycaster,
+    (atlas, poses): (&Atlas, &[Pose]),
+    (i, at): (usize, (DVec3, DVec3)),
+    sky: &CosineGrid,
+) -> Vec3 {
+    texel_irradiance(scene, caster, (atlas, poses), i, at)
+        + sky_irradiance_at(scene, caster, at, sky)
+}
+
+/// How element `i`'s direct irradiance from the lights and the sky
+/// ([`element_direct_at`], its sample point `at`) changes when the scene
+/// placed as `old` becomes the scene placed as `new` (at `poses`, which
+/// place element `i` alike in both), where all that moved lies in `boxes`
+/// (world bounds, `(min, max)`, of the moved objects before and after):
+/// `D_new − D_old`. Only shadow rays that pass through a box are cast
+/// again, against both; an element none of whose rays (from its sample or
+/// any sub-sample of its texel) does gets exactly zero, so a far texel is
+/// not touched by a move.
 pub fn irradiance_change(
     scene: &Scene,
     (old, new): (&Raycaster, &Raycaster),
-    (x, n): (DVec3, DVec3),
-    boxes: &[(DVec3, DVec3)],
-    sky: &CosineGrid,
+    (atlas, poses): (&Atlas, &[Pose]),
+    (i, at): (usize, (DVec3, DVec3)),
+    (boxes, sky): (&[(DVec3, DVec3)], &CosineGrid),
 ) -> Vec3 {
-    let crosses = |d: DVec3, max: f64| boxes.iter().any(|b| ray_meets_box(x, d, max, b));
+    let (x, n) = at;
+    let crosses = |p: DVec3, d: DVec3, max: f64| boxes.iter().any(|b| ray_meets_box(p, d, max, b));
     let mut change = Vec3::ZERO;
     if !scene.lights.is_empty() {
-        let mut met = false;
-        let before = lights_irradiance(scene, (x, n), |d, max| {
-            if crosses(d, max) {
-                met = true;
-                !old.occluded(x, d, max)
-            } else {
+        let lift = lift(new);
+        let mut points = texel_points(scene, atlas, poses, (i, n, lift));
+        points.push(x);
+        let met = points.iter().any(|&p| {
+            let mut any = false;
+            lights_irradiance(scene, (p, n), |d, max| {
+                any |= crosses(p, d, max);
                 true
-            }
+            });
+            any
         });
         if met {
-            let after = lights_irradiance(scene, (x, n), |d, max| {
-                !crosses(d, max) || !new.occluded(x, d, max)
-            });
+            // A ray through no box meets the same in both: cast it
+            // against `new` for both, so that each side is the element's
+            // whole direct light, sub-samples chosen as they would be.
+            let before = texel_lights(
+                scene,
+                (atlas, poses),
+                (i, at, lift),
+                (
+                    |p, d, max| {
+                        if crosses(p, d, max) {
+                            !old.occluded(p, d, max)
+                        } else {
+                            !new.occluded(p, d, max)
+                        }
+                    },
+                    old,
+                ),
+            );
+            let after = texel_lights(
+                scene,
+                (atlas, poses),
+                (i, at, lift),
+                (|p, d, max| !new.occluded(p, d, max), new),
+            );
             change += after - before;
         }
     }
     if let Some(lit) = &scene.sky {
         let mut sum = Vec3::ZERO;
         for d in sky.around(n) {
-            if !crosses(d, f64::INFINITY) {
+            if !crosses(x, d, f64::INFINITY) {
                 continue;
             }
             match (
@@ -194,15 +378,8 @@ pub fn sky_irradiance_at(
     sum * (std::f32::consts::PI / directions.len().max(1) as f32)
 }
 
-/// The irradiance the lights and the sky give `at` (a point off its
-/// surface and its unit normal): [`irradiance_at`] plus
-/// [`sky_irradiance_at`] over `sky`.
-pub fn direct_at(scene: &Scene, caster: &Raycaster, at: (DVec3, DVec3), sky: &CosineGrid) -> Vec3 {
-    irradiance_at(scene, caster, at) + sky_irradiance_at(scene, caster, at, sky)
-}
-
 /// The irradiance `D + D_sky` the lights and the sky give each of
-/// `elements` ([`direct_at`] at the element's sample point,
+/// `elements` ([`element_direct_at`] at the element's sample point,
 /// `crate::direct::sample_point`), against the scene at `poses` without
 /// the objects flagged in `absent`, in parallel; zeros for a scene without
 /// lights. The GPU solvers take `ρ` times it as reflected light the
@@ -224,7 +401,7 @@ pub fn element_irradiance(
         .par_iter()
         .map(|&i| {
             let at = crate::direct::sample_point(scene, &caster, atlas, poses, i);
-            direct_at(scene, &caster, at, &sky)
+            element_direct_at(scene, &caster, (atlas, poses), (i, at), &sky)
         })
         .collect()
 }

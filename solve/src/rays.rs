@@ -389,13 +389,14 @@ impl Casting {
     ) -> (Vec3, Row) {
         let caster = &self.caster;
         let (x, n) = sample_point(scene, caster, atlas, poses, i as usize);
-        let direct = self.emitters.irradiance_within(
-            caster,
-            atlas,
-            (x, n),
-            (self.grid, self.grid * self.grid),
-            |j| emission[j],
-        ) + crate::lights::irradiance_at(scene, caster, (x, n));
+        let direct =
+            self.emitters.irradiance_within(
+                caster,
+                atlas,
+                (x, n),
+                (self.grid, self.grid * self.grid),
+                |j| emission[j],
+            ) + crate::lights::texel_irradiance(scene, caster, (atlas, poses), i as usize, (x, n));
         let per_ray = 1.0 / self.directions.len().max(1) as f32;
         let mut hits: Vec<(u32, f32)> = Vec::with_capacity(self.directions.len() * 4);
         let mut sky = Vec3::ZERO;

@@ -299,10 +299,27 @@ impl PathTracer {
         spp: u32,
         seed: u64,
     ) -> Estimate {
+        let n = n.normalize_or_zero();
+        if !x.is_finite() {
+            return self.estimate_over(DVec3::ZERO, (albedo, emission), (spp, seed), |_| x);
+        }
+        let origin = x + n * SURFACE_OFFSET;
+        self.estimate_over(n, (albedo, emission), (spp, seed), |_| origin)
+    }
+
+    /// [`Self::estimate_point`] with each path leaving from its own point,
+    /// `origin(rng)` (already off the surface), all with unit normal `n`:
+    /// the mean of `B` over the points `origin` draws from.
+    fn estimate_over(
+        &self,
+        n: DVec3,
+        (albedo, emission): (Vec3, Vec3),
+        (spp, seed): (u32, u64),
+        mut origin: impl FnMut(&mut fastrand::Rng) -> DVec3,
+    ) -> Estimate {
         let spp = spp.max(2);
         let (rho, e) = (albedo.as_dvec3(), emission.as_dvec3());
-        let n = n.normalize_or_zero();
-        if n == DVec3::ZERO || !x.is_finite() {
+        if n == DVec3::ZERO {
             return Estimate {
                 mean: emission,
                 std_error: Vec3::ZERO,
@@ -310,10 +327,10 @@ impl PathTracer {
             };
         }
         let mut rng = fastrand::Rng::with_seed(splitmix64(seed));
-        let origin = x + n * SURFACE_OFFSET;
         let (mut sum, mut sum_sq, mut h_sum) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
         for _ in 0..spp {
-            let h = self.irradiance_sample(origin, n, &mut rng);
+            let at = origin(&mut rng);
+            let h = self.irradiance_sample(at, n, &mut rng);
             let b = e + rho * h;
             sum += b;
             sum_sq += b * b;
@@ -360,6 +377,69 @@ impl PathTracer {
                     spp,
                     point_seed(seed, i),
                 );
+                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                if d.is_multiple_of(step) || d == total {
+                    progress.points(d, total);
+                }
+                estimate
+            })
+            .collect()
+    }
+
+    /// Estimates every element of `atlas` over its texel: each of its
+    /// `spp` paths leaves from a point drawn uniformly from the region the
+    /// texel stands for on its patch (`Element::region`, on a triangle its
+    /// part below the diagonal), placed at the tracer's poses, so the
+    /// estimate is the texel's area average, which is what a lightmap texel
+    /// holds where the light changes within it (a shadow edge across it).
+    /// Seeded and indexed like [`Self::estimate_elements`]; a texel that
+    /// stands for no surface gets its emission.
+    pub fn estimate_texels(
+        &self,
+        atlas: &Atlas,
+        spp: u32,
+        progress: &dyn Progress,
+    ) -> Vec<Estimate> {
+        let total = atlas.elements.len();
+        let step = (total / 100).max(1);
+        let done = AtomicUsize::new(0);
+        atlas
+            .elements
+            .par_iter()
+            .enumerate()
+            .map(|(i, e)| {
+                let patch = self.rays.patches().get(e.patch as usize);
+                let estimate = match patch {
+                    Some(wp) if e.covers_surface() => {
+                        let [s0, t0, s1, t1] = e.region.map(f64::from);
+                        let triangle = wp.is_triangle();
+                        let centre = wp.centre();
+                        let n = wp.normal;
+                        self.estimate_over(
+                            n,
+                            (e.albedo, e.emission),
+                            (spp, point_seed(0, i)),
+                            |rng| {
+                                let (mut s, mut t) = (s0, t0);
+                                for _ in 0..64 {
+                                    s = s0 + (s1 - s0) * rng.f64();
+                                    t = t0 + (t1 - t0) * rng.f64();
+                                    if !triangle || t <= s {
+                                        break;
+                                    }
+                                }
+                                let sample = wp.at(s, t);
+                                let inward = (centre - sample).normalize_or_zero();
+                                sample + inward * SURFACE_OFFSET + n * SURFACE_OFFSET
+                            },
+                        )
+                    }
+                    _ => Estimate {
+                        mean: e.emission,
+                        std_error: Vec3::ZERO,
+                        irradiance: Vec3::ZERO,
+                    },
+                };
                 let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                 if d.is_multiple_of(step) || d == total {
                     progress.points(d, total);

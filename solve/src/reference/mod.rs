@@ -518,13 +518,18 @@ impl ReferenceSolver {
                             * caster.as_ref().map_or(DVec3::ZERO, |c| {
                                 let at = (x, wp.normal);
                                 dvec(
-                                    crate::lights::irradiance_at(scene, c, at)
-                                        + crate::lights::sky_irradiance_at(
-                                            scene,
-                                            c,
-                                            at,
-                                            &sky_directions,
-                                        ),
+                                    crate::lights::texel_irradiance(
+                                        scene,
+                                        c,
+                                        (atlas, poses),
+                                        i,
+                                        at,
+                                    ) + crate::lights::sky_irradiance_at(
+                                        scene,
+                                        c,
+                                        at,
+                                        &sky_directions,
+                                    ),
                                 )
                             }),
                 }

@@ -61,6 +61,7 @@ impl ProgressiveSolver {
                 .unwrap_or(false)
         };
         let reset_moving = mv.method == Redistribution::Incremental;
+        let placed = (&self.atlas, self.poses.as_slice());
         let delta: Vec<Vec3> = (0..self.element_count as usize)
             .into_par_iter()
             .map(|i| {
@@ -77,9 +78,11 @@ impl ProgressiveSolver {
                     // (Cross then zeroes the one and gathers the other
                     // anew, `regather.rs`.)
                     return if self.validity.is_invalid(i) {
-                        -e.albedo * crate::lights::direct_at(scene, &old, at, &sky)
+                        -e.albedo
+                            * crate::lights::element_direct_at(scene, &old, placed, (i, at), &sky)
                     } else {
-                        e.albedo * crate::lights::direct_at(scene, &new, at, &sky)
+                        e.albedo
+                            * crate::lights::element_direct_at(scene, &new, placed, (i, at), &sky)
                     };
                 }
                 if self.validity.is_invalid(i) {
@@ -87,9 +90,15 @@ impl ProgressiveSolver {
                 }
                 if !moving(i) {
                     e.albedo
-                        * crate::lights::irradiance_change(scene, (&old, &new), at, &boxes, &sky)
+                        * crate::lights::irradiance_change(
+                            scene,
+                            (&old, &new),
+                            placed,
+                            (i, at),
+                            (&boxes, &sky),
+                        )
                 } else if reset_moving && !self.absent[object] {
-                    e.albedo * crate::lights::direct_at(scene, &new, at, &sky)
+                    e.albedo * crate::lights::element_direct_at(scene, &new, placed, (i, at), &sky)
                 } else {
                     Vec3::ZERO
                 }
