@@ -22,7 +22,7 @@ use super::{
 };
 
 mod import;
-mod lights;
+pub(crate) mod lights;
 mod shape;
 
 /// Largest atlas edge a scene may ask for.
@@ -608,6 +608,8 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         0,
         options.charts,
     );
+    // A sky Lightwire's export kept in the asset's extras.
+    scene.sky = imported.sky.filter(|s| s.is_lit());
     if scene.patches.is_empty() {
         c.report(&loc, "has no triangles");
     } else if !scene
@@ -615,6 +617,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         .iter()
         .any(|p| scene.materials[p.material as usize].is_emitter())
         && !scene.lights.iter().any(|l| l.intensity.max_element() > 0.0)
+        && scene.sky.is_none()
     {
         c.report(
             &loc,

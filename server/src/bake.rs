@@ -379,7 +379,12 @@ pub fn write_outputs(
     write_exr(&dir.join("lightmap.exr"), atlas.width, atlas.height, &image)?;
     write_png(&dir.join("lightmap.png"), atlas.width, atlas.height, &image)?;
     write_json(&dir.join("stats.json"), stats)?;
-    let glb = scene_glb(&describe(scene, atlas, poses), &image, None)?;
+    let glb = scene_glb_lit(
+        &describe(scene, atlas, poses),
+        &image,
+        None,
+        (&scene.lights, scene.sky.as_ref()),
+    )?;
     let path = dir.join(SCENE_GLB);
     std::fs::write(&path, glb).with_context(|| format!("writing {}", path.display()))?;
     let mut atlas_json = atlas_file(scene, atlas, poses);
@@ -481,6 +486,21 @@ pub fn describe(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> SceneInfo {
 /// Everything in `info` is checked (a relay's comes from its upstream):
 /// indices, chart rectangles inside the atlas, finite corners and poses.
 pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Result<Vec<u8>> {
+    scene_glb_lit(info, rgb, version, (&[], None))
+}
+
+/// [`scene_glb`] with the scene's point, spot and directional lights as
+/// `KHR_lights_punctual` nodes after the objects' (683 lm/W, a sun's
+/// angular radius in the light's `extras`,
+/// `lightwire_scene::gltf::write::light_node`) and its sky in the asset's
+/// `extras` (`{"lightwire": {"sky": {"zenith", "horizon"}}}`), so that
+/// `lightwire bake --scene scene.glb` lights the same scene.
+pub fn scene_glb_lit(
+    info: &SceneInfo,
+    rgb: &[[f32; 3]],
+    version: Option<u64>,
+    (lights, sky): (&[lightwire_scene::Light], Option<&lightwire_scene::Sky>),
+) -> Result<Vec<u8>> {
     let (aw, ah) = (info.atlas_width, info.atlas_height);
     if aw == 0 || ah == 0 || rgb.len() as u64 != u64::from(aw) * u64::from(ah) {
         bail!("a lightmap of {} texels for a {aw}x{ah} atlas", rgb.len());
@@ -595,6 +615,9 @@ pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Re
         }
         nodes.push(node);
     }
+    for light in lights {
+        nodes.push(lightwire_scene::gltf::write::light_node(light));
+    }
     let doc = GlbScene {
         materials,
         images: Vec::new(),
@@ -616,6 +639,12 @@ pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Re
     });
     if let Some(v) = version {
         extras["version"] = v.into();
+    }
+    if let Some(sky) = sky {
+        extras["sky"] = serde_json::json!({
+            "zenith": sky.zenith.to_array(),
+            "horizon": sky.horizon.to_array(),
+        });
     }
     let lightmap = GlbLightmap {
         name: "lightmap".to_string(),

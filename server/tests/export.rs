@@ -29,7 +29,7 @@ use lightwire_scene::atlas::Atlas;
 use lightwire_scene::gltf::write::pack_glb;
 use lightwire_scene::gltf::{ImportOptions, ImportedScene, import_slice};
 use lightwire_scene::load::parse_scene;
-use lightwire_scene::{LoadOptions, Scene};
+use lightwire_scene::{LightKind, LoadOptions, Scene};
 use lightwire_server::bake::{self, describe, scene_glb};
 use lightwire_testkit::validator::khronos_validate;
 
@@ -519,4 +519,122 @@ fn a_mesh_baked_on_its_own_lightmap_uvs_exports_them() {
         "the floor's parallelogram, the wall's triangles"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 59: the exported `scene.glb` keeps the scene's lights as
+/// `KHR_lights_punctual` (683 lm/W, a directional light's angular radius
+/// in its `extras`) and its sky in the asset's `extras`, so that importing
+/// it again gives the same lights: every kind, position, direction,
+/// intensity per channel, range and cone within 1e-5 (relative), the sky
+/// the same; the Khronos validator accepts the file.
+#[test]
+fn the_exported_scene_keeps_its_lights_and_sky() {
+    let lit = ROOM.replacen(
+        r#""surfaces": ["#,
+        r#""lights": [
+    { "name": "bulb", "type": "point", "position": [0.4, 0.9, 1.1], "color": [1, 0.8, 0.6], "intensity": 5, "range": 6 },
+    { "name": "spot", "type": "spot", "position": [1, 0.95, 1], "direction": [0.2, -1, 0.1], "intensity": 12,
+      "inner_cone_deg": 20, "outer_cone_deg": 35 },
+    { "name": "sun", "type": "directional", "direction": [0.3, -0.8, -0.5], "color": [1, 0.95, 0.85], "intensity": 700,
+      "angular_diameter_deg": 0.53 }
+  ],
+  "sky": { "zenith": [2, 3, 5], "horizon": [4, 4, 4.5] },
+  "surfaces": ["#,
+        1,
+    );
+    assert!(lit.contains("\"bulb\""), "the lights went in");
+    let (scene, atlas) =
+        parse_scene(&lit, "lit-room.json", LoadOptions::unpaired(1.0)).expect("the lit room loads");
+    assert_eq!(scene.lights.len(), 3);
+    let glb = bake::scene_glb_lit(
+        &describe(&scene, &atlas, &scene.initial_poses()),
+        &gradient(&atlas),
+        None,
+        (&scene.lights, scene.sky.as_ref()),
+    )
+    .expect("scene.glb");
+    let imported = reimport(&glb);
+    assert_eq!(
+        imported.lights.len(),
+        scene.lights.len(),
+        "{:?}",
+        imported.lights
+    );
+    let close = |a: Vec3, b: Vec3| (a - b).length() <= 1e-5 * b.length().max(1.0);
+    for (want, got) in scene.lights.iter().zip(&imported.lights) {
+        assert_eq!(got.name, want.name);
+        assert!(
+            close(got.intensity, want.intensity),
+            "{}: {} vs {}",
+            want.name,
+            got.intensity,
+            want.intensity
+        );
+        assert!(
+            close(got.position, want.position),
+            "{}: {} vs {}",
+            want.name,
+            got.position,
+            want.position
+        );
+        assert_eq!(got.range, want.range, "{}", want.name);
+        match (got.kind, want.kind) {
+            (LightKind::Point, LightKind::Point) => {}
+            (
+                LightKind::Spot {
+                    direction: d,
+                    inner: i,
+                    outer: o,
+                },
+                LightKind::Spot {
+                    direction,
+                    inner,
+                    outer,
+                },
+            ) => {
+                assert!(close(d, direction), "spot direction {d} vs {direction}");
+                assert!(
+                    (i - inner).abs() < 1e-6 && (o - outer).abs() < 1e-6,
+                    "cones {i} {o} vs {inner} {outer}"
+                );
+            }
+            (
+                LightKind::Directional {
+                    direction: d,
+                    angular_radius: r,
+                },
+                LightKind::Directional {
+                    direction,
+                    angular_radius,
+                },
+            ) => {
+                assert!(close(d, direction), "sun direction {d} vs {direction}");
+                assert!(
+                    (r - angular_radius).abs() < 1e-7,
+                    "angular radius {r} vs {angular_radius}"
+                );
+            }
+            (got, want) => panic!("{}: {got:?} where {want:?} was exported", want_name(want)),
+        }
+    }
+    let sky = imported.sky.expect("the sky comes back");
+    let want = scene.sky.expect("the room has a sky");
+    assert!(
+        close(sky.zenith, want.zenith) && close(sky.horizon, want.horizon),
+        "{sky:?} vs {want:?}"
+    );
+
+    let dir = temp_dir("lights");
+    let path = dir.join(bake::SCENE_GLB);
+    std::fs::write(&path, &glb).expect("written");
+    let (ok, text) = khronos_validate(&[&path]);
+    assert!(ok && text.contains(" errors 0 "), "{text}");
+}
+
+fn want_name(kind: LightKind) -> &'static str {
+    match kind {
+        LightKind::Point => "point",
+        LightKind::Spot { .. } => "spot",
+        LightKind::Directional { .. } => "directional",
+    }
 }

@@ -158,6 +158,8 @@ pub struct ImportedScene {
     /// The nodes' `KHR_lights_punctual` lights, in world space and
     /// radiometric units, named after their nodes.
     pub lights: Vec<crate::Light>,
+    /// The sky a file Lightwire exported keeps in its asset's `extras`.
+    pub sky: Option<crate::Sky>,
     /// What the import dropped or changed and went on (zero-area and
     /// duplicate triangles, clamped albedos): one entry per kind, counts per
     /// primitive. Loading succeeds with these; `lightwire validate` prints
@@ -340,12 +342,37 @@ pub fn import_slice(
     };
     importer.load_buffers(&gltf, base);
     let mut scene = importer.convert(&gltf.document);
+    scene.sky = asset_sky(&gltf.document);
     scene.warnings = importer.take_warnings();
     if importer.issues.is_empty() {
         Ok(scene)
     } else {
         Err(invalid(importer.issues))
     }
+}
+
+/// The sky a file Lightwire exported keeps in its asset's `extras`
+/// (`{"lightwire": {"sky": {"zenith": [r, g, b], "horizon": [r, g, b]}}}`,
+/// W/(m² sr)); glTF has no sky of its own. None without one, or where the
+/// numbers are not finite and >= 0.
+fn asset_sky(document: &::gltf::Document) -> Option<crate::Sky> {
+    let raw = document.as_json().asset.extras.as_ref()?;
+    let value: serde_json::Value = serde_json::from_str(raw.get()).ok()?;
+    let sky = &value["lightwire"]["sky"];
+    let rgb = |key: &str| -> Option<Vec3> {
+        let a = sky[key].as_array()?;
+        let v: Vec<f32> = a
+            .iter()
+            .filter_map(|x| x.as_f64().map(|x| x as f32))
+            .collect();
+        (v.len() == 3 && v.iter().all(|x| x.is_finite() && *x >= 0.0))
+            .then(|| Vec3::new(v[0], v[1], v[2]))
+    };
+    let zenith = rgb("zenith")?;
+    Some(crate::Sky {
+        zenith,
+        horizon: rgb("horizon").unwrap_or(zenith),
+    })
 }
 
 /// A primitive's data in mesh space, read and checked once however many
@@ -433,6 +460,7 @@ impl Gathered {
             objects,
             instances,
             lights,
+            sky: None,
             warnings: Vec::new(),
         }
     }
@@ -519,6 +547,7 @@ impl Importer<'_> {
                 objects: Vec::new(),
                 instances: Vec::new(),
                 lights: Vec::new(),
+                sky: None,
                 warnings: Vec::new(),
             };
         };
@@ -689,7 +718,19 @@ impl Importer<'_> {
             Kind::Point => crate::LightKind::Point,
             Kind::Directional => crate::LightKind::Directional {
                 direction,
-                angular_radius: 0.0,
+                // glTF has no field for it; Lightwire's export keeps it
+                // in the light's extras (`write::light_node`).
+                angular_radius: light
+                    .extras()
+                    .as_ref()
+                    .and_then(|raw| serde_json::from_str::<serde_json::Value>(raw.get()).ok())
+                    .and_then(|v| v["lightwire"]["angular_radius"].as_f64())
+                    .map_or(0.0, |r| {
+                        (r as f32).clamp(
+                            0.0,
+                            (crate::validate::lights::MAX_ANGULAR_DIAMETER_DEG / 2.0).to_radians(),
+                        )
+                    }),
             },
             Kind::Spot {
                 inner_cone_angle,

@@ -105,6 +105,34 @@ pub struct GlbNode {
     pub children: Vec<usize>,
     /// Written as the node's `extras`, e.g. `{"lightwire": {"dynamic": true}}`.
     pub extras: Option<serde_json::Value>,
+    /// A `KHR_lights_punctual` light at the node (shining along its `-z`).
+    pub light: Option<GlbLight>,
+}
+
+/// A `KHR_lights_punctual` light, in glTF's photometric units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbLight {
+    pub name: String,
+    pub kind: GlbLightKind,
+    /// Linear RGB in [0, 1].
+    pub color: Vec3,
+    /// Candela (point, spot) or lux (directional).
+    pub intensity: f32,
+    pub range: Option<f32>,
+    /// Written as the light's `extras`.
+    pub extras: Option<serde_json::Value>,
+}
+
+/// What kind of `KHR_lights_punctual` light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GlbLightKind {
+    Point,
+    /// Cone angles in radians from the axis.
+    Spot {
+        inner: f32,
+        outer: f32,
+    },
+    Directional,
 }
 
 impl GlbNode {
@@ -118,6 +146,7 @@ impl GlbNode {
             scale: Vec3::ONE,
             children: Vec::new(),
             extras: None,
+            light: None,
         }
     }
 }
@@ -456,6 +485,98 @@ fn json_material(
     Ok((material, strength.is_some()))
 }
 
+/// A node holding `light` as `KHR_lights_punctual` has it, so that
+/// importing it again (`gltf::import`, at `light_scale` 1) gives the same
+/// light: radiometric intensity times 683 lm/W (candela, lux) split into a
+/// colour (the channels over the largest) and a scalar, the position as
+/// the node's translation, the direction as the rotation that takes `-z`
+/// to it; a directional light's angular radius, which glTF has no field
+/// for, in the light's `extras` as `{"lightwire": {"angular_radius": r}}`
+/// (radians).
+pub fn light_node(light: &crate::Light) -> GlbNode {
+    use crate::LightKind;
+    let peak = light.intensity.max_element();
+    let color = if peak > 0.0 {
+        light.intensity / peak
+    } else {
+        Vec3::ONE
+    };
+    let mut node = GlbNode::new(light.name.clone(), None);
+    let (kind, direction, extras) = match light.kind {
+        LightKind::Point => (GlbLightKind::Point, None, None),
+        LightKind::Spot {
+            direction,
+            inner,
+            outer,
+        } => (GlbLightKind::Spot { inner, outer }, Some(direction), None),
+        LightKind::Directional {
+            direction,
+            angular_radius,
+        } => (
+            GlbLightKind::Directional,
+            Some(direction),
+            (angular_radius > 0.0)
+                .then(|| serde_json::json!({ "lightwire": { "angular_radius": angular_radius } })),
+        ),
+    };
+    if !matches!(kind, GlbLightKind::Directional) {
+        node.translation = light.position;
+    }
+    if let Some(d) = direction {
+        node.rotation = Quat::from_rotation_arc(Vec3::NEG_Z, d.normalize_or(Vec3::NEG_Z));
+    }
+    node.light = Some(GlbLight {
+        name: light.name.clone(),
+        kind,
+        color,
+        intensity: peak.max(0.0) * super::LUMENS_PER_WATT,
+        range: light.range,
+        extras,
+    });
+    node
+}
+
+/// The `KHR_lights_punctual` extension's name.
+const LIGHTS_PUNCTUAL: &str = "KHR_lights_punctual";
+
+/// A light in `KHR_lights_punctual`'s terms.
+fn json_light(
+    light: &GlbLight,
+) -> Result<json::extensions::scene::khr_lights_punctual::Light, WriteError> {
+    use json::extensions::scene::khr_lights_punctual::{Light, Spot, Type};
+    if !(light.color.is_finite()
+        && light.intensity.is_finite()
+        && light.intensity >= 0.0
+        && light.range.is_none_or(|r| r.is_finite() && r > 0.0))
+    {
+        return Err(WriteError::Invalid(format!(
+            "light \"{}\": colour, intensity or range is not a finite number >= 0",
+            light.name
+        )));
+    }
+    let (type_, spot) = match light.kind {
+        GlbLightKind::Point => (Type::Point, None),
+        GlbLightKind::Directional => (Type::Directional, None),
+        GlbLightKind::Spot { inner, outer } => (
+            Type::Spot,
+            Some(Spot {
+                inner_cone_angle: inner,
+                outer_cone_angle: outer,
+            }),
+        ),
+    };
+    Ok(Light {
+        color: light.color.to_array(),
+        extensions: None,
+        extras: extras(&light.extras)?,
+        intensity: light.intensity,
+        name: Some(light.name.clone()),
+        range: light.range,
+        spot,
+        type_: json::validation::Checked::Valid(type_),
+    })
+}
+
 /// A node in glTF's terms: its transform's parts that are not the
 /// identity, its children when it has any, and its `extras`.
 fn json_node(node: &GlbNode) -> Result<json::Node, WriteError> {
@@ -590,8 +711,26 @@ impl GlbScene {
         for mesh in &self.meshes {
             b.mesh(mesh);
         }
+        let mut lights = Vec::new();
         for node in &self.nodes {
-            b.root.push(json_node(node)?);
+            let mut json = json_node(node)?;
+            if let Some(light) = &node.light {
+                json.extensions = Some(json::extensions::scene::Node {
+                    khr_lights_punctual: Some(
+                        json::extensions::scene::khr_lights_punctual::KhrLightsPunctual {
+                            light: json::Index::new(lights.len() as u32),
+                        },
+                    ),
+                });
+                lights.push(json_light(light)?);
+            }
+            b.root.push(json);
+        }
+        if !lights.is_empty() {
+            b.root.extensions_used.push(LIGHTS_PUNCTUAL.to_string());
+            b.root.extensions = Some(json::extensions::root::Root {
+                khr_lights_punctual: Some(json::extensions::root::KhrLightsPunctual { lights }),
+            });
         }
         b.finish(&self.roots, bin_uri)
     }
