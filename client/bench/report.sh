@@ -184,6 +184,16 @@ if wanted levels; then
     done
     step levels-eye-rays-garage env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/garage.json \
       --lightmap "$OUT/garage-rays/lightmap.exr" --points 2000 --spp 8192
+    # The levels under the lights a level brings (issue 59): zdm2 under a
+    # sun and a sky, pandora under point and spot lights.
+    for l in zdm2-sky pandora-lamps; do
+      step "levels-bake-rays-$l" env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \
+        --scene "scenes/levels/$l.json" --solver rays --tolerance 1e-3 --out "$OUT/$l-rays"
+    done
+    step levels-eye-rays-zdm2-sky env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/zdm2-sky.json \
+      --lightmap "$OUT/zdm2-sky-rays/lightmap.exr" --points 1000 --spp 16384
+    step levels-eye-rays-pandora-lamps env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
+      --scene scenes/levels/pandora-lamps.json --lightmap "$OUT/pandora-lamps-rays/lightmap.exr" --points 1000 --spp 8192
     # Twice the texel density: what the representation of the light, not
     # the solver, still costs where a player looks.
     step levels-bake-rays-garage-x2 env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \

@@ -154,6 +154,55 @@ fn the_level_scene_files_load_lit_with_a_dynamic_object() {
     }
 }
 
+/// Issue 59: the level files lit by the lights a level brings load with
+/// them and nothing emits: `zdm2-sky` under a sun with a disc and a sky,
+/// `pandora-lamps` under 30 spots and 26 point lights, its crate a
+/// dynamic object.
+#[test]
+fn the_levels_under_lights_load_with_them_and_no_emitter() {
+    use lightwire_scene::LightKind;
+    let dir = temp_dir("lit-levels");
+    for (name, spots, points, suns, sky) in [
+        ("zdm2-sky", 0, 0, 1, true),
+        ("pandora-lamps", 30, 26, 0, false),
+    ] {
+        let path = level_scene(name, &dir);
+        let (scene, atlas) =
+            load_scene(&path, LoadOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let count = |f: fn(&LightKind) -> bool| scene.lights.iter().filter(|l| f(&l.kind)).count();
+        assert_eq!(
+            count(|k| matches!(k, LightKind::Spot { .. })),
+            spots,
+            "{name}: spots"
+        );
+        assert_eq!(
+            count(|k| matches!(k, LightKind::Point)),
+            points,
+            "{name}: point lights"
+        );
+        assert_eq!(
+            count(
+                |k| matches!(k, LightKind::Directional { angular_radius, .. } if *angular_radius > 0.0)
+            ),
+            suns,
+            "{name}: suns with a disc"
+        );
+        assert_eq!(scene.sky.is_some(), sky, "{name}: sky");
+        assert!(
+            !scene
+                .patches
+                .iter()
+                .any(|p| scene.materials[p.material as usize].is_emitter()),
+            "{name}: lit by its lights alone"
+        );
+        assert!(
+            atlas.elements.len() > 200_000,
+            "{name}: {} elements",
+            atlas.elements.len()
+        );
+    }
+}
+
 /// Issue 58, item 2: the `uvunwrap` crate's charts (`--charts uvunwrap`)
 /// on every level: it loads, its generated UVs overlap nowhere, it cuts
 /// fewer charts than Lightwire's projection, and it unwraps the same way

@@ -85,13 +85,17 @@ fn lights_seen(
         }
         let dir = d / r;
         let cos = n.dot(dir);
-        if cos <= 0.0 || !open(dir, r * (1.0 - 1e-9)) {
+        if cos <= 0.0 {
+            continue;
+        }
+        // Outside a spot's cone or past the range: no shadow ray.
+        let i = light.intensity_towards(-dir.as_vec3(), r as f32);
+        if i == Vec3::ZERO || !open(dir, r * (1.0 - 1e-9)) {
             continue;
         }
         if let Some(last) = seen.last_mut() {
             *last = 1;
         }
-        let i = light.intensity_towards(-dir.as_vec3(), r as f32);
         e += i * (cos / (r * r)) as f32;
     }
     e

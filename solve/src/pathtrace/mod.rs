@@ -605,10 +605,15 @@ impl PathTracer {
             let r = r2.sqrt();
             let dir = d / r;
             let cos = n.dot(dir);
-            if cos <= 0.0 || self.rays.occluded(x, dir, r * (1.0 - 1e-9)) {
+            if cos <= 0.0 {
                 continue;
             }
-            e += light.intensity_towards(-dir.as_vec3(), r as f32).as_dvec3() * (cos / r2);
+            // Outside a spot's cone or past the range: no shadow ray.
+            let i = light.intensity_towards(-dir.as_vec3(), r as f32);
+            if i == Vec3::ZERO || self.rays.occluded(x, dir, r * (1.0 - 1e-9)) {
+                continue;
+            }
+            e += i.as_dvec3() * (cos / r2);
         }
         e
     }
