@@ -88,9 +88,17 @@ fn lights_seen(
         if cos <= 0.0 {
             continue;
         }
-        // Outside a spot's cone or past the range: no shadow ray.
+        // Outside a spot's cone or past the range: no shadow ray, and
+        // seen as open (the cone's and the range's falloff are smooth, no
+        // shadow edge).
         let i = light.intensity_towards(-dir.as_vec3(), r as f32);
-        if i == Vec3::ZERO || !open(dir, r * (1.0 - 1e-9)) {
+        if i == Vec3::ZERO {
+            if let Some(last) = seen.last_mut() {
+                *last = 1;
+            }
+            continue;
+        }
+        if !open(dir, r * (1.0 - 1e-9)) {
             continue;
         }
         if let Some(last) = seen.last_mut() {
@@ -102,49 +110,88 @@ fn lights_seen(
 }
 
 /// Sub-samples per side of a texel that a shadow edge crosses
-/// ([`texel_irradiance`]): 16 points.
-pub const EDGE_SIDE: usize = 4;
+/// ([`texel_irradiance`]): 64 points, so the share of the texel in light
+/// is resolved to 1/16 of its width across an edge (a 4 x 4 grid read a
+/// texel whose edge fell between its rows 20% too bright).
+pub const EDGE_SIDE: usize = 8;
 
-/// The sub-sample points of element `i`'s texel: the centres of an
-/// [`EDGE_SIDE`]² grid of cells over its region (on a triangle's chart,
-/// those below the diagonal), placed by `poses` and lifted `lift` off the
-/// surface along `n`. Empty for a texel without a rectangular region in
-/// its patch (a mesh's own lightmap UVs, a texel above a triangle's
-/// diagonal).
-fn texel_points(
-    scene: &Scene,
-    atlas: &Atlas,
-    poses: &[Pose],
-    (i, n, lift): (usize, DVec3, f64),
-) -> Vec<DVec3> {
-    let e = &atlas.elements[i];
-    if !e.covers_surface() || atlas.lightmap_region(i).is_some() {
-        return Vec::new();
-    }
-    let patch = &scene.patches[e.patch as usize];
-    let placed = patch.shape.transformed(&poses[e.object as usize]);
-    let (o, u, v) = placed.frame();
-    let (o, u, v) = (o.as_dvec3(), u.as_dvec3(), v.as_dvec3());
-    let [s0, t0, s1, t1] = e.region.map(f64::from);
-    let side = EDGE_SIDE as f64;
-    let mut points = Vec::with_capacity(EDGE_SIDE * EDGE_SIDE);
-    for b in 0..EDGE_SIDE {
-        for a in 0..EDGE_SIDE {
-            let s = s0 + (s1 - s0) * (a as f64 + 0.5) / side;
-            let t = t0 + (t1 - t0) * (b as f64 + 0.5) / side;
-            if placed.is_triangle() && t > s {
-                continue;
-            }
-            points.push(o + u * s + v * t + n * lift);
+/// Element `i`'s texel on its placed patch: its region's frame and bounds,
+/// for sub-samples lifted `lift` off the surface along `n`.
+struct Texel {
+    origin: DVec3,
+    u: DVec3,
+    v: DVec3,
+    /// `[s0, t0, s1, t1]` in patch parameters.
+    region: [f64; 4],
+    triangle: bool,
+    offset: DVec3,
+}
+
+impl Texel {
+    /// None for a texel without a rectangular region in its patch (a
+    /// mesh's own lightmap UVs, a texel above a triangle's diagonal).
+    fn of(
+        scene: &Scene,
+        atlas: &Atlas,
+        poses: &[Pose],
+        (i, n, lift): (usize, DVec3, f64),
+    ) -> Option<Self> {
+        let e = &atlas.elements[i];
+        if !e.covers_surface() || atlas.lightmap_region(i).is_some() {
+            return None;
         }
+        let placed = scene.patches[e.patch as usize]
+            .shape
+            .transformed(&poses[e.object as usize]);
+        let (o, u, v) = placed.frame();
+        Some(Self {
+            origin: o.as_dvec3(),
+            u: u.as_dvec3(),
+            v: v.as_dvec3(),
+            region: e.region.map(f64::from),
+            triangle: placed.is_triangle(),
+            offset: n * lift,
+        })
     }
-    points
+
+    /// The centre of cell `(a, b)` of the [`EDGE_SIDE`]² grid over the
+    /// region, lifted; none above a triangle's diagonal.
+    fn cell(&self, a: usize, b: usize) -> Option<DVec3> {
+        let [s0, t0, s1, t1] = self.region;
+        let side = EDGE_SIDE as f64;
+        let s = s0 + (s1 - s0) * (a as f64 + 0.5) / side;
+        let t = t0 + (t1 - t0) * (b as f64 + 0.5) / side;
+        (!self.triangle || t <= s).then(|| self.origin + self.u * s + self.v * t + self.offset)
+    }
+
+    /// The four corner cells (those on the surface).
+    fn corners(&self) -> impl Iterator<Item = DVec3> + '_ {
+        let last = EDGE_SIDE - 1;
+        [(0, 0), (last, 0), (0, last), (last, last)]
+            .into_iter()
+            .filter_map(|(a, b)| self.cell(a, b))
+    }
+
+    /// Every cell (those on the surface).
+    fn cells(&self) -> impl Iterator<Item = DVec3> + '_ {
+        (0..EDGE_SIDE).flat_map(move |b| (0..EDGE_SIDE).filter_map(move |a| self.cell(a, b)))
+    }
+
+    /// How far from `x` any point of the region lies, lift included.
+    fn reach(&self, x: DVec3) -> f64 {
+        let [s0, t0, s1, t1] = self.region;
+        [(s0, t0), (s1, t0), (s0, t1), (s1, t1)]
+            .iter()
+            .map(|&(s, t)| (self.origin + self.u * s + self.v * t).distance(x))
+            .fold(0.0, f64::max)
+            + self.offset.length()
+    }
 }
 
 /// The irradiance the point, spot and directional lights (not the sky)
 /// give element `i`, with `open(x, direction, distance)` saying whether
 /// a shadow ray from `x` reaches its light: at the element's sample `at`
-/// where the four corner sub-samples of its texel ([`texel_points`]) see
+/// where the four corner sub-samples of its texel ([`EDGE_SIDE`]² cells) see
 /// the same shadow rays open as the sample does (no shadow edge crosses
 /// the texel), and otherwise the mean over all its sub-samples, the
 /// texel's area average (Coombe §39.3 refines where the light changes;
@@ -161,14 +208,11 @@ fn texel_lights(
     let (x, n) = at;
     let mut seen = Vec::new();
     let centre = lights_seen(scene, at, |d, max| open(x, d, max), &mut seen);
-    let points = texel_points(scene, atlas, poses, (i, n, lift));
-    if points.len() < 4 {
+    let Some(texel) = Texel::of(scene, atlas, poses, (i, n, lift)) else {
         return centre;
-    }
-    let corners = [0, EDGE_SIDE - 1, points.len() - EDGE_SIDE, points.len() - 1];
+    };
     let mut probe = Vec::new();
-    let edge = corners.iter().any(|&c| {
-        let p = points[c];
+    let edge = texel.corners().any(|p| {
         lights_seen(scene, (p, n), |d, max| open(p, d, max), &mut probe);
         probe != seen
     });
@@ -179,14 +223,14 @@ fn texel_lights(
     // straight up they meet a face from behind) are no surface anyone
     // sees; the texel's average is over the rest (the invalid-texel rule,
     // `crate::validity`, within a texel).
-    let (sum, count) = points
-        .iter()
-        .filter(|&&p| {
+    let (sum, count) = texel
+        .cells()
+        .filter(|&p| {
             caster
                 .closest_hit(p, n, f64::INFINITY)
                 .is_none_or(|hit| hit.front)
         })
-        .fold((Vec3::ZERO, 0usize), |(sum, count), &p| {
+        .fold((Vec3::ZERO, 0usize), |(sum, count), p| {
             (
                 sum + lights_irradiance(scene, (p, n), |d, max| open(p, d, max)),
                 count + 1,
@@ -200,7 +244,7 @@ fn texel_lights(
 
 /// [`texel_lights`] against `caster`: the point, spot and directional
 /// lights' irradiance of element `i` whose sample point is `at` (off its
-/// surface, `crate::direct::sample_point`), its texel's area average
+/// surface, `crate::raycast::sample_point`), its texel's area average
 /// where a shadow edge crosses it.
 pub fn texel_irradiance(
     scene: &Scene,
@@ -221,7 +265,7 @@ pub fn texel_irradiance(
 }
 
 /// How far sub-samples are lifted off their surface: as the sample point
-/// is (`crate::direct::sample_point`).
+/// is (`crate::raycast::sample_point`).
 fn lift(caster: &Raycaster) -> f64 {
     1e-5 * caster.extent()
 }
@@ -244,10 +288,10 @@ pub fn element_direct_at(
 /// placed as `old` becomes the scene placed as `new` (at `poses`, which
 /// place element `i` alike in both), where all that moved lies in `boxes`
 /// (world bounds, `(min, max)`, of the moved objects before and after):
-/// `D_new − D_old`. Only shadow rays that pass through a box are cast
-/// again, against both; an element none of whose rays (from its sample or
-/// any sub-sample of its texel) does gets exactly zero, so a far texel is
-/// not touched by a move.
+/// `D_new − D_old`. Only elements whose shadow rays (from the sample or
+/// any point of its texel) may pass through a box cast again, against
+/// both; any other gets exactly zero, so a far texel is not touched by a
+/// move.
 pub fn irradiance_change(
     scene: &Scene,
     (old, new): (&Raycaster, &Raycaster),
@@ -260,15 +304,28 @@ pub fn irradiance_change(
     let mut change = Vec3::ZERO;
     if !scene.lights.is_empty() {
         let lift = lift(new);
-        let mut points = texel_points(scene, atlas, poses, (i, n, lift));
-        points.push(x);
-        let met = points.iter().any(|&p| {
-            let mut any = false;
-            lights_irradiance(scene, (p, n), |d, max| {
-                any |= crosses(p, d, max);
-                true
-            });
-            any
+        // One test per light from the sample against the boxes grown by
+        // the texel's reach: every sub-sample's shadow ray to a light
+        // stays within that reach of the sample's (a point light's
+        // segments share their end; a sun's rays are parallel), so a miss
+        // here is a miss for all of them.
+        let reach = Texel::of(scene, atlas, poses, (i, n, lift)).map_or(lift, |t| t.reach(x));
+        let grown: Vec<(DVec3, DVec3)> = boxes
+            .iter()
+            .map(|(lo, hi)| (*lo - reach, *hi + reach))
+            .collect();
+        let met = scene.lights.iter().any(|light| match light.kind {
+            LightKind::Directional {
+                direction,
+                angular_radius,
+            } => disc_directions(-direction.as_dvec3(), f64::from(angular_radius))
+                .iter()
+                .any(|&d| grown.iter().any(|b| ray_meets_box(x, d, f64::INFINITY, b))),
+            _ => {
+                let d = light.position.as_dvec3() - x;
+                let r = d.length();
+                r > 0.0 && grown.iter().any(|b| ray_meets_box(x, d / r, r + reach, b))
+            }
         });
         if met {
             // A ray through no box meets the same in both: cast it
@@ -384,7 +441,7 @@ pub fn sky_irradiance_at(
 
 /// The irradiance `D + D_sky` the lights and the sky give each of
 /// `elements` ([`element_direct_at`] at the element's sample point,
-/// `crate::direct::sample_point`), against the scene at `poses` without
+/// `crate::raycast::sample_point`), against the scene at `poses` without
 /// the objects flagged in `absent`, in parallel; zeros for a scene without
 /// lights. The GPU solvers take `ρ` times it as reflected light the
 /// elements start with (the progressive solver's radiosity and unshot
@@ -404,7 +461,7 @@ pub fn element_irradiance(
     elements
         .par_iter()
         .map(|&i| {
-            let at = crate::direct::sample_point(scene, &caster, atlas, poses, i);
+            let at = crate::raycast::sample_point(scene, &caster, atlas, poses, i);
             element_direct_at(scene, &caster, (atlas, poses), (i, at), &sky)
         })
         .collect()

@@ -29,6 +29,7 @@
 
 use glam::DVec3;
 
+use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{PatchShape, Pose, Scene};
 
 /// Most patches in one leaf of the hierarchy.
@@ -693,6 +694,36 @@ impl CosineGrid {
             .iter()
             .map(move |l| t1 * l.x + t2 * l.y + n * l.z)
     }
+}
+
+/// The sample point of element `i` placed by its object's pose, a hair
+/// above its surface (so that rays leave it) and as far towards its
+/// patch's centre, and its world normal. Edge samples lie on the patch's
+/// boundary; where another surface meets it there (a wall's bottom row on
+/// the floor's plane, a box's contact row), a ray leaving the point on
+/// that surface's plane would pass it and see nothing: the wall's bottom
+/// row read about half of what the solvers give it. Nudged inwards, the
+/// point sees the meeting surface from just beside it, the limit the
+/// texel stands for (the reference solver, the path tracer and
+/// `validity.rs` place their samples the same way).
+pub(crate) fn sample_point(
+    scene: &Scene,
+    caster: &Raycaster,
+    atlas: &Atlas,
+    poses: &[Pose],
+    i: usize,
+) -> (DVec3, DVec3) {
+    let e = &atlas.elements[i];
+    let pose = &poses[e.object as usize];
+    let n = pose.transform_normal(e.normal).as_dvec3();
+    let x = pose.transform_point(e.position).as_dvec3();
+    let centre = scene.patches[e.patch as usize]
+        .shape
+        .transformed(pose)
+        .centre()
+        .as_dvec3();
+    let inward = (centre - x).normalize_or_zero();
+    (x + (n + inward) * (1e-5 * caster.extent()), n)
 }
 
 #[cfg(test)]

@@ -45,7 +45,8 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::direct::{Emitters, Lookup, lookup_weights, sample_point};
+use crate::direct::{Emitters, Lookup, lookup_weights};
+use crate::raycast::sample_point;
 use crate::raycast::{CosineGrid, Raycaster};
 use crate::validity::Validity;
 use lightwire_scene::atlas::Atlas;

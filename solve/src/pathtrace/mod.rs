@@ -403,43 +403,10 @@ impl PathTracer {
         let total = atlas.elements.len();
         let step = (total / 100).max(1);
         let done = AtomicUsize::new(0);
-        atlas
-            .elements
-            .par_iter()
-            .enumerate()
-            .map(|(i, e)| {
-                let patch = self.rays.patches().get(e.patch as usize);
-                let estimate = match patch {
-                    Some(wp) if e.covers_surface() => {
-                        let [s0, t0, s1, t1] = e.region.map(f64::from);
-                        let triangle = wp.is_triangle();
-                        let centre = wp.centre();
-                        let n = wp.normal;
-                        self.estimate_over(
-                            n,
-                            (e.albedo, e.emission),
-                            (spp, point_seed(0, i)),
-                            |rng| {
-                                let (mut s, mut t) = (s0, t0);
-                                for _ in 0..64 {
-                                    s = s0 + (s1 - s0) * rng.f64();
-                                    t = t0 + (t1 - t0) * rng.f64();
-                                    if !triangle || t <= s {
-                                        break;
-                                    }
-                                }
-                                let sample = wp.at(s, t);
-                                let inward = (centre - sample).normalize_or_zero();
-                                sample + inward * SURFACE_OFFSET + n * SURFACE_OFFSET
-                            },
-                        )
-                    }
-                    _ => Estimate {
-                        mean: e.emission,
-                        std_error: Vec3::ZERO,
-                        irradiance: Vec3::ZERO,
-                    },
-                };
+        (0..total)
+            .into_par_iter()
+            .map(|i| {
+                let estimate = self.estimate_texel(atlas, i, spp);
                 let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                 if d.is_multiple_of(step) || d == total {
                     progress.points(d, total);
@@ -447,6 +414,37 @@ impl PathTracer {
                 estimate
             })
             .collect()
+    }
+
+    /// Element `i`'s [`Self::estimate_texels`] alone (the same numbers).
+    pub fn estimate_texel(&self, atlas: &Atlas, i: usize, spp: u32) -> Estimate {
+        let e = &atlas.elements[i];
+        match self.rays.patches().get(e.patch as usize) {
+            Some(wp) if e.covers_surface() => {
+                let [s0, t0, s1, t1] = e.region.map(f64::from);
+                let triangle = wp.is_triangle();
+                let centre = wp.centre();
+                let n = wp.normal;
+                self.estimate_over(n, (e.albedo, e.emission), (spp, point_seed(0, i)), |rng| {
+                    let (mut s, mut t) = (s0, t0);
+                    for _ in 0..64 {
+                        s = s0 + (s1 - s0) * rng.f64();
+                        t = t0 + (t1 - t0) * rng.f64();
+                        if !triangle || t <= s {
+                            break;
+                        }
+                    }
+                    let sample = wp.at(s, t);
+                    let inward = (centre - sample).normalize_or_zero();
+                    sample + inward * SURFACE_OFFSET + n * SURFACE_OFFSET
+                })
+            }
+            _ => Estimate {
+                mean: e.emission,
+                std_error: Vec3::ZERO,
+                irradiance: Vec3::ZERO,
+            },
+        }
     }
 
     /// Estimates every element of `atlas` (built from the scene this tracer

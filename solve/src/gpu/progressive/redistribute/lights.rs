@@ -70,7 +70,7 @@ impl ProgressiveSolver {
                     return Vec3::ZERO;
                 }
                 let object = self.element_objects[i] as usize;
-                let at = crate::direct::sample_point(scene, &new, &self.atlas, &self.poses, i);
+                let at = crate::raycast::sample_point(scene, &new, &self.atlas, &self.poses, i);
                 if mv.flipped.binary_search(&i).is_ok() && !moving(i) {
                     // An invalid texel holds none of the lights' light
                     // (the solver starts it dark): one M covers gives
