@@ -488,6 +488,32 @@ fn the_gpu_solvers_agree_with_the_reference_under_points_sun_and_sky() {
     }
 }
 
+/// A converged progressive solve from scratch of `scene` at `poses`.
+fn from_scratch(scene: &Scene, atlas: &Atlas, poses: &[lightwire_scene::Pose]) -> Vec<Vec3> {
+    let mut s = lightwire_solve::gpu::ProgressiveSolver::new(
+        common::gpu(),
+        scene,
+        atlas,
+        poses,
+        lightwire_solve::gpu::ProgressiveOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    s.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
+    s.radiosity().unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Steps a live session until nothing is running or waiting.
+fn settle(d: &mut lightwire_solve::gpu::DynamicSolver<[u64; 1]>) {
+    for _ in 0..100_000 {
+        if d.is_idle() {
+            return;
+        }
+        d.step(std::time::Duration::from_millis(20))
+            .unwrap_or_else(|e| panic!("{e}"));
+    }
+    panic!("the session never became idle");
+}
+
 /// A live session under a point light (issue 59): the box of cornell-point
 /// moved (turned 30° and shifted 1 m) casts its shadow at its new place
 /// and no longer at its old one. The lights' direct light a move changes
@@ -499,10 +525,7 @@ fn the_gpu_solvers_agree_with_the_reference_under_points_sun_and_sky() {
 #[test]
 fn a_box_moved_under_a_point_light_takes_its_shadow_along() {
     use lightwire_solve::accuracy::accuracy_where;
-    use lightwire_solve::gpu::{
-        DynamicOptions, DynamicSolver, ProgressiveOptions, ProgressiveSolver, Redistribution,
-    };
-    use std::time::Duration;
+    use lightwire_solve::gpu::{DynamicOptions, DynamicSolver, Redistribution};
 
     // The bulb low beside the left wall: the box's shadow falls across
     // the floor and up the right wall, beyond the texels next to the box
@@ -517,18 +540,7 @@ fn a_box_moved_under_a_point_light_takes_its_shadow_along() {
     let mut target = start.clone();
     target[o].rotation = glam::Quat::from_rotation_y(30f32.to_radians());
     target[o].translation += Vec3::new(0.3, 0.0, 1.4);
-    let fresh = |poses: &[lightwire_scene::Pose]| {
-        let mut s = ProgressiveSolver::new(
-            common::gpu(),
-            &scene,
-            &atlas,
-            poses,
-            ProgressiveOptions::default(),
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
-        s.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-        s.radiosity().unwrap_or_else(|e| panic!("{e}"))
-    };
+    let fresh = |poses: &[lightwire_scene::Pose]| from_scratch(&scene, &atlas, poses);
     let expected = fresh(&target);
     let validity = lightwire_solve::validity::Validity::compute(&scene, &atlas, &target);
     let floor = |i: usize| atlas.elements[i].patch == 0;
@@ -547,16 +559,6 @@ fn a_box_moved_under_a_point_light_takes_its_shadow_along() {
         };
         let mut d = DynamicSolver::new(common::gpu(), &scene, &atlas, &start, [0u64], options)
             .unwrap_or_else(|e| panic!("{e}"));
-        let settle = |d: &mut DynamicSolver<[u64; 1]>| {
-            for _ in 0..100_000 {
-                if d.is_idle() {
-                    return;
-                }
-                d.step(Duration::from_millis(20))
-                    .unwrap_or_else(|e| panic!("{e}"));
-            }
-            panic!("the session never became idle");
-        };
         settle(&mut d);
         let first = d.radiosity().unwrap_or_else(|e| panic!("{e}"));
         d.set_poses(&target, [1]);
@@ -712,10 +714,7 @@ fn a_texel_a_hard_shadow_edge_crosses_holds_its_area_average() {
 #[test]
 fn a_box_carried_into_the_sun_casts_its_shadow() {
     use lightwire_solve::accuracy::accuracy_where;
-    use lightwire_solve::gpu::{
-        DynamicOptions, DynamicSolver, ProgressiveOptions, ProgressiveSolver, Redistribution,
-    };
-    use std::time::Duration;
+    use lightwire_solve::gpu::{DynamicOptions, DynamicSolver, Redistribution};
 
     let text =
         std::fs::read_to_string(common::scene_path("window-sun.json")).expect("window-sun.json");
@@ -732,18 +731,7 @@ fn a_box_carried_into_the_sun_casts_its_shadow() {
     let o = scene.object_by_name("box").expect("a box") as usize;
     let mut target = start.clone();
     target[o].translation = Vec3::new(3.4, 0.4, 3.0);
-    let fresh = |poses: &[lightwire_scene::Pose]| {
-        let mut s = ProgressiveSolver::new(
-            common::gpu(),
-            &scene,
-            &atlas,
-            poses,
-            ProgressiveOptions::default(),
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
-        s.solve(1e-4).unwrap_or_else(|e| panic!("{e}"));
-        s.radiosity().unwrap_or_else(|e| panic!("{e}"))
-    };
+    let fresh = |poses: &[lightwire_scene::Pose]| from_scratch(&scene, &atlas, poses);
     let expected = fresh(&target);
     let validity = lightwire_solve::validity::Validity::compute(&scene, &atlas, &target);
     let keep = validity.keep();
@@ -765,16 +753,6 @@ fn a_box_carried_into_the_sun_casts_its_shadow() {
         };
         let mut d = DynamicSolver::new(common::gpu(), &scene, &atlas, &start, [0u64], options)
             .unwrap_or_else(|e| panic!("{e}"));
-        let settle = |d: &mut DynamicSolver<[u64; 1]>| {
-            for _ in 0..100_000 {
-                if d.is_idle() {
-                    return;
-                }
-                d.step(Duration::from_millis(20))
-                    .unwrap_or_else(|e| panic!("{e}"));
-            }
-            panic!("the session never became idle");
-        };
         settle(&mut d);
         d.set_poses(&target, [1]);
         settle(&mut d);
