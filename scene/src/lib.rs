@@ -31,6 +31,7 @@ pub mod file;
 pub mod gltf;
 pub mod light;
 pub mod load;
+pub mod near_lights;
 mod pairs;
 pub mod texture;
 pub mod unwrap;
@@ -177,6 +178,12 @@ pub struct UvMesh {
     /// although their faces meet at an angle (`atlas/stitch.rs`). Empty for
     /// a scene file's `mesh` (it has no normals).
     pub smooth_edges: Vec<[Vec3; 2]>,
+    /// The side of the square block generated UVs were packed for
+    /// (`unwrap::Unwrap::side`, texels; 0 for UVs an asset or a scene file
+    /// brought): the block is never smaller, so that charts laid out finer
+    /// than the mesh's density near a light (`near_lights.rs`) keep their
+    /// texels.
+    pub packed_side: f32,
 }
 
 /// A Lambertian material.

@@ -88,9 +88,22 @@ pub enum Unwrapper {
 /// side its corners run counter-clockwise around) at `density` texels per
 /// metre, with `unwrapper`.
 pub fn unwrap(triangles: &[[Vec3; 3]], density: f32, unwrapper: Unwrapper) -> Unwrap {
+    unwrap_graded(triangles, density, unwrapper, &[])
+}
+
+/// [`unwrap`] with a refinement level per triangle (`near_lights.rs`;
+/// empty: none): under the projection, a chart takes triangles of one
+/// level only and is laid out at `2^level × density`. The `uvunwrap`
+/// crate's charts ignore the levels.
+pub fn unwrap_graded(
+    triangles: &[[Vec3; 3]],
+    density: f32,
+    unwrapper: Unwrapper,
+    levels: &[u8],
+) -> Unwrap {
     match unwrapper {
         Unwrapper::Uvunwrap => lscm::unwrap(triangles, density),
-        Unwrapper::Projected => project(triangles, density),
+        Unwrapper::Projected => project_graded(triangles, density, levels),
     }
 }
 
@@ -99,7 +112,13 @@ pub fn unwrap(triangles: &[[Vec3; 3]], density: f32, unwrapper: Unwrapper) -> Un
 /// at `density` texels per metre by projecting near-planar charts (the
 /// module's three steps).
 pub fn project(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
+    project_graded(triangles, density, &[])
+}
+
+/// [`project`] with a refinement level per triangle ([`unwrap_graded`]).
+pub fn project_graded(triangles: &[[Vec3; 3]], density: f32, levels: &[u8]) -> Unwrap {
     let n = triangles.len();
+    let level = |t: usize| levels.get(t).copied().unwrap_or(0);
     let normals: Vec<Vec3> = triangles
         .iter()
         .map(|[a, b, c]| (*b - *a).cross(*c - *a).normalize_or_zero())
@@ -159,6 +178,7 @@ pub fn project(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
                 let m = m as usize;
                 if chart[m] == u32::MAX
                     && tried[m] != id
+                    && level(m) == level(seed as usize)
                     && normals[m].dot(normal) >= cos_max
                     && !normals[m].is_nan()
                 {
@@ -167,6 +187,7 @@ pub fn project(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
                 }
             }
         }
+        let density = density * f32::from(1u8 << level(seed as usize).min(7));
         charts.push(Chart::new(members, grid.flat, density));
         axes.push(normal);
     }

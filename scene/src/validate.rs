@@ -18,7 +18,7 @@ use super::file::{
 use super::gltf::ImportOptions;
 use super::{
     Charts, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, Pose, Scene,
-    SceneIssue, SolverHints, UvMesh,
+    SceneIssue, SolverHints, UvMesh, light::Light,
 };
 
 mod import;
@@ -163,9 +163,11 @@ pub fn validate(
     let solver = solver_hints(&mut c, &raw.solver, options.density_scale);
     let mut materials = check_materials(&mut c, &raw.materials);
     let mut objects = check_objects(&mut c, &raw.objects);
-    let (mut patches, mut uv_meshes) = check_surfaces(&mut c, &raw, options, texel_density);
-
     let mut lights = lights::check_lights(&mut c, &raw.lights);
+    let detail = check_light_detail(&mut c, &raw);
+    let (mut patches, mut uv_meshes) =
+        check_surfaces(&mut c, &raw, options, texel_density, (&lights, detail));
+
     // glTF imports: their materials, dynamic nodes and lights join the
     // scene's.
     let into = Parts {
@@ -175,7 +177,7 @@ pub fn validate(
         uv_meshes: &mut uv_meshes,
         lights: &mut lights,
     };
-    import::check_imports(&mut c, &raw, options, base, texel_density, into);
+    import::check_imports(&mut c, &raw, options, base, texel_density, detail, into);
 
     let sky = lights::check_sky(&mut c, raw.sky.as_ref());
     let lit =
@@ -301,6 +303,7 @@ fn check_surfaces(
     raw: &SceneFile,
     options: LoadOptions,
     texel_density: Option<f32>,
+    near: (&[Light], f32),
 ) -> (Vec<Patch>, Vec<UvMesh>) {
     c.unique("surface", raw.surfaces.iter().map(|s| s.name.as_str()));
     let mut patches = Vec::new();
@@ -328,6 +331,7 @@ fn check_surfaces(
                 shapes,
                 lightmap_uvs,
                 options.charts,
+                near,
                 &mut patches,
                 &mut uv_meshes,
             );
@@ -385,6 +389,7 @@ fn add_surface(
     shapes: Vec<(String, PatchShape)>,
     mut lightmap_uvs: Option<TriangleUvs>,
     charts: Charts,
+    (lights, detail): (&[Light], f32),
     patches: &mut Vec<Patch>,
     uv_meshes: &mut Vec<UvMesh>,
 ) {
@@ -400,11 +405,15 @@ fn add_surface(
             })
             .collect()
     };
-    let mut generated_charts = 0;
+    let (mut generated_charts, mut packed_side) = (0, 0.0);
     if generate {
         // In the patches' corner order, as given ones are.
-        let unwrap = super::unwrap::unwrap(&triangles(), s.density, charts.unwrapper());
+        let triangles = triangles();
+        let levels = super::near_lights::levels(&triangles, s.density, lights, detail);
+        let unwrap =
+            super::unwrap::unwrap_graded(&triangles, s.density, charts.unwrapper(), &levels);
         generated_charts = unwrap.charts;
+        packed_side = refined_side(&unwrap, &levels);
         lightmap_uvs = Some(unwrap.uvs);
     }
     let uv_mesh = lightmap_uvs.as_ref().map(|uvs| {
@@ -417,6 +426,7 @@ fn add_surface(
             generated: generate,
             charts: generated_charts,
             smooth_edges: Vec::new(),
+            packed_side,
         });
         (uv_meshes.len() - 1) as u32
     });
@@ -532,6 +542,37 @@ fn generates_uvs(charts: Charts, object: u32, has_own: bool) -> bool {
         }
 }
 
+/// The side generated UVs were packed for when some triangle was refined
+/// near a light, else 0 (the block then sized from the density alone, as
+/// before refinement existed: `uv::block_side`).
+pub(super) fn refined_side(unwrap: &super::unwrap::Unwrap, levels: &[u8]) -> f32 {
+    if levels.iter().any(|&l| l > 0) {
+        unwrap.side
+    } else {
+        0.0
+    }
+}
+
+/// The scene file's `lightmap.light_detail` (texels across the distance to
+/// a point or spot light, `near_lights.rs`); 0 (none) after reporting a
+/// value that is not valid.
+fn check_light_detail(c: &mut Checker, raw: &SceneFile) -> f32 {
+    let Some(d) = c.finite("lightmap", "light_detail", raw.lightmap.light_detail) else {
+        return 0.0;
+    };
+    if !(0.0..=MAX_LIGHT_DETAIL).contains(&d) {
+        c.report(
+            "lightmap",
+            format!("light_detail = {d} must be between 0 (off) and {MAX_LIGHT_DETAIL} texels"),
+        );
+        return 0.0;
+    }
+    d
+}
+
+/// The largest `lightmap.light_detail` accepted.
+const MAX_LIGHT_DETAIL: f32 = 64.0;
+
 /// Texels on the surface a glTF opened on its own gets by default
 /// ([`scene_from_gltf`]): enough to show soft shadows on a room, few enough
 /// to solve in seconds on a software GPU.
@@ -604,7 +645,7 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         &loc,
         &imported,
         &mut into,
-        density,
+        (density, crate::near_lights::DEFAULT_DETAIL),
         0,
         options.charts,
     );

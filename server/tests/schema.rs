@@ -58,6 +58,7 @@ fn fixtures_with_shape_errors_fail_the_schema() {
         "bad-scale.json",
         "bad-texel-density.json",
         "bad-max-atlas-size.json",
+        "bad-light-detail.json",
         "bad-solver-settings.json",
         "non-finite-number.json",
         "mesh-non-finite.json",

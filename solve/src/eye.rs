@@ -212,6 +212,12 @@ pub struct EyeReport {
     /// estimate's standard error (what the NRMSE of a perfect lightmap
     /// would read).
     pub truth_noise: f64,
+    /// The median and 95th percentile of the truth's relative standard
+    /// error `σ / |T|` over the points [`Self::median_rel`] counts: the
+    /// floor under the median and p95 (a dim point of a level lit through
+    /// many bounces is where paths are noisiest, and there a perfect
+    /// lightmap reads about as far off as the truth is unsure).
+    pub noise_rel: [f64; 2],
     /// The 5th and 95th percentiles of the NRMSE over [`BOOTSTRAP`]
     /// resamples of the points (drawn with replacement, seeded): how much
     /// the figure depends on which points were drawn. On a real level a
@@ -248,19 +254,27 @@ pub fn compare(values: &[Vec3], truth: &[Estimate]) -> EyeReport {
         .map(|t| f64::from(t.mean.length()))
         .sum::<f64>()
         / n as f64;
-    let mut rel: Vec<f64> = values
-        .iter()
-        .zip(truth)
-        .filter(|(_, t)| f64::from(t.mean.length()) > 0.01 * mean)
+    let counted = || {
+        values
+            .iter()
+            .zip(truth)
+            .filter(|(_, t)| f64::from(t.mean.length()) > 0.01 * mean)
+    };
+    let mut rel: Vec<f64> = counted()
         .map(|(v, t)| f64::from((*v - t.mean).length() / t.mean.length()))
         .collect();
     rel.sort_by(f64::total_cmp);
-    let quantile = |q: f64| -> f64 {
-        if rel.is_empty() {
+    let mut unsure: Vec<f64> = counted()
+        .map(|(_, t)| f64::from(t.std_error.length() / t.mean.length()))
+        .collect();
+    unsure.sort_by(f64::total_cmp);
+    let quantile_of = |v: &[f64], q: f64| -> f64 {
+        if v.is_empty() {
             return 0.0;
         }
-        rel[((rel.len() - 1) as f64 * q).round() as usize]
+        v[((v.len() - 1) as f64 * q).round() as usize]
     };
+    let quantile = |q: f64| quantile_of(&rel, q);
     let share = |limit: f64| -> f64 {
         if rel.is_empty() {
             return 0.0;
@@ -276,6 +290,7 @@ pub fn compare(values: &[Vec3], truth: &[Estimate]) -> EyeReport {
         over_10: share(0.10),
         over_25: share(0.25),
         truth_noise: (noise / norm).sqrt(),
+        noise_rel: [quantile_of(&unsure, 0.5), quantile_of(&unsure, 0.95)],
         nrmse_interval: bootstrap(&squares),
         worst_share: squares.iter().map(|s| s.0).fold(0.0, f64::max) / err.max(f64::MIN_POSITIVE),
     }
@@ -362,6 +377,20 @@ mod tests {
         assert_eq!(r.worst_share, 1.0, "{r:?}");
         assert_eq!(r.nrmse_interval[0], 0.0, "{r:?}");
         assert!(r.nrmse_interval[1] > r.nrmse, "{r:?}");
+        assert_eq!(r.noise_rel, [0.0, 0.0], "exact truth: no floor");
+        // Truths unsure by 1% to 100% of themselves: the floor's median
+        // and p95 are theirs.
+        let unsure: Vec<Estimate> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, t)| Estimate {
+                std_error: t.mean * ((i + 1) as f32 / 100.0),
+                ..*t
+            })
+            .collect();
+        let r = compare(&exact, &unsure);
+        assert!((r.noise_rel[0] - 0.50).abs() < 0.011, "{r:?}");
+        assert!((r.noise_rel[1] - 0.95).abs() < 0.011, "{r:?}");
     }
 
     #[test]

@@ -75,7 +75,9 @@ impl ChartMap {
 }
 
 /// The side of the square lightmap block that gives `mesh` about the texel
-/// density of its patches: `density × sqrt(surface area / UV area)`, rounded
+/// density of its patches: `density × sqrt(surface area / UV area)`, or the
+/// side its generated UVs were packed for if larger (charts refined near a
+/// light, `near_lights.rs`), rounded
 /// up to a multiple of 4, between 16 and [`MAX_SIDE`]. `lightwire bake`'s
 /// resampled lightmaps (`crate::uvmap`) take the same size.
 pub fn block_side(scene: &Scene, mesh: &UvMesh) -> u32 {
@@ -90,7 +92,7 @@ pub fn block_side(scene: &Scene, mesh: &UvMesh) -> u32 {
         .iter()
         .find(|p| p.object == mesh.object && p.surface_index == mesh.surface_index)
         .map_or(scene.texel_density, |p| p.texel_density);
-    let side = density * (area / uv_area.max(1e-12)).sqrt();
+    let side = (density * (area / uv_area.max(1e-12)).sqrt()).max(mesh.packed_side.ceil());
     let side = if side.is_finite() {
         side.ceil() as u32
     } else {

@@ -10,6 +10,7 @@ use glam::{Vec2, Vec3};
 use super::{Checker, Parts, generates_uvs};
 use crate::file::{ImportJson, SceneFile};
 use crate::gltf::{ImportOptions, ImportedScene, MaterialOverride, MeshInstance};
+use crate::light::Light;
 use crate::texture::{AlbedoMap, Texture};
 use crate::{Charts, LoadOptions, Material, Object, Patch, PatchLightmap, PatchShape, UvMesh};
 
@@ -22,6 +23,7 @@ pub(super) fn check_imports(
     options: LoadOptions,
     base: Option<&Path>,
     texel_density: Option<f32>,
+    detail: f32,
     mut into: Parts<'_>,
 ) {
     for (i, import) in raw.imports.iter().enumerate() {
@@ -66,7 +68,7 @@ pub(super) fn check_imports(
             &loc,
             &imported,
             &mut into,
-            density,
+            (density, detail),
             raw.surfaces.len() + i,
             options.charts,
         );
@@ -151,7 +153,7 @@ pub(super) fn merge_import(
     loc: &str,
     imported: &ImportedScene,
     into: &mut Parts<'_>,
-    density: f32,
+    (density, detail): (f32, f32),
     surface_index: usize,
     charts: Charts,
 ) {
@@ -168,7 +170,7 @@ pub(super) fn merge_import(
         imported,
         &object_ids,
         charts,
-        density,
+        (density, detail, into.lights),
         surface_index,
         into.uv_meshes,
     );
@@ -196,6 +198,7 @@ pub(super) fn merge_import(
                     generated: false,
                     charts: 0,
                     smooth_edges: Vec::new(),
+                    packed_side: 0.0,
                 });
                 into.uv_meshes.len() - 1
             })
@@ -449,7 +452,7 @@ fn generate_import_uvs(
     imported: &ImportedScene,
     object_ids: &[u32],
     charts: Charts,
-    density: f32,
+    (density, detail, lights): (f32, f32, &[Light]),
     surface_index: usize,
     uv_meshes: &mut Vec<UvMesh>,
 ) -> Vec<Option<(usize, Vec<[Vec2; 3]>)>> {
@@ -487,7 +490,10 @@ fn generate_import_uvs(
             ranges.push(start..triangles.len());
         }
         let first = &imported.instances[members[0]];
-        let unwrap = crate::unwrap::unwrap(&triangles, density, charts.unwrapper());
+        // Static triangles are in world space, as the lights are.
+        let levels = crate::near_lights::levels(&triangles, density, lights, detail);
+        let unwrap = crate::unwrap::unwrap_graded(&triangles, density, charts.unwrapper(), &levels);
+        let packed_side = super::refined_side(&unwrap, &levels);
         let m = uv_meshes.len();
         for (&n, range) in members.iter().zip(ranges) {
             out[n] = Some((m, unwrap.uvs[range].to_vec()));
@@ -504,6 +510,7 @@ fn generate_import_uvs(
             uvs: unwrap.uvs,
             generated: true,
             charts: unwrap.charts,
+            packed_side,
         });
     }
     out

@@ -178,6 +178,11 @@ pub fn print(result: &EyeResult) {
         100.0 * r.truth_noise
     );
     println!(
+        "  the path tracer's relative standard error at those points: median {:.1}%, p95 {:.1}% (the floor under the median and p95)",
+        100.0 * r.noise_rel[0],
+        100.0 * r.noise_rel[1]
+    );
+    println!(
         "  over resampled points (5-95%) the NRMSE reads {:.1}-{:.1}%; the worst point carries {:.0}% of the squared error",
         100.0 * r.nrmse_interval[0],
         100.0 * r.nrmse_interval[1],
