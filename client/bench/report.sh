@@ -193,7 +193,16 @@ if wanted levels; then
     step levels-eye-rays-zdm2-sky env LEVELS="$LEVELS" "$BIN/lightwire" bench eye --scene scenes/levels/zdm2-sky.json \
       --lightmap "$OUT/zdm2-sky-rays/lightmap.exr" --points 1000 --spp 16384
     step levels-eye-rays-pandora-lamps env LEVELS="$LEVELS" "$BIN/lightwire" bench eye \
-      --scene scenes/levels/pandora-lamps.json --lightmap "$OUT/pandora-lamps-rays/lightmap.exr" --points 1000 --spp 8192
+      --scene scenes/levels/pandora-lamps.json --lightmap "$OUT/pandora-lamps-rays/lightmap.exr" --points 1000 --spp 8192 --seed 1
+    # The same without texels near the lights (`light_detail` 0): what the
+    # refinement buys, at the same points.
+    sed -e "s#\"file\": \"../../../shared/levels/#\"file\": \"$(realpath "$LEVELS")/#" \
+      -e 's#"texel_density": 1,#"texel_density": 1, "light_detail": 0,#' \
+      scenes/levels/pandora-lamps.json > "$OUT/pandora-lamps-detail0.json"
+    step levels-bake-rays-pandora-lamps-detail0 /usr/bin/time -v "$BIN/lightwire" bake \
+      --scene "$OUT/pandora-lamps-detail0.json" --solver rays --tolerance 1e-3 --out "$OUT/pandora-lamps-detail0-rays"
+    step levels-eye-rays-pandora-lamps-detail0 "$BIN/lightwire" bench eye --scene "$OUT/pandora-lamps-detail0.json" \
+      --lightmap "$OUT/pandora-lamps-detail0-rays/lightmap.exr" --points 1000 --spp 8192 --seed 1
     # Twice the texel density: what the representation of the light, not
     # the solver, still costs where a player looks.
     step levels-bake-rays-garage-x2 env LEVELS="$LEVELS" /usr/bin/time -v "$BIN/lightwire" bake \
