@@ -16,7 +16,8 @@
 //!   an error, not a panic.
 //!
 //! The REST route `GET /api/scenes/{id}/scene.glb` is tested with the other
-//! snapshots in `rest_auth.rs`.
+//! snapshots in `rest_auth.rs`; here, that it keeps the scene's lights as
+//! `bake` does, and `GET /api/scenes/{id}/lights`.
 
 // The solver-level tests' helpers (`gradient`, `filtered`), not copied.
 #[path = "../../solve/tests/common/mod.rs"]
@@ -637,4 +638,70 @@ fn want_name(kind: LightKind) -> &'static str {
         LightKind::Spot { .. } => "spot",
         LightKind::Directional { .. } => "directional",
     }
+}
+
+/// `lightwire serve`'s `GET /api/scenes/{id}/scene.glb` keeps the scene's
+/// lights as `bake` does: cornell-point's bulb (a point light, 8 W/sr per
+/// channel) comes back from a re-import at its position with its
+/// intensity (through 683 lm/W both ways), and the Khronos validator
+/// accepts the file. `GET /api/scenes` counts the lights, `GET
+/// /api/scenes/{id}/lights` lists them as the scene file gives them, and
+/// an unknown scene's lights are a 404 that says so.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_served_scene_glb_keeps_the_scenes_lights() {
+    use lightwire_testkit::{http, lightwire, scene_path};
+    let server = lightwire!().serve_dev_on(
+        scene_path("cornell-point.json"),
+        &["--solver", "reference", "--density-scale", "0.3"],
+    );
+    server.ready().await;
+    let addr = server.addr.as_str();
+
+    let glb = http::get(addr, "/api/scenes/cornell-point/scene.glb", None).await;
+    assert_eq!(glb.status, 200, "{}", glb.text());
+    assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
+    let imported = reimport(&glb.body);
+    assert_eq!(imported.lights.len(), 1, "{:?}", imported.lights);
+    let bulb = &imported.lights[0];
+    assert_eq!(bulb.name, "bulb");
+    assert_eq!(bulb.kind, LightKind::Point);
+    let at = Vec3::new(2.78, 4.488, 2.796);
+    assert!((bulb.position - at).length() < 1e-5, "{}", bulb.position);
+    assert!(
+        (bulb.intensity - Vec3::splat(8.0)).length() < 1e-4,
+        "{} W/sr",
+        bulb.intensity
+    );
+    assert_eq!(bulb.range, None);
+    assert!(imported.sky.is_none(), "cornell-point has no sky");
+    let dir = temp_dir("served-lights");
+    let path = dir.join(bake::SCENE_GLB);
+    std::fs::write(&path, &glb.body).expect("written");
+    let (ok, text) = khronos_validate(&[&path]);
+    assert!(ok && text.contains(" errors 0 "), "{text}");
+
+    let list = http::get(addr, "/api/scenes", None).await.json();
+    assert_eq!(list[0]["lights"], 1, "{list}");
+    let lights = http::get(addr, "/api/scenes/cornell-point/lights", None).await;
+    assert_eq!(lights.status, 200, "{}", lights.text());
+    assert_eq!(
+        lights.json(),
+        serde_json::json!({
+            "lights": [{
+                "name": "bulb",
+                "type": "point",
+                "position": [2.78, 4.488, 2.796],
+                "color": [1.0, 1.0, 1.0],
+                "intensity": 8.0
+            }],
+            "sky": null
+        })
+    );
+    let unknown = http::get(addr, "/api/scenes/nope/lights", None).await;
+    assert_eq!(unknown.status, 404);
+    let error = unknown.json()["error"]
+        .as_str()
+        .unwrap_or_default()
+        .to_string();
+    assert!(error.contains("no scene \"nope\""), "{error:?}");
 }

@@ -656,7 +656,9 @@ async fn ready_solver_and_relay() -> (Proc, Proc) {
 
 /// A viewer on a relay needs nothing from the solver: the relay serves the
 /// scene info, snapshots and `scene.glb` of the version it holds and the dashboard, with
-/// the solver's token and Origin rules (PROTOCOL.md §7, Relays and REST).
+/// the solver's token and Origin rules (PROTOCOL.md §7, Relays and REST);
+/// the scene's lights, which the description does not carry, are the
+/// solver's to list (a clear 404).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
     let (solver, relay) = ready_solver_and_relay().await;
@@ -738,6 +740,13 @@ async fn a_relay_serves_scene_info_snapshots_and_the_dashboard() {
     }
     let unknown = http::get(addr, "/api/scenes/nope", Some(VIEWER_TOKEN)).await;
     assert_eq!(unknown.status, 404);
+    let lights = http::get(addr, &scene_file("lights"), Some(VIEWER_TOKEN)).await;
+    assert_eq!(lights.status, 404, "{}", lights.text());
+    let error = lights.json()["error"]
+        .as_str()
+        .unwrap_or_default()
+        .to_string();
+    assert!(error.contains("relay"), "{error:?}");
 
     // The dashboard.
     dashboard::assert_served(addr).await;

@@ -2,7 +2,7 @@
 //! a real `lightwire serve` over real sockets:
 //!
 //! - with tokens configured, the scene list, scene info, both
-//!   snapshots and the lit `scene.glb` answer 401 (a JSON `error` naming what is missing, and
+//!   snapshots, the lit `scene.glb` and the lights answer 401 (a JSON `error` naming what is missing, and
 //!   `WWW-Authenticate: Bearer`) without a token or with an unknown one,
 //!   and 200 with a viewer token as `Authorization: Bearer` or `?token=`;
 //! - a foreign browser `Origin` gets 403 even with a good token; the

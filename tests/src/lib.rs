@@ -60,15 +60,17 @@ pub fn scene_file(file: &str) -> String {
 }
 
 /// The REST routes that need a viewer token where tokens are configured:
-/// the scene list, [`SCENE`]'s description and its snapshots and lit
-/// `scene.glb`.
-pub fn viewer_routes() -> [String; 5] {
+/// the scene list, [`SCENE`]'s description, its snapshots and lit
+/// `scene.glb`, and its lights (a solver's route: a relay answers 404
+/// once the token and origin pass).
+pub fn viewer_routes() -> [String; 6] {
     [
         "/api/scenes".to_string(),
         format!("/api/scenes/{SCENE}"),
         scene_file("lightmap.exr"),
         scene_file("lightmap.png"),
         scene_file("scene.glb"),
+        scene_file("lights"),
     ]
 }
 

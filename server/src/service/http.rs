@@ -7,7 +7,9 @@
 //! implements [`Scenes`]: a solver's scenes ([`AppState`]) or a relay's
 //! (`crate::relay`). Both are [`Feed`]s, so scene info, the snapshots and
 //! the WebSocket answer the same way on both, from the version that
-//! server holds.
+//! server holds. What needs the loaded scene ([`Scenes::geometry`]) is the
+//! solver's alone: the `uv-lightmaps`, the `lights` (and so the lights and
+//! sky in a solver's `scene.glb`; a relay's has none).
 //!
 //! Access (PROTOCOL.md §7, REST): the scene list, scene info and snapshots
 //! need at least a viewer token, exactly as the WebSocket does, and refuse
@@ -50,9 +52,10 @@ pub trait Scenes: Send + Sync + 'static {
     fn unknown(&self, id: &str) -> String {
         format!("no scene \"{id}\"; GET /api/scenes lists them")
     }
-    /// The scene and atlas of `id`, for what needs its geometry (the
-    /// lightmaps in an asset's own UVs); `None` on a relay, which holds
-    /// only the description clients get.
+    /// The scene and atlas of `id`, for what needs its geometry or its
+    /// lights (the lightmaps in an asset's own UVs, `lights`, the lights in
+    /// `scene.glb`); `None` on a relay, which holds only the description
+    /// clients get.
     fn geometry(&self, _id: &str) -> Option<Arc<super::runtime::SceneRuntime>> {
         None
     }
@@ -79,6 +82,8 @@ impl Scenes for AppState {
                 let mut entry = feed_summary(&s.feed);
                 entry.insert("description".into(), json!(s.scene.description));
                 entry.insert("elements".into(), json!(s.atlas.elements.len()));
+                // How many lights `GET /api/scenes/{id}/lights` lists.
+                entry.insert("lights".into(), json!(s.scene.lights.len()));
                 entry.insert("version".into(), json!(stats.version));
                 entry.insert("unshot_fraction".into(), json!(stats.unshot_fraction));
                 Value::Object(entry)
@@ -380,18 +385,25 @@ async fn lightmap_file<S: Scenes>(
     if file == crate::bake::UV_LIGHTMAPS {
         return uv_lightmap_list(&*scenes, &id);
     }
+    if file == LIGHTS {
+        return light_list(&*scenes, &id);
+    }
     // The file and its media type.
     let (format, mime) = match file.as_str() {
         "lightmap.exr" => (Some(image::ImageFormat::OpenExr), "image/x-exr"),
         "lightmap.png" => (Some(image::ImageFormat::Png), "image/png"),
-        // The scene with this version's lightmap on it (`bake::scene_glb`).
+        // The scene with this version's lightmap on it
+        // (`bake::scene_glb_lit`).
         crate::bake::SCENE_GLB => (None, "model/gltf-binary"),
         _ => {
             return not_found(format!(
-                "no file \"{file}\"; try lightmap.exr, lightmap.png, scene.glb or uv-lightmaps"
+                "no file \"{file}\"; try lightmap.exr, lightmap.png, scene.glb, uv-lightmaps or lights"
             ));
         }
     };
+    // The scene's lights and sky go into `scene.glb` as `bake` writes
+    // them; a relay holds none (only the description clients get).
+    let runtime = format.is_none().then(|| scenes.geometry(&id)).flatten();
     let encoded = tokio::task::spawn_blocking(move || -> Result<(u64, Vec<u8>), String> {
         let Snapshot {
             info,
@@ -410,7 +422,11 @@ async fn lightmap_file<S: Scenes>(
                     o.pose = p.pose;
                 }
             }
-            let glb = crate::bake::scene_glb(&posed, &rgb, Some(version))
+            let lit = match &runtime {
+                Some(r) => (r.scene.lights.as_slice(), r.scene.sky.as_ref()),
+                None => (&[][..], None),
+            };
+            let glb = crate::bake::scene_glb_lit(&posed, &rgb, Some(version), lit)
                 .map_err(|e| format!("{e:#}"))?;
             return Ok((version, glb));
         };
@@ -568,6 +584,24 @@ async fn uv_lightmap_file<S: Scenes>(
     })
     .await;
     versioned(encoded, mime)
+}
+
+/// The last segment of `GET /api/scenes/{id}/lights`.
+pub const LIGHTS: &str = "lights";
+
+/// `GET /api/scenes/{id}/lights`: the scene's point, spot and directional
+/// lights and its sky as a scene file gives them (`super::lights`); 404 on
+/// a relay, which holds only the description clients get.
+fn light_list<S: Scenes>(scenes: &S, id: &str) -> Response {
+    if let Err(r) = feed_of(scenes, id) {
+        return *r;
+    }
+    match scenes.geometry(id) {
+        Some(runtime) => axum::Json(super::lights::scene_lights(&runtime.scene)).into_response(),
+        None => not_found(format!(
+            "this server holds no lights of \"{id}\" (a relay): ask the solver for them"
+        )),
+    }
 }
 
 /// Whether a browser `Origin` may use this server (the WebSocket upgrade

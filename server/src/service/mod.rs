@@ -44,6 +44,7 @@ pub mod dashboard;
 pub mod feed;
 pub mod http;
 pub mod inbox;
+pub mod lights;
 pub mod live;
 pub mod metrics;
 pub mod publication;
