@@ -11,7 +11,9 @@
 //   TEXCOORD_1, which GLTFLoader names `uv1`: three.js's texture channel 1.
 //   The file also carries a tone-mapped PNG snapshot of the light as each
 //   material's base colour (for viewers that know nothing of Lightwire);
-//   this page drops it and draws the live stream instead.
+//   this page drops it and draws the live stream instead. A solver's file
+//   ends with the scene's lights (KHR_lights_punctual nodes after the
+//   objects'); this page drops them too: the stream holds their light.
 // - Light: the protocol's lightmap (`/dashboard/lightmap.js`, the
 //   dashboard's decoder: keyframes, deltas onto their exact base, Resync)
 //   is one DataTexture over the lightmap's own texel bytes, uploaded as
@@ -306,9 +308,15 @@ async function fetchGlb(id) {
 
 async function loadScene(id) {
   const gltf = await new GLTFLoader().parseAsync(await fetchGlb(id), '');
-  // Node i is object i (`bake::scene_glb` writes one node per object, in order).
+  // Node i is object i (`bake::scene_glb` writes one node per object, in
+  // order, then one per light).
   nodes = [];
+  const lights = [];
   gltf.scene.traverse((o) => {
+    if (o.isLight) {
+      lights.push(o);
+      return;
+    }
     const node = gltf.parser.associations.get(o)?.nodes;
     if (node !== undefined) nodes[node] = o;
     if (!o.isMesh) return;
@@ -328,6 +336,7 @@ async function loadScene(id) {
       materials.add(m);
     }
   });
+  for (const light of lights) light.removeFromParent();
   // The dynamic objects where the file has them (its version's poses).
   nodes.forEach((o, i) => {
     if (o.userData.lightwire?.dynamic) {
