@@ -2,13 +2,14 @@
 //! process on cornell-low (GPU solver, on lavapipe without a GPU), and
 //! `server/dashboard/e2e/dashboard.e2e.mjs` driving Debian's headless
 //! Chromium through Playwright against it. The script checks the page's
-//! contracts (no console errors, WebSocket, chart, atlas, 3D view, dragging
-//! the box changes the light) and saves screenshots to
-//! `target/dashboard-artifacts/`. It runs three times: on a development
-//! server, on a development server of a triangle-mesh scene (a `.glb`), and
-//! on a relay (of a solver with tokens) opened as `/?token=<driver>`, where
-//! the page must present the token to the REST API as well as to the
-//! WebSocket, and its drags go through the relay.
+//! contracts (no console errors, WebSocket, chart, atlas, 3D view, the
+//! scene's lights as gizmos, dragging the box changes the light) and saves
+//! screenshots to `target/dashboard-artifacts/`. It runs four times: on a
+//! development server, on a development server of a triangle-mesh scene (a
+//! `.glb`), on one of a scene lit by a point light (`cornell-point`, whose
+//! gizmo must be drawn), and on a relay (of a solver with tokens) opened as
+//! `/?token=<driver>`, where the page must present the token to the REST
+//! API as well as to the WebSocket, and its drags go through the relay.
 //!
 //! Needs `node`, `chromium` and `npm ci` in `server/dashboard`; `make test`
 //! provides all three. Without them this test fails and says what to
@@ -46,9 +47,9 @@ async fn the_embedded_files_are_served_and_nothing_else() {
     dashboard::assert_served(&server.addr).await;
 }
 
-/// Runs `dashboard.e2e.mjs` against the page at `url` and checks that it
-/// passed and left its screenshots in `artifacts`.
-fn run_e2e(url: &str, artifacts: &Path) {
+/// Runs `dashboard.e2e.mjs` against the page at `url` with `flags` and
+/// checks that it passed and left its screenshots in `artifacts`.
+fn run_e2e(url: &str, artifacts: &Path, flags: &[&str]) {
     let dir = dashboard_dir();
     let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
     assert!(
@@ -70,6 +71,7 @@ fn run_e2e(url: &str, artifacts: &Path) {
         .arg(artifacts)
         .arg("--chromium")
         .arg(&chromium)
+        .args(flags)
         .stdout(Stdio::inherit())
         .stderr(Stdio::inherit())
         .spawn()
@@ -107,6 +109,7 @@ fn the_dashboard_works_in_headless_chromium() {
     run_e2e(
         &format!("http://{}/", server.addr),
         &target_dir().join("dashboard-artifacts"),
+        &[],
     );
 }
 
@@ -119,6 +122,20 @@ fn the_dashboard_works_on_a_mesh_scene() {
     run_e2e(
         &format!("http://{}/", server.addr),
         &target_dir().join("dashboard-artifacts/mesh"),
+        &[],
+    );
+}
+
+/// A scene lit by a point light (`cornell-point`): the page fetches the
+/// scene's lights (`GET /api/scenes/{id}/lights`) and draws them as
+/// gizmos, which its `lights` box hides, besides everything above.
+#[test]
+fn the_dashboard_draws_the_scenes_lights() {
+    let server = dev_server_on("cornell-point.json", &["--density-scale", "0.5"]);
+    run_e2e(
+        &format!("http://{}/", server.addr),
+        &target_dir().join("dashboard-artifacts/lights"),
+        &["--expect-lights"],
     );
 }
 
@@ -132,7 +149,7 @@ async fn the_dashboard_works_on_a_relay_with_a_token() {
     relay.ready().await;
     let url = format!("http://{}/?token={DRIVER_TOKEN}", relay.addr);
     let artifacts = target_dir().join("dashboard-artifacts/relay");
-    tokio::task::spawn_blocking(move || run_e2e(&url, &artifacts))
+    tokio::task::spawn_blocking(move || run_e2e(&url, &artifacts, &[]))
         .await
         .expect("the browser test ran");
 }

@@ -6,13 +6,14 @@ use crate::http;
 
 /// The scripts under `/dashboard/`: the page's modules and the vendored
 /// zstd decoder.
-pub const SCRIPTS: [&str; 8] = [
+pub const SCRIPTS: [&str; 9] = [
     "app.js",
     "connection.js",
     "protocol.js",
     "lightmap.js",
     "tone.js",
     "view3d.js",
+    "gizmos.js",
     "chart.js",
     "vendor/fzstd.js",
 ];

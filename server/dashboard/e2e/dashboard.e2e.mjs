@@ -2,7 +2,7 @@
 // Chromium, driven by Playwright (`playwright-core`, which never downloads a
 // browser), WebGL2 on SwiftShader (no GPU here).
 //
-//   node e2e/dashboard.e2e.mjs --url http://127.0.0.1:PORT/ --artifacts DIR
+//   node e2e/dashboard.e2e.mjs --url http://127.0.0.1:PORT/ --artifacts DIR [--expect-lights]
 //
 // The server must already run (in development mode, or with a driver token
 // in the URL's `?token=`, so the page may drive; it may be a relay);
@@ -14,7 +14,10 @@
 //  2. the WebSocket connects (Welcome received, role allows driving);
 //  3. the convergence chart gets at least three points;
 //  4. the atlas view is not blank;
-//  5. the 3D view draws pixels other than its background;
+//  5. the 3D view draws pixels other than its background, and, when the
+//     scene list counts lights for the scene (always with
+//     `--expect-lights`), their gizmos: the lights route's lights as line
+//     segments, pixels that the `lights` box hides;
 //  6. after the test drags the dynamic box across the 3D view with the
 //     mouse, a newer lightmap version arrives that reflects the drag's last
 //     transform, and the atlas image changes.
@@ -35,10 +38,11 @@ const { values: args } = parseArgs({
     artifacts: { type: 'string', default: 'target/dashboard-artifacts' },
     chromium: { type: 'string', default: process.env.CHROMIUM ?? '/usr/bin/chromium' },
     timeout: { type: 'string', default: '90' },
+    'expect-lights': { type: 'boolean', default: false },
   },
 });
 if (!args.url) {
-  console.error('usage: node e2e/dashboard.e2e.mjs --url http://HOST:PORT/ [--artifacts DIR] [--chromium PATH]');
+  console.error('usage: node e2e/dashboard.e2e.mjs --url http://HOST:PORT/ [--artifacts DIR] [--chromium PATH] [--expect-lights]');
   process.exit(2);
 }
 if (!fs.existsSync(args.chromium)) {
@@ -174,6 +178,45 @@ try {
     });
   const view = await readView();
   check('the 3D view draws non-background pixels', view.fraction > 0.1, `${view.width}x${view.height}, ${(view.fraction * 100).toFixed(1)}% not background`);
+
+  // 5b. The scene's lights as gizmos, when the server lists any.
+  const listedLights = await page.evaluate(async (scene) => {
+    const token = new URLSearchParams(location.search).get('token');
+    const r = await fetch('/api/scenes', { headers: token ? { Authorization: `Bearer ${token}` } : {} });
+    return (await r.json()).find((s) => s.id === scene)?.lights ?? 0;
+  }, snap.scene);
+  if (args['expect-lights'] || listedLights > 0) {
+    const gizmos = await waitFor('the light gizmos', () => window.lightwire.snapshot().lightGizmoSegments > 0);
+    // The pixels the gizmos cover: the view with them, then without.
+    const changed = async () => {
+      await page.waitForTimeout(300);
+      return page.evaluate(() => {
+        const gl = document.getElementById('view');
+        const c = document.createElement('canvas');
+        [c.width, c.height] = [gl.width, gl.height];
+        const ctx = c.getContext('2d');
+        ctx.drawImage(gl, 0, 0);
+        const data = ctx.getImageData(0, 0, c.width, c.height).data;
+        const before = window.__gizmoView;
+        window.__gizmoView = data;
+        if (!before) return 0;
+        let n = 0;
+        for (let i = 0; i < data.length; i += 4) if (data[i] !== before[i] || data[i + 1] !== before[i + 1] || data[i + 2] !== before[i + 2]) n++;
+        return n;
+      });
+    };
+    await changed();
+    await page.uncheck('#show-lights');
+    const hidden = await changed();
+    await page.check('#show-lights');
+    const shown = await changed();
+    snap = await snapshot();
+    check(
+      'the scene\'s lights are drawn as gizmos that the lights box hides',
+      listedLights > 0 && gizmos && hidden > 0 && shown > 0,
+      `${listedLights} listed, ${snap.lightGizmoSegments} segments, ${hidden} pixels hidden, ${shown} shown again`,
+    );
+  }
 
   await page.screenshot({ path: path.join(args.artifacts, 'dashboard-before.png'), fullPage: true });
   await page.locator('#view').screenshot({ path: path.join(args.artifacts, 'view-before.png') });

@@ -14,10 +14,15 @@
 // applied, except the user's own moves that the server has not reflected
 // yet (`posesToApply`).
 //
+// The 3D view draws the scene's lights as gizmos (gizmos.js), fetched once
+// per watched scene from `GET /api/scenes/{id}/lights` when the scene list
+// counts any (a solver's; a relay holds none to give).
+//
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
 import { Chart } from './chart.js';
 import { Backoff, DASHBOARD_BACKOFF, Reconnector, posesToApply, sceneUrl } from './connection.js';
+import { lightsPath } from './gizmos.js';
 import { PROTOCOL_VERSION, poseProblem } from './protocol.js';
 import { ToneTable, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
@@ -36,6 +41,7 @@ const ui = {
   status: $('status'),
   role: $('role'),
   view: $('view'),
+  showLights: $('show-lights'),
   atlas: $('atlas'),
   exposure: $('exposure'),
   exposureValue: $('exposure-value'),
@@ -92,6 +98,8 @@ try {
   ui.view.replaceWith(Object.assign(document.createElement('p'), { className: 'error', textContent: `3D view unavailable: ${e.message}` }));
   logEvent(`3D view unavailable: ${e.message}`, 'error');
 }
+
+ui.showLights.addEventListener('change', () => view?.setShowLights(ui.showLights.checked));
 
 // --- Atlas view and exposure ----------------------------------------------
 
@@ -390,6 +398,26 @@ function connect() {
     on: events,
   });
   link.start();
+  loadLights(id).catch((e) => logEvent(`cannot load the lights of ${id}: ${e.message}`, 'warn'));
+}
+
+/** The scene list's entries by id (`GET /api/scenes`). */
+let listed = new Map();
+
+/** Fetches scene `id`'s lights for the 3D view's gizmos, if the scene
+ * list counts any; a reply for a scene no longer watched is dropped. */
+async function loadLights(id) {
+  view?.setLights([]);
+  if (!view || !(listed.get(id)?.lights > 0)) return;
+  const response = await fetch(lightsPath(id), { headers: authHeaders() });
+  if (!response.ok) {
+    const body = await response.json().catch(() => null);
+    throw new Error(`HTTP ${response.status}${body?.error ? `: ${body.error}` : ''}`);
+  }
+  const { lights } = await response.json();
+  if (ui.scene.value !== id) return;
+  view.setLights(lights);
+  logEvent(`${lights.length} light${lights.length === 1 ? '' : 's'} drawn as gizmos`);
 }
 
 /** Headers that present the token field's token to the REST API, which
@@ -407,6 +435,7 @@ async function loadScenes() {
     throw new Error(`GET /api/scenes: HTTP ${response.status}${why}`);
   }
   const scenes = await response.json();
+  listed = new Map(scenes.map((s) => [s.id, s]));
   // A relay knows no element count: it holds the lightmap, not the mesh.
   const label = (s) => (s.elements == null ? s.id : `${s.id} (${s.elements} elements)`);
   ui.scene.replaceChildren(...scenes.map((s) => new Option(label(s), s.id)));
@@ -467,6 +496,7 @@ window.lightwire = {
       renderer: view?.renderer ?? null,
       framesDrawn: view?.framesDrawn ?? 0,
       hasLightmap: !!view?.hasLightmap,
+      lightGizmoSegments: view?.gizmoSegments() ?? 0,
       dynamicObjects: c?.scene ? c.scene.objects.flatMap((o, i) => (o.dynamic ? [i] : [])) : [],
     };
   },

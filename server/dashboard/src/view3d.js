@@ -16,6 +16,13 @@
 // Mouse: drag the background to orbit, wheel to zoom; drag a dynamic object
 // (outlined) to slide it on its horizontal plane, shift-drag or right-drag it
 // to turn it about the vertical axis.
+//
+// The scene's point, spot and directional lights (`setLights`, from the
+// lights route; the Welcome does not carry them) are drawn as gizmos in
+// their colours after the surfaces, depth-tested (gizmos.js has their
+// geometry); `setShowLights(false)` hides them.
+
+import { FLOATS_PER_VERTEX, lightGizmos } from './gizmos.js';
 
 const VERTEX = `#version 300 es
 layout(location = 0) in vec3 aPos;
@@ -54,6 +61,26 @@ precision mediump float;
 uniform vec4 uColor;
 out vec4 outColor;
 void main() { outColor = uColor; }`;
+
+// Light gizmos: a colour per vertex, encoded to sRGB like the surfaces.
+const GIZMO_VERTEX = `#version 300 es
+layout(location = 0) in vec3 aPos;
+layout(location = 1) in vec3 aColor;
+uniform mat4 uViewProj;
+out vec3 vColor;
+void main() {
+  vColor = aColor;
+  gl_Position = uViewProj * vec4(aPos, 1.0);
+}`;
+
+const GIZMO_FRAGMENT = `#version 300 es
+precision mediump float;
+in vec3 vColor;
+out vec4 outColor;
+vec3 srgb(vec3 c) {
+  return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+void main() { outColor = vec4(srgb(clamp(vColor, 0.0, 1.0)), 1.0); }`;
 
 /** The clear colour; the e2e test counts pixels that differ from it. */
 export const BACKGROUND = [0.07, 0.08, 0.1];
@@ -226,6 +253,7 @@ export class View3D {
     this.onDrag = callbacks.onDrag ?? (() => {});
     this.program = compile(gl, VERTEX, FRAGMENT);
     this.lineProgram = compile(gl, LINE_VERTEX, LINE_FRAGMENT);
+    this.gizmoProgram = compile(gl, GIZMO_VERTEX, GIZMO_FRAGMENT);
     this.uniforms = {
       viewProj: gl.getUniformLocation(this.program, 'uViewProj'),
       model: gl.getUniformLocation(this.program, 'uModel'),
@@ -234,6 +262,7 @@ export class View3D {
       lineViewProj: gl.getUniformLocation(this.lineProgram, 'uViewProj'),
       lineModel: gl.getUniformLocation(this.lineProgram, 'uModel'),
       lineColor: gl.getUniformLocation(this.lineProgram, 'uColor'),
+      gizmoViewProj: gl.getUniformLocation(this.gizmoProgram, 'uViewProj'),
     };
     this.texture = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, this.texture);
@@ -247,6 +276,10 @@ export class View3D {
       gl.texParameteri(gl.TEXTURE_2D, k, v);
     }
     this.objects = [];
+    /** The scene's lights (entries of the lights route) and their gizmos. */
+    this.lights = [];
+    this.gizmos = null;
+    this.showLights = true;
     this.exposure = 1;
     this.camera = { yaw: 0, pitch: 0.12, distance: 10, target: [0, 0, 0] };
     this.drag = null;
@@ -335,7 +368,41 @@ export class View3D {
     this.camera.distance = Math.hypot(...sub(hi, lo)) * 1.05;
     this.camera.yaw = 0;
     this.camera.pitch = 0.12;
+    this.buildGizmos();
     this.needsDraw = true;
+  }
+
+  /** Sets the lights to draw as gizmos (entries of the lights route; [] for none). */
+  setLights(lights) {
+    this.lights = Array.isArray(lights) ? lights : [];
+    this.buildGizmos();
+    this.needsDraw = true;
+  }
+
+  /** Shows or hides the light gizmos. */
+  setShowLights(show) {
+    this.showLights = !!show;
+    this.needsDraw = true;
+  }
+
+  /** How many light gizmo segments there are to draw (for tests and tools). */
+  gizmoSegments() {
+    return this.gizmos ? this.gizmos.count / 2 : 0;
+  }
+
+  /** (Re)builds the gizmos' buffer: their size and a sun's place follow the bounds. */
+  buildGizmos() {
+    const gl = this.gl;
+    if (this.gizmos) {
+      gl.deleteVertexArray(this.gizmos.vao);
+      gl.deleteBuffer(this.gizmos.buffer);
+      this.gizmos = null;
+    }
+    const data = lightGizmos(this.lights, this.bounds);
+    if (!data.length) return;
+    const [vao, buffer] = vertexArray(gl, data, [3, 3]);
+    gl.bindVertexArray(null);
+    this.gizmos = { vao, buffer, count: data.length / FLOATS_PER_VERTEX };
   }
 
   /** Where a dynamic object's translation may go on x and z: inside the
@@ -447,6 +514,12 @@ export class View3D {
       gl.bindVertexArray(o.lineVao);
       gl.drawArrays(gl.LINES, 0, o.lineCount);
     });
+    if (this.showLights && this.gizmos) {
+      gl.useProgram(this.gizmoProgram);
+      gl.uniformMatrix4fv(this.uniforms.gizmoViewProj, false, viewProj);
+      gl.bindVertexArray(this.gizmos.vao);
+      gl.drawArrays(gl.LINES, 0, this.gizmos.count);
+    }
     gl.depthFunc(gl.LESS);
     gl.bindVertexArray(null);
     this.framesDrawn++;

@@ -59,6 +59,7 @@ const ASSETS: &[Asset] = &[
     asset!("tone.js", JS),
     asset!("chart.js", JS),
     asset!("view3d.js", JS),
+    asset!("gizmos.js", JS),
     asset!("vendor/fzstd.js", JS),
     asset!("vendor/fzstd.LICENSE", "text/plain; charset=utf-8"),
     // three.js, for the example below: the ES modules it loads.
