@@ -1,5 +1,5 @@
-//! More texels where a point or spot light is near (issue 58, item 4: the
-//! texel budget goes where the light changes).
+//! More texels where a light is near (issue 58, item 4: the texel budget
+//! goes where the light changes).
 //!
 //! A point light's irradiance falls off as `cos θ / r²`: over a texel of
 //! side `h` at distance `r` it changes by about `2 h / r`, and a lightmap
@@ -16,16 +16,22 @@
 //! by `bake`, `serve` and `bench eye` alike — already has the texels. Per
 //! triangle of a generated lightmap (`unwrap.rs`), the level `k` (0 to
 //! [`MAX_LEVEL`]) whose density `2^k × density` first reaches
-//! `detail / r`, `r` the distance from the triangle to the nearest point
-//! or spot light in front of it (within its range, if it has one). Charts
-//! take triangles of one level only, so a floor far from the lamps keeps
-//! its density and the ring around a lamp gets its own, finer charts.
-//! Shadow edges and contacts, whose place only a solve tells (Wallner's
-//! shadow-boundary ratio), are not refined here.
+//! `detail / r`, `r` the distance that stands for the triangle's lights
+//! (point and spot lights in front of it, within their range, and the
+//! import's emitting triangles; [`budgeted_levels`], [`distances`]).
+//! Charts take triangles of one level only, so a floor far from the lamps
+//! keeps its density and the ring around a lamp gets its own, finer
+//! charts; a mesh gains at most [`MAX_EXTRA`] of its texels. Shadow edges
+//! and contacts, whose place only a solve tells (Wallner's shadow-boundary
+//! ratio), are not refined here.
 
 use glam::Vec3;
 
 use crate::light::{Light, LightKind};
+
+/// Texels refinement may always add, whatever [`MAX_EXTRA`] says: a small
+/// scene can afford them.
+pub const MIN_EXTRA: f32 = 65_536.0;
 
 /// Texels across the distance to a light that the lightmap aims for (the
 /// scene file's `lightmap.light_detail` default): texels of `r / 4`.
@@ -34,35 +40,181 @@ pub const DEFAULT_DETAIL: f32 = 4.0;
 /// The finest refinement: `2^3 = 8` times the mesh's density.
 pub const MAX_LEVEL: u8 = 3;
 
+/// The most texels refinement may add to a mesh, as a share of what it
+/// has at its density (estimated by area, which overcounts triangles
+/// smaller than a texel): a level lit by many panels would otherwise be
+/// refined all over (pandora's 179 panels asked for 1.7 times its
+/// elements).
+pub const MAX_EXTRA: f32 = 0.5;
+
 /// Per triangle (world space, counter-clockwise seen from the front), its
-/// refinement level under `lights` at `density` texels per metre for
-/// `detail` texels across the distance to a light (0: none refined).
-pub fn levels(triangles: &[[Vec3; 3]], density: f32, lights: &[Light], detail: f32) -> Vec<u8> {
+/// refinement level at `density` texels per metre for `detail` texels
+/// across the distance to the nearest point or spot light in front of it
+/// (within its range) or emitting triangle (`emitters`, world space),
+/// within a budget: if the levels would add more than
+/// [`MAX_EXTRA`] of the mesh's texels (by area) and more than
+/// [`MIN_EXTRA`], `detail` is lowered in
+/// steps of 10% until they do not. Returns the levels and the detail
+/// used.
+///
+/// An emitter is a light when each of the two triangles lies in front of
+/// the other. Its light spreads over its radius `R` where it faces a
+/// receiver (a disc's irradiance on its axis is `π L R² / (r² + R²)`, which
+/// changes over `sqrt(r² + R²)`), but not along a receiver at right angles
+/// to it (the frame around a lamp, lit from the lamp's edge): the distance
+/// that counts is `sqrt(r² + (R cos)²)`, `cos` between the two normals and
+/// `r` the least distance between the triangles. An emitter itself is not
+/// refined (its light is its own, uniform).
+pub fn budgeted_levels(
+    triangles: &[[Vec3; 3]],
+    density: f32,
+    (lights, emitters): (&[Light], &[[Vec3; 3]]),
+    detail: f32,
+) -> (Vec<u8>, f32) {
+    let near = distances(triangles, density, (lights, emitters), detail);
+    let areas: Vec<f32> = triangles
+        .iter()
+        .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
+        .collect();
+    let total: f32 = areas.iter().sum();
+    let mut detail = detail;
+    loop {
+        let levels: Vec<u8> = near
+            .iter()
+            .map(|r| level_for(density, detail / r.max(MIN_DISTANCE)))
+            .collect();
+        let extra: f32 = levels
+            .iter()
+            .zip(&areas)
+            .map(|(l, a)| a * (f32::from(1u16 << (2 * l)) - 1.0))
+            .sum();
+        if extra * density * density <= (MAX_EXTRA * total * density * density).max(MIN_EXTRA)
+            || detail < 1e-3
+        {
+            return (levels, detail);
+        }
+        detail *= 0.9;
+    }
+}
+
+/// Per triangle, the distance that stands for its lights' (the point and
+/// spot lights in front of it, within their range, and the emitters in
+/// [`budgeted_levels`]): `sqrt(A / ∫ dA / d²)`, `d` at each point of the
+/// triangle the distance to its nearest light. The error of a texel of
+/// side `h` goes as `(h / d)²` (module notes), so this is the distance at
+/// which a uniform texel keeps the triangle's mean error where `detail`
+/// asks: a small triangle's own distance, but a large floor with a lamp
+/// over one corner is not refined all over for that corner (its integral
+/// grows only as the logarithm of its size). Infinity where no light is
+/// within `detail / density` (none could refine it). The integral is
+/// taken over [`SUB`]² sub-triangles at their centroids.
+fn distances(
+    triangles: &[[Vec3; 3]],
+    density: f32,
+    (lights, emitters): (&[Light], &[[Vec3; 3]]),
+    detail: f32,
+) -> Vec<f32> {
     let punctual: Vec<&Light> = lights
         .iter()
         .filter(|l| !matches!(l.kind, LightKind::Directional { .. }))
         .filter(|l| l.intensity.max_element() > 0.0)
         .collect();
-    if detail <= 0.0 || punctual.is_empty() || density <= 0.0 {
-        return vec![0; triangles.len()];
+    if detail <= 0.0 || (punctual.is_empty() && emitters.is_empty()) || density <= 0.0 {
+        return vec![f32::INFINITY; triangles.len()];
     }
+    // Beyond this distance nothing is refined.
+    let reach = detail / density;
+    let bounds = |t: &[Vec3; 3]| {
+        let centre = (t[0] + t[1] + t[2]) / 3.0;
+        let radius = t.iter().map(|p| p.distance(centre)).fold(0.0, f32::max);
+        (centre, radius)
+    };
+    let emitters: Vec<([Vec3; 3], Vec3, Vec3, f32)> = emitters
+        .iter()
+        .map(|e| {
+            let (centre, radius) = bounds(e);
+            (*e, (e[1] - e[0]).cross(e[2] - e[0]), centre, radius)
+        })
+        .collect();
     triangles
         .iter()
-        .map(|&[a, b, c]| {
+        .map(|t| {
+            let [a, b, c] = *t;
             let normal = (b - a).cross(c - a);
-            let nearest = punctual
+            let unit = normal.normalize_or_zero();
+            let (centre, radius) = bounds(t);
+            let lights: Vec<&&Light> = punctual
                 .iter()
                 .filter(|l| normal.dot(l.position - a) > 0.0)
-                .map(|l| {
-                    let r = closest_point(l.position, a, b, c).distance(l.position);
-                    (r, l.range)
+                .filter(|l| l.position.distance(centre) - radius < reach)
+                .filter(|l| {
+                    l.range.is_none_or(|range| {
+                        closest_point(l.position, a, b, c).distance(l.position) < range
+                    })
                 })
-                .filter(|(r, range)| range.is_none_or(|range| *r < range))
-                .map(|(r, _)| r)
-                .fold(f32::INFINITY, f32::min);
-            level_for(density, detail / nearest.max(1e-3))
+                .collect();
+            let near_emitters: Vec<&([Vec3; 3], Vec3, Vec3, f32)> = emitters
+                .iter()
+                .filter(|(e, _, c, r)| *e != *t && c.distance(centre) - r - radius < reach)
+                .filter(|(e, n, _, _)| {
+                    // Each in front of the other (an emitter's coplanar
+                    // neighbours and what lies behind it get nothing).
+                    t.iter().any(|p| n.dot(*p - e[0]) > 1e-6 * n.length())
+                        && e.iter()
+                            .any(|p| normal.dot(*p - a) > 1e-6 * normal.length())
+                })
+                .collect();
+            if lights.is_empty() && near_emitters.is_empty() {
+                return f32::INFINITY;
+            }
+            let nearest = |p: Vec3| -> f32 {
+                let to_lights = lights
+                    .iter()
+                    .map(|l| l.position.distance(p))
+                    .fold(f32::INFINITY, f32::min);
+                let to_emitters = near_emitters
+                    .iter()
+                    .map(|(e, n, _, r)| {
+                        let facing = n.normalize_or_zero().dot(unit).abs();
+                        closest_point(p, e[0], e[1], e[2])
+                            .distance(p)
+                            .hypot(r * facing)
+                    })
+                    .fold(f32::INFINITY, f32::min);
+                to_lights.min(to_emitters).max(MIN_DISTANCE)
+            };
+            let centroids = sub_centroids(t);
+            let inverse_square = centroids.iter().map(|p| nearest(*p).powi(-2)).sum::<f32>()
+                / centroids.len() as f32;
+            inverse_square.powf(-0.5)
         })
         .collect()
+}
+
+/// A triangle is cut into `SUB × SUB` equal sub-triangles for the
+/// integral of [`distances`].
+pub const SUB: usize = 4;
+
+/// Distances below this (m) count as this: a light touching a surface.
+const MIN_DISTANCE: f32 = 0.01;
+
+/// The centroids of the `SUB²` equal sub-triangles of `t` (by lines
+/// parallel to its sides).
+fn sub_centroids(t: &[Vec3; 3]) -> Vec<Vec3> {
+    let [a, b, c] = *t;
+    let at = |u: f32, v: f32| a + (b - a) * u + (c - a) * v;
+    let n = SUB as f32;
+    let mut out = Vec::with_capacity(SUB * SUB);
+    for i in 0..SUB {
+        for j in 0..SUB - i {
+            let (u, v) = (i as f32, j as f32);
+            out.push(at((u + 1.0 / 3.0) / n, (v + 1.0 / 3.0) / n));
+            if i + j + 1 < SUB {
+                out.push(at((u + 2.0 / 3.0) / n, (v + 2.0 / 3.0) / n));
+            }
+        }
+    }
+    out
 }
 
 /// The smallest level whose density reaches `wanted` (at most
@@ -113,6 +265,19 @@ pub fn closest_point(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
 mod tests {
     use super::*;
 
+    /// The levels without the budget: the criterion alone.
+    fn levels(
+        triangles: &[[Vec3; 3]],
+        density: f32,
+        (lights, emitters): (&[Light], &[[Vec3; 3]]),
+        detail: f32,
+    ) -> Vec<u8> {
+        distances(triangles, density, (lights, emitters), detail)
+            .iter()
+            .map(|r| level_for(density, detail / r.max(MIN_DISTANCE)))
+            .collect()
+    }
+
     fn point(position: Vec3) -> Light {
         Light {
             name: "l".into(),
@@ -120,6 +285,24 @@ mod tests {
             position,
             intensity: Vec3::ONE,
             range: None,
+        }
+    }
+
+    #[test]
+    fn sub_triangles_tile_the_triangle() {
+        let t = [
+            Vec3::ZERO,
+            Vec3::new(4.0, 0.0, 0.0),
+            Vec3::new(0.0, 2.0, 1.0),
+        ];
+        let c = sub_centroids(&t);
+        assert_eq!(c.len(), SUB * SUB);
+        let mean = c.iter().copied().sum::<Vec3>() / c.len() as f32;
+        assert!(mean.distance((t[0] + t[1] + t[2]) / 3.0) < 1e-5, "{mean}");
+        // All distinct and inside.
+        for (k, p) in c.iter().enumerate() {
+            assert!(c[..k].iter().all(|q| q.distance(*p) > 0.1), "{p} twice");
+            assert!(closest_point(*p, t[0], t[1], t[2]).distance(*p) < 1e-5);
         }
     }
 
@@ -143,7 +326,7 @@ mod tests {
 
     #[test]
     fn triangles_near_a_light_in_front_get_finer_levels_and_far_or_behind_ones_none() {
-        // Unit triangles facing +z at x = 0, 4 and 40; a light 0.5 m in
+        // Unit triangles facing +z at x = 0, 2 and 40; a light 0.5 m in
         // front of the first.
         let tri = |x: f32| {
             [
@@ -152,22 +335,61 @@ mod tests {
                 Vec3::new(x, 1.0, 0.0),
             ]
         };
-        let triangles = [tri(0.0), tri(4.0), tri(40.0)];
+        let triangles = [tri(0.0), tri(2.0), tri(40.0)];
         let lights = [point(Vec3::new(0.2, 0.2, 0.5))];
-        // At 1 texel/m: 4 / 0.5 = 8 texels/m (level 3); the second is
-        // 3.8 m off (1.05 texels/m wanted: level 1); the third none.
-        assert_eq!(levels(&triangles, 1.0, &lights, 4.0), vec![3, 1, 0]);
+        // At 1 texel/m: the first, 0.5 to 1.1 m from the light, wants
+        // more than 4 texels/m (level 3); the second, 1.9 to 2.9 m off,
+        // between 1 and 2 (level 1); the third none.
+        assert_eq!(levels(&triangles, 1.0, (&lights, &[]), 4.0), vec![3, 1, 0]);
         // The same light behind the triangles refines nothing.
         let behind = [point(Vec3::new(0.2, 0.2, -0.5))];
-        assert_eq!(levels(&triangles, 1.0, &behind, 4.0), vec![0, 0, 0]);
+        assert_eq!(levels(&triangles, 1.0, (&behind, &[]), 4.0), vec![0, 0, 0]);
         // Nor does a light whose range ends short of them, nor detail 0.
         let short = [Light {
             range: Some(0.4),
             ..point(Vec3::new(0.2, 0.2, 0.5))
         }];
-        assert_eq!(levels(&triangles, 1.0, &short, 4.0), vec![0, 0, 0]);
-        assert_eq!(levels(&triangles, 1.0, &lights, 0.0), vec![0, 0, 0]);
+        assert_eq!(levels(&triangles, 1.0, (&short, &[]), 4.0), vec![0, 0, 0]);
+        assert_eq!(levels(&triangles, 1.0, (&lights, &[]), 0.0), vec![0, 0, 0]);
         // A dense mesh needs no more than it has.
-        assert_eq!(levels(&triangles, 10.0, &lights, 4.0), vec![0, 0, 0]);
+        assert_eq!(levels(&triangles, 10.0, (&lights, &[]), 4.0), vec![0, 0, 0]);
+    }
+
+    #[test]
+    fn emitting_triangles_refine_what_faces_them_by_their_size_and_distance() {
+        // Receivers facing +z at z = 0; a small emitter (0.2 m) facing
+        // down 0.3 m over the first, a coplanar neighbour beside it, and
+        // the emitter itself among the triangles.
+        let at = |x: f32, z: f32, size: f32, up: bool| {
+            let (a, b, c) = (
+                Vec3::new(x, 0.0, z),
+                Vec3::new(x + size, 0.0, z),
+                Vec3::new(x, size, z),
+            );
+            if up { [a, b, c] } else { [a, c, b] }
+        };
+        let small = at(0.0, 0.3, 0.2, false);
+        let triangles = [
+            at(0.0, 0.0, 1.0, true),
+            at(20.0, 0.0, 1.0, true),
+            at(0.2, 0.3, 0.2, true),
+            small,
+        ];
+        let none: [Light; 0] = [];
+        // At 1 texel/m: 4 / sqrt(0.3² + 0.13²) = 12 wanted, level 3; the
+        // far receiver, the coplanar one (facing away: the emitter is
+        // behind it) and the emitter itself get nothing.
+        assert_eq!(
+            levels(&triangles, 1.0, (&none, &[small]), 4.0),
+            vec![3, 0, 0, 0]
+        );
+        // A 4 m emitter at the same height spreads its light: level 1
+        // (4 / sqrt(0.3² + 2.98²) = 1.3 texels per metre wanted), where a
+        // small one there asks for the most.
+        let big = at(-2.0, 0.3, 4.0, false);
+        assert_eq!(
+            levels(&triangles[..2], 1.0, (&none, &[big]), 4.0),
+            vec![1, 0]
+        );
     }
 }

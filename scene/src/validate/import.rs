@@ -167,6 +167,7 @@ pub(super) fn merge_import(
     // Per own-UV mesh, its triangles' vertex normals (for its smooth edges).
     let mut own_normals: BTreeMap<usize, Vec<Option<[Vec3; 3]>>> = BTreeMap::new();
     let generated = generate_import_uvs(
+        (c, loc),
         imported,
         &object_ids,
         charts,
@@ -449,6 +450,7 @@ fn names(inst: &MeshInstance) -> (String, String) {
 /// share it), pushed onto `uv_meshes`; per instance, that mesh's index and
 /// the instance's triangles' UVs in their index order.
 fn generate_import_uvs(
+    (c, loc): (&mut Checker, &str),
     imported: &ImportedScene,
     object_ids: &[u32],
     charts: Charts,
@@ -457,6 +459,25 @@ fn generate_import_uvs(
     uv_meshes: &mut Vec<UvMesh>,
 ) -> Vec<Option<(usize, Vec<[Vec2; 3]>)>> {
     let mut out = vec![None; imported.instances.len()];
+    // The import's emitting triangles (static ones in world space): near
+    // them texels are refined as near a point light (`near_lights.rs`).
+    let emitters: Vec<[Vec3; 3]> = imported
+        .instances
+        .iter()
+        .filter(|inst| {
+            object_ids.get(inst.object as usize) == Some(&super::super::STATIC_OBJECT)
+                && imported
+                    .materials
+                    .get(inst.material as usize)
+                    .is_some_and(|m| m.emission.max_element() > 0.0)
+        })
+        .flat_map(|inst| {
+            inst.indices.iter().filter_map(|tri| {
+                let [a, b, d] = tri.map(|i| inst.positions.get(i as usize).copied());
+                Some([a?, b?, d?])
+            })
+        })
+        .collect();
     // Instances by node and mesh, in order.
     let mut groups: Vec<((usize, usize), Vec<usize>)> = Vec::new();
     for (n, inst) in imported.instances.iter().enumerate() {
@@ -490,8 +511,17 @@ fn generate_import_uvs(
             ranges.push(start..triangles.len());
         }
         let first = &imported.instances[members[0]];
-        // Static triangles are in world space, as the lights are.
-        let levels = crate::near_lights::levels(&triangles, density, lights, detail);
+        // Static triangles are in world space, as the lights are; the
+        // mesh's emitting triangles count as lights.
+        let (levels, used) =
+            crate::near_lights::budgeted_levels(&triangles, density, (lights, &emitters), detail);
+        if used < detail {
+            let (node, mesh) = names(first);
+            c.warn(loc, format!(
+                "mesh \"{node}/{mesh}\": light_detail {detail} would add more than {:.0}% texels near its lights; lowered to {used:.2}",
+                100.0 * crate::near_lights::MAX_EXTRA
+            ));
+        }
         let unwrap = crate::unwrap::unwrap_graded(&triangles, density, charts.unwrapper(), &levels);
         let packed_side = super::refined_side(&unwrap, &levels);
         let m = uv_meshes.len();
