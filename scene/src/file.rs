@@ -59,6 +59,10 @@ pub struct SkyJson {
     /// Default: the zenith's (a uniform sky).
     #[serde(default)]
     pub horizon: Option<Vec3Json>,
+    /// The albedo of an endless ground below the horizon, each channel in
+    /// [0, 1); default black.
+    #[serde(default)]
+    pub ground_albedo: Option<Vec3Json>,
 }
 
 /// A light (KHR_lights_punctual's point, spot and directional, in

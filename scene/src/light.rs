@@ -88,20 +88,66 @@ impl Light {
 
 /// Radiance from every direction the scene leaves open (W/(m² sr) per
 /// channel), `+y` up: `horizon + (zenith - horizon) cos θ` at `θ` from the
-/// zenith above the horizon, black below it (the ground is the scene's
-/// own geometry, or nothing).
+/// zenith above the horizon; below it an endless diffuse ground of albedo
+/// `ground_albedo` (black by default: the ground is then the scene's own
+/// geometry, or nothing), lit by this sky and the suns once
+/// ([`Sky::with_ground`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sky {
     pub zenith: Vec3,
     pub horizon: Vec3,
+    /// The albedo of the ground below the horizon, per channel in [0, 1).
+    pub ground_albedo: Vec3,
+    /// The radiance of that ground ([`Sky::with_ground`]).
+    pub ground: Vec3,
 }
 
 impl Sky {
+    /// A sky from zenith to horizon over a black ground.
+    pub fn new(zenith: Vec3, horizon: Vec3) -> Sky {
+        Sky {
+            zenith,
+            horizon,
+            ground_albedo: Vec3::ZERO,
+            ground: Vec3::ZERO,
+        }
+    }
+
+    /// The irradiance this sky alone gives an open horizontal plane facing
+    /// up: `∫ L cos θ dω` with `L = h + (z − h) cos θ` is `π h + (2π/3)
+    /// (z − h)`.
+    pub fn irradiance_up(&self) -> Vec3 {
+        std::f32::consts::PI * (self.horizon / 3.0 + self.zenith * (2.0 / 3.0))
+    }
+
+    /// The same sky over a ground of `albedo`, lit by the sky
+    /// ([`Self::irradiance_up`]) and by the directional lights among
+    /// `lights` (`E cos` of each sun's elevation; point and spot lights are
+    /// the scene's own, not the ground's): a Lambertian ground's radiance
+    /// is `albedo × E / π`. One bounce: the ground's light does not return
+    /// to the sky.
+    pub fn with_ground(self, albedo: Vec3, lights: &[Light]) -> Sky {
+        let suns: Vec3 = lights
+            .iter()
+            .filter_map(|l| match l.kind {
+                LightKind::Directional { direction, .. } => {
+                    Some(l.intensity * (-direction.y).max(0.0))
+                }
+                _ => None,
+            })
+            .sum();
+        Sky {
+            ground_albedo: albedo,
+            ground: albedo * (self.irradiance_up() + suns) / std::f32::consts::PI,
+            ..self
+        }
+    }
+
     /// The radiance arriving from the unit direction `from` (pointing
     /// away from the receiver, towards the sky).
     pub fn radiance(&self, from: Vec3) -> Vec3 {
         if from.y <= 0.0 {
-            return Vec3::ZERO;
+            return self.ground;
         }
         self.horizon + (self.zenith - self.horizon) * from.y
     }
@@ -156,10 +202,7 @@ mod tests {
 
     #[test]
     fn the_sky_runs_from_horizon_to_zenith_and_is_black_below() {
-        let sky = Sky {
-            zenith: Vec3::splat(2.0),
-            horizon: Vec3::splat(1.0),
-        };
+        let sky = Sky::new(Vec3::splat(2.0), Vec3::splat(1.0));
         assert_eq!(sky.radiance(Vec3::Y), Vec3::splat(2.0));
         assert_eq!(
             sky.radiance(Vec3::new(1.0, 1.0, 0.0).normalize()).x,
@@ -168,6 +211,53 @@ mod tests {
         assert_eq!(
             sky.radiance(Vec3::new(1.0, -0.01, 0.0).normalize()),
             Vec3::ZERO
+        );
+    }
+
+    #[test]
+    fn a_ground_of_stated_albedo_reflects_the_sky_and_the_sun_below_the_horizon() {
+        // Uniform sky L = 2: E = 2π; a sun of 800 W/m² at 30° elevation:
+        // E = 400; ground albedo 0.25: L_g = 0.25 (2π + 400) / π.
+        let sun = Light {
+            name: "sun".into(),
+            kind: LightKind::Directional {
+                direction: Vec3::new(30f32.to_radians().cos(), -0.5, 0.0),
+                angular_radius: 0.0,
+            },
+            position: Vec3::ZERO,
+            intensity: Vec3::splat(800.0),
+            range: None,
+        };
+        let sky = Sky::new(Vec3::splat(2.0), Vec3::splat(2.0));
+        assert!((sky.irradiance_up().x - 2.0 * std::f32::consts::PI).abs() < 1e-5);
+        let grounded = sky.with_ground(Vec3::splat(0.25), &[sun]);
+        let want = 0.25 * (2.0 * std::f32::consts::PI + 400.0) / std::f32::consts::PI;
+        assert!(
+            (grounded.radiance(Vec3::NEG_Y).x - want).abs() < 1e-3,
+            "{grounded:?}"
+        );
+        assert_eq!(
+            grounded.radiance(Vec3::Y),
+            Vec3::splat(2.0),
+            "the sky above unchanged"
+        );
+        // A gradient sky's irradiance: π h + (2π/3)(z − h), against a sum
+        // over the hemisphere (by rings of θ).
+        let g = Sky::new(Vec3::splat(3.0), Vec3::splat(1.0));
+        let n = 20_000;
+        let sum: f32 = (0..n)
+            .map(|k| {
+                let t = (k as f32 + 0.5) / n as f32 * std::f32::consts::FRAC_PI_2;
+                let from = Vec3::new(t.sin(), t.cos(), 0.0);
+                g.radiance(from).x * t.cos() * t.sin() * 2.0 * std::f32::consts::PI
+            })
+            .sum::<f32>()
+            * std::f32::consts::FRAC_PI_2
+            / n as f32;
+        assert!(
+            (sum - g.irradiance_up().x).abs() < 1e-3 * sum,
+            "{sum} vs {:?}",
+            g.irradiance_up()
         );
     }
 

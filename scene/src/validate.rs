@@ -179,7 +179,7 @@ pub fn validate(
     };
     import::check_imports(&mut c, &raw, options, base, texel_density, detail, into);
 
-    let sky = lights::check_sky(&mut c, raw.sky.as_ref());
+    let sky = lights::check_sky(&mut c, raw.sky.as_ref(), &lights);
     let lit =
         lights.iter().any(|l| l.intensity.max_element() > 0.0) || sky.is_some_and(|s| s.is_lit());
     check_lit(&mut c, &raw, &patches, &materials, lit);
@@ -651,7 +651,10 @@ pub fn scene_from_gltf(path: &Path, options: LoadOptions) -> Result<Scene, Vec<S
         options.charts,
     );
     // A sky Lightwire's export kept in the asset's extras.
-    scene.sky = imported.sky.filter(|s| s.is_lit());
+    scene.sky = imported
+        .sky
+        .filter(|s| s.is_lit())
+        .map(|s| s.with_ground(s.ground_albedo, &scene.lights));
     if scene.patches.is_empty() {
         c.report(&loc, "has no triangles");
     } else if !scene

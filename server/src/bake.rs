@@ -644,6 +644,7 @@ pub fn scene_glb_lit(
         extras["sky"] = serde_json::json!({
             "zenith": sky.zenith.to_array(),
             "horizon": sky.horizon.to_array(),
+            "ground_albedo": sky.ground_albedo.to_array(),
         });
     }
     let lightmap = GlbLightmap {

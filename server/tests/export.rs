@@ -539,7 +539,7 @@ fn the_exported_scene_keeps_its_lights_and_sky() {
     { "name": "sun", "type": "directional", "direction": [0.3, -0.8, -0.5], "color": [1, 0.95, 0.85], "intensity": 700,
       "angular_diameter_deg": 0.53 }
   ],
-  "sky": { "zenith": [2, 3, 5], "horizon": [4, 4, 4.5] },
+  "sky": { "zenith": [2, 3, 5], "horizon": [4, 4, 4.5], "ground_albedo": [0.2, 0.3, 0.1] },
   "surfaces": ["#,
         1,
     );
@@ -621,9 +621,12 @@ fn the_exported_scene_keeps_its_lights_and_sky() {
     let sky = imported.sky.expect("the sky comes back");
     let want = scene.sky.expect("the room has a sky");
     assert!(
-        close(sky.zenith, want.zenith) && close(sky.horizon, want.horizon),
+        close(sky.zenith, want.zenith)
+            && close(sky.horizon, want.horizon)
+            && close(sky.ground_albedo, want.ground_albedo),
         "{sky:?} vs {want:?}"
     );
+    assert!(want.ground.max_element() > 0.0, "a lit ground: {want:?}");
 
     let dir = temp_dir("lights");
     let path = dir.join(bake::SCENE_GLB);

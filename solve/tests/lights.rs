@@ -387,6 +387,24 @@ fn an_open_uniform_sky_gives_a_plate_pi_l() {
     );
 }
 
+/// A plate facing down, 1 m over nothing, under a gradient sky (zenith 3,
+/// horizon 1) and a sun of 800 W/m² at 53° elevation, over a ground of
+/// albedo 0.25: it sees only the ground, whose radiance is `0.25 (π (1/3 +
+/// 2) + 800 × 0.8) / π`, and reads `ρ π` that.
+#[test]
+fn a_ground_below_the_horizon_lights_what_faces_down() {
+    let (scene, atlas) = open_plate(
+        180.0,
+        "",
+        r#", "lights": [{ "name": "sun", "type": "directional", "direction": [0.6, -0.8, 0],
+                           "intensity": 800 }],
+             "sky": { "zenith": [3, 3, 3], "horizon": [1, 1, 1], "ground_albedo": [0.25, 0.25, 0.25] }"#,
+    );
+    let pi = std::f64::consts::PI;
+    let ground = 0.25 * (pi * (1.0 / 3.0 + 2.0) + 800.0 * 0.8) / pi;
+    assert_plate(&scene, &atlas, |_| RHO * pi * ground, |_| false);
+}
+
 /// A black wall 2 m high along `z` at `x = 4.5`, facing the plate (a
 /// texel that sees the backs of surfaces counts as inside geometry), 400 m
 /// long (infinite from

@@ -352,7 +352,8 @@ pub fn import_slice(
 }
 
 /// The sky a file Lightwire exported keeps in its asset's `extras`
-/// (`{"lightwire": {"sky": {"zenith": [r, g, b], "horizon": [r, g, b]}}}`,
+/// (`{"lightwire": {"sky": {"zenith": [r, g, b], "horizon": [r, g, b],
+/// "ground_albedo": [r, g, b]}}}`,
 /// W/(m² sr)); glTF has no sky of its own. None without one, or where the
 /// numbers are not finite and >= 0.
 fn asset_sky(document: &::gltf::Document) -> Option<crate::Sky> {
@@ -369,9 +370,14 @@ fn asset_sky(document: &::gltf::Document) -> Option<crate::Sky> {
             .then(|| Vec3::new(v[0], v[1], v[2]))
     };
     let zenith = rgb("zenith")?;
+    let sky = crate::Sky::new(zenith, rgb("horizon").unwrap_or(zenith));
+    // The ground's albedo; its radiance follows from the lights, which the
+    // scene built from this file sets (`Sky::with_ground`).
     Some(crate::Sky {
-        zenith,
-        horizon: rgb("horizon").unwrap_or(zenith),
+        ground_albedo: rgb("ground_albedo")
+            .filter(|a| a.max_element() < 1.0)
+            .unwrap_or(Vec3::ZERO),
+        ..sky
     })
 }
 

@@ -143,7 +143,7 @@ fn sun(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
 }
 
 /// The scene file's sky: finite radiances, each channel >= 0.
-pub(super) fn check_sky(c: &mut Checker, raw: Option<&SkyJson>) -> Option<Sky> {
+pub(super) fn check_sky(c: &mut Checker, raw: Option<&SkyJson>, lights: &[Light]) -> Option<Sky> {
     let raw = raw?;
     let zenith = c.vec3("sky", "zenith", &raw.zenith)?;
     let horizon = match &raw.horizon {
@@ -154,7 +154,18 @@ pub(super) fn check_sky(c: &mut Checker, raw: Option<&SkyJson>) -> Option<Sky> {
         c.report("sky", "radiance must be >= 0 per channel (W/(m² sr))");
         return None;
     }
-    Some(Sky { zenith, horizon })
+    let albedo = match &raw.ground_albedo {
+        Some(a) => c.vec3("sky", "ground_albedo", a)?,
+        None => glam::Vec3::ZERO,
+    };
+    if albedo.min_element() < 0.0 || albedo.max_element() >= 1.0 {
+        c.report(
+            "sky",
+            format!("ground_albedo {albedo:?} must be in [0, 1) per channel"),
+        );
+        return None;
+    }
+    Some(Sky::new(zenith, horizon).with_ground(albedo, lights))
 }
 
 fn spot(c: &mut Checker, loc: &str, l: &LightJson) -> Option<LightKind> {
@@ -256,6 +267,29 @@ mod tests {
             .expect_err("negative sky")
             .to_string();
         assert!(err.contains("sky: radiance must be >= 0"), "{err}");
+        // The ground below the horizon: black unless stated, and an albedo
+        // must be below 1.
+        assert_eq!(sky.ground, glam::Vec3::ZERO);
+        let grounded = text.replace(
+            r#""horizon": [0.3, 0.3, 0.3] }"#,
+            r#""horizon": [0.3, 0.3, 0.3], "ground_albedo": [0.2, 0.2, 0.2] }"#,
+        );
+        let g = Scene::parse(&grounded, "t.json")
+            .expect("loads")
+            .sky
+            .expect("a sky");
+        assert!(
+            g.ground.x > 0.2 * 800.0 * 0.5f32.sqrt() / std::f32::consts::PI,
+            "{g:?}"
+        );
+        let white = grounded.replace("[0.2, 0.2, 0.2]", "[1, 0.2, 0.2]");
+        let err = Scene::parse(&white, "t.json")
+            .expect_err("white ground")
+            .to_string();
+        assert!(
+            err.contains("sky: ground_albedo") && err.contains("[0, 1)"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -59,6 +59,8 @@ pub struct LightEntry {
 pub struct SkyEntry {
     pub zenith: [f32; 3],
     pub horizon: [f32; 3],
+    /// The ground's albedo below the horizon (black: `[0, 0, 0]`).
+    pub ground_albedo: [f32; 3],
 }
 
 /// `scene`'s lights and sky.
@@ -119,6 +121,7 @@ fn sky_entry(sky: &Sky) -> SkyEntry {
     SkyEntry {
         zenith: sky.zenith.to_array(),
         horizon: sky.horizon.to_array(),
+        ground_albedo: sky.ground_albedo.to_array(),
     }
 }
 
