@@ -26,6 +26,7 @@
 //! parallelograms (quads, boxes) and triangles (meshes).
 
 pub mod atlas;
+pub mod bvh;
 pub mod error;
 pub mod file;
 pub mod gltf;

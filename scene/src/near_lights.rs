@@ -21,9 +21,11 @@
 //! import's emitting triangles; [`budgeted_levels`], [`distances`]).
 //! Charts take triangles of one level only, so a floor far from the lamps
 //! keeps its density and the ring around a lamp gets its own, finer
-//! charts; a mesh gains at most [`MAX_EXTRA`] of its texels. Shadow edges
-//! and contacts, whose place only a solve tells (Wallner's shadow-boundary
-//! ratio), are not refined here.
+//! charts; a mesh gains at most [`MAX_EXTRA`] of its texels. Where a
+//! sun's shadow edge crosses a triangle (Wallner's shadow-boundary
+//! criterion, by shadow rays from its corners), its texels are a quarter
+//! as large ([`SHADOW_LEVEL`]). Contacts, and the shadow edges of point and
+//! spot lights, are not refined here.
 
 use glam::Vec3;
 
@@ -47,15 +49,34 @@ pub const MAX_LEVEL: u8 = 3;
 /// elements).
 pub const MAX_EXTRA: f32 = 0.5;
 
+/// The refinement of a mesh: per triangle its level, and what the budget
+/// left of the asked detail and of [`SHADOW_LEVEL`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refinement {
+    pub levels: Vec<u8>,
+    /// `light_detail` after the budget (the asked one if it fitted).
+    pub detail: f32,
+    /// The level of triangles a sun's shadow edge crosses after the budget.
+    pub shadow_level: u8,
+}
+
+/// The level of a triangle a sun's shadow edge crosses (Wallner's
+/// shadow-boundary criterion: its corners and centroid see the sun
+/// otherwise): texels of a quarter of the mesh's, so that the band a
+/// client reads blurred along the edge is a quarter as wide.
+pub const SHADOW_LEVEL: u8 = 2;
+
 /// Per triangle (world space, counter-clockwise seen from the front), its
-/// refinement level at `density` texels per metre for `detail` texels
-/// across the distance to the nearest point or spot light in front of it
-/// (within its range) or emitting triangle (`emitters`, world space),
-/// within a budget: if the levels would add more than
-/// [`MAX_EXTRA`] of the mesh's texels (by area) and more than
-/// [`MIN_EXTRA`], `detail` is lowered in
-/// steps of 10% until they do not. Returns the levels and the detail
-/// used.
+/// refinement level at `density` texels per metre: [`SHADOW_LEVEL`] where
+/// the shadow edge of a directional light (the sun) crosses it, as the
+/// mesh itself casts it ([`sun_edges`]), and at least the level for
+/// `detail` texels across the distance to the nearest point or spot light
+/// in front of it (within its range) or emitting triangle (`emitters`,
+/// world space) ([`distances`]); `detail` 0 refines nothing. Within a
+/// budget: if the levels would add more than [`MAX_EXTRA`] of the mesh's
+/// texels (by area) and more than [`MIN_EXTRA`], `detail` is lowered in
+/// steps of 10% until they do not, and if even none does not fit, the
+/// shadow level steps down.
 ///
 /// An emitter is a light when each of the two triangles lies in front of
 /// the other. Its light spreads over its radius `R` where it faces a
@@ -70,31 +91,114 @@ pub fn budgeted_levels(
     density: f32,
     (lights, emitters): (&[Light], &[[Vec3; 3]]),
     detail: f32,
-) -> (Vec<u8>, f32) {
+) -> Refinement {
     let near = distances(triangles, density, (lights, emitters), detail);
+    let edges = if detail > 0.0 {
+        sun_edges(triangles, lights)
+    } else {
+        vec![false; triangles.len()]
+    };
     let areas: Vec<f32> = triangles
         .iter()
         .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
         .collect();
     let total: f32 = areas.iter().sum();
-    let mut detail = detail;
-    loop {
-        let levels: Vec<u8> = near
-            .iter()
-            .map(|r| level_for(density, detail / r.max(MIN_DISTANCE)))
-            .collect();
-        let extra: f32 = levels
-            .iter()
-            .zip(&areas)
-            .map(|(l, a)| a * (f32::from(1u16 << (2 * l)) - 1.0))
-            .sum();
-        if extra * density * density <= (MAX_EXTRA * total * density * density).max(MIN_EXTRA)
-            || detail < 1e-3
-        {
-            return (levels, detail);
+    let budget = (MAX_EXTRA * total * density * density).max(MIN_EXTRA);
+    let mut last = None;
+    for shadow_level in (0..=SHADOW_LEVEL).rev() {
+        let mut d = detail;
+        loop {
+            let levels: Vec<u8> = near
+                .iter()
+                .zip(&edges)
+                .map(|(r, edge)| {
+                    let light = level_for(density, d / r.max(MIN_DISTANCE));
+                    if *edge {
+                        light.max(shadow_level)
+                    } else {
+                        light
+                    }
+                })
+                .collect();
+            let extra: f32 = levels
+                .iter()
+                .zip(&areas)
+                .map(|(l, a)| a * (f32::from(1u16 << (2 * l)) - 1.0))
+                .sum();
+            let refinement = Refinement {
+                levels,
+                detail: d,
+                shadow_level,
+            };
+            if extra * density * density <= budget {
+                return refinement;
+            }
+            last = Some(refinement);
+            if d < 1e-3 {
+                break;
+            }
+            d *= 0.9;
         }
-        detail *= 0.9;
     }
+    last.unwrap_or(Refinement {
+        levels: vec![0; triangles.len()],
+        detail: 0.0,
+        shadow_level: 0,
+    })
+}
+
+/// Per triangle, whether the shadow edge of a directional light crosses
+/// it: of its three corners (pulled 1% towards the centroid) and its
+/// centroid, lifted a millimetre off its front, some see the light's
+/// centre and some do not, the mesh's own triangles the occluders (a BVH,
+/// shadow rays cast in parallel). A triangle that faces away from a light
+/// is in its own shadow, no edge.
+pub fn sun_edges(triangles: &[[Vec3; 3]], lights: &[Light]) -> Vec<bool> {
+    use rayon::prelude::*;
+    let suns: Vec<glam::DVec3> = lights
+        .iter()
+        .filter(|l| l.intensity.max_element() > 0.0)
+        .filter_map(|l| match l.kind {
+            LightKind::Directional { direction, .. } => Some(-direction.as_dvec3()),
+            _ => None,
+        })
+        .collect();
+    if suns.is_empty() || triangles.is_empty() {
+        return vec![false; triangles.len()];
+    }
+    let bvh = crate::bvh::Bvh::new(
+        triangles
+            .iter()
+            .map(|[a, b, c]| {
+                let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+                crate::bvh::Primitive::triangle(a, b - a, c - b)
+            })
+            .collect(),
+    );
+    let (lo, hi) = triangles
+        .iter()
+        .flatten()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        });
+    let far = 2.0 * f64::from((hi - lo).length()) + 1.0;
+    triangles
+        .par_iter()
+        .enumerate()
+        .map(|(k, t)| {
+            let [a, b, c] = t.map(|p| p.as_dvec3());
+            let normal = (b - a).cross(c - a).normalize_or_zero();
+            let centroid = (a + b + c) / 3.0;
+            let probes = [a, b, c].map(|p| p + (centroid - p) * 0.01 + normal * 1e-3);
+            let centre = centroid + normal * 1e-3;
+            let skip = [k as u32; 2];
+            suns.iter().filter(|to| normal.dot(**to) > 0.0).any(|to| {
+                let sees = |p: glam::DVec3| !bvh.occluded(p, p + *to * far, skip);
+                let first = sees(centre);
+                probes.iter().any(|p| sees(*p) != first)
+            })
+        })
+        .collect()
 }
 
 /// Per triangle, the distance that stands for its lights' (the point and
@@ -353,6 +457,54 @@ mod tests {
         assert_eq!(levels(&triangles, 1.0, (&lights, &[]), 0.0), vec![0, 0, 0]);
         // A dense mesh needs no more than it has.
         assert_eq!(levels(&triangles, 10.0, (&lights, &[]), 4.0), vec![0, 0, 0]);
+    }
+
+    #[test]
+    fn triangles_a_suns_shadow_edge_crosses_are_found_by_their_corners() {
+        // A floor of 1 m cells facing up, and a 1.5 m square 1 m over it
+        // from (0.25, 0.25) to (1.75, 1.75): under a sun straight down its
+        // shadow's edge crosses the cells of the first two rows and
+        // columns, not the far ones, nor the square itself.
+        let up = |x: f32, y: f32, z: f32, s: f32| {
+            let (a, b, c, d) = (
+                Vec3::new(x, y, z),
+                Vec3::new(x, y, z + s),
+                Vec3::new(x + s, y, z + s),
+                Vec3::new(x + s, y, z),
+            );
+            [[a, b, c], [a, c, d]]
+        };
+        let mut triangles = Vec::new();
+        for i in 0..4 {
+            for j in 0..4 {
+                triangles.extend(up(i as f32, 0.0, j as f32, 1.0));
+            }
+        }
+        triangles.extend(up(0.25, 1.0, 0.25, 1.5));
+        let sun = |direction: Vec3| Light {
+            name: "sun".into(),
+            kind: LightKind::Directional {
+                direction,
+                angular_radius: 0.0,
+            },
+            position: Vec3::ZERO,
+            intensity: Vec3::splat(800.0),
+            range: None,
+        };
+        let edges = sun_edges(&triangles, &[sun(Vec3::NEG_Y)]);
+        // Cell (i, j) holds triangles 8 i + 2 j and 8 i + 2 j + 1.
+        let cell = |i: usize, j: usize| edges[8 * i + 2 * j] || edges[8 * i + 2 * j + 1];
+        assert!(cell(0, 0) && cell(1, 1) && cell(0, 1), "{edges:?}");
+        assert!(!cell(3, 3) && !cell(2, 3) && !cell(3, 0), "{edges:?}");
+        assert!(!edges[32] && !edges[33], "the square is lit all over");
+        // No sun, no edge; a sun from below lights nothing here.
+        assert!(sun_edges(&triangles, &[]).iter().all(|e| !e));
+        assert!(sun_edges(&triangles, &[sun(Vec3::Y)]).iter().all(|e| !e));
+        // The budget: a mesh this small may always take them.
+        let refined = budgeted_levels(&triangles, 1.0, (&[sun(Vec3::NEG_Y)], &[]), 4.0);
+        assert_eq!(refined.shadow_level, SHADOW_LEVEL);
+        assert_eq!(refined.levels[0], SHADOW_LEVEL);
+        assert_eq!(refined.levels[30], 0);
     }
 
     #[test]

@@ -409,8 +409,9 @@ fn add_surface(
     if generate {
         // In the patches' corner order, as given ones are.
         let triangles = triangles();
-        let (levels, _) =
-            super::near_lights::budgeted_levels(&triangles, s.density, (lights, &[]), detail);
+        let levels =
+            super::near_lights::budgeted_levels(&triangles, s.density, (lights, &[]), detail)
+                .levels;
         let unwrap =
             super::unwrap::unwrap_graded(&triangles, s.density, charts.unwrapper(), &levels);
         generated_charts = unwrap.charts;

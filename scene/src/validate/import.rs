@@ -513,15 +513,21 @@ fn generate_import_uvs(
         let first = &imported.instances[members[0]];
         // Static triangles are in world space, as the lights are; the
         // mesh's emitting triangles count as lights.
-        let (levels, used) =
+        let refined =
             crate::near_lights::budgeted_levels(&triangles, density, (lights, &emitters), detail);
-        if used < detail {
+        if refined.detail < detail || refined.shadow_level < crate::near_lights::SHADOW_LEVEL {
             let (node, mesh) = names(first);
-            c.warn(loc, format!(
-                "mesh \"{node}/{mesh}\": light_detail {detail} would add more than {:.0}% texels near its lights; lowered to {used:.2}",
-                100.0 * crate::near_lights::MAX_EXTRA
-            ));
+            c.warn(
+                loc,
+                format!(
+                    "mesh \"{node}/{mesh}\": texels near its lights and sun shadow edges would add more than {:.0}% texels; light_detail lowered to {:.2}, shadow edges at {}x the density",
+                    100.0 * crate::near_lights::MAX_EXTRA,
+                    refined.detail,
+                    1u32 << refined.shadow_level
+                ),
+            );
         }
+        let levels = refined.levels;
         let unwrap = crate::unwrap::unwrap_graded(&triangles, density, charts.unwrapper(), &levels);
         let packed_side = super::refined_side(&unwrap, &levels);
         let m = uv_meshes.len();

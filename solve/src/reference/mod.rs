@@ -41,7 +41,7 @@
 //! The dense matrix costs `4 N²` bytes; [`MAX_ELEMENTS`] keeps that bounded.
 //! Rows are computed and iterated in parallel with rayon.
 
-pub mod bvh;
+pub use lightwire_scene::bvh;
 pub mod form_factor;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
