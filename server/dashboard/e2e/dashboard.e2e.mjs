@@ -181,8 +181,10 @@ try {
 
   // 5b. The scene's lights as gizmos, when the server lists any.
   const listedLights = await page.evaluate(async (scene) => {
-    const token = new URLSearchParams(location.search).get('token');
+    // The token the page itself uses (its field; a relay wants one).
+    const token = document.getElementById('token').value.trim();
     const r = await fetch('/api/scenes', { headers: token ? { Authorization: `Bearer ${token}` } : {} });
+    if (!r.ok) throw new Error(`GET /api/scenes: HTTP ${r.status}`);
     return (await r.json()).find((s) => s.id === scene)?.lights ?? 0;
   }, snap.scene);
   if (args['expect-lights'] || listedLights > 0) {
