@@ -183,9 +183,10 @@ pub struct LightmapJson {
     /// The atlas may not be wider or taller than this many texels.
     #[serde(default = "default_max_atlas_size")]
     pub max_atlas_size: u32,
-    /// Texels across a generated lightmap's distance to a point or spot
-    /// light in front of it (`near_lights.rs`); 0 leaves the density as
-    /// given.
+    /// Texels across a generated lightmap's distance to its lights (point
+    /// and spot lights, emitting triangles), which also turns on finer
+    /// texels at a sun's shadow edges (`near_lights.rs`); 0 leaves the
+    /// density as given.
     #[serde(default = "default_light_detail")]
     pub light_detail: f64,
 }

@@ -409,6 +409,12 @@ fn add_surface(
     if generate {
         // In the patches' corner order, as given ones are.
         let triangles = triangles();
+        // (The `uvunwrap` crate's charts take no levels: none are cast.)
+        let detail = if charts.unwrapper() == super::unwrap::Unwrapper::Projected {
+            detail
+        } else {
+            0.0
+        };
         let levels =
             super::near_lights::budgeted_levels(&triangles, s.density, (lights, &[]), detail)
                 .levels;

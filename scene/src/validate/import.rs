@@ -513,6 +513,12 @@ fn generate_import_uvs(
         let first = &imported.instances[members[0]];
         // Static triangles are in world space, as the lights are; the
         // mesh's emitting triangles count as lights.
+        // (The `uvunwrap` crate's charts take no levels: none are cast.)
+        let detail = if charts.unwrapper() == crate::unwrap::Unwrapper::Projected {
+            detail
+        } else {
+            0.0
+        };
         let refined =
             crate::near_lights::budgeted_levels(&triangles, density, (lights, &emitters), detail);
         if refined.detail < detail || refined.shadow_level < crate::near_lights::SHADOW_LEVEL {
