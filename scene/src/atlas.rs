@@ -162,9 +162,10 @@ const SEAM_TOLERANCE: f32 = 1e-4;
 /// average over its own side, so in a gradient the two disagree, and a
 /// client sees the seam. Texels of one object whose grid points (corner
 /// samples taken at the corner itself, not moved inward) coincide on
-/// patches that face the same way within 1° are one group; creases, where
-/// flat patches meet at an angle, are not seams: their light differs for
-/// real. Returns only groups of two or more.
+/// patches that face the same way within 1° and reflect alike
+/// ([`Scene::reflects_alike`]) are one group; creases, where flat patches
+/// meet at an angle, and edges where the material changes are not seams:
+/// their light differs for real. Returns only groups of two or more.
 fn find_seams(scene: &Scene, charts: &[Chart], elements: &[Element]) -> Vec<Vec<u32>> {
     use std::collections::HashMap;
     let mut at: HashMap<(u32, [i64; 3]), Vec<u32>> = HashMap::new();
@@ -208,10 +209,11 @@ fn find_seams(scene: &Scene, charts: &[Chart], elements: &[Element]) -> Vec<Vec<
         let mut groups: Vec<Vec<u32>> = Vec::new();
         for i in members {
             let n = elements[i as usize].normal;
-            match groups
-                .iter_mut()
-                .find(|g| elements[g[0] as usize].normal.dot(n) >= SEAM_COS)
-            {
+            let p = elements[i as usize].patch as usize;
+            match groups.iter_mut().find(|g| {
+                let first = &elements[g[0] as usize];
+                first.normal.dot(n) >= SEAM_COS && scene.reflects_alike(first.patch as usize, p)
+            }) {
                 Some(g) => g.push(i),
                 None => groups.push(vec![i]),
             }
@@ -848,6 +850,51 @@ mod tests {
                 "positions": [[0, 1, 0], [1.7, 1.1, 0.2], [0.4, 1.05, 0.1]] } }
         ]
     }"#;
+
+    /// Two coplanar 1 m quads that share the edge `x = 1`, the second of
+    /// material `second`.
+    fn side_by_side(second: &str) -> Scene {
+        scene(&format!(
+            r#"{{
+            "name": "t",
+            "lightmap": {{ "texel_density": 4 }},
+            "materials": [
+                {{ "name": "white", "albedo": [0.8, 0.8, 0.8] }},
+                {{ "name": "white too", "albedo": [0.8, 0.8, 0.8] }},
+                {{ "name": "dark", "albedo": [0.1, 0.1, 0.1] }},
+                {{ "name": "lamp", "albedo": [0, 0, 0], "emission": [5, 5, 5] }}
+            ],
+            "surfaces": [
+                {{ "name": "a", "material": "white", "quad": {{ "origin": [0, 0, 0], "u": [1, 0, 0], "v": [0, 0, -1] }} }},
+                {{ "name": "b", "material": "{second}", "quad": {{ "origin": [1, 0, 0], "u": [1, 0, 0], "v": [0, 0, -1] }} }},
+                {{ "name": "lamp", "material": "lamp", "quad": {{ "origin": [0.8, 1, -0.2], "u": [0, 0, -0.4], "v": [0.4, 0, 0] }} }}
+            ]
+        }}"#
+        ))
+    }
+
+    #[test]
+    fn seams_join_patches_that_reflect_alike_and_never_across_an_albedo_step() {
+        for (second, joined) in [("white", true), ("white too", true), ("dark", false)] {
+            let scene = side_by_side(second);
+            assert_eq!(scene.reflects_alike(0, 1), joined, "{second}");
+            let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
+            let across = atlas
+                .seams
+                .iter()
+                .filter(|g| {
+                    g.iter().any(|&i| atlas.elements[i as usize].patch == 0)
+                        && g.iter().any(|&i| atlas.elements[i as usize].patch == 1)
+                })
+                .count();
+            if joined {
+                // The shared edge's texels, one per grid point (4 per metre).
+                assert_eq!(across, 5, "{second}: the edge's texels are stitched");
+            } else {
+                assert_eq!(across, 0, "{second}: no seam where the albedo steps");
+            }
+        }
+    }
 
     #[test]
     fn element_areas_of_a_patch_sum_to_its_area() {

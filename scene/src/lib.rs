@@ -640,6 +640,30 @@ impl Scene {
             .map(|i| i as u32)
     }
 
+    /// Whether patches `p` and `q` leave the same light for the same
+    /// irradiance: the same albedo and emission, and neither textured (a
+    /// texture's albedo varies over its patch). Radiosity is continuous
+    /// across an edge only between such patches, so only their texels are
+    /// stitched into seams (`atlas.rs`, `atlas/stitch.rs`): a dark sticky
+    /// note set into a white frame of the same plane leaves an eighth of
+    /// its light, and stitched to the frame it read the frame's.
+    pub fn reflects_alike(&self, p: usize, q: usize) -> bool {
+        let (Some(a), Some(b)) = (self.patches.get(p), self.patches.get(q)) else {
+            return false;
+        };
+        if a.albedo_map.is_some() || b.albedo_map.is_some() {
+            return a.material == b.material;
+        }
+        a.material == b.material
+            || match (
+                self.materials.get(a.material as usize),
+                self.materials.get(b.material as usize),
+            ) {
+                (Some(m), Some(n)) => m.albedo == n.albedo && m.emission == n.emission,
+                _ => false,
+            }
+    }
+
     /// The initial pose of every object, indexed like [`Scene::objects`].
     pub fn initial_poses(&self) -> Vec<Pose> {
         self.objects.iter().map(|o| o.initial_pose).collect()

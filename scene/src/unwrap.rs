@@ -88,22 +88,29 @@ pub enum Unwrapper {
 /// side its corners run counter-clockwise around) at `density` texels per
 /// metre, with `unwrapper`.
 pub fn unwrap(triangles: &[[Vec3; 3]], density: f32, unwrapper: Unwrapper) -> Unwrap {
-    unwrap_graded(triangles, density, unwrapper, &[])
+    unwrap_graded(triangles, density, unwrapper, (&[], &[]))
 }
 
 /// [`unwrap`] with a refinement level per triangle (`near_lights.rs`;
-/// empty: none): under the projection, a chart takes triangles of one
-/// level only and is laid out at `2^level × density`. The `uvunwrap`
-/// crate's charts ignore the levels.
+/// empty: none) and a material per triangle (empty: one): under the
+/// projection, a chart takes triangles of one level and one material only
+/// and is laid out at `2^level × density`. The `uvunwrap` crate's charts
+/// ignore both.
+///
+/// A texel holds radiosity, the light that leaves the surface with its
+/// albedo in it (PROTOCOL.md), so it can stand for one material only: a
+/// dark sticky note (albedo 0.1) set into a white frame of the same
+/// plane, one chart, read the frame's light, eight times its own (the
+/// garage's worst point at the eye, BENCHMARKS.md §1).
 pub fn unwrap_graded(
     triangles: &[[Vec3; 3]],
     density: f32,
     unwrapper: Unwrapper,
-    levels: &[u8],
+    (levels, materials): (&[u8], &[u32]),
 ) -> Unwrap {
     match unwrapper {
         Unwrapper::Uvunwrap => lscm::unwrap(triangles, density),
-        Unwrapper::Projected => project_graded(triangles, density, levels),
+        Unwrapper::Projected => project_graded(triangles, density, (levels, materials)),
     }
 }
 
@@ -112,13 +119,19 @@ pub fn unwrap_graded(
 /// at `density` texels per metre by projecting near-planar charts (the
 /// module's three steps).
 pub fn project(triangles: &[[Vec3; 3]], density: f32) -> Unwrap {
-    project_graded(triangles, density, &[])
+    project_graded(triangles, density, (&[], &[]))
 }
 
-/// [`project`] with a refinement level per triangle ([`unwrap_graded`]).
-pub fn project_graded(triangles: &[[Vec3; 3]], density: f32, levels: &[u8]) -> Unwrap {
+/// [`project`] with a refinement level and a material per triangle
+/// ([`unwrap_graded`]).
+pub fn project_graded(
+    triangles: &[[Vec3; 3]],
+    density: f32,
+    (levels, materials): (&[u8], &[u32]),
+) -> Unwrap {
     let n = triangles.len();
     let level = |t: usize| levels.get(t).copied().unwrap_or(0);
+    let material = |t: usize| materials.get(t).copied().unwrap_or(0);
     let normals: Vec<Vec3> = triangles
         .iter()
         .map(|[a, b, c]| (*b - *a).cross(*c - *a).normalize_or_zero())
@@ -179,6 +192,7 @@ pub fn project_graded(triangles: &[[Vec3; 3]], density: f32, levels: &[u8]) -> U
                 if chart[m] == u32::MAX
                     && tried[m] != id
                     && level(m) == level(seed as usize)
+                    && material(m) == material(seed as usize)
                     && normals[m].dot(normal) >= cos_max
                     && !normals[m].is_nan()
                 {
@@ -561,6 +575,20 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn a_chart_never_joins_two_materials() {
+        let tris = grid(4);
+        // The first two rows one material, the last two another.
+        let materials: Vec<u32> = (0..tris.len()).map(|t| u32::from(t >= 16)).collect();
+        let u = project_graded(&tris, 8.0, (&[], &materials));
+        assert_eq!(u.charts, 2);
+        for (t, &m) in materials.iter().enumerate() {
+            assert_eq!(u.chart[t] == u.chart[0], m == materials[0], "triangle {t}");
+        }
+        // One material: one chart, as without materials.
+        assert_eq!(project_graded(&tris, 8.0, (&[], &[7; 32])).charts, 1);
     }
 
     #[test]

@@ -419,7 +419,7 @@ fn add_surface(
             super::near_lights::budgeted_levels(&triangles, s.density, (lights, &[]), detail)
                 .levels;
         let unwrap =
-            super::unwrap::unwrap_graded(&triangles, s.density, charts.unwrapper(), &levels);
+            super::unwrap::unwrap_graded(&triangles, s.density, charts.unwrapper(), (&levels, &[]));
         generated_charts = unwrap.charts;
         packed_side = refined_side(&unwrap, &levels);
         lightmap_uvs = Some(unwrap.uvs);

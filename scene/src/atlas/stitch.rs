@@ -27,7 +27,8 @@
 //! one publication to the next), on every publication
 //! ([`super::Atlas::to_image`]); no other texel changes.
 //!
-//! A pair of patches is a seam when both belong to one object, they face
+//! A pair of patches is a seam when both belong to one object, reflect
+//! alike (`Scene::reflects_alike`: radiosity jumps where the albedo does), they face
 //! the same way within 1° ([`super::SEAM_COS`]) or meet where the asset's
 //! vertex normals say the surface is smooth (`UvMesh::smooth_edges`: a
 //! faceted column or sphere, whose facets' flat light differs but which an
@@ -405,7 +406,7 @@ impl Finder<'_> {
             for &j in list {
                 let other = &self.edges[j as usize];
                 let q = other.patch as usize;
-                if q == p || seen.contains(&other.patch) {
+                if q == p || seen.contains(&other.patch) || !self.scene.reflects_alike(p, q) {
                     continue;
                 }
                 // Facing the same way, or meeting at a crease the

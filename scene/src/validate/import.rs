@@ -478,6 +478,23 @@ fn generate_import_uvs(
             })
         })
         .collect();
+    // Per material, the first material that reflects as it does (the same
+    // albedo and emission, neither textured): charts keep them apart only
+    // where the light leaving them differs (`Scene::reflects_alike`).
+    let alike: Vec<u32> = (0..imported.materials.len())
+        .map(|m| {
+            let a = &imported.materials[m];
+            imported.materials[..m]
+                .iter()
+                .position(|b| {
+                    a.texture.is_none()
+                        && b.texture.is_none()
+                        && a.albedo == b.albedo
+                        && a.emission == b.emission
+                })
+                .unwrap_or(m) as u32
+        })
+        .collect();
     // Instances by node and mesh, in order.
     let mut groups: Vec<((usize, usize), Vec<usize>)> = Vec::new();
     for (n, inst) in imported.instances.iter().enumerate() {
@@ -496,6 +513,7 @@ fn generate_import_uvs(
     for (_, members) in groups {
         let mut triangles = Vec::new();
         let mut normals = Vec::new();
+        let mut materials = Vec::new();
         let mut ranges = Vec::with_capacity(members.len());
         for &n in &members {
             let inst = &imported.instances[n];
@@ -506,6 +524,12 @@ fn generate_import_uvs(
                 if let (Some(a), Some(b), Some(d)) = (a, b, d) {
                     triangles.push([a, b, d]);
                     normals.push(corner_normals(inst, tri));
+                    materials.push(
+                        alike
+                            .get(inst.material as usize)
+                            .copied()
+                            .unwrap_or(inst.material),
+                    );
                 }
             }
             ranges.push(start..triangles.len());
@@ -534,7 +558,13 @@ fn generate_import_uvs(
             );
         }
         let levels = refined.levels;
-        let unwrap = crate::unwrap::unwrap_graded(&triangles, density, charts.unwrapper(), &levels);
+        // A chart holds one material: a texel's radiosity has its albedo in it.
+        let unwrap = crate::unwrap::unwrap_graded(
+            &triangles,
+            density,
+            charts.unwrapper(),
+            (&levels, &materials),
+        );
         let packed_side = super::refined_side(&unwrap, &levels);
         let m = uv_meshes.len();
         for (&n, range) in members.iter().zip(ranges) {
