@@ -144,8 +144,13 @@ pub struct BakeStats {
     pub seconds: f64,
     pub form_factor_seconds: f64,
     pub solve_seconds: f64,
-    /// Emitted, absorbed and escaped power in W (sum over channels).
+    /// Emitted, absorbed and escaped power in W (sum over channels). The
+    /// emitted power is the emitting surfaces' and what the lights and the
+    /// sky deliver onto the surfaces (their direct light: a sun's or a
+    /// sky's power is the part that falls on the scene); `light_power` is
+    /// that second part.
     pub emitted_power: f64,
+    pub light_power: f64,
     pub absorbed_power: f64,
     pub escaped_power: f64,
 }
@@ -169,6 +174,7 @@ impl BakeStats {
             form_factor_seconds: 0.0,
             solve_seconds: 0.0,
             emitted_power: 0.0,
+            light_power: 0.0,
             absorbed_power: 0.0,
             escaped_power: 0.0,
         }

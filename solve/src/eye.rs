@@ -342,6 +342,7 @@ mod tests {
             mean: Vec3::splat(v),
             std_error: Vec3::ZERO,
             irradiance: Vec3::ZERO,
+            lights: Vec3::ZERO,
         }
     }
 

@@ -482,6 +482,28 @@ pub fn reflected_power(atlas: &Atlas, irradiance: &[Vec3], areas: &[f32]) -> f64
         .sum()
 }
 
+/// The power the lights' direct light `irradiance` ([`element_irradiance`],
+/// one per element) delivers onto the elements of `atlas`, `Σ A D`, and
+/// what they absorb of it at once, `Σ A (1 − ρ) D`, with `areas` the
+/// elements' world areas (W, channels summed). Every solver reports the
+/// first with the emitted power (`stats.json`): a sun's or a sky's power
+/// is the part that falls on the scene.
+pub fn delivered_power(atlas: &Atlas, irradiance: &[Vec3], areas: &[f32]) -> (f64, f64) {
+    atlas
+        .elements
+        .iter()
+        .zip(irradiance)
+        .zip(areas)
+        .map(|((e, d), a)| {
+            let a = f64::from(*a);
+            (
+                a * f64::from(d.element_sum()),
+                a * f64::from(((Vec3::ONE - e.albedo) * *d).element_sum()),
+            )
+        })
+        .fold((0.0, 0.0), |(x, y), (p, q)| (x + p, y + q))
+}
+
 /// Whether `scene` has lights or a sky that these functions light.
 pub fn any(scene: &Scene) -> bool {
     !scene.lights.is_empty() || scene.sky.is_some()

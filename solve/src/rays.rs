@@ -97,6 +97,9 @@ pub struct RaySolver {
     /// changes are measured against beside the emitted power (a scene lit
     /// only by lights emits nothing from its surfaces).
     lit: f64,
+    /// The power the lights and the sky deliver onto the receivers
+    /// (`Σ A D` of their direct light).
+    delivered: f64,
     sweeps: usize,
     /// Power the last sweep changed, and the one before, as fractions of
     /// the emitted power.
@@ -191,6 +194,7 @@ impl RaySolver {
             validity,
             emitted,
             lit: 0.0,
+            delivered: 0.0,
             sweeps: 0,
             changes: (1.0, 1.0),
             casting: Some(Casting {
@@ -218,12 +222,13 @@ impl RaySolver {
         let done = self.direct.len();
         let end = done.saturating_add(count).min(self.receivers.len());
         let emission = &self.emission;
-        let cast: Vec<(Vec3, Row)> = self.receivers[done..end]
+        let cast: Vec<(Vec3, Vec3, Row)> = self.receivers[done..end]
             .par_iter()
             .map(|&i| casting.cast(scene, atlas, poses, i, emission))
             .collect();
-        for ((d, (c, w)), &i) in cast.into_iter().zip(&self.receivers[done..end]) {
+        for ((d, lights, (c, w)), &i) in cast.into_iter().zip(&self.receivers[done..end]) {
             self.radiosity[i as usize] = self.emission[i as usize] + self.albedo[i as usize] * d;
+            self.delivered += f64::from(self.areas[i as usize]) * f64::from(lights.element_sum());
             if crate::lights::any(scene) {
                 // The lights' power enters as the first reflection of
                 // their direct light (the emitters' as their emission).
@@ -361,9 +366,12 @@ impl RaySolver {
         &self.validity
     }
 
-    /// Emitted and absorbed power (W, channels summed): each valid
-    /// element absorbs `A (1 - ρ) H` of the irradiance of the last sweep.
-    pub fn power(&self) -> (f64, f64) {
+    /// Emitted and absorbed power (W, channels summed), and the part of
+    /// the emitted power the lights and the sky deliver onto the
+    /// receivers (`Σ A D`, their direct light): each valid element
+    /// absorbs `A (1 - ρ) H` of the irradiance of the last sweep, direct
+    /// light included.
+    pub fn power(&self) -> (f64, f64, f64) {
         let absorbed = self
             .receivers
             .iter()
@@ -374,12 +382,13 @@ impl RaySolver {
                     * f64::from(((Vec3::ONE - self.albedo[i]) * *h).element_sum())
             })
             .sum();
-        (self.emitted, absorbed)
+        (self.emitted + self.delivered, absorbed, self.delivered)
     }
 }
 
 impl Casting {
-    /// Element `i`'s direct irradiance from `emission` and its row.
+    /// Element `i`'s direct irradiance from `emission` and the lights,
+    /// the lights' (and the sky's) part of it, and its row.
     fn cast(
         &self,
         scene: &Scene,
@@ -387,17 +396,18 @@ impl Casting {
         poses: &[Pose],
         i: u32,
         emission: &[Vec3],
-    ) -> (Vec3, Row) {
+    ) -> (Vec3, Vec3, Row) {
         let caster = &self.caster;
         let (x, n) = sample_point(scene, caster, atlas, poses, i as usize);
-        let direct =
-            self.emitters.irradiance_within(
-                caster,
-                atlas,
-                (x, n),
-                (self.grid, self.grid * self.grid),
-                |j| emission[j],
-            ) + crate::lights::texel_irradiance(scene, caster, (atlas, poses), i as usize, (x, n));
+        let lights =
+            crate::lights::texel_irradiance(scene, caster, (atlas, poses), i as usize, (x, n));
+        let direct = self.emitters.irradiance_within(
+            caster,
+            atlas,
+            (x, n),
+            (self.grid, self.grid * self.grid),
+            |j| emission[j],
+        ) + lights;
         let per_ray = 1.0 / self.directions.len().max(1) as f32;
         let mut hits: Vec<(u32, f32)> = Vec::with_capacity(self.directions.len() * 4);
         let mut sky = Vec3::ZERO;
@@ -428,7 +438,7 @@ impl Casting {
                 );
             }
         }
-        let direct = direct + sky;
+        let (direct, lights) = (direct + sky, lights + sky);
         hits.sort_unstable_by_key(|h| h.0);
         let mut row: Row = (Vec::new(), Vec::new());
         for (j, w) in hits {
@@ -441,7 +451,7 @@ impl Casting {
                 row.1.push(w);
             }
         }
-        (direct, row)
+        (direct, lights, row)
     }
 }
 
@@ -493,7 +503,7 @@ mod tests {
                 assert!((b[c] - 2.0).abs() <= 0.01, "element {i}: {b}");
             }
         }
-        let (emitted, absorbed) = solver.power();
+        let (emitted, absorbed, _) = solver.power();
         assert!(
             (absorbed / emitted - 1.0).abs() < 0.01,
             "absorbed {absorbed} of {emitted}"

@@ -146,7 +146,12 @@ impl pathtrace::Progress for Forward<'_> {
 /// Where a solution's power goes, in W with the RGB channels summed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Power {
+    /// The emitting surfaces' power and what the lights and the sky
+    /// deliver onto the surfaces (`Σ A D` of their direct light: a sun's
+    /// or a sky's is the part that falls on the scene).
     pub emitted: f64,
+    /// The lights' and the sky's part of `emitted`.
+    pub lights: f64,
     pub absorbed: f64,
     /// Power that left the scene (never negative).
     pub escaped: f64,
@@ -371,6 +376,7 @@ impl BatchSolver for Reference<'_> {
         let balance = self.solver.energy_balance(self.solution()?);
         Ok(Power {
             emitted: balance.emitted.element_sum(),
+            lights: balance.lights.element_sum(),
             absorbed: balance.absorbed.element_sum(),
             escaped: balance.escaped.element_sum(),
         })
@@ -510,6 +516,7 @@ impl BatchSolver for Progressive {
         let balance = self.solver.energy_balance()?;
         Ok(Power {
             emitted: balance.emitted,
+            lights: balance.lights,
             absorbed: balance.absorbed,
             escaped: (balance.shot - balance.received).max(0.0),
         })
@@ -621,6 +628,7 @@ impl BatchSolver for Gather {
         let balance = self.solver.energy_balance()?;
         Ok(Power {
             emitted: balance.emitted,
+            lights: balance.lights,
             absorbed: balance.absorbed,
             escaped: (balance.emitted - balance.absorbed).max(0.0),
         })
@@ -737,6 +745,7 @@ impl BatchSolver for PathTraced<'_> {
         let power = pathtrace::energy_balance(self.scene, self.atlas, self.poses, estimates);
         Ok(Power {
             emitted: power.emitted,
+            lights: power.lights,
             absorbed: power.absorbed,
             escaped: (power.emitted - power.absorbed).max(0.0),
         })
@@ -878,9 +887,10 @@ impl BatchSolver for Rays<'_> {
     }
 
     fn energy_balance(&self) -> Result<Power> {
-        let (emitted, absorbed) = self.solver()?.power();
+        let (emitted, absorbed, lights) = self.solver()?.power();
         Ok(Power {
             emitted,
+            lights,
             absorbed,
             escaped: (emitted - absorbed).max(0.0),
         })

@@ -143,6 +143,10 @@ pub struct Estimate {
     /// Mean of the samples of the irradiance `H` (W/m²), whose standard
     /// error is `std_error / ρ`.
     pub irradiance: Vec3,
+    /// The part of `irradiance` that comes straight from the point, spot
+    /// and directional lights and the sky (W/m²): the power they deliver
+    /// ([`energy_balance`]).
+    pub lights: Vec3,
 }
 
 impl Estimate {
@@ -324,13 +328,16 @@ impl PathTracer {
                 mean: emission,
                 std_error: Vec3::ZERO,
                 irradiance: Vec3::ZERO,
+                lights: Vec3::ZERO,
             };
         }
         let mut rng = fastrand::Rng::with_seed(splitmix64(seed));
         let (mut sum, mut sum_sq, mut h_sum) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+        let mut lights_sum = DVec3::ZERO;
         for _ in 0..spp {
             let at = origin(&mut rng);
-            let h = self.irradiance_sample(at, n, &mut rng);
+            let (h, lights) = self.irradiance_sample(at, n, &mut rng);
+            lights_sum += lights;
             let b = e + rho * h;
             sum += b;
             sum_sq += b * b;
@@ -344,6 +351,7 @@ impl PathTracer {
             mean: mean.as_vec3(),
             std_error: (variance / count).map(f64::sqrt).as_vec3(),
             irradiance: (h_sum / count).as_vec3(),
+            lights: (lights_sum / count).as_vec3(),
         }
     }
 
@@ -443,6 +451,7 @@ impl PathTracer {
                 mean: e.emission,
                 std_error: Vec3::ZERO,
                 irradiance: Vec3::ZERO,
+                lights: Vec3::ZERO,
             },
         }
     }
@@ -491,20 +500,36 @@ impl PathTracer {
 
     /// One sample of the irradiance at `origin` (already off its surface)
     /// with unit normal `n`: a path with next-event estimation at every
-    /// vertex (see the module doc).
-    fn irradiance_sample(&self, origin: DVec3, n: DVec3, rng: &mut fastrand::Rng) -> DVec3 {
+    /// vertex (see the module doc); and the part of it that came straight
+    /// from the lights and the sky.
+    fn irradiance_sample(
+        &self,
+        origin: DVec3,
+        n: DVec3,
+        rng: &mut fastrand::Rng,
+    ) -> (DVec3, DVec3) {
         let (mut x, mut n) = (origin, n);
         let mut h = DVec3::ZERO;
+        let mut lights = DVec3::ZERO;
         let mut throughput = DVec3::ONE;
         let mut bounces = 0;
         loop {
-            h += throughput * self.direct(x, n, rng);
+            let surfaces = self.surface_direct(x, n, rng);
+            let punctual = self.punctual_direct(x, n, rng);
+            h += throughput * (surfaces + punctual);
+            if bounces == 0 {
+                lights += punctual;
+            }
             let dir = cosine_direction(n, rng);
             let Some(hit) = self.rays.closest_hit(x, dir, f64::INFINITY) else {
                 // The path leaves the scene: the sky's radiance over the
                 // direction's density cos θ / π, times the cosine, is π L.
                 if let Some(sky) = &self.sky {
-                    h += throughput * sky.radiance(dir.as_vec3()).as_dvec3() * std::f64::consts::PI;
+                    let seen = sky.radiance(dir.as_vec3()).as_dvec3() * std::f64::consts::PI;
+                    h += throughput * seen;
+                    if bounces == 0 {
+                        lights += seen;
+                    }
                 }
                 break;
             };
@@ -536,7 +561,7 @@ impl PathTracer {
             n = wp.normal;
             x = hit.point + n * SURFACE_OFFSET;
         }
-        h
+        (h, lights)
     }
 
     /// The albedo of patch `patch` at the point `x` on it: its material's,
@@ -555,14 +580,6 @@ impl PathTracer {
     /// of emitter `patch` at `distance`, seen at `cos_y` to its normal.
     fn light_density(&self, patch: usize, distance: f64, cos_y: f64) -> f64 {
         self.selection[patch] / self.rays.patches()[patch].area * distance * distance / cos_y
-    }
-
-    /// The direct irradiance at `x` (off its surface) with normal `n`:
-    /// the emitting surfaces' by next-event estimation, and every point
-    /// or spot light's exactly (a light is a point: one shadow ray each,
-    /// and no bounce can find it, so nothing to weigh).
-    fn direct(&self, x: DVec3, n: DVec3, rng: &mut fastrand::Rng) -> DVec3 {
-        self.surface_direct(x, n, rng) + self.punctual_direct(x, n, rng)
     }
 
     /// `Σ I(ω) cos θ / d²` over the point and spot lights `x` sees in front
@@ -816,8 +833,12 @@ pub fn std_error_file(
 /// Where a path-traced bake's power goes, summed over channels (W).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Power {
-    /// Emitted by the scene's emitters at the bake's poses.
+    /// Emitted by the scene's emitters at the bake's poses, and delivered
+    /// onto the surfaces by the lights and the sky (`Σ_i A_i D_i`, `D` the
+    /// estimates' [`Estimate::lights`]).
     pub emitted: f64,
+    /// The lights' and the sky's part of `emitted`.
+    pub lights: f64,
     /// Absorbed by surfaces, `Σ_i A_i (1 − ρ_i) H_i` over the elements
     /// (areas at the poses' scales): an estimate, with the elements'
     /// quadrature error and the path tracer's noise. In a closed scene it
@@ -832,7 +853,7 @@ pub fn energy_balance(
     poses: &[Pose],
     estimates: &[Estimate],
 ) -> Power {
-    let absorbed = atlas
+    let (absorbed, lights) = atlas
         .elements
         .iter()
         .zip(estimates)
@@ -841,11 +862,15 @@ pub fn energy_balance(
                 .get(e.object as usize)
                 .map_or(1.0, |p| f64::from(p.scale));
             let a = f64::from(e.area) * scale * scale;
-            a * ((DVec3::ONE - e.albedo.as_dvec3()) * est.irradiance.as_dvec3()).element_sum()
+            (
+                a * ((DVec3::ONE - e.albedo.as_dvec3()) * est.irradiance.as_dvec3()).element_sum(),
+                a * f64::from(est.lights.element_sum()),
+            )
         })
-        .sum();
+        .fold((0.0, 0.0), |(x, y), (p, q)| (x + p, y + q));
     Power {
-        emitted: f64::from(scene.emitted_power(poses).element_sum()),
+        emitted: f64::from(scene.emitted_power(poses).element_sum()) + lights,
+        lights,
         absorbed,
     }
 }

@@ -121,8 +121,10 @@ struct WorldElement {
     albedo: DVec3,
     /// What the element sends before any bounce: its emission, plus the
     /// direct light of the scene's point and spot lights it reflects
-    /// (`ρ D`, `crate::lights`). The energy balance counts it as emitted.
+    /// (`ρ D`, `crate::lights`).
     emission: DVec3,
+    /// `D`: the direct irradiance of the lights and the sky.
+    lit: DVec3,
 }
 
 /// A scene placed at fixed poses with its form factors computed.
@@ -418,6 +420,8 @@ pub struct Solution {
 #[derive(Debug, Clone, Copy)]
 pub struct EnergyBalance {
     pub emitted: DVec3,
+    /// The share of `emitted` the lights and the sky deliver.
+    pub lights: DVec3,
     pub absorbed: DVec3,
     pub escaped: DVec3,
     /// What invalid elements send beyond what their own samples receive
@@ -506,6 +510,13 @@ impl ReferenceSolver {
                     Region::new([0.0; 4], (o, u, v), true, sample)
                 };
                 let scale = f64::from(poses[e.object as usize].scale);
+                let lit = caster.as_ref().map_or(DVec3::ZERO, |c| {
+                    let at = (x, wp.normal);
+                    dvec(
+                        crate::lights::texel_irradiance(scene, c, (atlas, poses), i, at)
+                            + crate::lights::sky_irradiance_at(scene, c, at, &sky_directions),
+                    )
+                });
                 WorldElement {
                     x,
                     normal: wp.normal,
@@ -513,25 +524,8 @@ impl ReferenceSolver {
                     patch: e.patch,
                     region,
                     albedo: dvec(e.albedo),
-                    emission: dvec(e.emission)
-                        + dvec(e.albedo)
-                            * caster.as_ref().map_or(DVec3::ZERO, |c| {
-                                let at = (x, wp.normal);
-                                dvec(
-                                    crate::lights::texel_irradiance(
-                                        scene,
-                                        c,
-                                        (atlas, poses),
-                                        i,
-                                        at,
-                                    ) + crate::lights::sky_irradiance_at(
-                                        scene,
-                                        c,
-                                        at,
-                                        &sky_directions,
-                                    ),
-                                )
-                            }),
+                    emission: dvec(e.emission) + dvec(e.albedo) * lit,
+                    lit,
                 }
             })
             .collect();
@@ -716,14 +710,18 @@ impl ReferenceSolver {
     }
 
     /// Where the power of a solution goes: absorbed by surfaces
-    /// (`Σ A_i (1-ρ_i) H_i`) or escaped to infinity
-    /// (`Σ A_i B_i (1 - Σ_j F_ij)`). In a converged, energy-conserving
-    /// discretisation the two add up to the emitted power and what the
-    /// invalid elements donate ([`EnergyBalance::donated`]).
+    /// (`Σ A_i (1-ρ_i) (H_i + D_i)`, `D` the lights' direct irradiance) or
+    /// escaped to infinity (`Σ A_i B_i (1 - Σ_j F_ij)`). In a converged,
+    /// energy-conserving discretisation the two add up to the emitted
+    /// power (the emitting surfaces' and the power the lights deliver onto
+    /// the surfaces, `Σ A_i D_i`: a sun's or a sky's is the part that
+    /// falls on the scene) and what the invalid elements donate
+    /// ([`EnergyBalance::donated`]).
     pub fn energy_balance(&self, solution: &Solution) -> EnergyBalance {
         let n = self.len();
         let mut balance = EnergyBalance {
             emitted: DVec3::ZERO,
+            lights: DVec3::ZERO,
             absorbed: DVec3::ZERO,
             escaped: DVec3::ZERO,
             donated: DVec3::ZERO,
@@ -733,8 +731,10 @@ impl ReferenceSolver {
                 .iter()
                 .map(|f| f64::from(*f))
                 .sum();
-            balance.emitted += e.area * e.emission;
-            balance.absorbed += e.area * (DVec3::ONE - e.albedo) * dvec(solution.irradiance[i]);
+            balance.emitted += e.area * (e.emission - e.albedo * e.lit + e.lit);
+            balance.lights += e.area * e.lit;
+            balance.absorbed +=
+                e.area * (DVec3::ONE - e.albedo) * (dvec(solution.irradiance[i]) + e.lit);
             balance.escaped +=
                 e.area * dvec(solution.region_radiosity[i]) * (1.0 - row_sum).max(0.0);
             if self.donors[i] as usize != i {

@@ -239,6 +239,7 @@ fn bake_command(
         form_factor_seconds: solved.form_factor_seconds,
         solve_seconds: solved.solve_seconds,
         emitted_power: balance.emitted,
+        light_power: balance.lights,
         absorbed_power: balance.absorbed,
         escaped_power: balance.escaped,
         ..BakeStats::new(&scene, &atlas, solver.name())

@@ -131,8 +131,11 @@ pub struct GatherReport {
 /// Power bookkeeping of the last completed bounce (W, RGB channels summed).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GatherBalance {
-    /// `Σ A_i E_i`.
+    /// `Σ A_i E_i`, and the power the lights and the sky deliver onto the
+    /// elements (`Σ A_i D_i`, their direct light).
     pub emitted: f64,
+    /// The lights' and the sky's part of `emitted`.
+    pub lights: f64,
     /// Power that arrived at elements: `Σ A_i H_i`.
     pub received: f64,
     /// Power absorbed by elements: `Σ A_i (1 - ρ_i) H_i`. At convergence
@@ -155,6 +158,9 @@ pub struct GatherSolver {
     triangle_vertices: u32,
     near: f32,
     emitted: f64,
+    /// `Σ A D` and `Σ A (1 − ρ) D` of the lights' direct light
+    /// (`lights::delivered_power`).
+    delivered: (f64, f64),
     areas: Vec<f32>,
     albedo: Vec<Vec3>,
     /// `E` per element: the radiosity buffers hold `B - E`.
@@ -238,6 +244,7 @@ impl GatherSolver {
         );
         let emitted = placement::emitted_power(atlas, &areas)
             + crate::lights::reflected_power(atlas, &lit, &areas);
+        let delivered = crate::lights::delivered_power(atlas, &lit, &areas);
         let elements = gather_elements((scene, atlas, poses), &receivers, &areas, &lit);
         let vertices = world_triangles(&patches);
         let triangle_vertices = vertices.len() as u32;
@@ -278,6 +285,7 @@ impl GatherSolver {
             triangle_vertices,
             near: offset * 1e-2,
             emitted,
+            delivered,
             areas,
             albedo,
             emission,
@@ -435,8 +443,12 @@ impl GatherSolver {
     pub fn energy_balance(&self) -> Result<GatherBalance, GpuError> {
         let h = self.read_vec4(&self.irradiance)?;
         let (received, absorbed) = received_and_absorbed(&h, &self.areas, &self.albedo);
+        // `H` holds the lights' direct light (`GatherElement::direct`):
+        // the emitted power counts all of it, not only what is reflected.
+        let (onto, taken) = self.delivered;
         Ok(GatherBalance {
-            emitted: self.emitted,
+            emitted: self.emitted + taken,
+            lights: onto,
             received,
             absorbed,
         })

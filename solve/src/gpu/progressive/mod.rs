@@ -80,8 +80,11 @@ pub struct StepReport {
 /// Power bookkeeping (W, summed over the RGB channels).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EnergyBalance {
-    /// `Σ A_e E_e`.
+    /// `Σ A_e E_e`, and the power the lights and the sky deliver onto the
+    /// elements (`Σ A_e D_e`, their direct light).
     pub emitted: f64,
+    /// The lights' and the sky's part of `emitted`.
+    pub lights: f64,
     /// Power taken out of the unshot buffers by shots so far.
     pub shot: f64,
     /// Power that arrived at elements: `Σ A_e H_e`.
@@ -150,6 +153,9 @@ pub struct ProgressiveSolver {
     albedo: Vec<Vec3>,
     element_count: u32,
     emitted: f64,
+    /// `Σ A D` and `Σ A (1 − ρ) D` of the lights' direct light
+    /// (`lights::delivered_power`).
+    delivered: (f64, f64),
     near: f32,
     far: f32,
     /// How far receiving points are moved off their surface and towards
@@ -253,6 +259,7 @@ impl ProgressiveSolver {
         );
         let emitted = placement::emitted_power(atlas, &areas)
             + crate::lights::reflected_power(atlas, &lit, &areas);
+        let delivered = crate::lights::delivered_power(atlas, &lit, &areas);
         let source: Vec<[f32; 4]> = emission
             .iter()
             .enumerate()
@@ -313,6 +320,7 @@ impl ProgressiveSolver {
             albedo,
             element_count: n as u32,
             emitted,
+            delivered,
             near: extent * 1e-4,
             far: extent * 4.0,
             surface_offset: extent * placement::SURFACE_OFFSET,
@@ -730,11 +738,15 @@ impl ProgressiveSolver {
     pub fn energy_balance(&self) -> Result<EnergyBalance, GpuError> {
         let h = self.read_vec4(&self.buffers.irradiance)?;
         let (received, absorbed) = received_and_absorbed(&h, &self.areas, &self.albedo);
+        // The lights' direct light enters as unshot reflected light: what
+        // the elements absorbed of it at once was never received.
+        let (onto, taken) = self.delivered;
         Ok(EnergyBalance {
-            emitted: self.emitted,
+            emitted: self.emitted + taken,
+            lights: onto,
             shot: self.shot_power,
             received,
-            absorbed,
+            absorbed: absorbed + taken,
             unshot: f64::from(self.selection.total.max(0.0)),
         })
     }
