@@ -12,7 +12,7 @@ use rayon::prelude::*;
 
 use crate::raycast::{CosineGrid, Raycaster};
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{LightKind, Pose, Scene};
+use lightwire_scene::{Light, LightKind, Pose, Scene};
 
 /// Shadow rays per side of the stratified grid on a directional light's
 /// disc (when it has one): 16 directions, so a soft sun's penumbra is
@@ -31,31 +31,31 @@ pub const SKY_SIDE: usize = 32;
 /// rays to infinity, one for a disc of no size) over directional ones. Not
 /// the sky ([`sky_irradiance_at`]).
 pub fn irradiance_at(scene: &Scene, caster: &Raycaster, (x, n): (DVec3, DVec3)) -> Vec3 {
-    lights_irradiance(scene, (x, n), |d, max| !caster.occluded(x, d, max))
+    lights_irradiance(&scene.lights, (x, n), |d, max| !caster.occluded(x, d, max))
 }
 
 /// [`irradiance_at`] with `open(direction, distance)` saying whether a
 /// shadow ray from `x` reaches its light.
 fn lights_irradiance(
-    scene: &Scene,
+    lights: &[Light],
     at: (DVec3, DVec3),
     open: impl FnMut(DVec3, f64) -> bool,
 ) -> Vec3 {
-    lights_seen(scene, at, open, &mut Vec::new())
+    lights_seen(lights, at, open, &mut Vec::new())
 }
 
 /// [`lights_irradiance`], with how many of each light's shadow rays are
 /// open in `seen` (cleared first; 0 for a light that faces away): what a
 /// shadow edge changes.
 fn lights_seen(
-    scene: &Scene,
+    lights: &[Light],
     (x, n): (DVec3, DVec3),
     mut open: impl FnMut(DVec3, f64) -> bool,
     seen: &mut Vec<u32>,
 ) -> Vec3 {
     seen.clear();
     let mut e = Vec3::ZERO;
-    for light in &scene.lights {
+    for light in lights {
         seen.push(0);
         if let LightKind::Directional {
             direction,
@@ -189,57 +189,71 @@ impl Texel {
 }
 
 /// The irradiance the point, spot and directional lights (not the sky)
-/// give element `i`, with `open(x, direction, distance)` saying whether
-/// a shadow ray from `x` reaches its light: at the element's sample `at`
-/// where the four corner sub-samples of its texel ([`EDGE_SIDE`]² cells) see
-/// the same shadow rays open as the sample does (no shadow edge crosses
-/// the texel), and otherwise the mean over all its sub-samples, the
-/// texel's area average (Coombe §39.3 refines where the light changes;
-/// Wallner's shadow-boundary test, here as "do the corners see the light
-/// alike"). A texel half in a hard shadow holds half the light instead of
-/// all or nothing, so the edge reads as a ramp a texel wide rather than a
-/// staircase.
+/// `lights` give element `i`, with `open(x, direction, distance)` saying
+/// whether a shadow ray from `x` reaches its light, light by light: at
+/// the element's sample `at` where the four corner sub-samples of its
+/// texel ([`EDGE_SIDE`]² cells) see the light's shadow rays open as the
+/// sample does (its shadow edge does not cross the texel), and otherwise
+/// the mean over all its sub-samples, the texel's area average (Coombe
+/// §39.3 refines where the light changes; Wallner's shadow-boundary test,
+/// here as "do the corners see the light alike"). A texel half in a hard
+/// shadow holds half the light instead of all or nothing, so the edge
+/// reads as a ramp a texel wide rather than a staircase. Light by light,
+/// so that the whole is the sum of what each light gives alone: a change
+/// of one light changes the direct light by exactly that light's part
+/// ([`light_change`], issue 60).
 fn texel_lights(
-    scene: &Scene,
+    (scene, lights): (&Scene, &[Light]),
     (atlas, poses): (&Atlas, &[Pose]),
     (i, at, lift): (usize, (DVec3, DVec3), f64),
     (open, caster): (impl Fn(DVec3, DVec3, f64) -> bool, &Raycaster),
 ) -> Vec3 {
     let (x, n) = at;
-    let mut seen = Vec::new();
-    let centre = lights_seen(scene, at, |d, max| open(x, d, max), &mut seen);
-    let Some(texel) = Texel::of(scene, atlas, poses, (i, n, lift)) else {
-        return centre;
-    };
-    let mut probe = Vec::new();
-    let edge = texel.corners().any(|p| {
-        lights_seen(scene, (p, n), |d, max| open(p, d, max), &mut probe);
-        probe != seen
-    });
-    if !edge {
-        return centre;
-    }
+    let texel = Texel::of(scene, atlas, poses, (i, n, lift));
     // Sub-samples inside geometry (under a block resting on the floor:
     // straight up they meet a face from behind) are no surface anyone
     // sees; the texel's average is over the rest (the invalid-texel rule,
-    // `crate::validity`, within a texel).
-    let (sum, count) = texel
-        .cells()
-        .filter(|&p| {
-            caster
-                .closest_hit(p, n, f64::INFINITY)
-                .is_none_or(|hit| hit.front)
-        })
-        .fold((Vec3::ZERO, 0usize), |(sum, count), p| {
-            (
-                sum + lights_irradiance(scene, (p, n), |d, max| open(p, d, max)),
-                count + 1,
-            )
+    // `crate::validity`, within a texel). Found once, for the first light
+    // whose edge crosses the texel.
+    let mut cells: Option<Vec<DVec3>> = None;
+    let (mut seen, mut probe) = (Vec::new(), Vec::new());
+    let mut total = Vec3::ZERO;
+    for light in lights {
+        let one = std::slice::from_ref(light);
+        let centre = lights_seen(one, at, |d, max| open(x, d, max), &mut seen);
+        let Some(texel) = &texel else {
+            total += centre;
+            continue;
+        };
+        let edge = texel.corners().any(|p| {
+            lights_seen(one, (p, n), |d, max| open(p, d, max), &mut probe);
+            probe != seen
         });
-    if count == 0 {
-        return centre;
+        if !edge {
+            total += centre;
+            continue;
+        }
+        let cells = cells.get_or_insert_with(|| {
+            texel
+                .cells()
+                .filter(|&p| {
+                    caster
+                        .closest_hit(p, n, f64::INFINITY)
+                        .is_none_or(|hit| hit.front)
+                })
+                .collect()
+        });
+        if cells.is_empty() {
+            total += centre;
+            continue;
+        }
+        let sum: Vec3 = cells
+            .iter()
+            .map(|&p| lights_irradiance(one, (p, n), |d, max| open(p, d, max)))
+            .sum();
+        total += sum / cells.len() as f32;
     }
-    sum / count as f32
+    total
 }
 
 /// [`texel_lights`] against `caster`: the point, spot and directional
@@ -257,11 +271,34 @@ pub fn texel_irradiance(
         return Vec3::ZERO;
     }
     texel_lights(
-        scene,
+        (scene, &scene.lights),
         (atlas, poses),
         (i, at, lift(caster)),
         (|x, d, max| !caster.occluded(x, d, max), caster),
     )
+}
+
+/// How element `i`'s direct irradiance (its sample point `at`, shadow rays
+/// against `caster`) changes when the light `old` becomes `new`, nothing
+/// else changing: `D_new − D_old` of that light alone, which is the change
+/// of the whole because a texel's direct light is the sum of what each
+/// light gives it ([`texel_lights`]). Zero where neither reaches it.
+pub fn light_change(
+    scene: &Scene,
+    caster: &Raycaster,
+    (atlas, poses): (&Atlas, &[Pose]),
+    (i, at): (usize, (DVec3, DVec3)),
+    (old, new): (&Light, &Light),
+) -> Vec3 {
+    let one = |light: &Light| {
+        texel_lights(
+            (scene, std::slice::from_ref(light)),
+            (atlas, poses),
+            (i, at, lift(caster)),
+            (|x, d, max| !caster.occluded(x, d, max), caster),
+        )
+    };
+    one(new) - one(old)
 }
 
 /// How far sub-samples are lifted off their surface: as the sample point
@@ -332,7 +369,7 @@ pub fn irradiance_change(
             // against `new` for both, so that each side is the element's
             // whole direct light, sub-samples chosen as they would be.
             let before = texel_lights(
-                scene,
+                (scene, &scene.lights),
                 (atlas, poses),
                 (i, at, lift),
                 (
@@ -347,7 +384,7 @@ pub fn irradiance_change(
                 ),
             );
             let after = texel_lights(
-                scene,
+                (scene, &scene.lights),
                 (atlas, poses),
                 (i, at, lift),
                 (|p, d, max| !new.occluded(p, d, max), new),

@@ -15,8 +15,17 @@
 //! itself (their direct light per texel includes the lights,
 //! `crate::direct::element_direct_light`); incremental resets them to
 //! their emission, so they get `ρ D` at the new pose here as unshot light.
+//!
+//! A light that changes (issue 60: switched, dimmed, recoloured, moved or
+//! turned) is followed the same way ([`ProgressiveSolver::set_light`]):
+//! radiosity is linear in what the sources send, so the signed change
+//! `ρ (D_new − D_old)` of that light alone, added as unshot radiosity and
+//! shot like any other, takes the converged solution to the one of the
+//! new light, with no memory kept per light (a change costs one light's
+//! shadow rays over the texels and the refinement that carries it).
 
 use glam::Vec3;
+use lightwire_scene::Light;
 use rayon::prelude::*;
 
 use super::{Move, Redistribution};
@@ -127,5 +136,59 @@ impl ProgressiveSolver {
         self.queue
             .write_buffer(&self.buffers.unshot, 0, bytemuck::cast_slice(&u));
         self.reselect()
+    }
+
+    /// Makes light `k` of the scene `light` (its intensity, colour, on or
+    /// off, position or direction): the change of its direct light at
+    /// every valid element, reflected, is added to the radiosity and the
+    /// unshot radiosity (see the module documentation), and refinement
+    /// carries it on. Returns whether anything changed (false for `k`
+    /// beyond the scene's lights or the same light).
+    pub fn set_light(&mut self, k: usize, light: Light) -> Result<bool, GpuError> {
+        let Some(old) = self.scene.lights.get(k).cloned() else {
+            return Ok(false);
+        };
+        if old == light {
+            return Ok(false);
+        }
+        let caster = Raycaster::with_absent(&self.scene, &self.poses, &self.absent);
+        let (scene, atlas, poses) = (&self.scene, &self.atlas, self.poses.as_slice());
+        let validity = &self.validity;
+        // ΔD per element, and ρ ΔD.
+        let change: Vec<Vec3> = (0..self.element_count as usize)
+            .into_par_iter()
+            .map(|i| {
+                let e = &atlas.elements[i];
+                if !e.covers_surface() || validity.is_invalid(i) {
+                    return Vec3::ZERO;
+                }
+                let at = crate::raycast::sample_point(scene, &caster, atlas, poses, i);
+                crate::lights::light_change(scene, &caster, (atlas, poses), (i, at), (&old, &light))
+            })
+            .collect();
+        let delta: Vec<Vec3> = change
+            .iter()
+            .zip(&self.albedo)
+            .map(|(d, rho)| *rho * *d)
+            .collect();
+        // The source the unshot fraction is measured against, and the
+        // power the lights deliver (`stats.json`), follow the light.
+        let (mut reflected, mut onto, mut taken) = (0.0, 0.0, 0.0);
+        for ((d, rho), a) in change.iter().zip(&self.albedo).zip(&self.areas) {
+            let a = f64::from(*a);
+            reflected += a * f64::from((*rho * *d).element_sum());
+            onto += a * f64::from(d.element_sum());
+            taken += a * f64::from(((Vec3::ONE - *rho) * *d).element_sum());
+        }
+        self.emitted = (self.emitted + reflected).max(0.0);
+        self.delivered = (self.delivered.0 + onto, self.delivered.1 + taken);
+        if let Some(direct) = &mut self.direct {
+            for (b, d) in direct.iter_mut().zip(&delta) {
+                *b += *d;
+            }
+        }
+        self.scene.lights[k] = light;
+        self.add_unshot(&delta)?;
+        Ok(true)
     }
 }
