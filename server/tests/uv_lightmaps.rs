@@ -529,13 +529,75 @@ fn meshes_without_lightmap_uvs_are_lit_on_generated_ones() {
     Atlas::build(&generated).unwrap_or_else(|e| panic!("{e}"));
 }
 
+/// A grey material of `albedo` emitting `emission` (W/m² per channel).
+fn grey(name: &str, albedo: f32, emission: f32) -> lightwire_scene::gltf::write::GlbMaterial {
+    lightwire_scene::gltf::write::GlbMaterial {
+        name: name.into(),
+        base_color: Vec3::splat(albedo),
+        emission: Vec3::splat(emission),
+        base_color_texture: None,
+    }
+}
+
+/// A `.glb` of two root nodes: `name` with a mesh of `primitives` (node and
+/// mesh named alike) and `lamp` with one of the primitive `lamp`.
+fn beside_a_lamp(
+    name: &str,
+    primitives: Vec<lightwire_scene::gltf::write::GlbPrimitive>,
+    lamp: lightwire_scene::gltf::write::GlbPrimitive,
+    materials: Vec<lightwire_scene::gltf::write::GlbMaterial>,
+) -> Vec<u8> {
+    use lightwire_scene::gltf::write::{GlbMesh, GlbNode, GlbScene};
+    GlbScene {
+        materials,
+        images: Vec::new(),
+        meshes: vec![
+            GlbMesh {
+                name: name.into(),
+                primitives,
+            },
+            GlbMesh {
+                name: "lamp".into(),
+                primitives: vec![lamp],
+            },
+        ],
+        nodes: vec![GlbNode::new(name, Some(0)), GlbNode::new("lamp", Some(1))],
+        roots: vec![0, 1],
+    }
+    .to_glb()
+    .unwrap_or_else(|e| panic!("write {name}: {e}"))
+}
+
+/// `glb` loaded (through a file named `file` in a temporary directory)
+/// with lightmap UVs at `density_scale`, and the index of its uv mesh
+/// `mesh`, which Lightwire generated.
+fn load_generated(glb: &[u8], file: &str, density_scale: f32, mesh: &str) -> (Scene, usize) {
+    let dir = std::env::temp_dir().join(format!("lightwire-{file}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+    let path = dir.join(file);
+    std::fs::write(&path, glb).unwrap_or_else(|e| panic!("{e}"));
+    let options = LoadOptions {
+        charts: Charts::LightmapUvs,
+        ..LoadOptions::scaled(density_scale)
+    };
+    let scene = Scene::load_with(&path, options).unwrap_or_else(|e| panic!("{e}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    let k = scene
+        .uv_meshes
+        .iter()
+        .position(|m| m.name == mesh)
+        .unwrap_or_else(|| panic!("{mesh}'s generated UVs"));
+    assert!(scene.uv_meshes[k].generated);
+    (scene, k)
+}
+
 /// An octagonal prism (radius 0.5 m, 1 m tall, closed by two caps) beside
 /// a small lamp facing it from +x, as a `.glb` without `TEXCOORD_1`. With
 /// `smooth` the side's ring vertices are shared by neighbouring facets with
 /// radial normals (an engine shades it as a cylinder); without, each facet
 /// has its own vertices and face normal (hard edges).
 fn prism_glb(smooth: bool) -> Vec<u8> {
-    use lightwire_scene::gltf::write::{GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene};
+    use lightwire_scene::gltf::write::GlbPrimitive;
     let sides = 8usize;
     let at = |i: usize, y: f32| {
         let phi = std::f32::consts::TAU * (i % sides) as f32 / sides as f32;
@@ -615,33 +677,12 @@ fn prism_glb(smooth: bool) -> Vec<u8> {
     for (y, z) in [(0.3, 0.05), (0.3, 0.45), (0.7, 0.45), (0.7, 0.05)] {
         lamp.positions.push(Vec3::new(1.2, y, z));
     }
-    let material = |name: &str, albedo: f32, emission: f32| GlbMaterial {
-        name: name.into(),
-        base_color: Vec3::splat(albedo),
-        emission: Vec3::splat(emission),
-        base_color_texture: None,
-    };
-    GlbScene {
-        materials: vec![material("grey", 0.6, 0.0), material("lamp", 0.5, 20.0)],
-        images: Vec::new(),
-        meshes: vec![
-            GlbMesh {
-                name: "prism".into(),
-                primitives: vec![side, caps],
-            },
-            GlbMesh {
-                name: "lamp".into(),
-                primitives: vec![lamp],
-            },
-        ],
-        nodes: vec![
-            GlbNode::new("prism", Some(0)),
-            GlbNode::new("lamp", Some(1)),
-        ],
-        roots: vec![0, 1],
-    }
-    .to_glb()
-    .unwrap_or_else(|e| panic!("write the prism: {e}"))
+    beside_a_lamp(
+        "prism",
+        vec![side, caps],
+        lamp,
+        vec![grey("grey", 0.6, 0.0), grey("lamp", 0.5, 20.0)],
+    )
 }
 
 /// Issue 18, item 3, on generated charts: a faceted surface the asset
@@ -657,24 +698,11 @@ fn prism_glb(smooth: bool) -> Vec<u8> {
 /// creases keep their step.
 #[test]
 fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
-    let dir = std::env::temp_dir().join(format!("lightwire-prism-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
     let mut worst_of = Vec::new();
     for smooth in [true, false] {
-        let path = dir.join(format!("prism-{smooth}.glb"));
-        std::fs::write(&path, prism_glb(smooth)).unwrap_or_else(|e| panic!("{e}"));
-        let options = LoadOptions {
-            charts: Charts::LightmapUvs,
-            ..LoadOptions::scaled(0.3)
-        };
-        let scene = Scene::load_with(&path, options).unwrap_or_else(|e| panic!("{e}"));
-        let k = scene
-            .uv_meshes
-            .iter()
-            .position(|m| m.name == "prism/prism")
-            .unwrap_or_else(|| panic!("the prism's generated UVs"));
+        let file = format!("prism-{smooth}.glb");
+        let (scene, k) = load_generated(&prism_glb(smooth), &file, 0.3, "prism/prism");
         let mesh = &scene.uv_meshes[k];
-        assert!(mesh.generated);
         // Coplanar neighbours always: the 8 facets' diagonals and the 5
         // inner edges of each cap's fan; smooth, the 8 creases too.
         let expect = if smooth { 26 } else { 18 };
@@ -729,7 +757,6 @@ fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
         assert!(before > 0.05, "unstitched the facets differ: {before}");
         worst_of.push(after);
     }
-    let _ = std::fs::remove_dir_all(&dir);
     assert!(
         worst_of[0] <= 0.02,
         "smooth: published creases agree: {}",
@@ -747,7 +774,7 @@ fn creases_an_asset_shades_smoothly_are_stitched_on_generated_charts() {
 /// mesh sharing the edge `x = 0`, under a 0.4 m lamp centred over that
 /// edge, as a `.glb` without `TEXCOORD_1`.
 fn two_tone_plate_glb() -> Vec<u8> {
-    use lightwire_scene::gltf::write::{GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene};
+    use lightwire_scene::gltf::write::GlbPrimitive;
     // Counter-clockwise seen from +y: x then -z.
     let half = |x0: f32, x1: f32, material: usize| GlbPrimitive {
         positions: vec![
@@ -776,37 +803,16 @@ fn two_tone_plate_glb() -> Vec<u8> {
         indices: vec![[0, 1, 2], [0, 2, 3]],
         material: Some(2),
     };
-    let material = |name: &str, albedo: f32, emission: f32| GlbMaterial {
-        name: name.into(),
-        base_color: Vec3::splat(albedo),
-        emission: Vec3::splat(emission),
-        base_color_texture: None,
-    };
-    GlbScene {
-        materials: vec![
-            material("white", 0.8, 0.0),
-            material("dark", 0.1, 0.0),
-            material("lamp", 0.0, 20.0),
+    beside_a_lamp(
+        "plate",
+        vec![half(-0.5, 0.0, 0), half(0.0, 0.5, 1)],
+        lamp,
+        vec![
+            grey("white", 0.8, 0.0),
+            grey("dark", 0.1, 0.0),
+            grey("lamp", 0.0, 20.0),
         ],
-        images: Vec::new(),
-        meshes: vec![
-            GlbMesh {
-                name: "plate".into(),
-                primitives: vec![half(-0.5, 0.0, 0), half(0.0, 0.5, 1)],
-            },
-            GlbMesh {
-                name: "lamp".into(),
-                primitives: vec![lamp],
-            },
-        ],
-        nodes: vec![
-            GlbNode::new("plate", Some(0)),
-            GlbNode::new("lamp", Some(1)),
-        ],
-        roots: vec![0, 1],
-    }
-    .to_glb()
-    .unwrap_or_else(|e| panic!("write the plate: {e}"))
+    )
 }
 
 /// A texel holds radiosity, albedo in it, so it stands for one material:
@@ -814,30 +820,16 @@ fn two_tone_plate_glb() -> Vec<u8> {
 /// not stitched across them (`unwrap::unwrap_graded`,
 /// `Scene::reflects_alike`). The two-tone plate, solved by the reference
 /// solver and read as an engine reads it (bilinearly at each side's
-/// generated UVs), 2 cm and 2 mm either side of the edge where the albedo steps
-/// from 0.8 to 0.1 under a lamp centred over it: the irradiance behind the
-/// two readings (each over its albedo) agrees within 10% at 16 points
-/// along the edge at each distance. One chart over both halves (or the halves stitched
-/// together) shows the dark side several times too bright.
+/// generated UVs), 2 cm and 2 mm either side of the edge where the albedo
+/// steps from 0.8 to 0.1 under a lamp centred over it: the irradiance
+/// behind the two readings (each over its albedo) agrees within 10% at 16
+/// points along the edge at each distance. One chart over both halves (or
+/// the halves stitched together) shows the dark side several times too
+/// bright.
 #[test]
 fn a_texel_holds_one_materials_light_on_generated_charts() {
-    let dir = std::env::temp_dir().join(format!("lightwire-two-tone-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
-    let path = dir.join("plate.glb");
-    std::fs::write(&path, two_tone_plate_glb()).unwrap_or_else(|e| panic!("{e}"));
-    let options = LoadOptions {
-        charts: Charts::LightmapUvs,
-        ..LoadOptions::scaled(1.0)
-    };
-    let scene = Scene::load_with(&path, options).unwrap_or_else(|e| panic!("{e}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    let k = scene
-        .uv_meshes
-        .iter()
-        .position(|m| m.name == "plate/plate")
-        .unwrap_or_else(|| panic!("the plate's generated UVs"));
+    let (scene, k) = load_generated(&two_tone_plate_glb(), "plate.glb", 1.0, "plate/plate");
     let mesh = &scene.uv_meshes[k];
-    assert!(mesh.generated);
     assert_eq!(mesh.charts, 2, "one chart per material");
     let atlas = Atlas::build(&scene).unwrap_or_else(|e| panic!("{e}"));
     let (published, _) = reference_images(&scene, &atlas);

@@ -479,13 +479,12 @@ fn the_gpu_solvers_agree_with_the_reference_under_points_sun_and_sky() {
             .solve(SolveOptions::default(), &reference::Silent)
             .radiosity;
         for kind in [SolverKind::Progressive, SolverKind::Gather] {
-            let settings = SolverSettings::default();
-            let mut solver =
-                solver::build(kind, &scene, &atlas, &poses, &settings, &solver::Silent)
-                    .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
-            solver
-                .solve(1e-4)
-                .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
+            let solver = solved(
+                name,
+                kind,
+                (&scene, &atlas, &poses),
+                &SolverSettings::default(),
+            );
             let values = solver
                 .radiosity()
                 .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
@@ -499,6 +498,22 @@ fn the_gpu_solvers_agree_with_the_reference_under_points_sun_and_sky() {
             assert!(error.nrmse <= 0.01, "{name}, {}: {error}", kind.name());
         }
     }
+}
+
+/// `scene` solved by a solver of `kind` (built as `bake` builds it, with
+/// `settings`) to 1e-4.
+fn solved<'a>(
+    name: &str,
+    kind: SolverKind,
+    (scene, atlas, poses): (&'a Scene, &'a Atlas, &'a [lightwire_scene::Pose]),
+    settings: &SolverSettings,
+) -> Box<dyn solver::BatchSolver + 'a> {
+    let mut solver = solver::build(kind, scene, atlas, poses, settings, &solver::Silent)
+        .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
+    solver
+        .solve(1e-4)
+        .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
+    solver
 }
 
 /// A converged progressive solve from scratch of `scene` at `poses`.
@@ -937,12 +952,7 @@ fn every_solver_counts_the_power_the_lights_deliver() {
                 spp: Some(64),
                 ..SolverSettings::default()
             };
-            let mut solver =
-                solver::build(kind, &scene, &atlas, &poses, &settings, &solver::Silent)
-                    .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
-            solver
-                .solve(1e-4)
-                .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
+            let solver = solved(name, kind, (&scene, &atlas, &poses), &settings);
             let p = solver
                 .energy_balance()
                 .unwrap_or_else(|e| panic!("{name}, {}: {e}", kind.name()));
