@@ -243,6 +243,7 @@ mod tests {
             objects: vec![],
             materials: vec![],
             surfaces: vec![],
+            lights: Vec::new(),
         })
     }
 

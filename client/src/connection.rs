@@ -574,6 +574,9 @@ impl Session<'_> {
             }
             ServerMessage::Pong { .. } => {}
             ServerMessage::Poses { poses, .. } => self.task.buffer.set_poses(&poses),
+            // Not asked for (no `HELLO_LIGHTS`); a server that sends them
+            // anyway is not followed.
+            ServerMessage::Lights { .. } => {}
             ServerMessage::Welcome { .. } => {
                 return Some(End::Lost(ClientError::Protocol {
                     url: self.url.to_string(),

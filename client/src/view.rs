@@ -394,6 +394,7 @@ mod tests {
             }],
             materials: vec![],
             surfaces: vec![],
+            lights: Vec::new(),
         };
         let poses = resolve_poses(&scene, &BTreeMap::new(), &[p]).unwrap();
         assert_eq!(poses[0].translation, [1.0, 2.0, 3.0]);

@@ -56,6 +56,7 @@ fn scene() -> SceneInfo {
             rect: [0, 0, 10, 9],
             uvs: Vec::new(),
         }],
+        lights: Vec::new(),
     }
 }
 

@@ -57,6 +57,7 @@ fn scene(atlas: (u32, u32), objects: Vec<ObjectInfo>, surfaces: Vec<SurfaceInfo>
         objects,
         materials: vec![],
         surfaces,
+        lights: Vec::new(),
     }
 }
 

@@ -84,6 +84,7 @@ fn scene_info(path: &Path) -> SceneInfo {
         objects,
         materials: vec![],
         surfaces,
+        lights: Vec::new(),
     }
 }
 

@@ -95,9 +95,10 @@ pub fn encode_server(msg: &ServerMessage) -> Vec<u8> {
 
 /// Encodes a `Welcome` for a peer that announced protocol `version`: the
 /// message as it is for [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION); for
-/// version 2 with its `protocol_version` set to 2 and every `SurfaceInfo`
-/// without `uvs`, which version 2 does not have, or `None` when a surface
-/// needs them (the client could not draw it) or `msg` is no `Welcome`.
+/// version 3 with its `protocol_version` set to 3 and the `SceneInfo`
+/// without `lights`; for version 2 also every `SurfaceInfo` without `uvs`,
+/// which version 2 does not have, or `None` when a surface needs them (the
+/// client could not draw it) or `msg` is no `Welcome`.
 pub fn encode_welcome_for(version: u16, msg: &ServerMessage) -> Option<Vec<u8>> {
     let ServerMessage::Welcome {
         server,
@@ -112,37 +113,52 @@ pub fn encode_welcome_for(version: u16, msg: &ServerMessage) -> Option<Vec<u8>> 
     if version == crate::PROTOCOL_VERSION {
         return Some(encode(msg));
     }
-    if version != 2 || scene.surfaces.iter().any(|s| !s.uvs.is_empty()) {
-        return None;
-    }
-    Some(encode(&WelcomeV2 {
-        server,
-        role: *role,
-        capabilities: *capabilities,
-        scene,
-    }))
+    let fits = match version {
+        3 => true,
+        2 => scene.surfaces.iter().all(|s| s.uvs.is_empty()),
+        _ => false,
+    };
+    fits.then(|| {
+        encode(&OlderWelcome {
+            version,
+            server,
+            role: *role,
+            capabilities: *capabilities,
+            scene,
+        })
+    })
 }
 
-/// Version 2's `Welcome`, for [`encode_welcome_for`]: version 3's with
-/// `protocol_version` 2 and every `SurfaceInfo` without `uvs`, encoded from
-/// version 3's values as bincode encodes a derived type (an enum variant as
-/// its index then its fields, a struct as its fields in order, a `Vec` as
-/// its length then its items). `Welcome` is variant 0 in both versions;
-/// the committed version 2 vectors (`tests/vectors/v2/`) check the bytes.
-struct WelcomeV2<'a> {
+/// An older version's `Welcome`, for [`encode_welcome_for`]: version 4's
+/// with `protocol_version` set to `version`, the `SceneInfo` without
+/// `lights` (versions 2 and 3), and every `SurfaceInfo` without `uvs`
+/// (version 2), encoded from version 4's values as bincode encodes a
+/// derived type (an enum variant as its index then its fields, a struct as
+/// its fields in order, a `Vec` as its length then its items). `Welcome` is
+/// variant 0 in every version; the committed vectors of the older versions
+/// (`tests/vectors/v2/`, `tests/vectors/v3/`) check the bytes.
+struct OlderWelcome<'a> {
+    version: u16,
     server: &'a str,
     role: Role,
     capabilities: u32,
     scene: &'a SceneInfo,
 }
 
-impl Encode for WelcomeV2<'_> {
+impl Encode for OlderWelcome<'_> {
     fn encode<E: bincode::enc::Encoder>(
         &self,
         encoder: &mut E,
     ) -> Result<(), bincode::error::EncodeError> {
         let scene = self.scene;
-        (0u32, 2u16, self.server, self.role, self.capabilities).encode(encoder)?;
+        (
+            0u32,
+            self.version,
+            self.server,
+            self.role,
+            self.capabilities,
+        )
+            .encode(encoder)?;
         (
             &scene.id,
             scene.atlas_width,
@@ -156,6 +172,9 @@ impl Encode for WelcomeV2<'_> {
         (scene.surfaces.len() as u64).encode(encoder)?;
         for s in &scene.surfaces {
             (&s.name, s.object, s.material, s.corners, s.rect).encode(encoder)?;
+            if self.version >= 3 {
+                s.uvs.encode(encoder)?;
+            }
         }
         Ok(())
     }

@@ -30,10 +30,14 @@ pub enum ErrorCode {
     InvalidPose,
     /// 8: too many messages; slow down.
     RateLimited,
-    /// 9: Transform's seq is not greater than the latest seen for that object.
+    /// 9: Transform's (or SetLight's) seq is not newer than the latest accepted for that object (light).
     StaleSeq,
     /// 10: a well-formed message at the wrong time (e.g. Transform before Hello, a second Hello).
     ProtocolViolation,
+    /// 11: SetLight names a light that does not exist (since version 4).
+    UnknownLight,
+    /// 12: SetLight's state fails [`LightState::validate`](crate::LightState::validate) (since version 4).
+    InvalidLight,
     /// Any value this version does not define. Never constructed with a
     /// value listed above: use [`ErrorCode::from_u16`].
     Other(u16),
@@ -53,6 +57,8 @@ impl ErrorCode {
             ErrorCode::RateLimited => 8,
             ErrorCode::StaleSeq => 9,
             ErrorCode::ProtocolViolation => 10,
+            ErrorCode::UnknownLight => 11,
+            ErrorCode::InvalidLight => 12,
             ErrorCode::Other(v) => v,
         }
     }
@@ -70,6 +76,8 @@ impl ErrorCode {
             8 => ErrorCode::RateLimited,
             9 => ErrorCode::StaleSeq,
             10 => ErrorCode::ProtocolViolation,
+            11 => ErrorCode::UnknownLight,
+            12 => ErrorCode::InvalidLight,
             other => ErrorCode::Other(other),
         }
     }
@@ -87,6 +95,8 @@ impl ErrorCode {
             ErrorCode::RateLimited => "rate_limited",
             ErrorCode::StaleSeq => "stale_seq",
             ErrorCode::ProtocolViolation => "protocol_violation",
+            ErrorCode::UnknownLight => "unknown_light",
+            ErrorCode::InvalidLight => "invalid_light",
             ErrorCode::Other(_) => "other",
         }
     }

@@ -51,8 +51,9 @@ pub use codec::{
 };
 pub use error_code::ErrorCode;
 pub use messages::{
-    ClientMessage, Delta, Keyframe, MaterialInfo, ObjectInfo, ObjectPose, ObjectSeq, PixelFormat,
-    Pose, Role, SceneInfo, ServerMessage, Stats, SurfaceInfo, Tile, unix_micros,
+    ClientMessage, Delta, Keyframe, LightInfo, LightState, LightStatus, LightType, MaterialInfo,
+    ObjectInfo, ObjectPose, ObjectSeq, PixelFormat, Pose, Role, SceneInfo, ServerMessage, Stats,
+    SurfaceInfo, Tile, unix_micros,
 };
 
 /// The protocol version a peer announces in its handshake. Bumped on any
@@ -67,11 +68,35 @@ pub use messages::{
 /// triangle lit on its mesh's own lightmap UVs). A server still answers a
 /// version 2 client ([`MIN_PROTOCOL_VERSION`], [`encode_welcome_for`]) on
 /// every scene that has no such surface.
-pub const PROTOCOL_VERSION: u16 = 3;
+///
+/// Version 4 (from 3): lights. `SceneInfo` ends with `lights`; a client
+/// sets a light's state with `SetLight` (client discriminant 4) and, when
+/// its `Hello` sets [`HELLO_LIGHTS`], receives the states each version was
+/// lit with in `Lights` (server discriminant 7); error codes 11
+/// (`UnknownLight`) and 12 (`InvalidLight`). Sequence numbers of
+/// transforms and lights compare in serial-number order
+/// ([`seq_is_newer`]), so no value freezes an object or a light. A server
+/// still answers version 3 (and 2) clients with their `Welcome`, without
+/// the lights, and refuses their `SetLight`.
+pub const PROTOCOL_VERSION: u16 = 4;
 
-/// The oldest version a server answers: version 2 clients get a version 2
-/// `Welcome` (without `SurfaceInfo::uvs`), on scenes that need none.
+/// The oldest version a server answers: version 2 and 3 clients get their
+/// version's `Welcome` (without `SceneInfo::lights`; version 2 also without
+/// `SurfaceInfo::uvs`, on scenes that need none).
 pub const MIN_PROTOCOL_VERSION: u16 = 2;
+
+/// Whether sequence number `seq` is newer than `latest`, in serial-number
+/// order (RFC 1982 with 64 bits): `seq` is newer when it is one of the
+/// 2^63 − 1 values after `latest`, counting on from `u64::MAX` to 0. So
+/// after `u64::MAX` comes 0, and whatever seq a driver sends, the next
+/// value is newer still: no seq freezes an object or a light. A receiver
+/// starts each object and light at `latest = 0`, so the first seq must be
+/// in 1..=2^63 − 1; seqs from the protocol's counters (1, 2, 3, ...) never
+/// meet the wrap.
+pub fn seq_is_newer(seq: u64, latest: u64) -> bool {
+    let ahead = seq.wrapping_sub(latest);
+    ahead != 0 && ahead < 1 << 63
+}
 
 /// `Welcome.capabilities` bit: the server serves the scene's geometry as
 /// glTF binary at `/api/scenes/{id}/scene.glb` on the host and port of the
@@ -87,12 +112,24 @@ pub const CAP_SCENE_GLB: u32 = 1;
 /// "Capabilities").
 pub const CAP_POSES: u32 = 2;
 
+/// `Welcome.capabilities` bit: the server sends [`ServerMessage::Lights`]
+/// to a version 4 client whose `Hello` set [`HELLO_LIGHTS`], and follows
+/// drivers' [`ClientMessage::SetLight`] (PROTOCOL.md §3,
+/// "Capabilities"). A relay does not set it.
+pub const CAP_LIGHTS: u32 = 4;
+
 /// `Hello.capabilities` bit: send me [`ServerMessage::Poses`], the poses of
 /// the dynamic objects each lightmap version was lit for, so that a
 /// viewer that does not drive draws them where their light is. A server
 /// without [`CAP_POSES`] ignores it; one with it never sends `Poses` to a
 /// client that did not ask, so older clients never see the variant.
 pub const HELLO_POSES: u32 = 1;
+
+/// `Hello.capabilities` bit: send me [`ServerMessage::Lights`], the
+/// lights' states each lightmap version was lit with (version 4 and
+/// later; a server ignores it from an older client, which could not
+/// decode the variant).
+pub const HELLO_LIGHTS: u32 = 2;
 
 /// The path of the scene's glTF binary ([`CAP_SCENE_GLB`]), relative to
 /// the server's origin: `/api/scenes/{id}/scene.glb` with `id`
@@ -115,8 +152,10 @@ pub fn scene_glb_path(id: &str) -> String {
 pub fn version_mismatch(theirs: u16) -> String {
     let what = if theirs < MIN_PROTOCOL_VERSION {
         "the client is older than this server: since version 2, delta tiles are residuals onto the tile the client holds, which a version 1 client would draw as texels; upgrade the client"
-    } else if theirs < PROTOCOL_VERSION {
+    } else if theirs < 3 {
         "this scene has triangles lit on their mesh's own lightmap UVs, whose texture coordinates only version 3's SurfaceInfo carries; upgrade the client"
+    } else if theirs < PROTOCOL_VERSION {
+        "version 3 clients are served without lights; this request needs version 4 (SetLight, Lights, SceneInfo.lights); upgrade the client"
     } else {
         "the client is newer than this server; upgrade the server or use a client that speaks this version"
     };
@@ -133,7 +172,37 @@ pub const DEFAULT_TILE_SIZE: u16 = 8;
 
 #[cfg(test)]
 mod tests {
-    use super::scene_glb_path;
+    use super::{scene_glb_path, seq_is_newer};
+
+    #[test]
+    fn seqs_compare_in_serial_number_order_so_none_freezes() {
+        assert!(seq_is_newer(1, 0));
+        assert!(seq_is_newer(8, 7));
+        assert!(!seq_is_newer(7, 7));
+        assert!(!seq_is_newer(6, 7));
+        assert!(!seq_is_newer(0, 0), "the first seq is at least 1");
+        // The largest value is newer than a small one...
+        assert!(seq_is_newer(u64::MAX / 2, 1));
+        // ...and still has values newer than itself: 0, 1, ... after u64::MAX.
+        assert!(seq_is_newer(0, u64::MAX));
+        assert!(seq_is_newer(5, u64::MAX));
+        assert!(seq_is_newer(u64::MAX, u64::MAX - 1));
+        // Exactly half way round is not newer either way.
+        assert!(!seq_is_newer(1 << 63, 0));
+        assert!(seq_is_newer(0, 1 << 63) == seq_is_newer(1 << 63, 0));
+        // Whatever a driver sent, latest + 1 is accepted.
+        for latest in [
+            0,
+            1,
+            1 << 62,
+            (1 << 63) - 1,
+            1 << 63,
+            u64::MAX - 1,
+            u64::MAX,
+        ] {
+            assert!(seq_is_newer(latest.wrapping_add(1), latest), "{latest}");
+        }
+    }
 
     #[test]
     fn the_scene_glb_path_percent_encodes_the_id_as_one_segment() {

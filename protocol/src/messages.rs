@@ -131,7 +131,8 @@ pub struct ObjectPose {
     pub pose: Pose,
 }
 
-/// Messages a client sends. Wire discriminants: Hello 0, Transform 1, Resync 2, Ping 3.
+/// Messages a client sends. Wire discriminants: Hello 0, Transform 1, Resync 2, Ping 3,
+/// SetLight 4 (since version 4).
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub enum ClientMessage {
     /// First message of every connection.
@@ -150,7 +151,9 @@ pub enum ClientMessage {
     Transform {
         /// Index into [`SceneInfo::objects`]; must be a dynamic object.
         object: u32,
-        /// Per-object sequence number, strictly increasing; the latest wins.
+        /// Per-object sequence number, newer than the last accepted one
+        /// in serial-number order ([`seq_is_newer`](crate::seq_is_newer));
+        /// the latest wins.
         seq: u64,
         /// The new pose; see [`Pose::validate`].
         pose: Pose,
@@ -168,10 +171,25 @@ pub enum ClientMessage {
         /// Echoed verbatim.
         nonce: u64,
     },
+    /// Set a light's state: on or off, colour, intensity, and where it is
+    /// and points (drivers and admins only; since version 4).
+    SetLight {
+        /// Index into [`SceneInfo::lights`].
+        light: u32,
+        /// Per-light sequence number, newer than the last accepted one in
+        /// serial-number order ([`seq_is_newer`](crate::seq_is_newer));
+        /// the latest wins.
+        seq: u64,
+        /// The light's whole new state; see [`LightState::validate`].
+        state: LightState,
+        /// The client's clock when it sent this, in microseconds, as
+        /// `Transform`'s.
+        client_time_us: u64,
+    },
 }
 
 /// Messages the server sends. Wire discriminants: Welcome 0, Keyframe 1,
-/// Delta 2, Stats 3, Error 4, Pong 5, Poses 6.
+/// Delta 2, Stats 3, Error 4, Pong 5, Poses 6, Lights 7 (since version 4).
 #[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
 pub enum ServerMessage {
     /// Answer to a successful Hello; followed by a Keyframe (preceded by
@@ -220,6 +238,18 @@ pub enum ServerMessage {
         /// One per dynamic object.
         poses: Vec<ObjectPose>,
     },
+    /// The lights' states in lightmap version `version`: sent only to a
+    /// client whose `Hello` set [`HELLO_LIGHTS`](crate::HELLO_LIGHTS) (and
+    /// announced version 4 or later), immediately before the `Keyframe` or
+    /// `Delta` of `version`, whenever a state differs from those last sent
+    /// on the connection (so before the first lightmap, when the scene has
+    /// lights). Every light, in light order. Since version 4.
+    Lights {
+        /// The version these states were lit with.
+        version: u64,
+        /// One per light of [`SceneInfo::lights`].
+        lights: Vec<LightStatus>,
+    },
 }
 
 impl ServerMessage {
@@ -233,6 +263,7 @@ impl ServerMessage {
             ServerMessage::Error { .. } => "Error",
             ServerMessage::Pong { .. } => "Pong",
             ServerMessage::Poses { .. } => "Poses",
+            ServerMessage::Lights { .. } => "Lights",
         }
     }
 }
@@ -257,6 +288,126 @@ pub struct SceneInfo {
     pub materials: Vec<MaterialInfo>,
     /// Quads to draw.
     pub surfaces: Vec<SurfaceInfo>,
+    /// The point, spot and directional lights, which
+    /// [`ClientMessage::SetLight`] and [`LightStatus::light`] index.
+    /// Since version 4.
+    pub lights: Vec<LightInfo>,
+}
+
+/// What kind of light (wire values: Point 0, Spot 1, Directional 2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode, Serialize, Deserialize)]
+pub enum LightType {
+    /// Radiates equally in every direction from its position.
+    Point,
+    /// Radiates into a cone about its direction from its position.
+    Spot,
+    /// Light from a distant disc (the sun), travelling along its direction.
+    Directional,
+}
+
+/// One light of the scene: what it is, which never changes, and its state
+/// when the `Welcome` was built.
+#[derive(Clone, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct LightInfo {
+    /// Name from the scene file (or the glTF node).
+    pub name: String,
+    /// What kind of light.
+    pub kind: LightType,
+    /// glTF's `range` of a point or spot light (metres), beyond which it
+    /// gives nothing; `None`: the inverse square alone.
+    pub range: Option<f32>,
+    /// A spot's inner and outer cone angles, radians from its axis (glTF's
+    /// smooth falloff between them); `[0, 0]` for other kinds.
+    pub cone: [f32; 2],
+    /// A directional light's angular radius, radians (0: hard shadows;
+    /// the sun's is about 0.0046); 0 for other kinds.
+    pub angular_radius: f32,
+    /// Its state.
+    pub state: LightState,
+}
+
+/// The part of a light that can change while clients watch.
+#[derive(Clone, Copy, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct LightState {
+    /// Whether it gives light at all.
+    pub on: bool,
+    /// Linear RGB colour, each channel in [0, 1].
+    pub color: [f32; 3],
+    /// Radiant intensity on the axis (W/sr) of a point or spot light; a
+    /// directional light's irradiance at normal incidence (W/m²). The
+    /// light sends `color × intensity` per channel.
+    pub intensity: f32,
+    /// Where a point or spot light is (world space, metres); carried but
+    /// unused for a directional light.
+    pub position: [f32; 3],
+    /// Unit vector: a spot's axis, or where a directional light's light
+    /// travels; carried but unused for a point light.
+    pub direction: [f32; 3],
+}
+
+impl LightState {
+    /// Largest accepted intensity (W/sr, or W/m² for a directional light):
+    /// a thousand suns.
+    pub const MAX_INTENSITY: f32 = 1e6;
+
+    /// Largest accepted deviation of `|direction|` from 1.
+    pub const DIRECTION_TOLERANCE: f64 = 1e-3;
+
+    /// Checks what the codec cannot: every number finite, each colour
+    /// channel in [0, 1], the intensity in [0, [`LightState::MAX_INTENSITY`]],
+    /// each position component within [`Pose::MAX_TRANSLATION`], the
+    /// direction a unit vector within [`LightState::DIRECTION_TOLERANCE`],
+    /// in that order. The server answers a failing `SetLight` with
+    /// [`ErrorCode::InvalidLight`] and the returned reason.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        if !self.color.iter().all(|v| v.is_finite()) {
+            return Err("color is not finite");
+        }
+        if !self.intensity.is_finite() {
+            return Err("intensity is not finite");
+        }
+        if !self.position.iter().all(|v| v.is_finite()) {
+            return Err("position is not finite");
+        }
+        if !self.direction.iter().all(|v| v.is_finite()) {
+            return Err("direction is not finite");
+        }
+        if self.color.iter().any(|v| !(0.0..=1.0).contains(v)) {
+            return Err("color is out of range (each channel in [0, 1])");
+        }
+        if !(0.0..=Self::MAX_INTENSITY).contains(&self.intensity) {
+            return Err("intensity is out of range (0 to 1e6)");
+        }
+        if self
+            .position
+            .iter()
+            .any(|v| v.abs() > Pose::MAX_TRANSLATION)
+        {
+            return Err("position is out of range (each component at most 1e5 in magnitude)");
+        }
+        let norm = self
+            .direction
+            .iter()
+            .map(|&v| f64::from(v) * f64::from(v))
+            .sum::<f64>()
+            .sqrt();
+        if (norm - 1.0).abs() > Self::DIRECTION_TOLERANCE {
+            return Err("direction is not a unit vector (|d| differs from 1 by more than 1e-3)");
+        }
+        Ok(())
+    }
+}
+
+/// A light's state in a published version ([`ServerMessage::Lights`]).
+#[derive(Clone, Copy, Debug, PartialEq, Encode, Decode, Serialize, Deserialize)]
+pub struct LightStatus {
+    /// Index into [`SceneInfo::lights`].
+    pub light: u32,
+    /// The `SetLight` sequence number that set this state (0: the scene
+    /// file's state, no `SetLight` yet).
+    pub seq: u64,
+    /// The state the version's lightmap was lit with.
+    pub state: LightState,
 }
 
 /// One object of the scene.

@@ -78,11 +78,11 @@ fn layout_by_hand() {
     assert_eq!(read_vector("client_ping"), hex("03fcefbeadde"));
     // Resync: variant 2, Option tag 1, 42.
     assert_eq!(read_vector("client_resync_some"), hex("02012a"));
-    // Hello: variant 0, version 3, "lw/1", Some("t0k"), capabilities 0.
+    // Hello: variant 0, version 4, "lw/1", Some("t0k"), capabilities 0.
     assert_eq!(
         read_vector("client_hello"),
         hex(concat!(
-            "00", "03", "04", "6c772f31", "01", "03", "74306b", "00"
+            "00", "04", "04", "6c772f31", "01", "03", "74306b", "00"
         ))
     );
     // A surface's uvs: vector length 4, then (u, v) as two f32 LE each.
@@ -90,7 +90,31 @@ fn layout_by_hand() {
         "04", "0000803e", "0000403f", "0000403f", "0000403f", "0000003f", "0000803e", "0000003f",
         "0000803e"
     );
-    assert!(to_hex(&read_vector("server_welcome_uvs")).ends_with(uvs));
+    // Version 4's SceneInfo ends with its lights: none, a zero length.
+    assert!(to_hex(&read_vector("server_welcome_uvs")).ends_with(&format!("{uvs}00")));
+    // SetLight: variant 4, light 0, seq 5, on, colour (1, 0.75, 0.5),
+    // intensity 1.25, position (0.25, 0.9, 0.5), direction (0.6, -0.8, 0),
+    // client time as a 9-byte varint (tag 0xFD + u64 LE).
+    assert_eq!(
+        read_vector("client_set_light"),
+        hex(concat!(
+            "04",
+            "00",
+            "05",
+            "01",
+            "0000803f",
+            "0000403f",
+            "0000003f",
+            "0000a03f",
+            "0000803e",
+            "6666663f",
+            "0000003f",
+            "9a99193f",
+            "cdcc4cbf",
+            "00000000",
+            "fd00401e18240a0600"
+        ))
+    );
     // Error: variant 4, code 1000 as varint 0xFB + u16 LE, "future".
     assert_eq!(
         read_vector("server_error_unknown_code"),
@@ -171,10 +195,48 @@ fn recorded_sequences_reconstruct_their_final_state() {
     }
 }
 
-/// A version 3 server answers a version 2 client with version 2's
-/// `Welcome` (`SurfaceInfo` without `uvs`): `tests/vectors/v2/` holds the
-/// bytes version 2 committed, which it must reproduce, and it refuses when a
-/// surface needs `uvs`.
+/// A version 4 server answers a version 3 client with version 3's
+/// `Welcome` (`SceneInfo` without `lights`): `tests/vectors/v3/` holds the
+/// bytes version 3 committed, which it must reproduce, lights or none.
+#[test]
+fn a_version_3_client_gets_version_3_s_welcome() {
+    use vectors::welcome;
+    let glb_and_poses = CAP_SCENE_GLB | CAP_POSES;
+    for (name, capabilities, scene) in [
+        ("server_welcome", 0, vectors::scene()),
+        ("server_welcome_scene_glb", CAP_SCENE_GLB, vectors::scene()),
+        ("server_welcome_poses", glb_and_poses, vectors::scene()),
+        (
+            "server_welcome_uvs",
+            glb_and_poses,
+            vectors::scene_with_uvs(),
+        ),
+    ] {
+        let path = vector_dir().join("v3").join(format!("{name}.bin"));
+        let committed = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let bytes =
+            encode_welcome_for(3, &welcome(capabilities, scene.clone())).expect("a Welcome");
+        assert_eq!(to_hex(&bytes), to_hex(&committed), "{name}");
+        // Version 4's bytes are the same plus `lights` (an empty vector,
+        // one byte) and the version.
+        let v4 =
+            encode_welcome_for(PROTOCOL_VERSION, &welcome(capabilities, scene)).expect("a Welcome");
+        assert_eq!(v4, read_vector(name));
+        assert_eq!(v4.len(), bytes.len() + 1);
+        assert_eq!((bytes[1], v4[1]), (3, 4), "{name}: the version byte");
+    }
+    // A scene with lights is described to a version 3 client without them.
+    let lit = welcome(glb_and_poses, vectors::scene_with_lights());
+    assert_eq!(
+        encode_welcome_for(3, &lit),
+        encode_welcome_for(3, &welcome(glb_and_poses, vectors::scene()))
+    );
+}
+
+/// A version 4 server answers a version 2 client with version 2's
+/// `Welcome` (`SurfaceInfo` without `uvs`, `SceneInfo` without `lights`):
+/// `tests/vectors/v2/` holds the bytes version 2 committed, which it must
+/// reproduce, and it refuses when a surface needs `uvs`.
 #[test]
 fn a_version_2_client_gets_version_2_s_welcome() {
     use vectors::welcome;
@@ -187,12 +249,12 @@ fn a_version_2_client_gets_version_2_s_welcome() {
         let bytes = encode_welcome_for(2, &welcome(capabilities, vectors::scene()))
             .unwrap_or_else(|| panic!("{name}: no surface needs uvs"));
         assert_eq!(to_hex(&bytes), to_hex(&committed), "{name}");
-        // The version 3 bytes are the same plus `uvs` (an empty vector, one
-        // byte) and the version.
-        let v3 = encode_welcome_for(PROTOCOL_VERSION, &welcome(capabilities, vectors::scene()))
+        // The version 4 bytes are the same plus `uvs` and `lights` (empty
+        // vectors, one byte each) and the version.
+        let v4 = encode_welcome_for(PROTOCOL_VERSION, &welcome(capabilities, vectors::scene()))
             .expect("a Welcome");
-        assert_eq!(v3, read_vector(name));
-        assert_eq!(v3.len(), bytes.len() + 1);
+        assert_eq!(v4, read_vector(name));
+        assert_eq!(v4.len(), bytes.len() + 2);
     }
     assert!(
         encode_welcome_for(2, &welcome(0, vectors::scene_with_uvs())).is_none(),

@@ -53,7 +53,9 @@ fn every_error_code_value_roundtrips() {
         });
     }
     assert_eq!(ErrorCode::from_u16(5), ErrorCode::Forbidden);
-    assert_eq!(ErrorCode::from_u16(11), ErrorCode::Other(11));
+    assert_eq!(ErrorCode::from_u16(11), ErrorCode::UnknownLight);
+    assert_eq!(ErrorCode::from_u16(12), ErrorCode::InvalidLight);
+    assert_eq!(ErrorCode::from_u16(13), ErrorCode::Other(13));
 }
 
 #[test]
@@ -98,6 +100,23 @@ fn arb_pose() -> impl Strategy<Value = Pose> {
     )
 }
 
+fn arb_light_state() -> impl Strategy<Value = LightState> {
+    (
+        any::<bool>(),
+        any::<[f32; 3]>(),
+        any::<f32>(),
+        any::<[f32; 3]>(),
+        any::<[f32; 3]>(),
+    )
+        .prop_map(|(on, color, intensity, position, direction)| LightState {
+            on,
+            color,
+            intensity,
+            position,
+            direction,
+        })
+}
+
 fn arb_client() -> impl Strategy<Value = ClientMessage> {
     prop_oneof![
         (
@@ -125,6 +144,14 @@ fn arb_client() -> impl Strategy<Value = ClientMessage> {
         proptest::option::of(any::<u64>())
             .prop_map(|have_version| ClientMessage::Resync { have_version }),
         any::<u64>().prop_map(|nonce| ClientMessage::Ping { nonce }),
+        (any::<u32>(), any::<u64>(), arb_light_state(), any::<u64>()).prop_map(
+            |(light, seq, state, client_time_us)| ClientMessage::SetLight {
+                light,
+                seq,
+                state,
+                client_time_us
+            }
+        ),
     ]
 }
 
@@ -191,6 +218,15 @@ fn arb_server() -> impl Strategy<Value = ServerMessage> {
             message
         }),
         any::<u64>().prop_map(|nonce| ServerMessage::Pong { nonce }),
+        (
+            any::<u64>(),
+            proptest::collection::vec(
+                (any::<u32>(), any::<u64>(), arb_light_state())
+                    .prop_map(|(light, seq, state)| LightStatus { light, seq, state }),
+                0..4
+            )
+        )
+            .prop_map(|(version, lights)| ServerMessage::Lights { version, lights }),
     ]
 }
 

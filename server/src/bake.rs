@@ -24,7 +24,8 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec2, Vec3};
 use lightwire_protocol::{
-    DEFAULT_TILE_SIZE, MaterialInfo, ObjectInfo, PixelFormat, SceneInfo, SurfaceInfo, tone,
+    DEFAULT_TILE_SIZE, LightInfo, LightState, LightType, MaterialInfo, ObjectInfo, PixelFormat,
+    SceneInfo, SurfaceInfo, tone,
 };
 use serde::Serialize;
 
@@ -32,7 +33,7 @@ use lightwire_scene::atlas::{Atlas, Chart};
 use lightwire_scene::gltf::write::{
     GlbLightmap, GlbMaterial, GlbMesh, GlbNode, GlbPrimitive, GlbScene,
 };
-use lightwire_scene::{Patch, Pose, Scene};
+use lightwire_scene::{Light, LightKind, Patch, Pose, Scene};
 
 /// Per-surface entry of `atlas.json`.
 #[derive(Debug, Serialize)]
@@ -450,6 +451,47 @@ pub fn describe(scene: &Scene, atlas: &Atlas, poses: &[Pose]) -> SceneInfo {
             rect: [c.x, c.y, c.w, c.h],
             uvs,
         }),
+        lights: scene.lights.iter().map(light_info).collect(),
+    }
+}
+
+/// A light as the wire describes it ([`LightInfo`]): its colour the
+/// channels of its intensity over the largest (white for a black light,
+/// which is off), its intensity the largest channel, so that `color ×
+/// intensity` is what the solvers use; a point light's direction, which
+/// nothing uses, straight down.
+pub fn light_info(light: &Light) -> LightInfo {
+    let largest = light.intensity.max_element();
+    let (on, color) = if largest > 0.0 {
+        (true, (light.intensity / largest).to_array())
+    } else {
+        (false, [1.0; 3])
+    };
+    let (kind, direction, cone, angular_radius) = match light.kind {
+        LightKind::Point => (LightType::Point, Vec3::NEG_Y, [0.0; 2], 0.0),
+        LightKind::Spot {
+            direction,
+            inner,
+            outer,
+        } => (LightType::Spot, direction, [inner, outer], 0.0),
+        LightKind::Directional {
+            direction,
+            angular_radius,
+        } => (LightType::Directional, direction, [0.0; 2], angular_radius),
+    };
+    LightInfo {
+        name: light.name.clone(),
+        kind,
+        range: light.range,
+        cone,
+        angular_radius,
+        state: LightState {
+            on,
+            color,
+            intensity: largest.max(0.0),
+            position: light.position.to_array(),
+            direction: direction.to_array(),
+        },
     }
 }
 

@@ -475,6 +475,7 @@ mod fake {
             ],
             materials: vec![],
             surfaces: vec![],
+            lights: Vec::new(),
         }
     }
 

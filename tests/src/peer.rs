@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::lightmap::Lightmap;
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, ObjectPose, PROTOCOL_VERSION, Pose, Role, SceneInfo, ServerMessage,
-    decode_server, encode_client,
+    ClientMessage, ErrorCode, LightState, LightStatus, ObjectPose, PROTOCOL_VERSION, Pose, Role,
+    SceneInfo, ServerMessage, decode_server, encode_client,
 };
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
@@ -77,6 +77,11 @@ pub struct Peer {
     /// The version of a `Poses` whose lightmap has not come yet: the very
     /// next frame must be it (PROTOCOL.md §3).
     poses_pending: Option<u64>,
+    /// Whether the `Hello` asked for `Lights` (`HELLO_LIGHTS`); a peer that
+    /// did not panics on one.
+    pub asked_lights: bool,
+    /// Every `Lights` received: (version, states).
+    pub lights: Vec<(u64, Vec<LightStatus>)>,
 }
 
 impl Peer {
@@ -111,7 +116,30 @@ impl Peer {
             asked_poses: false,
             poses: Vec::new(),
             poses_pending: None,
+            asked_lights: false,
+            lights: Vec::new(),
         }
+    }
+
+    /// [`Peer::connect`] with `HELLO_POSES` and `HELLO_LIGHTS` set: the
+    /// server sends `Poses` and `Lights`.
+    pub async fn connect_asking_lights(url: &str, token: &str) -> Peer {
+        let mut peer = Peer::open(url).await;
+        peer.asked_poses = true;
+        peer.asked_lights = true;
+        let both = lightwire_protocol::HELLO_POSES | lightwire_protocol::HELLO_LIGHTS;
+        peer.greet(hello_with(token, both)).await
+    }
+
+    /// Sends a `SetLight` of `light` at `seq` to `state`.
+    pub async fn set_light(&mut self, light: u32, seq: u64, state: LightState) {
+        self.send(&ClientMessage::SetLight {
+            light,
+            seq,
+            state,
+            client_time_us: lightwire_protocol::unix_micros(),
+        })
+        .await;
     }
 
     /// [`Peer::connect`] with `HELLO_POSES` set: the server sends `Poses`.
@@ -163,7 +191,11 @@ impl Peer {
             Ok(Some(Err(e))) => panic!("websocket error: {e}"),
         };
         let message = decode_server(&frame).expect("server frames decode");
-        if let Some(v) = self.poses_pending.take() {
+        // `Lights` of the same version may come between `Poses` and the
+        // lightmap (the server sends Poses, then Lights, then the frame).
+        let between = matches!((&message, self.poses_pending),
+            (ServerMessage::Lights { version, .. }, Some(v)) if *version == v);
+        if let Some(v) = self.poses_pending.take_if(|_| !between) {
             let lightmap = match &message {
                 ServerMessage::Keyframe(k) => Some(k.version),
                 ServerMessage::Delta(d) => Some(d.version),
@@ -223,6 +255,14 @@ impl Peer {
                 );
                 self.poses_pending = Some(version);
                 self.poses.push((version, poses));
+            }
+            ServerMessage::Lights { version, lights } => {
+                assert!(
+                    self.asked_lights,
+                    "Lights sent to a client whose Hello did not ask for them"
+                );
+                self.poses_pending = Some(version);
+                self.lights.push((version, lights));
             }
         }
         Read::Frame

@@ -162,6 +162,7 @@ mod tests {
             }],
             materials: vec![],
             surfaces,
+            lights: Vec::new(),
         }
     }
 

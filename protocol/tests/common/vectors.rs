@@ -161,7 +161,52 @@ pub fn scene() -> SceneInfo {
             ],
             Vec::new(),
         )],
+        lights: Vec::new(),
     }
+}
+
+/// The spot light of [`scene_with_lights`] and [`set_light`]: on, warm,
+/// 2.5 W/sr, at (0.5, 0.9, 0.5) pointing straight down.
+pub fn spot_state() -> LightState {
+    LightState {
+        on: true,
+        color: [1.0, 0.75, 0.5],
+        intensity: 2.5,
+        position: [0.5, 0.9, 0.5],
+        direction: [0.0, -1.0, 0.0],
+    }
+}
+
+/// [`scene`] with two lights (version 4): a spot "lamp" (range 4 m, cone
+/// 0.25 to 0.5 rad) and a directional "sun" (1,000 W/m², travelling along
+/// (0, -0.6, -0.8), angular radius 0.0046 rad), switched off.
+pub fn scene_with_lights() -> SceneInfo {
+    let mut scene = scene();
+    scene.lights = vec![
+        LightInfo {
+            name: "lamp".into(),
+            kind: LightType::Spot,
+            range: Some(4.0),
+            cone: [0.25, 0.5],
+            angular_radius: 0.0,
+            state: spot_state(),
+        },
+        LightInfo {
+            name: "sun".into(),
+            kind: LightType::Directional,
+            range: None,
+            cone: [0.0, 0.0],
+            angular_radius: 0.0046,
+            state: LightState {
+                on: false,
+                color: [1.0, 1.0, 1.0],
+                intensity: 1000.0,
+                position: [0.0, 0.0, 0.0],
+                direction: [0.0, -0.6, -0.8],
+            },
+        },
+    ];
+    scene
 }
 
 /// A surface of [`scene`]'s object and material with these `corners`,
@@ -225,7 +270,7 @@ pub fn all() -> Vec<Vector> {
     vec![
         Vector {
             name: "client_hello",
-            description: "Hello with a token: protocol 3, client \"lw/1\", token \"t0k\", no capabilities",
+            description: "Hello with a token: protocol 4, client \"lw/1\", token \"t0k\", no capabilities",
             msg: hello(Some("t0k"), 0),
         },
         Vector {
@@ -348,6 +393,58 @@ pub fn all() -> Vec<Vector> {
             name: "server_pong",
             description: "Pong echoing nonce 0xDEADBEEF",
             msg: Msg::Server(S::Pong { nonce: 0xDEAD_BEEF }),
+        },
+        Vector {
+            name: "client_hello_lights",
+            description: "Hello as client_hello with capability bits 0 and 1 (HELLO_POSES | HELLO_LIGHTS): send me Poses and Lights",
+            msg: hello(
+                Some("t0k"),
+                lightwire_protocol::HELLO_POSES | lightwire_protocol::HELLO_LIGHTS,
+            ),
+        },
+        Vector {
+            name: "server_welcome_lights",
+            description: "Welcome as server_welcome_poses with capability bit 2 (CAP_LIGHTS) and two lights: spot \"lamp\" (range 4, cone 0.25 to 0.5 rad, on, colour (1, 0.75, 0.5), 2.5 W/sr at (0.5, 0.9, 0.5) pointing down) and directional \"sun\" (angular radius 0.0046 rad, off, white, 1000 W/m2 along (0, -0.6, -0.8))",
+            msg: Msg::Server(welcome(GLB_AND_POSES | CAP_LIGHTS, scene_with_lights())),
+        },
+        Vector {
+            name: "client_set_light",
+            description: "SetLight light 0 to seq 5: the lamp of server_welcome_lights dimmed to 1.25 W/sr, moved to (0.25, 0.9, 0.5) and turned to (0.6, -0.8, 0), client time 1.7e15 us",
+            msg: Msg::Client(C::SetLight {
+                light: 0,
+                seq: 5,
+                state: LightState {
+                    intensity: 1.25,
+                    position: [0.25, 0.9, 0.5],
+                    direction: [0.6, -0.8, 0.0],
+                    ..spot_state()
+                },
+                client_time_us: 1_700_000_000_000_000,
+            }),
+        },
+        Vector {
+            name: "server_lights",
+            description: "Lights for version 2 (sent before server_delta): the lamp at seq 5 as client_set_light set it, the sun off as the scene file has it (seq 0)",
+            msg: Msg::Server(S::Lights {
+                version: 2,
+                lights: vec![
+                    LightStatus {
+                        light: 0,
+                        seq: 5,
+                        state: LightState {
+                            intensity: 1.25,
+                            position: [0.25, 0.9, 0.5],
+                            direction: [0.6, -0.8, 0.0],
+                            ..spot_state()
+                        },
+                    },
+                    LightStatus {
+                        light: 1,
+                        seq: 0,
+                        state: scene_with_lights().lights[1].state,
+                    },
+                ],
+            }),
         },
     ]
 }

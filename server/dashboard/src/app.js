@@ -14,6 +14,16 @@
 // applied, except the user's own moves that the server has not reflected
 // yet (`posesToApply`).
 //
+// The scene's lights (SceneInfo.lights, protocol version 4) are listed with
+// an on/off toggle, an intensity and a colour control, showing the states
+// of the latest Lights (asked for in Hello). A driver's changes become
+// SetLight frames, at most one per light every TRANSFORM_PERIOD_MS (the
+// server's rate limit counts transforms and SetLights together), each with
+// the next seq of `LightSeqs`: one past the last Lights' seq for the light,
+// or past this page's own newer one. The controls wait for the first
+// Lights (which tells the seqs), and stay disabled for a viewer or on a
+// server without CAP_LIGHTS (a relay).
+//
 // The 3D view draws the scene's lights as gizmos (gizmos.js), fetched once
 // per watched scene from `GET /api/scenes/{id}/lights` when the scene list
 // counts any (a solver's; a relay holds none to give).
@@ -21,14 +31,20 @@
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
 import { Chart } from './chart.js';
-import { Backoff, DASHBOARD_BACKOFF, Reconnector, posesToApply, sceneUrl } from './connection.js';
+import { Backoff, DASHBOARD_BACKOFF, LightSeqs, Reconnector, posesToApply, sceneUrl } from './connection.js';
 import { lightsPath } from './gizmos.js';
-import { PROTOCOL_VERSION, poseProblem } from './protocol.js';
-import { ToneTable, whitePoint } from './tone.js';
+import { CAP_LIGHTS, PROTOCOL_VERSION, lightProblem, poseProblem } from './protocol.js';
+import { ToneTable, srgbEncode, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
 
-/** Smallest gap between two Transforms for one object. */
+/** Smallest gap between two Transforms for one object (and between two
+ * SetLights for one light). */
 const TRANSFORM_PERIOD_MS = 33;
+/** The intensity slider's range, in stops from the light's intensity in
+ * the Welcome. */
+const INTENSITY_STOPS = [-10, 6];
+/** The largest intensity a SetLight may carry (PROTOCOL.md §4). */
+const MAX_INTENSITY = 1e6;
 /** Floor of the log-scale convergence chart (0 = converged is drawn here). */
 const UNSHOT_FLOOR = 1e-6;
 
@@ -53,6 +69,9 @@ const ui = {
   z: $('pose-z'),
   yaw: $('pose-yaw'),
   reset: $('pose-reset'),
+  lights: $('light-controls'),
+  lightsHint: $('lights-hint'),
+  lightList: $('light-list'),
   log: $('log'),
   renderer: $('renderer'),
   protocolVersion: $('protocol-version'),
@@ -164,6 +183,10 @@ const events = {
     timings.clear();
     view?.setScene(w.scene);
     driver.setScene(w.scene, w.role);
+    lights.setScene(w.scene, w.role, w.capabilities);
+  },
+  lights(_conn, l) {
+    lights.received(l.lights);
   },
   poses(_conn, p) {
     // Drawn with the lightmap they were lit for, once it is applied.
@@ -195,10 +218,15 @@ const events = {
     // shows: stop waiting for it to be reflected and draw the server's.
     driver.sentSeq.clear();
     if (c.poses) driver.posesArrived(c.poses.poses);
+    // Likewise a refused SetLight: show the server's light states.
+    lights.seqs.forget();
+    if (c.lights) lights.received(c.lights.lights);
   },
   gaveUp(_conn, e) {
     const why = e.reason ? `: ${e.reason}` : '';
     ui.driveHint.textContent = `Not connected (${e.code}${why}).`;
+    ui.lights.disabled = true;
+    ui.lightsHint.textContent = ui.driveHint.textContent;
   },
 };
 
@@ -343,6 +371,159 @@ ui.reset.addEventListener('click', () => {
   driver.move(i, driver.initial[i], 'reset');
   driver.syncSliders();
 });
+
+// --- Lights -------------------------------------------------------------------
+
+/** The sRGB transfer's inverse (tone.js has the forward one). */
+const srgbDecode = (s) => (s <= 0.04045 ? s / 12.92 : ((s + 0.055) / 1.055) ** 2.4);
+const clamp01 = (v) => Math.min(Math.max(v, 0), 1);
+/** A linear RGB colour as an `<input type="color">` value. */
+const colorHex = (rgb) => `#${rgb.map((c) => Math.round(srgbEncode(clamp01(c)) * 255).toString(16).padStart(2, '0')).join('')}`;
+/** An `<input type="color">` value as a linear RGB colour. */
+const hexColor = (hex) => [1, 3, 5].map((i) => clamp01(srgbDecode(parseInt(hex.slice(i, i + 2), 16) / 255)));
+
+function intensityText(v, kind) {
+  const unit = kind === 'Directional' ? 'W/m²' : 'W/sr';
+  return `${v >= 100 ? v.toFixed(0) : v.toPrecision(3)} ${unit}`;
+}
+
+const lights = {
+  scene: null,
+  role: null,
+  canDrive: false,
+  /** The server follows SetLight (CAP_LIGHTS). */
+  follows: false,
+  /** A Lights arrived on this connection: the seqs are known. */
+  known: false,
+  /** Per light: its row's controls and its Welcome intensity (the slider's 0). */
+  rows: [],
+  /** Per light: the state shown (the latest Lights', or this page's change). */
+  states: [],
+  seqs: new LightSeqs(),
+  pending: new Map(), // light -> state waiting to be sent
+  lastSent: new Map(), // light -> time ms
+  timer: null,
+
+  setScene(scene, role, capabilities) {
+    this.scene = scene;
+    this.role = role;
+    this.canDrive = role === 'Driver' || role === 'Admin';
+    this.follows = (capabilities & CAP_LIGHTS) !== 0;
+    this.known = false;
+    this.seqs = new LightSeqs();
+    this.pending.clear();
+    clearTimeout(this.timer);
+    this.timer = null;
+    this.states = scene.lights.map((l) => structuredClone(l.state));
+    this.rows = scene.lights.map((l, i) => this.row(l, i));
+    ui.lightList.replaceChildren(...this.rows.map((r) => r.li));
+    this.states.forEach((_, i) => this.draw(i));
+    this.enable();
+  },
+
+  /** The controls of light `i`. */
+  row(light, i) {
+    const li = document.createElement('li');
+    const on = Object.assign(document.createElement('input'), { type: 'checkbox' });
+    on.setAttribute('aria-label', `${light.name} on`);
+    const name = Object.assign(document.createElement('label'), { className: 'name' });
+    name.append(on, ` ${light.name}`);
+    const kind = Object.assign(document.createElement('span'), { className: 'kind', textContent: light.kind.toLowerCase() });
+    const intensity = Object.assign(document.createElement('input'), {
+      type: 'range',
+      min: String(INTENSITY_STOPS[0]),
+      max: String(INTENSITY_STOPS[1]),
+      step: '0.1',
+    });
+    intensity.setAttribute('aria-label', `${light.name} intensity`);
+    const value = document.createElement('output');
+    const color = Object.assign(document.createElement('input'), { type: 'color' });
+    color.setAttribute('aria-label', `${light.name} colour`);
+    li.append(name, kind, intensity, value, color);
+    const reference = light.state.intensity > 0 ? light.state.intensity : 1;
+    on.addEventListener('change', () => this.change(i, { on: on.checked }));
+    intensity.addEventListener('input', () => {
+      const v = Math.min(reference * 2 ** Number(intensity.value), MAX_INTENSITY);
+      value.textContent = intensityText(v, light.kind);
+      this.change(i, { intensity: v });
+    });
+    color.addEventListener('input', () => this.change(i, { color: hexColor(color.value) }));
+    return { li, on, intensity, value, color, reference, kind: light.kind };
+  },
+
+  /** Light `i`'s controls from its state. */
+  draw(i) {
+    const r = this.rows[i];
+    const s = this.states[i];
+    r.on.checked = s.on;
+    r.intensity.value = s.intensity > 0 ? String(Math.log2(s.intensity / r.reference)) : String(INTENSITY_STOPS[0]);
+    r.value.textContent = intensityText(s.intensity, r.kind);
+    r.color.value = colorHex(s.color);
+  },
+
+  enable() {
+    const scene = this.scene;
+    const any = scene.lights.length > 0;
+    ui.lights.disabled = !(any && this.canDrive && this.follows && this.known);
+    ui.lightsHint.textContent = !any
+      ? 'This scene has no lights.'
+      : !this.follows
+        ? 'This server does not take light changes (no CAP_LIGHTS: a relay); connect to the solver to change them.'
+        : !this.canDrive
+          ? `Your role (${this.role}) may watch but not change lights: connect with a driver token.`
+          : this.known
+            ? 'Switch, dim or colour a light; the lightmap follows.'
+            : 'Waiting for the lights\' states…';
+  },
+
+  /** A Lights message's states: shown, but for this page's own changes
+   * not reflected yet and those still queued. */
+  received(statuses) {
+    for (const { light, state } of this.seqs.received(statuses)) {
+      if (!this.rows[light] || this.pending.has(light)) continue;
+      this.states[light] = structuredClone(state);
+      this.draw(light);
+    }
+    if (!this.known) {
+      this.known = true;
+      this.enable();
+    }
+  },
+
+  /** The user changed light `i`: its whole state, sent at most every
+   * TRANSFORM_PERIOD_MS. */
+  change(i, patch) {
+    if (!(this.canDrive && this.follows && this.known)) return;
+    const state = { ...this.states[i], ...patch };
+    const problem = lightProblem(state);
+    if (problem) {
+      logEvent(`not sending light "${this.scene.lights[i].name}": ${problem}`, 'warn');
+      this.draw(i);
+      return;
+    }
+    this.states[i] = state;
+    this.pending.set(i, state);
+    this.flush();
+  },
+
+  flush() {
+    if (this.timer) return;
+    const now = performance.now();
+    for (const [light, state] of this.pending) {
+      const wait = (this.lastSent.get(light) ?? -Infinity) + TRANSFORM_PERIOD_MS - now;
+      if (wait > 0) {
+        this.timer = setTimeout(() => {
+          this.timer = null;
+          this.flush();
+        }, wait);
+        return;
+      }
+      this.pending.delete(light);
+      this.lastSent.set(light, now);
+      conn()?.send({ type: 'SetLight', light, seq: this.seqs.next(light), state, client_time_us: Date.now() * 1000 });
+    }
+  },
+};
 
 // --- Status and numbers -----------------------------------------------------
 
@@ -491,6 +672,9 @@ window.lightwire = {
       chartPoints: convergence.points.length,
       reflected: c ? { ...c.reflected } : {},
       poses: c?.poses ? structuredClone(c.poses) : null,
+      lights: c?.lights ? structuredClone(c.lights) : null,
+      lightControls: lights.rows.length,
+      lightControlsEnabled: !ui.lights.disabled,
       lastSentSeq: driver.lastSentSeq,
       latencyMs: driver.latencyMs,
       renderer: view?.renderer ?? null,

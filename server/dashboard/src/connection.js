@@ -7,8 +7,9 @@
 //   takes the Welcome (role, scene, an all-zero Lightmap of its layout),
 //   applies keyframes and deltas (a delta only onto its exact base; on any
 //   refused frame it asks for a keyframe with Resync and ignores deltas
-//   until one arrives), keeps Stats, the last Poses (its Hello asks for
-//   them with HELLO_POSES), server errors and counters.
+//   until one arrives), keeps Stats, the last Poses and the last Lights
+//   (its Hello asks for them with HELLO_POSES and HELLO_LIGHTS), server
+//   errors and counters.
 // - `Reconnector` keeps one Connection to a scene: when the socket closes
 //   without the page asking, it dials again after a `Backoff` delay; it
 //   gives up when the server refused this client for good (error
@@ -16,15 +17,28 @@
 //
 // What the page shows is its business: each step reports through the `on`
 // callbacks (all optional): `log(text, level)`, `state(conn)`,
-// `welcome(conn, welcome)`, `poses(conn, poses)`,
+// `welcome(conn, welcome)`, `poses(conn, poses)`, `lights(conn, lights)`,
 // `applied(conn, frame, keyframe)`, `stats(conn, stats)`,
 // `gaveUp(conn, closeEvent)`, `serverError(conn, error)`. `posesToApply`
-// is the page's rule for which of a Poses message's entries to draw.
+// is the page's rule for which of a Poses message's entries to draw;
+// `LightSeqs` its seqs for SetLight and which Lights entries to show.
 
 import { ApplyError, Lightmap } from './lightmap.js';
-import { DecodeError, HELLO_POSES, PROTOCOL_VERSION, decodeServer, encodeClient, errorName } from './protocol.js';
+import {
+  DecodeError,
+  HELLO_LIGHTS,
+  HELLO_POSES,
+  PROTOCOL_VERSION,
+  decodeServer,
+  encodeClient,
+  errorName,
+  nextSeq,
+  seqIsNewer,
+} from './protocol.js';
 
 export const CLIENT_NAME = 'lightwire-dashboard/0.1';
+/** What Hello asks for: Poses and Lights. */
+export const HELLO_CAPABILITIES = HELLO_POSES | HELLO_LIGHTS;
 /** Window of the versions/s and bytes/s rates. */
 export const RATE_WINDOW_MS = 5000;
 /** `WebSocket.OPEN`. */
@@ -67,16 +81,68 @@ export class Backoff {
 /**
  * The entries of a `Poses` message (`{ object, seq, pose }`) the page should
  * draw: all but those of an object the user holds (`held`: dragging it, or a
- * move queued and not yet sent) and those older than the last Transform
- * this page sent for the object (`lastSentSeq`: object -> seq), so that the
- * user's own move, not yet reflected, does not jump back.
+ * move queued and not yet sent) and those older, in serial-number order
+ * (`seqIsNewer`), than the last Transform this page sent for the object
+ * (`lastSentSeq`: object -> seq), so that the user's own move, not yet
+ * reflected, does not jump back.
  * @param {Array<{object: number, seq: number, pose: object}>} poses
  * @param {Map<number, number>} lastSentSeq
  * @param {Set<number>} [held]
  * @returns {Array<{object: number, seq: number, pose: object}>}
  */
 export function posesToApply(poses, lastSentSeq, held = new Set()) {
-  return poses.filter(({ object, seq }) => !held.has(object) && seq >= (lastSentSeq.get(object) ?? 0));
+  return poses.filter(({ object, seq }) => {
+    const sent = lastSentSeq.get(object);
+    return !held.has(object) && (sent === undefined || !seqIsNewer(sent, seq));
+  });
+}
+
+/**
+ * The page's SetLight seqs and which light states to show. Seqs are per
+ * light and shared by all drivers (PROTOCOL.md §1.7): the next seq for a
+ * light is one past the newer, in serial-number order (`seqIsNewer`), of
+ * the seq in the last `Lights` and the last seq this page sent for it.
+ * `received` takes a Lights message's entries and returns those the page
+ * should show: all but the lights whose last change from this page is not
+ * reflected yet (so that the control does not jump back); `forget` stops
+ * waiting for them (a refusal: the server's state is what holds).
+ */
+export class LightSeqs {
+  constructor() {
+    /** light -> seq of the last Lights. */
+    this.latest = new Map();
+    /** light -> last seq this page sent. */
+    this.sent = new Map();
+    /** light -> seq sent and not yet reflected by a Lights. */
+    this.awaiting = new Map();
+  }
+
+  /** The seq of this page's next SetLight of `light`. */
+  next(light) {
+    const latest = this.latest.get(light) ?? 0;
+    const sent = this.sent.get(light);
+    const seq = nextSeq(sent !== undefined && seqIsNewer(sent, latest) ? sent : latest);
+    this.sent.set(light, seq);
+    this.awaiting.set(light, seq);
+    return seq;
+  }
+
+  /**
+   * @param {Array<{light: number, seq: number, state: object}>} lights
+   * @returns {Array<{light: number, seq: number, state: object}>}
+   */
+  received(lights) {
+    for (const { light, seq } of lights) {
+      this.latest.set(light, seq);
+      const waiting = this.awaiting.get(light);
+      if (waiting !== undefined && !seqIsNewer(waiting, seq)) this.awaiting.delete(light);
+    }
+    return lights.filter(({ light }) => !this.awaiting.has(light));
+  }
+
+  forget() {
+    this.awaiting.clear();
+  }
 }
 
 /** The browser's clock and timers (node has the same globals). */
@@ -106,22 +172,26 @@ export class Connection {
     this.on = on;
     this.state = 'connecting';
     this.role = null;
+    /** `Welcome.capabilities` (CAP_LIGHTS: SetLight is followed). */
+    this.capabilities = 0;
     this.scene = null;
     this.map = null;
     this.awaitingKeyframe = true;
     this.closedByUs = false;
     this.fatal = false;
-    this.counters = { frames: 0, keyframes: 0, deltas: 0, resyncs: 0, stats: 0, poses: 0, decodeErrors: 0, errors: 0 };
+    this.counters = { frames: 0, keyframes: 0, deltas: 0, resyncs: 0, stats: 0, poses: 0, lights: 0, decodeErrors: 0, errors: 0 };
     this.errors = [];
     this.received = []; // [time ms, bytes]
     this.versions = []; // [time ms, server version] from Stats
     this.reflected = {};
     /** The last Poses, `{ version, poses }`, or null. */
     this.poses = null;
+    /** The last Lights, `{ version, lights }`, or null. */
+    this.lights = null;
     this.lastStats = null;
     this.ws = new WebSocket(url);
     this.ws.binaryType = 'arraybuffer';
-    this.ws.onopen = () => this.send({ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: this.token, capabilities: HELLO_POSES });
+    this.ws.onopen = () => this.send({ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: this.token, capabilities: HELLO_CAPABILITIES });
     this.ws.onmessage = (e) => this.receive(e.data);
     this.ws.onclose = (e) => this.closed(e);
   }
@@ -171,6 +241,9 @@ export class Connection {
       case 'Poses':
         this.takePoses(message);
         break;
+      case 'Lights':
+        this.takeLights(message);
+        break;
       case 'Error': {
         const name = errorName(message.code);
         this.counters.errors++;
@@ -191,6 +264,7 @@ export class Connection {
       return;
     }
     this.role = w.role;
+    this.capabilities = w.capabilities;
     this.scene = w.scene;
     try {
       this.map = Lightmap.forScene(w.scene);
@@ -243,6 +317,17 @@ export class Connection {
     this.counters.poses++;
     this.poses = { version: p.version, poses: p.poses };
     this.on.poses?.(this, p);
+  }
+
+  /** The lights' states in the version that follows. */
+  takeLights(l) {
+    if (!this.scene) {
+      this.log('Lights before Welcome; ignored', 'warn');
+      return;
+    }
+    this.counters.lights++;
+    this.lights = { version: l.version, lights: l.lights };
+    this.on.lights?.(this, l);
   }
 
   stats(s) {

@@ -1,4 +1,4 @@
-// The Lightwire wire protocol (PROTOCOL.md, version 2) in JavaScript: the
+// The Lightwire wire protocol (PROTOCOL.md, version 4) in JavaScript: the
 // JavaScript twin of `protocol/src/messages.rs` and `protocol/src/codec.rs`.
 //
 // Every message is one WebSocket binary frame, encoded with bincode 2 in one
@@ -9,17 +9,21 @@
 //
 // In JavaScript a message is a plain object `{ type: "Hello", ...fields }`;
 // newtype variants (`Keyframe(Keyframe)`, `Delta(Delta)`, `Stats(Stats)`)
-// carry their struct's fields directly. Unit enums (`Role`, `PixelFormat`)
-// are their variant names as strings, `Option` is `null` or the value,
-// `Vec<u8>` is a `Uint8Array`, and an `ErrorCode` is its numeric value
-// (`ERROR_NAMES` names the known ones). Integers are Numbers: a u64 above
-// 2^53 - 1 cannot be held exactly by a Number and is refused by the decoder
-// rather than silently rounded (versions, seqs and microsecond clocks stay far
-// below it). The golden vectors in `protocol/tests/vectors/` pin all of it
+// carry their struct's fields directly. Unit enums (`Role`, `PixelFormat`,
+// `LightType`) are their variant names as strings, `Option` is `null` or
+// the value, `Vec<u8>` is a `Uint8Array`, and an `ErrorCode` is its numeric
+// value (`ERROR_NAMES` names the known ones). Integers are Numbers: a u64
+// above 2^53 - 1 cannot be held exactly by a Number and is refused by the
+// decoder rather than silently rounded (versions and microsecond clocks
+// stay far below it). Sequence numbers are the exception: they compare in
+// serial-number order (PROTOCOL.md §1.7), so a driver may send any u64,
+// and a seq above 2^53 - 1 decodes to a BigInt (the encoder takes either;
+// `seqIsNewer` compares them as the server does, `nextSeq` counts on). The
+// golden vectors in `protocol/tests/vectors/` pin all of it
 // (`server/dashboard/test/protocol.test.mjs`).
 
 /** The protocol version this code speaks (`Hello.protocol_version`). */
-export const PROTOCOL_VERSION = 3;
+export const PROTOCOL_VERSION = 4;
 
 /**
  * `Welcome.capabilities` bit: the server serves the scene as glTF binary at
@@ -36,11 +40,49 @@ export const CAP_SCENE_GLB = 1;
 export const CAP_POSES = 2;
 
 /**
+ * `Welcome.capabilities` bit: the server sends `Lights` to a client whose
+ * Hello set `HELLO_LIGHTS` and follows drivers' `SetLight` (PROTOCOL.md
+ * §3, "Capabilities"); `lightwire serve` sets it, a relay does not. Twin
+ * of `lightwire_protocol::CAP_LIGHTS`.
+ */
+export const CAP_LIGHTS = 4;
+
+/**
  * `Hello.capabilities` bit: send me `Poses`, the poses of the dynamic
  * objects each lightmap version was lit for. A server without `CAP_POSES`
  * ignores it. Twin of `lightwire_protocol::HELLO_POSES`.
  */
 export const HELLO_POSES = 1;
+
+/**
+ * `Hello.capabilities` bit: send me `Lights`, the lights' states each
+ * lightmap version was lit with (version 4; a server ignores it from an
+ * older client). Twin of `lightwire_protocol::HELLO_LIGHTS`.
+ */
+export const HELLO_LIGHTS = 2;
+
+const SEQ_MODULUS = 1n << 64n;
+const SEQ_HALF = 1n << 63n;
+
+/**
+ * Whether sequence number `seq` is newer than `latest` in serial-number
+ * order (PROTOCOL.md §1.7; twin of `lightwire_protocol::seq_is_newer`):
+ * `seq - latest` modulo 2^64 is in 1 ..= 2^63 - 1, so after 2^64 - 1 comes
+ * 0 and no seq freezes an object or a light. Computed on BigInt; takes
+ * BigInts or (safe integer) Numbers.
+ */
+export function seqIsNewer(seq, latest) {
+  const ahead = (((BigInt(seq) - BigInt(latest)) % SEQ_MODULUS) + SEQ_MODULUS) % SEQ_MODULUS;
+  return ahead !== 0n && ahead < SEQ_HALF;
+}
+
+/** The seq after `seq` (2^64 - 1 is followed by 0): a Number when it is
+ * at most 2^53 - 1, else a BigInt, as the decoder gives seqs. */
+export function nextSeq(seq) {
+  if (typeof seq === 'number' && seq < Number.MAX_SAFE_INTEGER) return seq + 1;
+  const next = (BigInt(seq) + 1n) % SEQ_MODULUS;
+  return next <= BigInt(Number.MAX_SAFE_INTEGER) ? Number(next) : next;
+}
 
 /**
  * `/api/scenes/{id}/scene.glb` with the id percent-encoded as one path
@@ -71,6 +113,8 @@ export const ERROR_NAMES = Object.freeze({
   8: 'RateLimited',
   9: 'StaleSeq',
   10: 'ProtocolViolation',
+  11: 'UnknownLight',
+  12: 'InvalidLight',
 });
 
 /** A frame that does not decode: truncated, garbage, trailing bytes, too large. */
@@ -126,6 +170,7 @@ class Reader {
       const big = this.view.getBigUint64(this.pos, true);
       this.pos += 8;
       if (big > BigInt(Number.MAX_SAFE_INTEGER)) {
+        if (type === 'seq') return big;
         if (type !== 'u64') this.fail(`${big} does not fit a ${type}`);
         this.fail(`u64 ${big} is above 2^53 - 1, which JavaScript cannot hold exactly`);
       }
@@ -226,6 +271,19 @@ class Writer {
     this.len += 4;
   }
 
+  /** A seq: a Number as any u64, or a BigInt up to 2^64 - 1. */
+  seq(v) {
+    if (typeof v !== 'bigint' || v <= BigInt(Number.MAX_SAFE_INTEGER)) {
+      this.varint(typeof v === 'bigint' ? Number(v) : v, Number.MAX_SAFE_INTEGER, 'seq');
+      return;
+    }
+    if (v >= SEQ_MODULUS) throw new RangeError(`${v} is not a valid seq`);
+    this.reserve(9);
+    this.bytes[this.len] = 253;
+    this.view.setBigUint64(this.len + 1, v, true);
+    this.len += 9;
+  }
+
   raw(bytes) {
     this.reserve(bytes.length);
     this.bytes.set(bytes, this.len);
@@ -255,6 +313,8 @@ const T = {
   u16: varintType(0xffff, 'u16'),
   u32: varintType(0xffffffff, 'u32'),
   u64: varintType(Number.MAX_SAFE_INTEGER, 'u64'),
+  /** A u64 sequence number: a Number, or a BigInt above 2^53 - 1. */
+  seq: { read: (r) => r.varint(Number.MAX_SAFE_INTEGER, 'seq'), write: (w, v) => w.seq(v) },
   bool: { read: (r) => r.bool(), write: (w, v) => w.u8(v ? 1 : 0) },
   f32: { read: (r) => r.f32(), write: (w, v) => w.f32(v) },
   string: {
@@ -369,6 +429,7 @@ const dataEnum = (name, variants) => ({
 
 const Role = unitEnum('Role', ['Viewer', 'Driver', 'Admin']);
 const PixelFormat = unitEnum('PixelFormat', ['Rgb9e5', 'Rgba16f']);
+const LightType = unitEnum('LightType', ['Point', 'Spot', 'Directional']);
 /** Not an enum discriminant: the code's u16 value as a varint (§6). */
 const ErrorCode = T.u16;
 
@@ -379,13 +440,13 @@ const Pose = struct([
 ]);
 const ObjectSeq = struct([
   ['object', T.u32],
-  ['seq', T.u64],
+  ['seq', T.seq],
 ]);
 /** A dynamic object's pose in a published version (`Poses`); `seq` is the
  * transform seq that set it (0: the scene file's pose). */
 const ObjectPose = struct([
   ['object', T.u32],
-  ['seq', T.u64],
+  ['seq', T.seq],
   ['pose', Pose],
 ]);
 const ObjectInfo = struct([
@@ -408,6 +469,31 @@ const SurfaceInfo = struct([
   // from `rect` (a triangle on its mesh's own lightmap UVs), else empty.
   ['uvs', vec(array(T.f32, 2))],
 ]);
+/** The part of a light that can change (`SetLight`, `Lights`); see
+ * `lightProblem` for what the server accepts. */
+const LightState = struct([
+  ['on', T.bool],
+  ['color', array(T.f32, 3)],
+  ['intensity', T.f32],
+  ['position', array(T.f32, 3)],
+  ['direction', array(T.f32, 3)],
+]);
+/** Version 4: one light of the scene; `state` as the Welcome was built. */
+const LightInfo = struct([
+  ['name', T.string],
+  ['kind', LightType],
+  ['range', option(T.f32)],
+  ['cone', array(T.f32, 2)],
+  ['angular_radius', T.f32],
+  ['state', LightState],
+]);
+/** A light's state in a published version (`Lights`); `seq` is the
+ * SetLight seq that set it (0: the scene file's state). */
+const LightStatus = struct([
+  ['light', T.u32],
+  ['seq', T.seq],
+  ['state', LightState],
+]);
 const SceneInfo = struct([
   ['id', T.string],
   ['atlas_width', T.u32],
@@ -417,6 +503,8 @@ const SceneInfo = struct([
   ['objects', vec(ObjectInfo)],
   ['materials', vec(MaterialInfo)],
   ['surfaces', vec(SurfaceInfo)],
+  // Version 4: the point, spot and directional lights.
+  ['lights', vec(LightInfo)],
 ]);
 const Tile = struct([
   ['index', T.u32],
@@ -459,13 +547,23 @@ const ClientMessage = dataEnum('ClientMessage', [
     'Transform',
     struct([
       ['object', T.u32],
-      ['seq', T.u64],
+      ['seq', T.seq],
       ['pose', Pose],
       ['client_time_us', T.u64],
     ]),
   ],
   ['Resync', struct([['have_version', option(T.u64)]])],
   ['Ping', struct([['nonce', T.u64]])],
+  /** Version 4: a driver sets light `light`'s whole state. */
+  [
+    'SetLight',
+    struct([
+      ['light', T.u32],
+      ['seq', T.seq],
+      ['state', LightState],
+      ['client_time_us', T.u64],
+    ]),
+  ],
 ]);
 
 const ServerMessage = dataEnum('ServerMessage', [
@@ -498,6 +596,16 @@ const ServerMessage = dataEnum('ServerMessage', [
     struct([
       ['version', T.u64],
       ['poses', vec(ObjectPose)],
+    ]),
+  ],
+  /** Version 4, sent only after a Hello with `HELLO_LIGHTS`, immediately
+   * before the Keyframe or Delta of `version`, whenever a light's state
+   * or seq changed: every light, in light order. */
+  [
+    'Lights',
+    struct([
+      ['version', T.u64],
+      ['lights', vec(LightStatus)],
     ]),
   ],
 ]);
@@ -556,5 +664,28 @@ export function poseProblem(pose) {
   if (!(scale > 0)) return 'scale is not positive';
   const norm = Math.hypot(...rotation.map((v) => Math.fround(v)));
   if (Math.abs(norm - 1) > 1e-3) return 'rotation is not a unit quaternion';
+  return null;
+}
+
+/** §4: what the server checks before accepting a `SetLight`, in its order
+ * (`LightState::validate`), on the f32 values the state encodes to.
+ * Returns null when the state is valid, else the reason. */
+export function lightProblem(state) {
+  const f = (v) => Math.fround(v);
+  const color = state.color.map(f);
+  const intensity = f(state.intensity);
+  const position = state.position.map(f);
+  const direction = state.direction.map(f);
+  if (!color.every(Number.isFinite)) return 'color is not finite';
+  if (!Number.isFinite(intensity)) return 'intensity is not finite';
+  if (!position.every(Number.isFinite)) return 'position is not finite';
+  if (!direction.every(Number.isFinite)) return 'direction is not finite';
+  if (color.some((c) => !(c >= 0 && c <= 1))) return 'color is out of range (each channel in [0, 1])';
+  if (!(intensity >= 0 && intensity <= 1e6)) return 'intensity is out of range (0 to 1e6)';
+  if (position.some((v) => Math.abs(v) > 1e5)) {
+    return 'position is out of range (each component at most 1e5 in magnitude)';
+  }
+  const norm = Math.sqrt(direction.reduce((sum, v) => sum + v * v, 0));
+  if (Math.abs(norm - 1) > 1e-3) return 'direction is not a unit vector (|d| differs from 1 by more than 1e-3)';
   return null;
 }

@@ -1,9 +1,10 @@
 // The dashboard's connection logic (src/connection.js) without a browser: a
 // fake WebSocket and a fake clock drive it through the handshake, the
 // golden keyframe and delta of protocol/tests/vectors/, a delta onto a wrong
-// base (-> Resync), recorded zstd streams, the golden Poses, server errors
-// and closes (-> reconnect after the backoff delay, or give up); and the
-// page's rule for which poses to draw (`posesToApply`).
+// base (-> Resync), recorded zstd streams, the golden Poses and Lights,
+// server errors and closes (-> reconnect after the backoff delay, or give
+// up); and the page's rules for which poses to draw (`posesToApply`) and
+// for its SetLight seqs (`LightSeqs`).
 
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -11,8 +12,8 @@ import path from 'node:path';
 import test from 'node:test';
 import { fileURLToPath } from 'node:url';
 
-import { Backoff, CLIENT_NAME, Connection, DASHBOARD_BACKOFF, Reconnector, posesToApply, sceneUrl } from '../src/connection.js';
-import { HELLO_POSES, PROTOCOL_VERSION, decodeClient, decodeServer, encodeServer } from '../src/protocol.js';
+import { Backoff, CLIENT_NAME, Connection, DASHBOARD_BACKOFF, LightSeqs, Reconnector, posesToApply, sceneUrl } from '../src/connection.js';
+import { HELLO_LIGHTS, HELLO_POSES, PROTOCOL_VERSION, decodeClient, decodeServer, encodeServer } from '../src/protocol.js';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const vectors = path.resolve(here, '../../../protocol/tests/vectors');
@@ -116,6 +117,7 @@ function harness({ backoff = new Backoff(DASHBOARD_BACKOFF), token = 'secret' } 
     applied: (c, frame, keyframe) => calls.push(['applied', keyframe ? 'keyframe' : 'delta', frame.version]),
     stats: (c, s) => calls.push(['stats', s.version]),
     poses: (c, p) => calls.push(['poses', p.version]),
+    lights: (c, l) => calls.push(['lights', l.version]),
     gaveUp: (c, e) => calls.push(['gaveUp', e.code]),
   };
   const link = new Reconnector({ url: sceneUrl({ protocol: 'http:', host: 'example:8080' }, 'cornell box'), token, WebSocket, clock, backoff, on });
@@ -131,14 +133,14 @@ const golden = () => ({
   delta: bin('server_delta'),
 });
 
-test('the handshake: the scene URL, then Hello with the protocol version, the client, the token and HELLO_POSES', () => {
+test('the handshake: the scene URL, then Hello with the protocol version, the client, the token, HELLO_POSES and HELLO_LIGHTS', () => {
   const { socket, link, calls } = harness();
   assert.equal(socket().url, 'ws://example:8080/ws/scenes/cornell%20box');
   assert.equal(socket().binaryType, 'arraybuffer');
   assert.equal(link.current.state, 'connecting');
   assert.deepEqual(calls, [['state', 'connecting']]);
   socket().open();
-  assert.deepEqual(socket().sent, [{ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: 'secret', capabilities: HELLO_POSES }]);
+  assert.deepEqual(socket().sent, [{ type: 'Hello', protocol_version: PROTOCOL_VERSION, client: CLIENT_NAME, token: 'secret', capabilities: HELLO_POSES | HELLO_LIGHTS }]);
   assert.equal(sceneUrl({ protocol: 'https:', host: 'h' }, 'a/b'), 'wss://h/ws/scenes/a%2Fb');
 });
 
@@ -169,7 +171,7 @@ test('Welcome, the golden keyframe, and a delta onto its exact base are applied'
   assert.equal(conn.map.version, 2);
   assert.deepEqual(conn.map.texel(2, 0), [1, 1, 1]);
   assert.deepEqual(conn.map.texel(2, 1), [0, 0, 0]);
-  assert.deepEqual(conn.counters, { frames: 4, keyframes: 1, deltas: 1, resyncs: 0, stats: 0, poses: 0, decodeErrors: 0, errors: 0 });
+  assert.deepEqual(conn.counters, { frames: 4, keyframes: 1, deltas: 1, resyncs: 0, stats: 0, poses: 0, lights: 0, decodeErrors: 0, errors: 0 });
   // Only Hello went out: no Resync.
   assert.deepEqual(socket().sent.map((m) => m.type), ['Hello']);
   const welcomeId = decodeServer(welcome).scene.id;
@@ -208,6 +210,69 @@ test('Poses are kept and reported, before the lightmap of their version; before 
   assert.deepEqual(socket().sent.map((m) => m.type), ['Hello']);
 });
 
+test('Lights are kept and reported, before the lightmap of their version; before Welcome they are ignored', () => {
+  const { socket, link, calls, logs } = harness();
+  const { keyframe, delta } = golden();
+  const lights = decodeServer(bin('server_lights'));
+  socket().open();
+  socket().deliver(bin('server_lights'));
+  const conn = link.current;
+  assert.equal(conn.lights, null);
+  assert.equal(conn.counters.lights, 0);
+  assert.equal(logs.at(-1)[1], 'Lights before Welcome; ignored');
+  const welcome = decodeServer(bin('server_welcome_lights'));
+  socket().deliver(bin('server_welcome_lights'));
+  assert.equal(conn.capabilities, welcome.capabilities);
+  socket().deliver(keyframe);
+  socket().deliver(bin('server_lights'));
+  socket().deliver(delta);
+  assert.deepEqual(conn.lights, { version: 2, lights: lights.lights });
+  assert.equal(conn.counters.lights, 1);
+  assert.deepEqual(calls.slice(-2), [
+    ['lights', 2],
+    ['applied', 'delta', 2],
+  ]);
+  assert.equal(conn.map.version, 2);
+  assert.deepEqual(socket().sent.map((m) => m.type), ['Hello']);
+});
+
+test('LightSeqs: one past the newer of the last Lights and what this page sent; its own unreflected changes are not shown', () => {
+  const state = decodeServer(bin('server_lights')).lights[0].state;
+  const status = (light, seq) => ({ light, seq, state });
+  const seqs = new LightSeqs();
+  // Before any Lights: from 0.
+  assert.equal(seqs.next(0), 1);
+  assert.equal(seqs.next(0), 2);
+  // Another driver's seq 5 for light 0 overtakes this page's; light 1 untouched.
+  assert.deepEqual(seqs.received([status(0, 5), status(1, 0)]), [status(0, 5), status(1, 0)]);
+  assert.equal(seqs.next(0), 6);
+  assert.equal(seqs.next(0), 7);
+  // A Lights reflecting seq 6 only: light 0 still awaits 7 and is not shown.
+  assert.deepEqual(seqs.received([status(0, 6), status(1, 0)]), [status(1, 0)]);
+  assert.equal(seqs.next(0), 8, 'what this page sent is newer than the Lights');
+  assert.deepEqual(seqs.received([status(0, 8), status(1, 0)]).map((l) => l.light), [0, 1]);
+  // A refusal: stop waiting, show the server's state.
+  assert.equal(seqs.next(1), 1);
+  assert.deepEqual(seqs.received([status(0, 8), status(1, 0)]).map((l) => l.light), [0]);
+  seqs.forget();
+  assert.deepEqual(seqs.received([status(0, 8), status(1, 0)]).map((l) => l.light), [0, 1]);
+  assert.equal(seqs.next(1), 2, 'seqs never go back');
+  // The golden Lights: the lamp at seq 5 as the golden SetLight set it.
+  const golden = new LightSeqs();
+  golden.received(decodeServer(bin('server_lights')).lights);
+  assert.equal(golden.next(0), decodeClient(bin('client_set_light')).seq + 1);
+  assert.equal(golden.next(1), 1);
+  // Serial-number order: after another driver's 2^64 - 1 comes 0, and a
+  // Lights at 0 reflects it.
+  const max = (1n << 64n) - 1n;
+  const wrap = new LightSeqs();
+  wrap.received([status(0, max)]);
+  assert.equal(wrap.next(0), 0);
+  assert.deepEqual(wrap.received([status(0, max)]), [], 'seq 0 is newer than 2^64 - 1: still awaited');
+  assert.deepEqual(wrap.received([status(0, 0)]), [status(0, 0)]);
+  assert.equal(wrap.next(0), 1);
+});
+
 test('posesToApply: all but held objects and those behind the last seq this page sent', () => {
   const pose = (x) => ({ translation: [x, 0, 0], rotation: [0, 0, 0, 1], scale: 1 });
   const poses = [
@@ -233,6 +298,12 @@ test('posesToApply: all but held objects and those behind the last seq this page
   const golden = decodeServer(bin('server_poses')).poses;
   assert.deepEqual(posesToApply(golden, new Map([[0, 301]])), []);
   assert.deepEqual(posesToApply(golden, new Map([[0, 300]])), golden);
+  // Serial-number order: a pose at seq 0 reflects a move after 2^64 - 1,
+  // and one at 2^64 - 1 is behind this page's seq 0.
+  const max = (1n << 64n) - 1n;
+  assert.equal(posesToApply([{ ...golden[0], seq: 0 }], new Map([[0, max]])).length, 1);
+  assert.equal(posesToApply([{ ...golden[0], seq: max }], new Map([[0, 0]])).length, 0);
+  assert.equal(posesToApply([{ ...golden[0], seq: max }], new Map()).length, 1, 'nothing sent: any seq');
 });
 
 test('a delta onto a wrong base asks for a keyframe with Resync, and deltas wait for it', () => {

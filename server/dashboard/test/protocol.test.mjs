@@ -14,9 +14,11 @@ import test from 'node:test';
 import { fileURLToPath } from 'node:url';
 
 import {
+  CAP_LIGHTS,
   CAP_POSES,
   CAP_SCENE_GLB,
   DecodeError,
+  HELLO_LIGHTS,
   HELLO_POSES,
   MAX_FRAME_BYTES,
   PROTOCOL_VERSION,
@@ -25,8 +27,11 @@ import {
   encodeClient,
   encodeServer,
   errorName,
+  lightProblem,
+  nextSeq,
   poseProblem,
   sceneGlbPath,
+  seqIsNewer,
 } from '../src/protocol.js';
 import { ApplyError, Lightmap, applyResidual, halfToFloat, rgb9e5Decode, zstdFrameProblem } from '../src/lightmap.js';
 import { decompress } from '../src/vendor/fzstd.js';
@@ -189,6 +194,161 @@ test('Poses: the capability bits of Hello and Welcome, and the golden Poses befo
   for (let n = 1; n < bytes.length; n++) assert.throws(() => decodeServer(bytes.subarray(0, n)), DecodeError, `prefix of ${n} bytes`);
 });
 
+test('Lights (version 4): the capability bits, the lights of the golden Welcome, SetLight byte by byte, Lights before the golden delta', () => {
+  assert.equal(CAP_LIGHTS, 4);
+  assert.equal(HELLO_LIGHTS, 2);
+  assert.equal(decodeClient(bin('client_hello_poses')).capabilities & HELLO_LIGHTS, 0);
+  assert.equal(decodeClient(bin('client_hello_lights')).capabilities, HELLO_POSES | HELLO_LIGHTS);
+  assert.equal(decodeServer(bin('server_welcome_poses')).capabilities & CAP_LIGHTS, 0);
+  const welcome = decodeServer(bin('server_welcome_lights'));
+  assert.equal(welcome.capabilities, CAP_SCENE_GLB | CAP_POSES | CAP_LIGHTS);
+  assert.deepEqual(
+    welcome.scene.lights.map(({ name, kind, range }) => [name, kind, range]),
+    [
+      ['lamp', 'Spot', 4],
+      ['sun', 'Directional', null],
+    ],
+  );
+  for (const light of welcome.scene.lights) assert.equal(lightProblem(light.state), null, light.name);
+  // Every scene of the other golden Welcomes has no lights: one 00 byte at the end.
+  for (const name of ['server_welcome', 'server_welcome_poses', 'server_welcome_uvs']) {
+    const bytes = bin(name);
+    assert.deepEqual(decodeServer(bytes).scene.lights, [], name);
+    assert.equal(bytes.at(-1), 0, name);
+  }
+  // SetLight, field by field (PROTOCOL.md §8).
+  const setLight = bin('client_set_light');
+  assert.equal(
+    toHex(setLight),
+    [
+      '04', // variant 4 (SetLight)
+      '00', // light 0
+      '05', // seq 5
+      '01', // on
+      '0000803f0000403f0000003f', // colour (1, 0.75, 0.5)
+      '0000a03f', // intensity 1.25
+      '0000803e6666663f0000003f', // position (0.25, 0.9, 0.5)
+      '9a99193fcdcc4cbf00000000', // direction (0.6, -0.8, 0)
+      'fd00401e18240a0600', // client_time_us 1 700 000 000 000 000
+    ].join(''),
+  );
+  const set = decodeClient(setLight);
+  assert.equal(set.type, 'SetLight');
+  assert.equal(lightProblem(set.state), null);
+  // Lights: the version of the delta that follows, every light in order,
+  // the lamp as the SetLight set it, the sun at the scene file's seq 0.
+  const lights = decodeServer(bin('server_lights'));
+  assert.equal(lights.type, 'Lights');
+  assert.equal(lights.version, decodeServer(bin('server_delta')).version);
+  assert.deepEqual(lights.lights.map((l) => [l.light, l.seq]), [
+    [0, set.seq],
+    [1, 0],
+  ]);
+  assert.deepEqual(lights.lights[0].state, set.state);
+  assert.deepEqual(lights.lights[1].state, welcome.scene.lights[1].state);
+  assert.equal(toHex(encodeServer({ type: 'Lights', version: 300, lights: [] })), '07fb2c0100');
+  for (const name of ['client_set_light', 'server_lights', 'server_welcome_lights']) {
+    const bytes = bin(name);
+    const decode = name.startsWith('client') ? decodeClient : decodeServer;
+    for (let n = 1; n < bytes.length; n++) assert.throws(() => decode(bytes.subarray(0, n)), DecodeError, `${name}: prefix of ${n} bytes`);
+  }
+  // A LightType beyond Directional, and a range's Option tag of 2.
+  const bad = Uint8Array.from(bin('server_welcome_lights'));
+  const lamp = toHex(bad).indexOf(toHex(new TextEncoder().encode('lamp'))) / 2 + 4;
+  assert.equal(bad[lamp], 1, 'Spot');
+  bad[lamp] = 3;
+  assert.throws(() => decodeServer(bad), /unknown LightType variant 3/);
+  bad[lamp] = 1;
+  bad[lamp + 1] = 2;
+  assert.throws(() => decodeServer(bad), /invalid Option tag/);
+});
+
+test('error codes 11 and 12 are named; later ones are kept as numbers', () => {
+  assert.equal(errorName(11), 'UnknownLight');
+  assert.equal(errorName(12), 'InvalidLight');
+  assert.equal(errorName(13), 'Other(13)');
+});
+
+test('seqs compare in serial-number order, so no seq freezes an object or a light', () => {
+  // The cases of lightwire_protocol's own test.
+  assert.ok(seqIsNewer(1n, 0n));
+  assert.ok(seqIsNewer(8n, 7n));
+  assert.ok(!seqIsNewer(7n, 7n));
+  assert.ok(!seqIsNewer(6n, 7n));
+  assert.ok(!seqIsNewer(0n, 0n), 'the first seq is at least 1');
+  const max = (1n << 64n) - 1n;
+  assert.ok(seqIsNewer(max / 2n, 1n));
+  assert.ok(seqIsNewer(0n, max));
+  assert.ok(seqIsNewer(5n, max));
+  assert.ok(seqIsNewer(max, max - 1n));
+  assert.ok(!seqIsNewer(1n << 63n, 0n));
+  assert.ok(!seqIsNewer(0n, 1n << 63n), 'exactly half way round is not newer either way');
+  for (const latest of [0n, 1n, 1n << 62n, (1n << 63n) - 1n, 1n << 63n, max - 1n, max]) {
+    assert.ok(seqIsNewer((latest + 1n) % (1n << 64n), latest), `${latest}`);
+  }
+  // Numbers, as the decoder gives seqs.
+  assert.ok(seqIsNewer(1_700_000_000_000_001, 1_700_000_000_000_000));
+  assert.ok(!seqIsNewer(5, 300));
+  assert.ok(seqIsNewer(0, max), 'mixed: a Number after a BigInt');
+  // The seq after: a Number while it fits, 0 after 2^64 - 1.
+  assert.equal(nextSeq(0), 1);
+  assert.equal(nextSeq(Number.MAX_SAFE_INTEGER - 1), Number.MAX_SAFE_INTEGER);
+  assert.equal(nextSeq(Number.MAX_SAFE_INTEGER), 2n ** 53n);
+  assert.equal(nextSeq(2n ** 60n), 2n ** 60n + 1n);
+  assert.equal(nextSeq(max), 0);
+  assert.equal(nextSeq(5n), 6);
+  for (const seq of [0, 7, Number.MAX_SAFE_INTEGER, 2n ** 63n, max]) assert.ok(seqIsNewer(nextSeq(seq), seq), `${seq}`);
+});
+
+test('any u64 seq decodes (a BigInt above 2^53 - 1) and re-encodes to the same bytes; other u64s above it are refused', () => {
+  const transform = decodeClient(bin('client_transform'));
+  const max = (1n << 64n) - 1n;
+  for (const seq of [Number.MAX_SAFE_INTEGER, 2n ** 53n, 2n ** 63n, max]) {
+    const bytes = encodeClient({ ...transform, seq });
+    assert.equal(toHex(bytes.subarray(2, 11)), `fd${Buffer.from(new BigUint64Array([BigInt(seq)]).buffer).toString('hex')}`);
+    const back = decodeClient(bytes);
+    assert.equal(back.seq, seq, `${seq}`);
+    assert.deepEqual(encodeClient(back), bytes);
+  }
+  assert.equal(typeof decodeClient(encodeClient({ ...transform, seq: 2n ** 40n })).seq, 'number', 'a BigInt that fits decodes as a Number');
+  assert.deepEqual(encodeClient({ ...transform, seq: 300n }), bin('client_transform'));
+  assert.throws(() => encodeClient({ ...transform, seq: max + 1n }), RangeError);
+  assert.throws(() => encodeClient({ ...transform, seq: -1 }), RangeError);
+  // Seqs in every message that carries one: Lights, Poses, a keyframe's reflected.
+  const lights = decodeServer(bin('server_lights'));
+  const wrapped = { ...lights, lights: lights.lights.map((l) => ({ ...l, seq: max })) };
+  assert.deepEqual(decodeServer(encodeServer(wrapped)), wrapped);
+  const keyframe = decodeServer(bin('server_keyframe'));
+  assert.equal(decodeServer(encodeServer({ ...keyframe, reflected: [{ object: 0, seq: max }] })).reflected[0].seq, max);
+  // A version, a nonce, a clock: still refused above 2^53 - 1.
+  const version = Uint8Array.from([7, 0xfd, ...new Uint8Array(new BigUint64Array([2n ** 53n]).buffer), 0]); // Lights, no lights
+  assert.throws(() => decodeServer(version), /above 2\^53 - 1/);
+  assert.throws(() => encodeServer({ ...wrapped, version: 2n ** 60n }), RangeError);
+});
+
+test('light state validity follows PROTOCOL.md §4, checked in the server\'s order', () => {
+  const state = { on: true, color: [1, 0.75, 0.5], intensity: 2.5, position: [0.5, 0.9, 0.5], direction: [0, -1, 0] };
+  assert.equal(lightProblem(state), null);
+  assert.equal(lightProblem({ ...state, on: false, color: [0, 0, 0], intensity: 0 }), null);
+  assert.equal(lightProblem({ ...state, intensity: 1e6, position: [1e5, -1e5, 0] }), null);
+  assert.equal(lightProblem({ ...state, direction: [0, -1.0009, 0] }), null);
+  assert.equal(lightProblem({ ...state, color: [NaN, 0, 0] }), 'color is not finite');
+  assert.equal(lightProblem({ ...state, intensity: Infinity }), 'intensity is not finite');
+  assert.equal(lightProblem({ ...state, intensity: 1e39 }), 'intensity is not finite', 'beyond f32: infinite on the wire');
+  assert.equal(lightProblem({ ...state, position: [0, -Infinity, 0] }), 'position is not finite');
+  assert.equal(lightProblem({ ...state, direction: [NaN, 0, 0] }), 'direction is not finite');
+  assert.match(lightProblem({ ...state, color: [1.01, 0, 0] }), /^color is out of range/);
+  assert.match(lightProblem({ ...state, color: [0, -0.1, 0] }), /^color is out of range/);
+  assert.match(lightProblem({ ...state, intensity: -1 }), /^intensity is out of range/);
+  assert.match(lightProblem({ ...state, intensity: 1.1e6 }), /^intensity is out of range/);
+  assert.match(lightProblem({ ...state, position: [0, 0, 1.01e5] }), /^position is out of range/);
+  assert.match(lightProblem({ ...state, direction: [0, -1.002, 0] }), /^direction is not a unit vector/);
+  assert.match(lightProblem({ ...state, direction: [0, 0, 0] }), /^direction is not a unit vector/);
+  // The first failing check names the problem: a NaN direction and a bad colour -> the NaN.
+  assert.equal(lightProblem({ ...state, color: [2, 0, 0], direction: [NaN, 0, 0] }), 'direction is not finite');
+  assert.match(lightProblem({ ...state, color: [2, 0, 0], intensity: -1 }), /^color/);
+});
+
 test('varints use the shortest form and all four lengths (PROTOCOL.md §2 examples)', () => {
   const ping = (nonce) => Buffer.from(encodeClient({ type: 'Ping', nonce })).toString('hex');
   assert.equal(ping(5), '0305');
@@ -214,7 +374,8 @@ test('trailing bytes, bad tags, bad bools, invalid UTF-8 and unknown variants ar
   assert.throws(() => decodeClient(Uint8Array.from([3, 0xfe])), /invalid varint tag 0xfe/);
   assert.throws(() => decodeClient(Uint8Array.from([3, 0xff])), /invalid varint tag 0xff/);
   assert.throws(() => decodeClient(Uint8Array.from([9])), /unknown ClientMessage variant 9/);
-  assert.throws(() => decodeServer(Uint8Array.from([7])), /unknown ServerMessage variant 7/);
+  assert.throws(() => decodeClient(Uint8Array.from([5])), /unknown ClientMessage variant 5/);
+  assert.throws(() => decodeServer(Uint8Array.from([8])), /unknown ServerMessage variant 8/);
   // Hello with protocol_version 0x10000: does not fit a u16.
   assert.throws(() => decodeClient(Uint8Array.from([0, 0xfc, 0, 0, 1, 0])), /does not fit a u16/);
   // Hello whose client name is invalid UTF-8.

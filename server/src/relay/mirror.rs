@@ -265,6 +265,7 @@ mod tests {
             objects: vec![],
             materials: vec![],
             surfaces: vec![],
+            lights: Vec::new(),
         })
     }
 

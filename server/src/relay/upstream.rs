@@ -433,6 +433,9 @@ impl Upstream {
                 }
                 None
             }
+            // The relay does not ask for lights (no `HELLO_LIGHTS`): an
+            // upstream that sends them anyway is ignored, not fatal.
+            ServerMessage::Lights { .. } => None,
             ServerMessage::Welcome { .. } => {
                 return Err("a second Welcome from upstream".into());
             }

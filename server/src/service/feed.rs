@@ -73,6 +73,10 @@ pub struct Feed {
     /// upstream token grants only the viewer role cannot forward them, and
     /// says so to its drivers instead of accepting poses that go nowhere.
     pub transforms_refused: Mutex<Option<String>>,
+    /// Whether drivers' `SetLight`s are followed (a solver's scene) and
+    /// the lights' states published (`Lights`); a relay does not forward
+    /// lights, so it refuses them and does not announce `CAP_LIGHTS`.
+    pub follows_lights: AtomicBool,
 }
 
 impl Feed {
@@ -84,16 +88,18 @@ impl Feed {
         stats: watch::Receiver<Stats>,
     ) -> Self {
         let objects = info.as_ref().map_or(0, |i| i.objects.len());
+        let lights = info.as_ref().map_or(0, |i| i.lights.len());
         Self {
             id,
             info: watch::Sender::new(info),
             publications,
             stats,
-            inbox: Inbox::new(objects),
+            inbox: Inbox::with_lights(objects, lights),
             clients: AtomicU32::new(0),
             ready: AtomicBool::new(false),
             failure: Mutex::new(None),
             transforms_refused: Mutex::new(None),
+            follows_lights: AtomicBool::new(false),
         }
     }
 

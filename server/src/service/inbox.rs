@@ -1,11 +1,12 @@
-//! Transforms accepted from drivers, waiting for whoever consumes them: the
-//! tick thread of `lightwire serve`, or the upstream connection of
-//! `lightwire relay`, which forwards them to its solver.
+//! Transforms and light states accepted from drivers, waiting for whoever
+//! consumes them: the tick thread of `lightwire serve`, or (transforms
+//! only) the upstream connection of `lightwire relay`, which forwards them
+//! to its solver.
 
 use std::sync::{Condvar, Mutex};
 use std::time::Instant;
 
-use lightwire_protocol::Pose;
+use lightwire_protocol::{LightState, Pose, seq_is_newer};
 use tokio::sync::Notify;
 
 /// A pose waiting to be consumed: already checked
@@ -17,8 +18,18 @@ pub struct PendingPose {
     pub pose: Pose,
 }
 
-/// Poses from drivers, one slot per object: the newest seq wins, so the
-/// inbox holds at most one pose per object however fast drivers send.
+/// A light state waiting to be consumed, already checked
+/// ([`super::wire::check_light`]).
+#[derive(Debug, Clone, Copy)]
+pub struct PendingLight {
+    pub seq: u64,
+    pub state: LightState,
+}
+
+/// Poses and light states from drivers, one slot per object and per
+/// light: the newest seq wins (serial-number order,
+/// [`seq_is_newer`]), so the inbox holds at most one pose per object and
+/// one state per light however fast drivers send.
 pub struct Inbox {
     slots: Mutex<Slots>,
     /// Wakes an async consumer (the relay) when a pose arrives.
@@ -30,9 +41,12 @@ pub struct Inbox {
 
 struct Slots {
     pending: Vec<Option<PendingPose>>,
-    /// Highest seq accepted per object (also for already-drained slots), so
+    /// Newest seq accepted per object (also for already-drained slots), so
     /// a stale transform is recognised after its successor was consumed.
     accepted: Vec<u64>,
+    /// The same per light.
+    lights: Vec<Option<PendingLight>>,
+    lights_accepted: Vec<u64>,
     /// Some slot was filled since the last drain.
     fresh: bool,
 }
@@ -41,7 +55,7 @@ struct Slots {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Offer {
     Accepted,
-    /// `seq` is not newer than the last accepted one for this object.
+    /// `seq` is not newer than the last accepted one for this object (light).
     Stale {
         latest: u64,
     },
@@ -52,12 +66,19 @@ pub enum Offer {
 }
 
 impl Inbox {
-    /// An inbox for `objects` objects.
+    /// An inbox for `objects` objects and no lights.
     pub fn new(objects: usize) -> Self {
+        Self::with_lights(objects, 0)
+    }
+
+    /// An inbox for `objects` objects and `lights` lights.
+    pub fn with_lights(objects: usize, lights: usize) -> Self {
         Self {
             slots: Mutex::new(Slots {
                 pending: vec![None; objects],
                 accepted: vec![0; objects],
+                lights: vec![None; lights],
+                lights_accepted: vec![0; lights],
                 fresh: false,
             }),
             arrived: Notify::new(),
@@ -71,6 +92,8 @@ impl Inbox {
         let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
         slots.pending = vec![None; objects];
         slots.accepted = vec![0; objects];
+        slots.lights.clear();
+        slots.lights_accepted.clear();
         slots.fresh = false;
     }
 
@@ -80,7 +103,7 @@ impl Inbox {
         let Some(&latest) = slots.accepted.get(object) else {
             return Offer::UnknownObject;
         };
-        if seq <= latest {
+        if !seq_is_newer(seq, latest) {
             return Offer::Stale { latest };
         }
         slots.accepted[object] = seq;
@@ -90,6 +113,34 @@ impl Inbox {
         self.offered.notify_all();
         self.arrived.notify_one();
         Offer::Accepted
+    }
+
+    /// Offers a validated state for light `light`.
+    pub fn offer_light(&self, light: usize, seq: u64, state: LightState) -> Offer {
+        let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(&latest) = slots.lights_accepted.get(light) else {
+            return Offer::UnknownObject;
+        };
+        if !seq_is_newer(seq, latest) {
+            return Offer::Stale { latest };
+        }
+        slots.lights_accepted[light] = seq;
+        slots.lights[light] = Some(PendingLight { seq, state });
+        slots.fresh = true;
+        drop(slots);
+        self.offered.notify_all();
+        Offer::Accepted
+    }
+
+    /// Takes every pending light state, by light index.
+    pub fn drain_lights(&self) -> Vec<(usize, PendingLight)> {
+        let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
+        slots
+            .lights
+            .iter_mut()
+            .enumerate()
+            .filter_map(|(i, s)| s.take().map(|p| (i, p)))
+            .collect()
     }
 
     /// Takes every pending pose, by object index.
@@ -179,6 +230,44 @@ mod tests {
         let soon = Instant::now() + Duration::from_millis(10);
         assert!(!inbox.wait_until(soon), "nothing new: runs to the deadline");
         assert!(Instant::now() >= soon);
+    }
+
+    /// Whatever seq a driver sends, the next one is newer: a transform or
+    /// light state with seq 2^64 − 1 does not freeze its object or light.
+    #[test]
+    fn no_seq_freezes_an_object_or_a_light() {
+        let inbox = Inbox::with_lights(1, 1);
+        let state = LightState {
+            on: true,
+            color: [1.0; 3],
+            intensity: 1.0,
+            position: [0.0; 3],
+            direction: [0.0, -1.0, 0.0],
+        };
+        // The largest seq is not newer than 0 (half the circle or more
+        // ahead): no single message reaches it...
+        assert_eq!(inbox.offer(0, u64::MAX, pose()), Offer::Stale { latest: 0 });
+        // ...but steps of less than half the circle do, and then the
+        // values after it (0, 1, ...) are newer still.
+        for seq in [1 << 62, 1 << 63, u64::MAX] {
+            assert_eq!(inbox.offer(0, seq, pose()), Offer::Accepted, "{seq}");
+        }
+        assert_eq!(
+            inbox.offer(0, u64::MAX - 1, pose()),
+            Offer::Stale { latest: u64::MAX }
+        );
+        assert_eq!(
+            inbox.offer(0, 0, pose()),
+            Offer::Accepted,
+            "0 follows 2^64 - 1"
+        );
+        assert_eq!(inbox.offer(0, 1, pose()), Offer::Accepted);
+        for seq in [1 << 62, 1 << 63, u64::MAX, 3] {
+            assert_eq!(inbox.offer_light(0, seq, state), Offer::Accepted, "{seq}");
+        }
+        assert_eq!(inbox.offer_light(0, 2, state), Offer::Stale { latest: 3 });
+        assert_eq!(inbox.drain_lights().len(), 1, "one slot per light");
+        assert_eq!(inbox.offer_light(1, 1, state), Offer::UnknownObject);
     }
 
     #[test]

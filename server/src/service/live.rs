@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{Pose, Scene};
+use lightwire_scene::{Light, Pose, Scene};
 use lightwire_solve::reference::{ReferenceSolver, Silent, SolveOptions};
 use lightwire_solve::validity::Validity;
 
@@ -53,6 +53,11 @@ pub trait LiveSolver<T>: Send {
     /// `tag`. A solver may defer them until its current work completes (the
     /// latest call wins).
     fn set_poses(&mut self, poses: &[Pose], tag: T);
+    /// New states for every light (indexed like `Scene::lights`: switched,
+    /// dimmed, recoloured, moved, turned), tagged `tag`, which replaces the
+    /// tag of poses still waiting. Deferred like poses; the state that
+    /// reflects the tag is lit by these lights.
+    fn set_lights(&mut self, lights: &[Light], tag: T);
     /// Does up to about `budget` of work. An error means the solver is
     /// unusable (its state may be corrupt); it is not called again.
     fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure>;
@@ -134,6 +139,16 @@ impl<T: Clone + Send> LiveSolver<T> for ReferenceLive<T> {
             self.dirty = true;
         } else if !self.dirty {
             // Nothing moved: the current state already reflects this tag.
+            self.reflected = self.tag.clone();
+        }
+    }
+
+    fn set_lights(&mut self, lights: &[Light], tag: T) {
+        self.tag = tag;
+        if lights != self.scene.lights.as_slice() {
+            self.scene.lights = lights.to_vec();
+            self.dirty = true;
+        } else if !self.dirty {
             self.reflected = self.tag.clone();
         }
     }
@@ -299,6 +314,10 @@ impl<T: Clone + Send> LiveSolver<T> for GpuLive<T> {
 
     fn set_poses(&mut self, poses: &[Pose], tag: T) {
         self.session.set_poses(poses, tag);
+    }
+
+    fn set_lights(&mut self, lights: &[Light], tag: T) {
+        self.session.set_lights(lights, tag);
     }
 
     fn step(&mut self, budget: Duration) -> Result<StepReport, SolverFailure> {

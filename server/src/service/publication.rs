@@ -23,7 +23,9 @@ use std::sync::{Arc, OnceLock};
 
 use bytes::Bytes;
 use lightwire_protocol::lightmap::{Layout, merge};
-use lightwire_protocol::{Delta, Keyframe, ObjectPose, SceneInfo, ServerMessage, encode_server};
+use lightwire_protocol::{
+    Delta, Keyframe, LightStatus, ObjectPose, SceneInfo, ServerMessage, encode_server,
+};
 use tokio::sync::watch;
 
 /// How many versions behind a client may be and still get a merged delta.
@@ -59,6 +61,11 @@ pub struct Publication {
     /// their encoded `Poses` frame, for the sessions whose clients asked.
     pub poses: Arc<[ObjectPose]>,
     poses_frame: OnceLock<Bytes>,
+    /// The lights' states this version was lit with (empty for a scene
+    /// without lights, and on a relay), and their encoded `Lights` frame,
+    /// for the sessions whose clients asked.
+    pub lights: Arc<[LightStatus]>,
+    lights_frame: OnceLock<Bytes>,
     /// Total payload of the keyframe's tiles, the bar a merge must beat.
     keyframe_bytes: usize,
 }
@@ -86,6 +93,18 @@ impl Publication {
                 Bytes::from(encode_server(&ServerMessage::Poses {
                     version: self.version,
                     poses: self.poses.to_vec(),
+                }))
+            })
+            .clone()
+    }
+
+    /// The encoded `Lights` frame of this version ([`Publication::lights`]).
+    pub fn lights_frame(&self) -> Bytes {
+        self.lights_frame
+            .get_or_init(|| {
+                Bytes::from(encode_server(&ServerMessage::Lights {
+                    version: self.version,
+                    lights: self.lights.to_vec(),
                 }))
             })
             .clone()
@@ -147,6 +166,18 @@ impl Publisher {
         delta: Option<Delta>,
         poses: Arc<[ObjectPose]>,
     ) -> Arc<Publication> {
+        self.publish_lit(scene, keyframe, delta, (poses, Arc::default()))
+    }
+
+    /// [`Publisher::publish`], with the lights' states the version was lit
+    /// with ([`Publication::lights`]).
+    pub fn publish_lit(
+        &self,
+        scene: Arc<SceneInfo>,
+        keyframe: Keyframe,
+        delta: Option<Delta>,
+        (poses, lights): (Arc<[ObjectPose]>, Arc<[LightStatus]>),
+    ) -> Arc<Publication> {
         let previous = self.tx.borrow().clone();
         let mut recent: Vec<Arc<Delta>> = Vec::new();
         if let Some(delta) = delta {
@@ -169,6 +200,8 @@ impl Publisher {
             keyframe_frame: OnceLock::new(),
             poses,
             poses_frame: OnceLock::new(),
+            lights,
+            lights_frame: OnceLock::new(),
         });
         self.tx.send_replace(Some(publication.clone()));
         publication
@@ -196,6 +229,7 @@ mod tests {
             objects: vec![],
             materials: vec![],
             surfaces: vec![],
+            lights: Vec::new(),
         })
     }
 

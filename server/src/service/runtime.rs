@@ -47,7 +47,7 @@ use anyhow::{Context, Result};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::unix_micros;
 use lightwire_protocol::{
-    DEFAULT_TILE_SIZE, MAX_FRAME_BYTES, ObjectPose, PixelFormat, SceneInfo, Stats,
+    DEFAULT_TILE_SIZE, LightStatus, MAX_FRAME_BYTES, ObjectPose, PixelFormat, SceneInfo, Stats,
 };
 use tokio::sync::watch;
 
@@ -56,9 +56,9 @@ use super::feed::{Failure, Feed};
 use super::live::{GpuLive, LiveSolver, ReferenceLive, SolverFailure, StepReport};
 use super::metrics::Metrics;
 use super::publication::{Publication, Publisher};
-use super::wire::{from_wire, newly_reflected, scene_info, to_wire};
+use super::wire::{from_wire, light_from_wire, newly_reflected, scene_info, to_wire};
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{LoadOptions, Pose, Scene};
+use lightwire_scene::{Light, LoadOptions, Pose, Scene};
 use lightwire_solve::load::load_scene;
 use lightwire_solve::reference::MAX_ELEMENTS;
 
@@ -74,32 +74,50 @@ pub struct SceneRuntime {
     thread: Mutex<Option<JoinHandle<()>>>,
 }
 
-/// The tag the tick loop gives each set of poses it hands its solver: the
-/// seq per object of the transforms they carry (0: none yet). The solver
-/// hands it back with the state that reflects those poses, whose version
-/// then echoes the seqs (PROTOCOL.md §3, `reflected`) and sends the poses
-/// (`Poses`).
+/// The tag the tick loop gives each set of poses and lights it hands its
+/// solver: the seq per object of the transforms they carry (0: none yet),
+/// and per light of the `SetLight` that set it. The solver hands it back
+/// with the state that reflects them, whose version then echoes the seqs
+/// (PROTOCOL.md §3, `reflected`) and sends the poses (`Poses`) and the
+/// lights' states (`Lights`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Tag {
     /// Per object, the seq of the transform that set its pose (0: none).
     pub seqs: Arc<[u64]>,
     /// Per object, its pose.
     pub poses: Arc<[Pose]>,
+    /// Per light, the seq of the `SetLight` that set its state (0: none)
+    /// and that state.
+    pub lights: Arc<[LightStatus]>,
 }
 
 impl Tag {
-    /// `poses` with the seqs `seqs`.
-    fn new(seqs: &[u64], poses: &[Pose]) -> Self {
+    /// `poses` with the seqs `seqs`, and the lights `lights`.
+    fn new(seqs: &[u64], poses: &[Pose], lights: &[LightStatus]) -> Self {
         Tag {
             seqs: seqs.into(),
             poses: poses.into(),
+            lights: lights.into(),
         }
     }
 
-    /// `poses` carrying no transform.
-    fn untransformed(poses: &[Pose]) -> Self {
-        Tag::new(&vec![0; poses.len()], poses)
+    /// `poses` carrying no transform, and `lights`.
+    fn untransformed(poses: &[Pose], lights: &[LightStatus]) -> Self {
+        Tag::new(&vec![0; poses.len()], poses, lights)
     }
+}
+
+/// The lights' states of a scene as it was loaded: no `SetLight` yet.
+fn initial_lights(info: &SceneInfo) -> Vec<LightStatus> {
+    info.lights
+        .iter()
+        .enumerate()
+        .map(|(k, l)| LightStatus {
+            light: k as u32,
+            seq: 0,
+            state: l.state,
+        })
+        .collect()
 }
 
 /// The poses of `info`'s dynamic objects that `tag` holds, as the wire's
@@ -122,9 +140,9 @@ fn dynamic_poses(info: &SceneInfo, tag: &Tag) -> Arc<[ObjectPose]> {
 /// A scene's solver as the tick loop owns it.
 type Solver = Box<dyn LiveSolver<Tag>>;
 
-/// Builds a scene's solver starting from given poses with their tag: once
-/// at start, and again after each failure.
-type Build = Box<dyn FnMut(&[Pose], Tag) -> Result<Solver> + Send>;
+/// Builds a scene's solver starting from given poses and lights with their
+/// tag: once at start, and again after each failure.
+type Build = Box<dyn FnMut(&[Pose], &[Light], Tag) -> Result<Solver> + Send>;
 
 /// The wait before the first rebuild of a failed solver.
 pub const REBUILD_FIRST: Duration = Duration::from_millis(500);
@@ -181,8 +199,10 @@ impl SceneRuntime {
                     );
                 }
                 let (scene, atlas) = (scene.clone(), atlas.clone());
-                Box::new(move |poses: &[Pose], tag: Tag| {
-                    let solver = ReferenceLive::new(scene.clone(), atlas.clone(), poses, tag);
+                Box::new(move |poses: &[Pose], lights: &[Light], tag: Tag| {
+                    let mut scene = scene.clone();
+                    scene.lights = lights.to_vec();
+                    let solver = ReferenceLive::new(scene, atlas.clone(), poses, tag);
                     Ok(Box::new(solver) as Solver)
                 })
             }
@@ -195,16 +215,19 @@ impl SceneRuntime {
                 tracing::info!(scene = %scene.name, %method, "redistribution");
                 let adapter = config.adapter.clone();
                 let (scene, atlas) = (scene.clone(), atlas.clone());
-                Box::new(move |poses: &[Pose], tag: Tag| {
+                Box::new(move |poses: &[Pose], lights: &[Light], tag: Tag| {
                     let device = lightwire_solve::gpu::Device::new(adapter.as_deref())?;
                     tracing::info!(scene = %scene.name, adapter = %device.describe(), "GPU solver");
+                    let mut scene = scene.clone();
+                    scene.lights = lights.to_vec();
                     let solver = GpuLive::new(device, &scene, &atlas, poses, tag, method)?;
                     Ok(Box::new(solver) as Solver)
                 })
             }
         };
         let initial = scene.initial_poses();
-        let solver = build(&initial, Tag::untransformed(&initial))?;
+        let lit = initial_lights(&info);
+        let solver = build(&initial, &scene.lights, Tag::untransformed(&initial, &lit))?;
         let (publisher, pub_rx) = Publisher::new();
         let (stats_tx, stats_rx) = watch::channel(Stats::initial());
         let feed = Arc::new(Feed::new(
@@ -220,6 +243,7 @@ impl SceneRuntime {
             feed,
             thread: Mutex::new(None),
         });
+        runtime.feed.follows_lights.store(true, Ordering::Relaxed);
         let labels = Metrics::scene(&runtime.info.id);
         let failures = metrics.solver_failures.get_or_create(&labels).clone();
         let rebuilds = metrics.solver_rebuilds.get_or_create(&labels).clone();
@@ -251,6 +275,8 @@ impl SceneRuntime {
             ),
             poses: runtime.scene.initial_poses(),
             seqs: vec![0; runtime.scene.objects.len()],
+            lights: runtime.scene.lights.clone(),
+            light_states: lit,
             publisher,
             stats: stats_tx,
             metrics,
@@ -319,6 +345,10 @@ struct TickLoop {
     poses: Vec<Pose>,
     /// Latest seq per object, handed to the solver as the poses' tag.
     seqs: Vec<u64>,
+    /// The lights as the latest `SetLight`s set them, and their states
+    /// and seqs as the wire has them (in the tag).
+    lights: Vec<Light>,
+    light_states: Vec<LightStatus>,
     publisher: Publisher,
     stats: watch::Sender<Stats>,
     metrics: Arc<Metrics>,
@@ -439,9 +469,11 @@ impl TickLoop {
         let poses = self.poses.clone();
         let build = &mut self.build;
         // The new solver's state reflects no transform until it takes up
-        // the tagged poses handed to it below.
+        // the tagged poses handed to it below; it starts with the lights
+        // as they are now, and reflects their seqs from its first state.
+        let (lights, lit) = (&self.lights, &self.light_states);
         let built = match catch_unwind(AssertUnwindSafe(|| {
-            build(&poses, Tag::untransformed(&poses))
+            build(&poses, lights, Tag::untransformed(&poses, lit))
         })) {
             Ok(Ok(_)) if self.rebuild_fails > 0 => {
                 self.rebuild_fails -= 1;
@@ -453,7 +485,7 @@ impl TickLoop {
         };
         match built {
             Ok(mut solver) => {
-                solver.set_poses(&self.poses, Tag::new(&self.seqs, &self.poses));
+                solver.set_poses(&self.poses, self.tag());
                 tracing::info!(scene = %id, attempt, "solver rebuilt; ready again at its first version");
                 self.solver = Some(solver);
                 self.has_state = false;
@@ -472,7 +504,7 @@ impl TickLoop {
         let id = self.runtime.info.id.clone();
         tracing::info!(scene = %id, solver = self.name, elements = self.runtime.atlas.elements.len(), "tick loop started");
         let mut next = Instant::now();
-        let mut published = Tag::untransformed(&self.poses);
+        let mut published = Tag::untransformed(&self.poses, &self.light_states);
         // Since when the solver has had nothing to do (and no transform came).
         let mut idle_since: Option<Instant> = None;
         let mut last = StepReport {
@@ -491,16 +523,34 @@ impl TickLoop {
                 self.seqs[object] = pending.seq;
                 inject |= self.fail_at_seq.is_some_and(|at| pending.seq >= at);
             }
+            let switched = self.runtime.feed.inbox.drain_lights();
+            let relit = !switched.is_empty();
+            for (k, pending) in switched {
+                let (Some(base), Some(light), Some(status)) = (
+                    self.runtime.scene.lights.get(k),
+                    self.lights.get_mut(k),
+                    self.light_states.get_mut(k),
+                ) else {
+                    continue;
+                };
+                *light = light_from_wire(base, &pending.state);
+                status.seq = pending.seq;
+                status.state = pending.state;
+            }
             // While failed, poses only accumulate: the rebuilt solver
             // starts from them.
             self.rebuild_when_due();
+            let tag = self.tag();
             let Some(solver) = self.solver.as_mut() else {
                 self.finish_tick(started, down(&last));
                 next = self.sleep_until_next(next);
                 continue;
             };
             if moved {
-                solver.set_poses(&self.poses, Tag::new(&self.seqs, &self.poses));
+                solver.set_poses(&self.poses, tag.clone());
+            }
+            if relit {
+                solver.set_lights(&self.lights, tag);
             }
             if inject {
                 self.fail_at_seq = None;
@@ -524,6 +574,8 @@ impl TickLoop {
             // (PROTOCOL.md §3, `reflected`).
             let solved = solver.reflected().clone();
             let reflected = newly_reflected(&solved.seqs, &published.seqs);
+            // So is a light state, in the version's `Lights`.
+            let lights_echoed = solved.lights != published.lights;
             // A new (or rebuilt) solver's `radiosity` means nothing before
             // its first complete state: no echo-only version until then.
             // Once the solver has been idle for `settle` (no transform in
@@ -533,7 +585,7 @@ impl TickLoop {
             // the lightmap holds still): viewers then hold the solver's
             // lightmap exactly. Waiting first keeps a driver that pauses
             // between moves from paying for a flush after every move.
-            if moved || !solver.is_idle() {
+            if moved || relit || !solver.is_idle() {
                 idle_since = None;
             } else if idle_since.is_none() {
                 idle_since = Some(Instant::now());
@@ -542,9 +594,11 @@ impl TickLoop {
             let settle = self.has_state
                 && idle_since.is_some_and(|t| t.elapsed() >= self.settle)
                 && self.encoder.pending_texels() > 0;
-            if report.completed || settle || (self.has_state && !reflected.is_empty()) {
+            let echo = !reflected.is_empty() || lights_echoed;
+            if report.completed || settle || (self.has_state && echo) {
                 self.has_state = true;
                 let poses = dynamic_poses(&self.runtime.info, &solved);
+                let lights = solved.lights.clone();
                 published = solved;
                 if report.completed {
                     let mut radiosity = solver.radiosity().to_vec();
@@ -557,8 +611,12 @@ impl TickLoop {
                 let delta = self.encoder.publish(&self.image, reflected);
                 let keyframe = self.encoder.keyframe();
                 self.metrics.versions_published.inc();
-                self.publisher
-                    .publish(self.runtime.info.clone(), keyframe, Some(delta), poses);
+                self.publisher.publish_lit(
+                    self.runtime.info.clone(),
+                    keyframe,
+                    Some(delta),
+                    (poses, lights),
+                );
                 if let Some(episode) = self.episode.take() {
                     self.runtime.feed.set_failure(None);
                     tracing::info!(
@@ -575,6 +633,11 @@ impl TickLoop {
             next = self.sleep_until_next(next);
         }
         tracing::info!(scene = %id, "tick loop stopped");
+    }
+
+    /// The tag of the current poses and lights.
+    fn tag(&self) -> Tag {
+        Tag::new(&self.seqs, &self.poses, &self.light_states)
     }
 
     /// Stats and metrics of a tick whose solver work was `report`.
@@ -634,6 +697,7 @@ mod tests {
             "broken"
         }
         fn set_poses(&mut self, _: &[Pose], _: ()) {}
+        fn set_lights(&mut self, _: &[Light], _: ()) {}
         fn step(&mut self, _: Duration) -> Result<StepReport, SolverFailure> {
             if self.panic {
                 panic!("boom");

@@ -39,8 +39,9 @@ use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, HELLO_POSES, MIN_PROTOCOL_VERSION, ObjectPose, PROTOCOL_VERSION,
-    Role, SceneInfo, ServerMessage, decode_client, encode_server, encode_welcome_for,
+    ClientMessage, ErrorCode, HELLO_LIGHTS, HELLO_POSES, LightStatus, MIN_PROTOCOL_VERSION,
+    ObjectPose, PROTOCOL_VERSION, Role, SceneInfo, ServerMessage, decode_client, encode_server,
+    encode_welcome_for,
 };
 use tokio::sync::{mpsc, watch};
 
@@ -49,7 +50,7 @@ use super::auth::may_drive;
 use super::feed::Feed;
 use super::inbox::Offer;
 use super::publication::Publication;
-use super::wire::{Refusal, check_transform, unknown_object};
+use super::wire::{Refusal, check_light, check_transform, unknown_object};
 
 /// Close code for policy violations (RFC 6455 §7.4.1).
 const CLOSE_POLICY: u16 = 1008;
@@ -143,6 +144,9 @@ struct Hello {
     token: Option<String>,
     client: String,
     wants_poses: bool,
+    /// `HELLO_LIGHTS` from a client of version 4 or later (an older one
+    /// could not decode `Lights`).
+    wants_lights: bool,
     version: u16,
 }
 
@@ -190,6 +194,7 @@ async fn hello(
                     token,
                     client,
                     wants_poses: capabilities & HELLO_POSES != 0,
+                    wants_lights: capabilities & HELLO_LIGHTS != 0 && protocol_version >= 4,
                     version: protocol_version,
                 })
             }
@@ -286,7 +291,15 @@ async fn welcome(
         // `http.rs` serves `scene.glb` on every router, solver and relay;
         // the writer sends `Poses` to a client that asked (a relay's as
         // its upstream gives them).
-        capabilities: lightwire_protocol::CAP_SCENE_GLB | lightwire_protocol::CAP_POSES,
+        // A solver's scene follows `SetLight` and sends `Lights`; a relay
+        // does neither.
+        capabilities: lightwire_protocol::CAP_SCENE_GLB
+            | lightwire_protocol::CAP_POSES
+            | if feed.follows_lights.load(Ordering::Relaxed) {
+                lightwire_protocol::CAP_LIGHTS
+            } else {
+                0
+            },
         scene: (*info).clone(),
     };
     // In the client's version: a version 2 client gets version 2's
@@ -316,7 +329,8 @@ pub async fn run(
         return;
     };
     let client_name = hello.client.clone();
-    let wants_poses = hello.wants_poses;
+    let wants = (hello.wants_poses, hello.wants_lights);
+    let version = hello.version;
     let Some((role, info)) = welcome(&mut sink, &state, &feed, hello, header_token).await else {
         return;
     };
@@ -332,7 +346,7 @@ pub async fn run(
         state.clone(),
         feed.clone(),
         info.clone(),
-        role,
+        (role, version),
         control_tx,
         close_tx,
     ));
@@ -341,7 +355,7 @@ pub async fn run(
         state.clone(),
         feed.clone(),
         info,
-        wants_poses,
+        wants,
         control_rx,
         close_rx,
     )
@@ -360,7 +374,8 @@ pub async fn run(
     tracing::debug!(scene = %feed.id, client = %client_name, "client left");
 }
 
-/// Token bucket for transforms.
+/// Token bucket for transforms and light states (one per connection,
+/// shared by both).
 struct RateLimit {
     capacity: f64,
     tokens: f64,
@@ -397,7 +412,7 @@ async fn read_loop(
     state: Arc<Shared>,
     feed: Arc<Feed>,
     info: Arc<SceneInfo>,
-    role: Role,
+    client: (Role, u16),
     control: mpsc::Sender<Control>,
     close: watch::Sender<Option<(u16, String)>>,
 ) {
@@ -407,7 +422,7 @@ async fn read_loop(
     while let Some(message) = stream.next().await {
         let reply = match message {
             Ok(Message::Binary(bytes)) => {
-                handle(&bytes, &state, &feed, &info, role, &mut rate, &control).await
+                handle(&bytes, &state, &feed, &info, client, &mut rate, &control).await
             }
             Ok(Message::Text(_)) => Err((
                 ErrorCode::BadFrame,
@@ -468,7 +483,7 @@ async fn handle(
     state: &Shared,
     feed: &Feed,
     info: &SceneInfo,
-    role: Role,
+    (role, version): (Role, u16),
     rate: &mut RateLimit,
     control: &mpsc::Sender<Control>,
 ) -> Result<(), Refusal> {
@@ -506,6 +521,60 @@ async fn handle(
                     ErrorCode::StaleSeq,
                     "stale_seq",
                     format!("seq {seq} for object {object} is not newer than {latest}"),
+                )),
+            }
+        }
+        ClientMessage::SetLight {
+            light,
+            seq,
+            state: setting,
+            ..
+        } => {
+            if !may_drive(role) {
+                return Err((
+                    ErrorCode::Forbidden,
+                    "forbidden",
+                    format!("a {role:?} may not set lights"),
+                ));
+            }
+            if version < 4 {
+                return Err((
+                    ErrorCode::ProtocolViolation,
+                    "protocol_violation",
+                    format!(
+                        "SetLight needs protocol version 4; this connection announced {version}"
+                    ),
+                ));
+            }
+            if !feed.follows_lights.load(Ordering::Relaxed) {
+                return Err((
+                    ErrorCode::Forbidden,
+                    "forbidden",
+                    "this server does not follow lights (a relay does not forward SetLight); connect to the solver's server".into(),
+                ));
+            }
+            let index = check_light(info, light, &setting)?;
+            if !rate.allow() {
+                return Err((
+                    ErrorCode::RateLimited,
+                    "rate_limited",
+                    format!(
+                        "more than {} transforms and light states per second",
+                        state.config.transforms_per_second
+                    ),
+                ));
+            }
+            match feed.inbox.offer_light(index, seq, setting) {
+                Offer::Accepted => Ok(()),
+                Offer::UnknownObject => Err((
+                    ErrorCode::UnknownLight,
+                    "unknown_light",
+                    format!("light {light} is not a light of scene \"{}\"", info.id),
+                )),
+                Offer::Stale { latest } => Err((
+                    ErrorCode::StaleSeq,
+                    "stale_seq",
+                    format!("seq {seq} for light {light} is not newer than {latest}"),
                 )),
             }
         }
@@ -566,7 +635,7 @@ async fn write_loop(
     state: Arc<Shared>,
     feed: Arc<Feed>,
     info: Arc<SceneInfo>,
-    wants_poses: bool,
+    (wants_poses, wants_lights): (bool, bool),
     mut control: mpsc::Receiver<Control>,
     mut close_rx: watch::Receiver<Option<(u16, String)>>,
 ) {
@@ -581,6 +650,8 @@ async fn write_loop(
     // (`HELLO_POSES`): a `Poses` frame goes before a version's lightmap
     // only when they differ.
     let mut sent_poses: Option<Arc<[ObjectPose]>> = None;
+    // The same for the lights' states (`HELLO_LIGHTS`, `Lights`).
+    let mut sent_lights: Option<Arc<[LightStatus]>> = None;
     // Start from whatever is already published.
     publications.mark_changed();
     let mut stats_timer = tokio::time::interval(STATS_PERIOD);
@@ -650,6 +721,13 @@ async fn write_loop(
                 {
                     if !send(&mut sink, &state, p.poses_frame()).await { return; }
                     sent_poses = Some(p.poses.clone());
+                }
+                if wants_lights
+                    && !p.lights.is_empty()
+                    && sent_lights.as_deref() != Some(&*p.lights)
+                {
+                    if !send(&mut sink, &state, p.lights_frame()).await { return; }
+                    sent_lights = Some(p.lights.clone());
                 }
                 if !send(&mut sink, &state, frame).await { return; }
                 held = Some(p.version);

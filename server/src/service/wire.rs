@@ -10,10 +10,10 @@
 //! Nothing past this module (the solvers, `gpu/`) sees a wire type.
 
 use glam::{Quat, Vec3};
-use lightwire_protocol::{ErrorCode, ObjectSeq, Pose as WirePose, SceneInfo};
+use lightwire_protocol::{ErrorCode, LightState, ObjectSeq, Pose as WirePose, SceneInfo};
 
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{Pose, Scene};
+use lightwire_scene::{Light, LightKind, Pose, Scene};
 
 /// Why a client frame is refused: the `Error` frame's code, the kind
 /// counted in `lightwire_bad_frames_total`, and the frame's message.
@@ -69,12 +69,73 @@ pub fn newly_reflected(now: &[u64], before: &[u64]) -> Vec<ObjectSeq> {
     now.iter()
         .zip(before)
         .enumerate()
-        .filter(|(_, (now, before))| now > before)
+        // A seq only ever changes to a newer one (serial-number order,
+        // `seq_is_newer`: after 2^64 - 1 comes 0), so any change is news.
+        .filter(|(_, (now, before))| now != before)
         .map(|(object, (seq, _))| ObjectSeq {
             object: object as u32,
             seq: *seq,
         })
         .collect()
+}
+
+/// Checks a driver's `SetLight` of `light` to `state` against `info`:
+/// one of its lights (else `UnknownLight`), a valid state
+/// ([`LightState::validate`]; else `InvalidLight`), in that order.
+/// Returns the light's index.
+pub fn check_light(info: &SceneInfo, light: u32, state: &LightState) -> Result<usize, Refusal> {
+    let index = light as usize;
+    if index >= info.lights.len() {
+        return Err((
+            ErrorCode::UnknownLight,
+            "unknown_light",
+            format!(
+                "light {light} is not a light of scene \"{}\", which has {}",
+                info.id,
+                info.lights.len()
+            ),
+        ));
+    }
+    state.validate().map_err(|why| {
+        (
+            ErrorCode::InvalidLight,
+            "invalid_light",
+            format!("light {light}: {why}"),
+        )
+    })?;
+    Ok(index)
+}
+
+/// The scene's light `base` in the wire state `state` (already checked by
+/// [`check_light`]): its kind, cone, disc and range as they are, its
+/// intensity `color × intensity` when on (black when off), its position,
+/// and for a spot or directional light its direction (normalized).
+pub fn light_from_wire(base: &Light, state: &LightState) -> Light {
+    let direction = Vec3::from_array(state.direction).normalize_or(Vec3::NEG_Y);
+    let kind = match base.kind {
+        LightKind::Point => LightKind::Point,
+        LightKind::Spot { inner, outer, .. } => LightKind::Spot {
+            direction,
+            inner,
+            outer,
+        },
+        LightKind::Directional { angular_radius, .. } => LightKind::Directional {
+            direction,
+            angular_radius,
+        },
+    };
+    let intensity = if state.on {
+        Vec3::from_array(state.color) * state.intensity
+    } else {
+        Vec3::ZERO
+    };
+    Light {
+        name: base.name.clone(),
+        kind,
+        position: Vec3::from_array(state.position),
+        intensity,
+        range: base.range,
+    }
 }
 
 /// Converts a scene pose to a wire pose.
@@ -121,6 +182,7 @@ mod tests {
             objects: vec![object("room", false), object("box", true)],
             materials: Vec::new(),
             surfaces: Vec::new(),
+            lights: Vec::new(),
         }
     }
 
@@ -140,5 +202,8 @@ mod tests {
     fn a_version_echoes_only_the_seqs_that_moved_on() {
         let echoed = newly_reflected(&[0, 4, 7], &[0, 4, 5]);
         assert_eq!(echoed, vec![ObjectSeq { object: 2, seq: 7 }]);
+        // After 2^64 - 1 comes 0: still news.
+        let wrapped = newly_reflected(&[0, 4], &[u64::MAX, 4]);
+        assert_eq!(wrapped, vec![ObjectSeq { object: 0, seq: 0 }]);
     }
 }
