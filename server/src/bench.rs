@@ -33,6 +33,7 @@
 pub mod codec;
 pub mod dynamic;
 pub mod eye;
+pub mod lights;
 pub mod meshes;
 
 use std::path::Path;

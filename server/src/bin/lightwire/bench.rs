@@ -1,4 +1,4 @@
-//! `lightwire bench solve|dynamic|codec`: the benchmarks that write the
+//! `lightwire bench solve|dynamic|meshes|codec|eye|lights`: the benchmarks that write the
 //! reports BENCHMARKS.md quotes.
 
 use std::path::PathBuf;
@@ -41,6 +41,59 @@ pub(crate) enum BenchCommand {
     /// tracer at the same points: NRMSE, median and p95 relative error,
     /// the share of points more than 10% and 25% off.
     Eye(EyeArgs),
+    /// Per scene with a light (issue 60): the first light switched off,
+    /// on, dimmed, recoloured and moved while a session follows it;
+    /// milliseconds to the first, the settled and the corrected state,
+    /// each one's NRMSE against the reference lit by the new light, and
+    /// a fresh session's times beside them.
+    Lights(LightsArgs),
+}
+
+/// `lightwire bench lights`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct LightsArgs {
+    /// Scene files, each with a point, spot or directional light;
+    /// default: cornell-point and window-sun in scenes/.
+    #[arg(long = "scene")]
+    scenes: Vec<PathBuf>,
+    /// Multiply every texel density by this factor.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f32,
+    #[command(flatten)]
+    charts: ChartsArg,
+    /// Also write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Use the adapter whose name contains this.
+    #[arg(long)]
+    adapter: Option<String>,
+}
+
+impl LightsArgs {
+    fn run(self) -> Result<()> {
+        let scenes = if self.scenes.is_empty() {
+            bench::lights::default_scenes(std::path::Path::new("scenes"))
+        } else {
+            self.scenes
+        };
+        let settings = bench::lights::Settings {
+            density_scale: self.density_scale,
+            charts: self.charts.charts,
+        };
+        let gpu = gpu::Device::new(self.adapter.as_deref())?;
+        eprintln!("adapter: {}", gpu.describe());
+        let mut results = Vec::new();
+        for path in &scenes {
+            let result = bench::lights::run(&gpu, path, &settings)
+                .with_context(|| format!("bench lights on {}", path.display()))?;
+            bench::lights::print(&result);
+            results.push(result);
+        }
+        if let Some(json) = &self.json {
+            bench::write_json(json, &results)?;
+        }
+        Ok(())
+    }
 }
 
 /// `lightwire bench eye`'s arguments.
@@ -109,6 +162,7 @@ impl BenchCommand {
             Self::Meshes(args) => args.run(),
             Self::Codec(args) => bench_codec_command(args),
             Self::Eye(args) => args.run(),
+            Self::Lights(args) => args.run(),
         }
     }
 }

@@ -1,0 +1,277 @@
+//! `lightwire bench lights` (issue 60, item 6): what following a light
+//! that changes costs, and how right each published state is.
+//!
+//! Per scene, the first light goes through five changes, one after the
+//! other, each from a state that holds still and is corrected (as a
+//! session that nobody disturbs is): switched off, switched on again,
+//! dimmed to half, recoloured (its channels times (1, 0.6, 0.3)), and
+//! moved (a point or spot light 0.5 m along +x, a directional light turned
+//! 5° about the vertical). A session of the service's options
+//! ([`DynamicOptions::default`], cross redistribution) takes each change
+//! with [`DynamicSolver::set_lights`] and steps in 10 ms slices, as the
+//! tick loop does; the clock runs from handing it the lights to
+//!
+//! - the **first state** it completes (what viewers see first),
+//! - the **settled** state (refined to the last publication level,
+//!   [`DynamicSolver::is_settled`]),
+//! - the **corrected** state (the gathered corrections done,
+//!   [`DynamicSolver::is_idle`]).
+//!
+//! Each is compared with the CPU reference solver lit by the new light
+//! (NRMSE and p95 relative error over the visible non-emitting elements);
+//! a state with no light at all is reported by its brightest texel over
+//! the brightest before the change. What a change claims to beat is
+//! starting over: the time a fresh session of the same options takes to
+//! its first and its corrected state is measured on the same scene in the
+//! same run. The first state is the shot change's first bounce plus the
+//! refinement the running unit does before it completes; there is no
+//! instant-radiosity first answer yet (issue 60 item 3).
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use glam::{Quat, Vec3};
+use serde::Serialize;
+
+use lightwire_scene::atlas::Atlas;
+use lightwire_scene::{Charts, Light, LightKind, LoadOptions};
+use lightwire_solve::accuracy::accuracy_where;
+use lightwire_solve::gpu::{Device, DynamicOptions, DynamicSolver};
+use lightwire_solve::load::load_scene;
+use lightwire_solve::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
+use lightwire_solve::validity::Validity;
+
+/// How the benchmark runs.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub density_scale: f32,
+    pub charts: Charts,
+}
+
+/// One change of the light and what following it took.
+#[derive(Debug, Clone, Serialize)]
+pub struct Change {
+    /// `off`, `on`, `dim`, `recolour` or `move`.
+    pub change: &'static str,
+    /// Milliseconds from `set_lights` to the first completed state, the
+    /// settled one and the corrected one.
+    pub ms_first: f64,
+    pub ms_settled: f64,
+    pub ms_corrected: f64,
+    /// NRMSE (fraction) of those states against the reference lit by the
+    /// new light; `None` for a state with no light.
+    pub nrmse_first: Option<f64>,
+    pub nrmse_settled: Option<f64>,
+    pub nrmse_corrected: Option<f64>,
+    /// p95 relative error of the corrected state.
+    pub p95_corrected: Option<f64>,
+    /// The brightest texel of the corrected state over the brightest
+    /// before the change (what a switch-off leaves).
+    pub brightest_ratio: f64,
+}
+
+/// One scene's result.
+#[derive(Debug, Clone, Serialize)]
+pub struct LightsResult {
+    pub scene: String,
+    pub elements: usize,
+    /// The light changed, and its kind.
+    pub light: String,
+    pub kind: &'static str,
+    /// A fresh session of the same options: ms to its first and its
+    /// corrected state, and the corrected state's NRMSE.
+    pub fresh_ms_first: f64,
+    pub fresh_ms_corrected: f64,
+    pub fresh_nrmse: f64,
+    pub changes: Vec<Change>,
+}
+
+type Session = DynamicSolver<u32>;
+
+const SLICE: Duration = Duration::from_millis(10);
+
+/// Runs the benchmark on the scene file at `path`.
+pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResult> {
+    let (scene, atlas) = load_scene(
+        path,
+        LoadOptions {
+            density_scale: settings.density_scale,
+            charts: settings.charts,
+        },
+    )?;
+    let Some(first) = scene.lights.first().cloned() else {
+        bail!(
+            "{} has no point, spot or directional light to change (add one under \"lights\")",
+            path.display()
+        );
+    };
+    if atlas.elements.len() > MAX_ELEMENTS {
+        bail!(
+            "{} has {} elements; the reference this benchmark compares with takes at most {MAX_ELEMENTS} (use --density-scale)",
+            path.display(),
+            atlas.elements.len()
+        );
+    }
+    let poses = scene.initial_poses();
+    let validity = Validity::compute(&scene, &atlas, &poses);
+    let reference = |lights: &[Light]| -> Result<Vec<Vec3>> {
+        let mut lit = scene.clone();
+        lit.lights = lights.to_vec();
+        Ok(ReferenceSolver::new(&lit, &atlas, &poses, &Silent)?
+            .solve(SolveOptions::default(), &Silent)
+            .radiosity)
+    };
+    let nrmse = |values: &[Vec3], expected: &[Vec3]| {
+        accuracy_where(&atlas, values, expected, validity.keep()).map(|a| (a.nrmse, a.p95_rel))
+    };
+
+    eprintln!("{}: a fresh session", scene.name);
+    let started = Instant::now();
+    let mut fresh = Session::new(gpu, &scene, &atlas, &poses, 0, DynamicOptions::default())?;
+    let mut fresh_ms_first = None;
+    while !fresh.is_idle() {
+        let step = fresh.step(SLICE)?;
+        if step.completed && fresh_ms_first.is_none() {
+            fresh_ms_first = Some(ms(started));
+        }
+    }
+    let fresh_ms_corrected = ms(started);
+    let start_reference = reference(&scene.lights)?;
+    let fresh_nrmse = nrmse(&published(&fresh, &atlas)?, &start_reference)
+        .map_or(f64::NAN, |a| a.0);
+
+    let mut session = fresh;
+    let mut lights = scene.lights.clone();
+    let mut changes = Vec::new();
+    let mut tag = 0;
+    for change in ["off", "on", "dim", "recolour", "move"] {
+        let mut light = lights[0].clone();
+        match change {
+            "off" => light.intensity = Vec3::ZERO,
+            "on" => light.intensity = first.intensity,
+            "dim" => light.intensity *= 0.5,
+            "recolour" => light.intensity *= Vec3::new(1.0, 0.6, 0.3),
+            _ => moved(&mut light),
+        }
+        lights[0] = light;
+        let expected = reference(&lights)?;
+        let before = brightest(&published(&session, &atlas)?);
+        eprintln!("{}: {change}", scene.name);
+        tag += 1;
+        let started = Instant::now();
+        session.set_lights(&lights, tag);
+        let mut first_state = None;
+        let mut settled = None;
+        while !session.is_idle() {
+            let step = session.step(SLICE)?;
+            if step.completed && first_state.is_none() && session.reflected() == &tag {
+                first_state = Some((ms(started), published(&session, &atlas)?));
+            }
+            if settled.is_none() && session.is_settled() && session.reflected() == &tag {
+                settled = Some((ms(started), published(&session, &atlas)?));
+            }
+        }
+        let ms_corrected = ms(started);
+        let corrected = published(&session, &atlas)?;
+        let (ms_first, first_b) = first_state.context("no state completed after the change")?;
+        let (ms_settled, settled_b) = settled.unwrap_or((ms_corrected, corrected.clone()));
+        let c = nrmse(&corrected, &expected);
+        changes.push(Change {
+            change,
+            ms_first,
+            ms_settled,
+            ms_corrected,
+            nrmse_first: nrmse(&first_b, &expected).map(|a| a.0),
+            nrmse_settled: nrmse(&settled_b, &expected).map(|a| a.0),
+            nrmse_corrected: c.map(|a| a.0),
+            p95_corrected: c.map(|a| a.1),
+            brightest_ratio: f64::from(brightest(&corrected) / before.max(f32::MIN_POSITIVE)),
+        });
+    }
+    Ok(LightsResult {
+        scene: scene.name.clone(),
+        elements: atlas.elements.len(),
+        light: first.name.clone(),
+        kind: match first.kind {
+            LightKind::Point => "point",
+            LightKind::Spot { .. } => "spot",
+            LightKind::Directional { .. } => "directional",
+        },
+        fresh_ms_first: fresh_ms_first.unwrap_or(fresh_ms_corrected),
+        fresh_ms_corrected,
+        fresh_nrmse,
+        changes,
+    })
+}
+
+/// The benchmark's move of `light`: a point or spot light 0.5 m along
+/// +x, a directional light turned 5° about the vertical.
+fn moved(light: &mut Light) {
+    match &mut light.kind {
+        LightKind::Directional { direction, .. } => {
+            *direction = Quat::from_rotation_y(5f32.to_radians()) * *direction;
+        }
+        _ => light.position += Vec3::X * 0.5,
+    }
+}
+
+/// The session's state as published: clamped, invalid texels filled.
+fn published(session: &Session, atlas: &Atlas) -> Result<Vec<Vec3>> {
+    let mut b = session.radiosity()?;
+    session.progressive().validity().fill(atlas, &mut b);
+    Ok(b)
+}
+
+fn brightest(b: &[Vec3]) -> f32 {
+    b.iter().map(|c| c.max_element()).fold(0.0, f32::max)
+}
+
+fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+/// `x` as a percentage with two decimals, or `dark` for no light.
+fn pct(x: Option<f64>) -> String {
+    x.map_or_else(|| "dark".into(), |x| format!("{:.2}%", x * 100.0))
+}
+
+/// Prints one scene's result as Markdown tables.
+pub fn print(r: &LightsResult) {
+    println!(
+        "\n{} ({} elements), light \"{}\" ({}): a fresh session's first state {:.0} ms, corrected {:.0} ms, NRMSE {:.2}%",
+        r.scene,
+        r.elements,
+        r.light,
+        r.kind,
+        r.fresh_ms_first,
+        r.fresh_ms_corrected,
+        r.fresh_nrmse * 100.0
+    );
+    println!(
+        "| change | ms to first state | NRMSE | ms settled | NRMSE | ms corrected | NRMSE | p95 rel | brightest / before |"
+    );
+    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+    for c in &r.changes {
+        println!(
+            "| {} | {:.0} | {} | {:.0} | {} | {:.0} | {} | {} | {:.3} |",
+            c.change,
+            c.ms_first,
+            pct(c.nrmse_first),
+            c.ms_settled,
+            pct(c.nrmse_settled),
+            c.ms_corrected,
+            pct(c.nrmse_corrected),
+            pct(c.p95_corrected),
+            c.brightest_ratio
+        );
+    }
+}
+
+/// The default scenes: those of `scenes/` lit by a point light or a sun.
+pub fn default_scenes(scenes: &Path) -> Vec<PathBuf> {
+    ["cornell-point.json", "window-sun.json"]
+        .iter()
+        .map(|f| scenes.join(f))
+        .collect()
+}
