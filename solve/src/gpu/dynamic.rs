@@ -71,6 +71,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
+use super::basis::{Basis, Building};
 use super::correct::Correction;
 use super::gather::GatherOptions;
 use super::profile::{Profiler, Stage, Unit};
@@ -125,6 +126,12 @@ pub struct DynamicOptions {
     /// How a cross session lights its static set before the moving
     /// objects go in.
     pub seed: Seed,
+    /// Keep each light's light apart ([`super::basis`]) when the scene
+    /// has lights and `(1 + lights) × elements` is at most this (0:
+    /// never): a light switched, dimmed or recoloured in place is then
+    /// exact at once, for `1 + lights` solves in the background once the
+    /// scene holds still, and `12 (1 + lights) elements` bytes.
+    pub light_basis: usize,
     /// The progressive solver underneath.
     pub progressive: ProgressiveOptions,
 }
@@ -161,6 +168,9 @@ impl Default for DynamicOptions {
             reanchor_every: 10,
             corrections: 3,
             seed: Seed::Auto,
+            // 48 MB of basis at most; every scene of `scenes/` with
+            // lights but the pandora level's 56 lamps.
+            light_basis: 4_000_000,
             progressive: ProgressiveOptions::default(),
         }
     }
@@ -213,6 +223,10 @@ enum Phase {
     /// Gathered corrections at poses that hold still, `left` rounds to go
     /// after the running one; see [`Round`].
     Correcting { round: Round, left: u32 },
+    /// Once the scene holds still and is corrected: each light's light is
+    /// solved apart, a group a time ([`super::basis`]), and the state is
+    /// then their composition.
+    Basis(Box<Building>),
 }
 
 /// Where a correction round of [`Phase::Correcting`] is. Each stage runs a
@@ -286,6 +300,9 @@ pub struct DynamicSolver<T> {
     residuals: Vec<f64>,
     /// Where the time goes (disabled unless profiling, `gpu::profile`).
     profile: Profiler,
+    /// Each light's light apart, while it holds for the current poses and
+    /// light positions ([`super::basis`]).
+    basis: Option<Basis>,
 }
 
 impl<T: Clone> DynamicSolver<T> {
@@ -363,6 +380,7 @@ impl<T: Clone> DynamicSolver<T> {
             corrected: options.corrections == 0,
             residuals: Vec::new(),
             profile: Profiler::disabled(),
+            basis: None,
         })
     }
 
@@ -433,7 +451,19 @@ impl<T: Clone> DynamicSolver<T> {
     /// it will get until poses change): the last move's state is complete
     /// and refined, and its gathered corrections have run.
     pub fn is_idle(&self) -> bool {
-        self.is_settled() && self.corrected
+        self.is_settled() && self.corrected && !self.wants_basis()
+    }
+
+    /// Whether a basis of each light's light is wanted and missing.
+    fn wants_basis(&self) -> bool {
+        self.basis.is_none()
+            && super::basis::wanted(&self.scene, &self.atlas, self.options.light_basis)
+    }
+
+    /// The basis the state is composed of, while it holds (for tests and
+    /// benchmarks: its size).
+    pub fn basis(&self) -> Option<&Basis> {
+        self.basis.as_ref()
     }
 
     /// Whether the work poses caused is done: nothing waits, and the state
@@ -540,12 +570,13 @@ impl<T: Clone> DynamicSolver<T> {
             | Phase::Refining { .. }
             | Phase::Seeding(_)
             | Phase::Settling
-            | Phase::Correcting { .. } => Unit::Refinement,
+            | Phase::Correcting { .. }
+            | Phase::Basis(_) => Unit::Refinement,
             Phase::Inserting(..) => Unit::Insertion,
             Phase::Removing(_) => Unit::Move,
         });
         match std::mem::replace(&mut self.phase, Phase::Idle) {
-            Phase::Idle => self.start_unit(),
+            Phase::Idle => self.start_unit(report),
             Phase::Converging { after_move } => self.converge(after_move, report),
             Phase::Moving(mut mv) => {
                 let more = self.solver.move_step(&mut mv)?;
@@ -584,6 +615,24 @@ impl<T: Clone> DynamicSolver<T> {
                 }
                 Ok((true, true))
             }
+            Phase::Basis(mut building) => {
+                // A move or a light that changes cancels the build: the
+                // state is complete without it.
+                if self.pending.is_some() {
+                    return Ok((true, false));
+                }
+                let poses = self.solver.poses().to_vec();
+                let built = building.step(&self.gpu, &self.atlas, &poses, self.options)?;
+                match built {
+                    Some(basis) => {
+                        self.solver.adopt(&basis.compose(&self.scene.lights))?;
+                        self.basis = Some(basis);
+                        self.complete(report);
+                    }
+                    None => self.phase = Phase::Basis(building),
+                }
+                Ok((true, false))
+            }
             Phase::Correcting { round, left } => {
                 // A move cancels the rounds: what a round already handed
                 // over stays unshot for refinement after the move, as any
@@ -602,8 +651,28 @@ impl<T: Clone> DynamicSolver<T> {
 
     /// While idle: starts the next unit, if any (a move to the poses
     /// waiting, refinement, or gathered corrections), in that order.
-    fn start_unit(&mut self) -> Result<(bool, bool), GpuError> {
+    fn start_unit(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
         if let Some(Pending { poses, lights, tag }) = self.pending.take() {
+            if let (true, Some(lights)) = (poses.as_slice() == self.solver.poses(), &lights) {
+                if let Some(composed) = self
+                    .basis
+                    .as_ref()
+                    .filter(|b| b.covers(lights))
+                    .map(|b| b.compose(lights))
+                {
+                    // A light switched, dimmed or recoloured in place: the
+                    // state is the basis's composition for the new lights,
+                    // at once. `set_light` keeps the solver's account of
+                    // the lights (what they deliver, its direct light);
+                    // adopting the composition then replaces its light and
+                    // leaves nothing unshot.
+                    self.change_lights(lights)?;
+                    self.solver.adopt(&composed)?;
+                    self.working = tag;
+                    self.complete(report);
+                    return Ok((true, true));
+                }
+            }
             let relit = match lights {
                 Some(lights) => self.change_lights(&lights)?,
                 None => false,
@@ -615,6 +684,7 @@ impl<T: Clone> DynamicSolver<T> {
             // Only lights changed: refinement carries the change, and the
             // state it completes reflects the tag.
             self.working = tag;
+            self.basis = None;
             if gives_no_light(&self.scene) {
                 // Every source is off: the solution is no light at all.
                 // Shooting the change takes the light back only as well
@@ -664,6 +734,10 @@ impl<T: Clone> DynamicSolver<T> {
                 round: Round::Building,
                 left: self.options.corrections.saturating_sub(1),
             };
+            return Ok((true, false));
+        }
+        if self.wants_basis() && !self.solver.absent().contains(&true) {
+            self.phase = Phase::Basis(Box::new(Building::new(&self.scene)));
             return Ok((true, false));
         }
         Ok((false, false))
@@ -867,6 +941,7 @@ impl<T: Clone> DynamicSolver<T> {
         if self.options.corrections > 0 {
             self.corrected = false;
         }
+        self.basis = None;
         let mut method = self.options.method;
         if method == Redistribution::Incremental {
             self.since_anchor += 1;

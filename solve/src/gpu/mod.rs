@@ -55,6 +55,7 @@
 //! - `profile.rs`: where that session's time goes, per stage (profiling
 //!   only).
 
+pub mod basis;
 mod binding;
 mod buffers;
 mod correct;
