@@ -14,8 +14,15 @@
 //! - the **first state** it completes (what viewers see first),
 //! - the **settled** state (refined to the last publication level,
 //!   [`DynamicSolver::is_settled`]),
-//! - the **corrected** state (the gathered corrections done,
-//!   [`DynamicSolver::is_idle`]).
+//! - **idle** ([`DynamicSolver::is_idle`]): the gathered corrections
+//!   done and, with a basis, the basis built again where the change left
+//!   it (a move).
+//!
+//! Each scene runs twice, side by side: with the service's basis of each
+//! light's light (`gpu::basis`: a switch, dim or recolour is one
+//! composition, a move is shot) and with shooting alone
+//! (`light_basis` 0: every change is its signed direct light shot as
+//! unshot radiosity, `ProgressiveSolver::set_light`).
 //!
 //! Each is compared with the CPU reference solver lit by the new light
 //! (NRMSE and p95 relative error over the visible non-emitting elements);
@@ -23,7 +30,7 @@
 //! the brightest before the change. What a change claims to beat is
 //! starting over: the time a fresh session of the same options takes to
 //! its first and its corrected state is measured on the same scene in the
-//! same run. The first state is the shot change's first bounce plus the
+//! same run. A shot change's first state is its first bounce plus the
 //! refinement the running unit does before it completes; there is no
 //! instant-radiosity first answer yet (issue 60 item 3).
 
@@ -47,6 +54,9 @@ use lightwire_solve::validity::Validity;
 pub struct Settings {
     pub density_scale: f32,
     pub charts: Charts,
+    /// [`DynamicOptions::light_basis`] of the session (0: every change
+    /// is shot).
+    pub light_basis: usize,
 }
 
 /// One change of the light and what following it took.
@@ -76,6 +86,12 @@ pub struct Change {
 pub struct LightsResult {
     pub scene: String,
     pub elements: usize,
+    /// How the session followed the changes: `basis` (each light's light
+    /// kept apart, `gpu::basis`; a move is shot) or `shooting` (every
+    /// change shot as signed unshot light).
+    pub method: &'static str,
+    /// Bytes of the basis once built (0 without one).
+    pub basis_bytes: usize,
     /// The light changed, and its kind.
     pub light: String,
     pub kind: &'static str,
@@ -127,8 +143,12 @@ pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResul
     };
 
     eprintln!("{}: a fresh session", scene.name);
+    let options = DynamicOptions {
+        light_basis: settings.light_basis,
+        ..DynamicOptions::default()
+    };
     let started = Instant::now();
-    let mut fresh = Session::new(gpu, &scene, &atlas, &poses, 0, DynamicOptions::default())?;
+    let mut fresh = Session::new(gpu, &scene, &atlas, &poses, 0, options)?;
     let mut fresh_ms_first = None;
     while !fresh.is_idle() {
         let step = fresh.step(SLICE)?;
@@ -138,9 +158,10 @@ pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResul
     }
     let fresh_ms_corrected = ms(started);
     let start_reference = reference(&scene.lights)?;
-    let fresh_nrmse = nrmse(&published(&fresh, &atlas)?, &start_reference)
-        .map_or(f64::NAN, |a| a.0);
+    let fresh_nrmse =
+        nrmse(&published(&fresh, &atlas)?, &start_reference).map_or(f64::NAN, |a| a.0);
 
+    let basis_bytes = fresh.basis().map_or(0, |b| b.bytes());
     let mut session = fresh;
     let mut lights = scene.lights.clone();
     let mut changes = Vec::new();
@@ -186,12 +207,18 @@ pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResul
             nrmse_settled: nrmse(&settled_b, &expected).map(|a| a.0),
             nrmse_corrected: c.map(|a| a.0),
             p95_corrected: c.map(|a| a.1),
-            brightest_ratio: f64::from(brightest(&corrected) / before.max(f32::MIN_POSITIVE)),
+            brightest_ratio: if before > 0.0 {
+                f64::from(brightest(&corrected) / before)
+            } else {
+                f64::NAN
+            },
         });
     }
     Ok(LightsResult {
         scene: scene.name.clone(),
         elements: atlas.elements.len(),
+        method: if basis_bytes > 0 { "basis" } else { "shooting" },
+        basis_bytes,
         light: first.name.clone(),
         kind: match first.kind {
             LightKind::Point => "point",
@@ -238,23 +265,29 @@ fn pct(x: Option<f64>) -> String {
 
 /// Prints one scene's result as Markdown tables.
 pub fn print(r: &LightsResult) {
+    let basis = if r.basis_bytes > 0 {
+        format!("basis of {:.1} KB", r.basis_bytes as f64 / 1024.0)
+    } else {
+        "no basis".into()
+    };
     println!(
-        "\n{} ({} elements), light \"{}\" ({}): a fresh session's first state {:.0} ms, corrected {:.0} ms, NRMSE {:.2}%",
+        "\n{} ({} elements), light \"{}\" ({}), {} ({basis}): a fresh session's first state {:.0} ms, idle {:.0} ms, NRMSE {:.2}%",
         r.scene,
         r.elements,
         r.light,
         r.kind,
+        r.method,
         r.fresh_ms_first,
         r.fresh_ms_corrected,
         r.fresh_nrmse * 100.0
     );
     println!(
-        "| change | ms to first state | NRMSE | ms settled | NRMSE | ms corrected | NRMSE | p95 rel | brightest / before |"
+        "| change | ms to first state | NRMSE | ms settled | NRMSE | ms to idle | NRMSE | p95 rel | brightest / before |"
     );
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for c in &r.changes {
         println!(
-            "| {} | {:.0} | {} | {:.0} | {} | {:.0} | {} | {} | {:.3} |",
+            "| {} | {:.0} | {} | {:.0} | {} | {:.0} | {} | {} | {} |",
             c.change,
             c.ms_first,
             pct(c.nrmse_first),
@@ -263,7 +296,11 @@ pub fn print(r: &LightsResult) {
             c.ms_corrected,
             pct(c.nrmse_corrected),
             pct(c.p95_corrected),
-            c.brightest_ratio
+            if c.brightest_ratio.is_nan() {
+                "from dark".to_string()
+            } else {
+                format!("{:.3}", c.brightest_ratio)
+            }
         );
     }
 }

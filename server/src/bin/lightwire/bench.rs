@@ -42,10 +42,10 @@ pub(crate) enum BenchCommand {
     /// the share of points more than 10% and 25% off.
     Eye(EyeArgs),
     /// Per scene with a light (issue 60): the first light switched off,
-    /// on, dimmed, recoloured and moved while a session follows it;
-    /// milliseconds to the first, the settled and the corrected state,
-    /// each one's NRMSE against the reference lit by the new light, and
-    /// a fresh session's times beside them.
+    /// on, dimmed, recoloured and moved while a session follows it, with
+    /// each light's light kept apart and with shooting alone; ms to the
+    /// first, the settled and the idle state, each one's NRMSE against
+    /// the reference lit by the new light, a fresh session's beside them.
     Lights(LightsArgs),
 }
 
@@ -76,20 +76,28 @@ impl LightsArgs {
         } else {
             self.scenes
         };
-        let settings = bench::lights::Settings {
-            density_scale: self.density_scale,
-            charts: self.charts.charts,
-        };
         let gpu = gpu::Device::new(self.adapter.as_deref())?;
         eprintln!("adapter: {}", gpu.describe());
         let mut results = Vec::new();
         for path in &scenes {
-            let result = bench::lights::run(&gpu, path, &settings)
-                .with_context(|| format!("bench lights on {}", path.display()))?;
-            bench::lights::print(&result);
-            results.push(result);
+            // With the service's basis, then shooting alone.
+            for light_basis in [gpu::DynamicOptions::default().light_basis, 0] {
+                let settings = bench::lights::Settings {
+                    density_scale: self.density_scale,
+                    charts: self.charts.charts,
+                    light_basis,
+                };
+                let result = bench::lights::run(&gpu, path, &settings)
+                    .with_context(|| format!("bench lights on {}", path.display()))?;
+                bench::lights::print(&result);
+                results.push(result);
+            }
         }
         if let Some(json) = &self.json {
+            if let Some(dir) = json.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+            }
             bench::write_json(json, &results)?;
         }
         Ok(())
