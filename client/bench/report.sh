@@ -13,7 +13,7 @@
 #   MESH_CHARTS="pairs triangles" ONLY=meshes client/bench/report.sh
 #
 # Steps (ONLY takes their names): solve accuracy dynamic roundtrip latency
-# codec viewers relay soak meshes seams levels. It builds first (release, the
+# codec viewers relay soak meshes seams lights levels. It builds first (release, the
 # binaries, examples and test binaries it runs) so that no build runs beside
 # a measurement; each step's output goes to OUT/NAME.txt, with the time it
 # started, its load average and its duration in OUT/steps.tsv.
@@ -21,7 +21,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 
 OUT=${OUT:-target/bench-report}
-ONLY=${ONLY:-"solve accuracy dynamic roundtrip latency codec viewers relay soak meshes seams levels"}
+ONLY=${ONLY:-"solve accuracy dynamic roundtrip latency codec viewers relay soak meshes seams lights levels"}
 LEVELS=${LEVELS:-../shared/levels}
 # The chart modes of `bench meshes`; BENCHMARKS.md's older rows (pairs,
 # triangles, the latter also without clusters) take up to 120 s per size
@@ -136,6 +136,9 @@ fi
 if wanted seams; then
   step seams-10 "$BIN/examples/seam_cost" 10
   step seams-20 "$BIN/examples/seam_cost" 20
+fi
+if wanted lights; then
+  step lights "$BIN/lightwire" bench lights --json "$OUT/lights.json"
 fi
 # serve_until_idle NAME SCENE ID: a server of its own on SCENE until its
 # solver is idle (refined and corrected: `lightwire_solver_idle` 1), the
