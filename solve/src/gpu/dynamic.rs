@@ -444,6 +444,17 @@ impl<T: Clone> DynamicSolver<T> {
                 changed = true;
             }
         }
+        if changed && gives_no_light(&self.scene) {
+            // Every source is off: the solution is no light at all, at
+            // once (a move waiting too then starts from it). Shooting the
+            // change takes the light back only as well as its hemicubes
+            // match those that brought it (on cornell-point 2% of the
+            // brightest texel stayed), and the corrections, whose
+            // residual is measured against the emitted power, have none
+            // to measure against.
+            self.solver
+                .adopt(&vec![glam::Vec3::ZERO; self.atlas.elements.len()])?;
+        }
         Ok(changed)
     }
 
@@ -583,7 +594,7 @@ impl<T: Clone> DynamicSolver<T> {
                 if more {
                     self.phase = Phase::Moving(mv);
                 } else if self.options.method == Redistribution::Cross {
-                    self.complete(report);
+                    self.complete(report)?;
                 } else {
                     self.next_level = 0;
                     self.phase = Phase::Converging { after_move: true };
@@ -600,7 +611,7 @@ impl<T: Clone> DynamicSolver<T> {
                     // The first state is published uncorrected: light
                     // reaches the clients seconds sooner, and the
                     // corrected one follows once the scene holds still.
-                    self.complete(report);
+                    self.complete(report)?;
                 }
                 Ok((true, after_move))
             }
@@ -627,7 +638,7 @@ impl<T: Clone> DynamicSolver<T> {
                     Some(basis) => {
                         self.solver.adopt(&basis.compose(&self.scene.lights))?;
                         self.basis = Some(basis);
-                        self.complete(report);
+                        self.complete(report)?;
                     }
                     None => self.phase = Phase::Basis(building),
                 }
@@ -669,7 +680,7 @@ impl<T: Clone> DynamicSolver<T> {
                     self.change_lights(lights)?;
                     self.solver.adopt(&composed)?;
                     self.working = tag;
-                    self.complete(report);
+                    self.complete(report)?;
                     return Ok((true, true));
                 }
             }
@@ -685,16 +696,6 @@ impl<T: Clone> DynamicSolver<T> {
             // state it completes reflects the tag.
             self.working = tag;
             self.basis = None;
-            if gives_no_light(&self.scene) {
-                // Every source is off: the solution is no light at all.
-                // Shooting the change takes the light back only as well
-                // as its hemicubes match those that brought it (on
-                // cornell-point 2% of the brightest texel stayed), and the
-                // corrections, whose residual is measured against the
-                // emitted power, have none to measure against.
-                self.solver
-                    .adopt(&vec![glam::Vec3::ZERO; self.atlas.elements.len()])?;
-            }
             if self.options.corrections > 0 {
                 self.corrected = false;
             }
@@ -766,7 +767,7 @@ impl<T: Clone> DynamicSolver<T> {
             crossed = true;
         }
         if crossed {
-            self.complete(report);
+            self.complete(report)?;
         }
         if shot.batches > 0 && self.next_level < levels.len() {
             self.phase = Phase::Converging {
@@ -775,7 +776,7 @@ impl<T: Clone> DynamicSolver<T> {
         } else if shot.batches == 0 && !crossed {
             // Nothing left to shoot: converged as far as it goes.
             self.next_level = levels.len();
-            self.complete(report);
+            self.complete(report)?;
         }
         Ok((true, after_move))
     }
@@ -796,7 +797,7 @@ impl<T: Clone> DynamicSolver<T> {
         if shot.batches > 0 && shot.unshot_fraction > levels[1] {
             self.phase = Phase::Settling;
         } else {
-            self.complete(report);
+            self.complete(report)?;
         }
         Ok((true, false))
     }
@@ -913,7 +914,7 @@ impl<T: Clone> DynamicSolver<T> {
                     }
                 } else {
                     // A round is a complete state: publish it.
-                    self.complete(report);
+                    self.complete(report)?;
                     if left == 0 || residual <= CORRECTED_RESIDUAL {
                         self.corrected = true;
                         return Ok(());
@@ -974,9 +975,18 @@ impl<T: Clone> DynamicSolver<T> {
         Ok(())
     }
 
-    fn complete(&mut self, report: &mut DynamicStep) {
+    fn complete(&mut self, report: &mut DynamicStep) -> Result<(), GpuError> {
+        if gives_no_light(&self.scene) {
+            // With every source off a complete state is dark, whatever a
+            // move's redistribution left while the light was going (on
+            // cornell-point, a bulb switched off as the box moved left
+            // light the move's projection carried until the corrections).
+            self.solver
+                .adopt(&vec![glam::Vec3::ZERO; self.atlas.elements.len()])?;
+        }
         self.reflected = self.working.clone();
         self.versions += 1;
         report.completed = true;
+        Ok(())
     }
 }
