@@ -111,7 +111,19 @@ pub fn check_light(info: &SceneInfo, light: u32, state: &LightState) -> Result<u
 /// intensity `color × intensity` when on (black when off), its position,
 /// and for a spot or directional light its direction (normalized).
 pub fn light_from_wire(base: &Light, state: &LightState) -> Light {
-    let direction = Vec3::from_array(state.direction).normalize_or(Vec3::NEG_Y);
+    let sent = Vec3::from_array(state.direction);
+    // The scene's own direction as `SceneInfo` gave it is kept to the bit
+    // (normalizing a unit vector again may change its last bit, and a
+    // light whose direction changed is no longer the one the session's
+    // basis holds, `gpu::basis`: a switch would be shot, not composed).
+    let direction = match base.kind {
+        LightKind::Spot { direction, .. } | LightKind::Directional { direction, .. }
+            if direction == sent =>
+        {
+            direction
+        }
+        _ => sent.normalize_or(Vec3::NEG_Y),
+    };
     let kind = match base.kind {
         LightKind::Point => LightKind::Point,
         LightKind::Spot { inner, outer, .. } => LightKind::Spot {
@@ -196,6 +208,42 @@ mod tests {
         }
         let refused = check_transform(&info, 1, &pose(-1.0));
         assert_eq!(refused.map_err(|r| r.0), Err(ErrorCode::InvalidPose));
+    }
+
+    /// A light sent back as the scene described it is the scene's light
+    /// to the bit; a state sets intensity, colour, on/off, position and
+    /// direction and keeps the rest.
+    #[test]
+    fn a_light_sent_back_as_described_is_the_same_light() {
+        let sun = Light {
+            name: "sun".into(),
+            kind: LightKind::Directional {
+                direction: Vec3::new(0.25, -0.6, -0.76).normalize(),
+                angular_radius: 0.0046,
+            },
+            position: Vec3::ZERO,
+            intensity: Vec3::new(800.0, 760.0, 680.0),
+            range: None,
+        };
+        let described = crate::bake::light_info(&sun).state;
+        assert_eq!(light_from_wire(&sun, &described), sun);
+        let off = light_from_wire(
+            &sun,
+            &LightState {
+                on: false,
+                ..described
+            },
+        );
+        assert_eq!(off.intensity, Vec3::ZERO);
+        assert_eq!(off.kind, sun.kind);
+        let turned = LightState {
+            direction: [0.0, -2.0, 0.0],
+            ..described
+        };
+        let LightKind::Directional { direction, .. } = light_from_wire(&sun, &turned).kind else {
+            panic!("still a directional light")
+        };
+        assert_eq!(direction, Vec3::NEG_Y, "normalized");
     }
 
     #[test]
