@@ -20,7 +20,11 @@
 //     segments, pixels that the `lights` box hides;
 //  6. after the test drags the dynamic box across the 3D view with the
 //     mouse, a newer lightmap version arrives that reflects the drag's last
-//     transform, and the atlas image changes.
+//     transform, and the atlas image changes;
+//  7. with `--expect-lights` (a scene lit by its first light alone, such as
+//     cornell-point), unticking that light's box in the Lights panel sends
+//     `SetLight`, a `Lights` message reflects it and the atlas goes dark;
+//     ticking it again brings the atlas back to what it showed.
 //
 // Screenshots go to the artifacts directory (before and after the move).
 // Exits 0 if every check passed, 1 otherwise, printing what failed.
@@ -303,6 +307,45 @@ try {
     return { changed, fraction: changed / (c.width * c.height) };
   });
   check('the atlas changes after the move', diff.changed > 50, `${diff.changed} texels (${(diff.fraction * 100).toFixed(1)}%) changed`);
+
+  // 7. Switch the first light off and on again in the Lights panel.
+  if (args['expect-lights']) {
+    const brightness = () => page.evaluate(() => {
+      const c = document.getElementById('atlas');
+      const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let sum = 0;
+      for (let i = 0; i < d.length; i += 4) sum += d[i] + d[i + 1] + d[i + 2];
+      return sum / (c.width * c.height);
+    });
+    const panel = await waitFor('the light controls', () => {
+      const s = window.lightwire.snapshot();
+      return s.lightControls > 0 && s.lightControlsEnabled;
+    });
+    const toggle = page.locator('#light-list input[type=checkbox]').first();
+    const shownLight = (on) => waitFor(
+      `a Lights message with the first light ${on ? 'on' : 'off'}`,
+      (want) => {
+        const l = window.lightwire.snapshot().lights?.lights?.[0];
+        return l !== undefined && Number(l.seq) > 0 && l.state.on === want;
+      },
+      on,
+    );
+    const lit = await brightness();
+    await toggle.uncheck();
+    const off = await shownLight(false);
+    await page.waitForTimeout(600); // the version after it, and a redraw
+    const dark = await brightness();
+    await toggle.check();
+    const on = await shownLight(true);
+    await page.waitForTimeout(600);
+    const back = await brightness();
+    check(
+      'switching the light off darkens the atlas and on again brings it back',
+      panel && off && on && dark < 0.05 * lit && Math.abs(back - lit) < 0.05 * lit,
+      `mean atlas brightness ${lit.toFixed(1)} -> off ${dark.toFixed(1)} -> on ${back.toFixed(1)}`,
+    );
+    await page.locator('#atlas').screenshot({ path: path.join(args.artifacts, 'atlas-light-on-again.png') });
+  }
 
   await page.screenshot({ path: path.join(args.artifacts, 'dashboard-after.png'), fullPage: true });
   await page.locator('#view').screenshot({ path: path.join(args.artifacts, 'view-after.png') });
