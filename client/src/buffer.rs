@@ -23,7 +23,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use lightwire_protocol::lightmap::{ApplyError, Lightmap};
-use lightwire_protocol::{Delta, Keyframe, ObjectPose, ObjectSeq, Pose, SceneInfo};
+use lightwire_protocol::{Delta, Keyframe, LightStatus, ObjectPose, ObjectSeq, Pose, SceneInfo};
 
 /// One complete lightmap version: what a renderer draws.
 #[derive(Clone, Debug)]
@@ -38,6 +38,12 @@ pub struct Frame {
     /// server's `Poses` last gave them (empty from a server that sends
     /// none; PROTOCOL.md §3).
     pub poses: BTreeMap<u32, Pose>,
+    /// The lights' states this version was lit with, by light index, each
+    /// with the seq of the `SetLight` that set it (0: the scene file's),
+    /// as the server's `Lights` last gave them (empty unless the client
+    /// asked, [`Options::lights`](crate::Options::lights), and the server
+    /// offers them; PROTOCOL.md §3).
+    pub lights: BTreeMap<u32, LightStatus>,
     /// When this version was completed locally.
     pub applied_at: Instant,
 }
@@ -73,6 +79,10 @@ pub struct Applied {
     /// (empty for the first keyframe a buffer receives: it is a catch-up,
     /// not a delivery of anything this client saw being sent).
     pub newly_reflected: Vec<ObjectSeq>,
+    /// Light states this version is the first to show: a seq other than
+    /// the previous front's for that light (empty for the first keyframe,
+    /// as above).
+    pub newly_lit: Vec<LightStatus>,
     /// Tiles the frame wrote (every tile for a keyframe).
     pub tiles: usize,
 }
@@ -87,6 +97,9 @@ pub struct DoubleBuffer {
     back_reflected: BTreeMap<u32, u64>,
     /// The poses of the next version (`Poses` comes just before it).
     poses: BTreeMap<u32, Pose>,
+    /// The lights' states of the next version (`Lights` comes just
+    /// before it, after any `Poses`).
+    lights: BTreeMap<u32, LightStatus>,
     front: Option<Arc<Frame>>,
     /// A retired front whose allocation the next swap can reuse.
     spare: Option<Lightmap>,
@@ -103,6 +116,7 @@ impl DoubleBuffer {
             back,
             back_reflected: BTreeMap::new(),
             poses: BTreeMap::new(),
+            lights: BTreeMap::new(),
             front: None,
             spare: None,
         })
@@ -143,6 +157,22 @@ impl DoubleBuffer {
     /// carry only those of the new one).
     pub fn clear_poses(&mut self) {
         self.poses.clear();
+    }
+
+    /// Takes a `Lights` message: the states of the version that follows
+    /// (and of those after it, until the next `Lights`). Entries for a
+    /// light the scene does not have, and invalid states, are left out.
+    pub fn set_lights(&mut self, lights: &[LightStatus]) {
+        for l in lights {
+            if (l.light as usize) < self.scene.lights.len() && l.state.validate().is_ok() {
+                self.lights.insert(l.light, *l);
+            }
+        }
+    }
+
+    /// Forgets the lights' states a previous connection sent.
+    pub fn clear_lights(&mut self) {
+        self.lights.clear();
     }
 
     /// Replaces everything with a keyframe and swaps it to the front.
@@ -192,6 +222,18 @@ impl DoubleBuffer {
     /// Moves the completed back buffer to the front and makes a new back
     /// buffer at the same version.
     fn swap(&mut self, newly_reflected: Vec<ObjectSeq>, tiles: usize) -> Applied {
+        // A light whose seq differs from the previous front's was set
+        // since (seqs are in serial-number order, so "differs", not
+        // "greater"); the first front is a catch-up.
+        let newly_lit = match &self.front {
+            None => Vec::new(),
+            Some(front) => self
+                .lights
+                .values()
+                .filter(|l| front.lights.get(&l.light).is_none_or(|f| f.seq != l.seq))
+                .copied()
+                .collect(),
+        };
         let mut next_back = match self.spare.take() {
             Some(mut spare) => {
                 spare.texels.copy_from_slice(&self.back.texels);
@@ -206,6 +248,7 @@ impl DoubleBuffer {
             lightmap: next_back,
             reflected: self.back_reflected.clone(),
             poses: self.poses.clone(),
+            lights: self.lights.clone(),
             applied_at: Instant::now(),
         });
         if let Some(old) = self.front.replace(frame.clone()) {
@@ -214,6 +257,7 @@ impl DoubleBuffer {
         Applied {
             frame,
             newly_reflected,
+            newly_lit,
             tiles,
         }
     }
@@ -291,6 +335,64 @@ mod tests {
             BTreeMap::from([(1, moved)]),
             "until the next valid Poses"
         );
+    }
+
+    #[test]
+    fn frames_carry_the_lights_sent_before_them_and_report_each_new_seq_once() {
+        use lightwire_protocol::{LightInfo, LightState, LightType};
+        let state = LightState {
+            on: true,
+            color: [1.0; 3],
+            intensity: 8.0,
+            position: [1.0, 2.0, 3.0],
+            direction: [0.0, -1.0, 0.0],
+        };
+        let mut info = (*scene()).clone();
+        info.lights.push(LightInfo {
+            name: "bulb".into(),
+            kind: LightType::Point,
+            range: None,
+            cone: [0.0; 2],
+            angular_radius: 0.0,
+            state,
+        });
+        let status = |light, seq, state| LightStatus { light, seq, state };
+        let off = LightState { on: false, ..state };
+        let bad = LightState {
+            intensity: -1.0,
+            ..state
+        };
+        let mut enc = Encoder::new(10, 9, 4, PixelFormat::Rgb9e5, 0.0);
+        let _ = enc.publish(&image(1.0), vec![]);
+        let mut buf = DoubleBuffer::new(Arc::new(info)).expect("layout");
+        // A light past the list is left out.
+        buf.set_lights(&[status(0, 0, state), status(3, 9, state)]);
+        let first = buf.apply_keyframe(&enc.keyframe()).expect("applies");
+        assert_eq!(
+            first.frame.lights,
+            BTreeMap::from([(0, status(0, 0, state))])
+        );
+        assert!(first.newly_lit.is_empty(), "the first front is a catch-up");
+        buf.set_lights(&[status(0, 7, off)]);
+        let second = buf
+            .apply_delta(&enc.publish(&image(2.0), vec![]))
+            .expect("applies");
+        assert_eq!(second.newly_lit, vec![status(0, 7, off)]);
+        assert_eq!(second.frame.lights[&0], status(0, 7, off));
+        // The states hold for the versions after it, reported once; an
+        // invalid state is left out.
+        buf.set_lights(&[status(0, 8, bad)]);
+        let third = buf
+            .apply_delta(&enc.publish(&image(3.0), vec![]))
+            .expect("applies");
+        assert!(third.newly_lit.is_empty());
+        assert_eq!(third.frame.lights[&0], status(0, 7, off));
+        // A seq that wrapped round is a new one too.
+        buf.set_lights(&[status(0, 0, state)]);
+        let fourth = buf
+            .apply_delta(&enc.publish(&image(4.0), vec![]))
+            .expect("applies");
+        assert_eq!(fourth.newly_lit, vec![status(0, 0, state)]);
     }
 
     #[test]

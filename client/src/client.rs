@@ -2,8 +2,9 @@
 //!
 //! `Client::connect` opens the WebSocket, completes the handshake and then
 //! hands the socket to a background task (see [`crate::connection`]). The
-//! handle and the task share the front lightmap, the scene and role, the
-//! outbox of poses, the counters and the send times ([`crate::shared`]).
+//! handle and the task share the front lightmap, the scene, role and
+//! capabilities, the outbox of poses and light states, the counters and
+//! the send times ([`crate::shared`]).
 //! Everything else the task reports goes through a bounded event channel;
 //! when the application does not read it, events are dropped and counted
 //! ([`Event::Lagged`]), never queued without bound.
@@ -15,7 +16,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use lightwire_protocol::backoff::Backoff;
-use lightwire_protocol::{Pose, Role, SceneInfo, Stats};
+use lightwire_protocol::{CAP_LIGHTS, LightState, LightStatus, Pose, Role, SceneInfo, Stats};
 use tokio::sync::{mpsc, watch};
 
 use crate::buffer::{DoubleBuffer, Frame};
@@ -70,6 +71,7 @@ impl Client {
             endpoint,
             scene,
             opened.role,
+            opened.capabilities,
             options.latency.clone(),
             options.seqs.clone(),
         ));
@@ -106,6 +108,17 @@ impl Client {
     /// The role the server granted.
     pub fn role(&self) -> Role {
         self.shared.role()
+    }
+
+    /// The latest `Welcome`'s capability bits (`lightwire_protocol::CAP_*`).
+    pub fn capabilities(&self) -> u32 {
+        self.shared.capabilities()
+    }
+
+    /// Whether the server follows `SetLight` (its `Welcome` offers
+    /// `CAP_LIGHTS`: a `lightwire serve`, not a relay).
+    pub fn follows_lights(&self) -> bool {
+        self.capabilities() & CAP_LIGHTS != 0
     }
 
     /// The front buffer: the newest complete lightmap version, with the
@@ -214,6 +227,114 @@ impl Client {
                 reason: format!("scene \"{}\" has no object by that name", self.scene().id),
             })?;
         self.send_pose(object, pose)
+    }
+
+    /// The index of the light called `name`.
+    pub fn light_index(&self, name: &str) -> Option<u32> {
+        self.scene()
+            .lights
+            .iter()
+            .position(|l| l.name == name)
+            .map(|i| i as u32)
+    }
+
+    /// The lights' states the front version was lit with, by light index
+    /// ([`Frame::lights`]; empty before the first keyframe, and unless
+    /// the client asked for them, [`Options::lights`]).
+    pub fn lights(&self) -> std::collections::BTreeMap<u32, LightStatus> {
+        self.frame().map(|f| f.lights.clone()).unwrap_or_default()
+    }
+
+    /// Queues `state`, the whole new state of light `light` (an index into
+    /// `scene().lights`), and returns its seq. The newest state per light
+    /// wins: one not yet written to the socket is replaced (and counted
+    /// in [`Counters::lights_coalesced`]). The seq is newer, in
+    /// serial-number order, than both the last one this client saw for
+    /// the light in a `Lights` and its own last one (see
+    /// [`Options::lights`]: a client that did not ask sees none, and its
+    /// seqs are the clock's). Checked here like the server would: the
+    /// role, that the server follows lights, the light, the state.
+    pub fn send_light(&self, light: u32, state: LightState) -> Result<u64, ClientError> {
+        let role = self.role();
+        if role == Role::Viewer {
+            return Err(ClientError::Forbidden { role });
+        }
+        if !self.follows_lights() {
+            return Err(ClientError::NoLights {
+                url: self.shared.endpoint.ws_url(),
+            });
+        }
+        let scene = self.scene();
+        let Some(info) = scene.lights.get(light as usize) else {
+            return Err(ClientError::UnknownLight {
+                light: light.to_string(),
+                reason: format!(
+                    "scene \"{}\" has {} lights; {}",
+                    scene.id,
+                    scene.lights.len(),
+                    lightwire_protocol::script::light_names(&scene)
+                ),
+            });
+        };
+        state
+            .validate()
+            .map_err(|reason| ClientError::InvalidLight {
+                light: format!("{light} ({:?})", info.name),
+                reason,
+            })?;
+        if self.task.as_ref().is_none_or(|t| t.is_finished()) {
+            return Err(ClientError::Closed);
+        }
+        Ok(self.shared.queue_light(light, state))
+    }
+
+    /// [`Client::send_light`] by light name; a name the scene does not have
+    /// is refused with the scene's light names.
+    pub fn send_light_named(&self, name: &str, state: LightState) -> Result<u64, ClientError> {
+        let light = self.light_index(name).ok_or_else(|| {
+            let scene = self.scene();
+            ClientError::UnknownLight {
+                light: format!("{name:?}"),
+                reason: format!(
+                    "scene \"{}\" has no light by that name; {}",
+                    scene.id,
+                    lightwire_protocol::script::light_names(&scene)
+                ),
+            }
+        })?;
+        self.send_light(light, state)
+    }
+
+    /// Waits until the front is a version lit with `SetLight` `seq` of
+    /// `light`, or with a newer one (another driver's, or this client's
+    /// next), and returns it. Needs [`Options::lights`]: without it
+    /// frames carry no lights and this times out.
+    pub async fn wait_for_light(
+        &self,
+        light: u32,
+        seq: u64,
+        timeout: Duration,
+    ) -> Result<Arc<Frame>, ClientError> {
+        let mut frames = self.subscribe();
+        let shows = |f: &Option<Arc<Frame>>| {
+            f.as_ref()
+                .and_then(|f| f.lights.get(&light))
+                .is_some_and(|l| l.seq == seq || lightwire_protocol::seq_is_newer(l.seq, seq))
+        };
+        match tokio::time::timeout(timeout, frames.wait_for(shows)).await {
+            Ok(Ok(frame)) => Ok(frame.clone().ok_or(ClientError::Closed)?),
+            Ok(Err(_)) => Err(ClientError::Closed),
+            Err(_) => Err(ClientError::Timeout {
+                what: format!(
+                    "{}: waiting for a version lit with seq {seq} of light {light} (holding version {:?}, light state seq {:?})",
+                    self.shared.endpoint,
+                    self.version(),
+                    self.frame()
+                        .and_then(|f| f.lights.get(&light).map(|l| l.seq))
+                ),
+                seconds: timeout.as_secs_f64(),
+            }),
+        }
     }
 
     /// The next event; `None` once the task has ended and every event was

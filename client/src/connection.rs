@@ -12,7 +12,11 @@
 //!   latency of the seqs it newly reflects;
 //! - sends the poses waiting in the outbox (one slot per object: newest
 //!   wins, exactly like the server's inbox, so a slow socket coalesces
-//!   poses instead of queueing them);
+//!   poses instead of queueing them), and the light states likewise (one
+//!   slot per light, as `SetLight`);
+//! - takes a `Lights` (asked for with `HELLO_LIGHTS` when
+//!   [`Options::lights`] is set) as the states of the version after it,
+//!   and its seqs as the floor for this client's next `SetLight`s;
 //! - ends on close, error, or silence longer than the idle timeout (the
 //!   server sends `Stats` every 250 ms, so silence means a dead peer).
 //!
@@ -39,7 +43,7 @@ use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 use crate::buffer::{Applied, DoubleBuffer};
 use crate::error::ClientError;
-use crate::events::{Delivered, Event, VersionEvent};
+use crate::events::{Delivered, Event, LightDelivered, VersionEvent};
 use crate::latency::unix_micros;
 use crate::options::Options;
 use crate::shared::Shared;
@@ -56,6 +60,7 @@ const MAX_BAD_KEYFRAMES: u32 = 3;
 pub(crate) struct Opened {
     pub ws: Ws,
     pub role: Role,
+    pub capabilities: u32,
     pub server: String,
     pub scene: SceneInfo,
 }
@@ -107,8 +112,14 @@ pub(crate) async fn open(url: &str, options: &Options) -> Result<Opened, ClientE
         client: options.client_name.clone(),
         token: options.token.clone(),
         // The dynamic objects' poses with the versions lit for them, so a
-        // viewer draws them where their light is (`Frame::poses`).
-        capabilities: lightwire_protocol::HELLO_POSES,
+        // viewer draws them where their light is (`Frame::poses`); the
+        // lights' states if asked (`Frame::lights`).
+        capabilities: lightwire_protocol::HELLO_POSES
+            | if options.lights {
+                lightwire_protocol::HELLO_LIGHTS
+            } else {
+                0
+            },
     };
     let handshake = |reason: String| ClientError::Handshake {
         url: url.to_string(),
@@ -150,8 +161,8 @@ pub(crate) async fn open(url: &str, options: &Options) -> Result<Opened, ClientE
                 protocol_version,
                 server,
                 role,
+                capabilities,
                 scene,
-                ..
             }) => {
                 if protocol_version != PROTOCOL_VERSION {
                     return Err(handshake(format!(
@@ -161,6 +172,7 @@ pub(crate) async fn open(url: &str, options: &Options) -> Result<Opened, ClientE
                 Ok(Opened {
                     ws,
                     role,
+                    capabilities,
                     server,
                     scene,
                 })
@@ -325,6 +337,7 @@ impl Task {
     /// changed (new buffers for a new layout).
     fn welcome(&mut self, opened: &Opened) -> Result<(), ClientError> {
         self.shared.set_role(opened.role);
+        self.shared.set_capabilities(opened.capabilities);
         if **self.buffer.scene() != opened.scene {
             let scene = Arc::new(opened.scene.clone());
             self.buffer = DoubleBuffer::new(scene.clone()).map_err(|e| ClientError::Protocol {
@@ -333,9 +346,11 @@ impl Task {
             })?;
             self.shared.scene.send_replace(scene);
         }
-        // Poses are per connection: the new server sends its own before
-        // its first lightmap (or none, if it does not offer them).
+        // Poses and light states are per connection: the new server sends
+        // its own before its first lightmap (or none, if it does not offer
+        // them).
         self.buffer.clear_poses();
+        self.buffer.clear_lights();
         self.emit(Event::Connected {
             role: opened.role,
             server: opened.server.clone(),
@@ -361,8 +376,8 @@ struct Session<'a> {
 impl Session<'_> {
     async fn run(mut self, ws: &mut Ws) -> End {
         let idle = self.task.options.idle_timeout;
-        // Poses queued while disconnected go out first.
-        if let Err(e) = self.send_poses(ws).await {
+        // Poses and light states queued while disconnected go out first.
+        if let Err(e) = self.send_outbox(ws).await {
             return End::Lost(e);
         }
         let shared = self.task.shared.clone();
@@ -372,7 +387,7 @@ impl Session<'_> {
                 biased;
                 _ = async { shutdown.wait_for(|stop| *stop).await.map(|_| ()) } => return End::Shutdown,
                 _ = shared.outbox_ready.notified() => {
-                    if let Err(e) = self.send_poses(ws).await {
+                    if let Err(e) = self.send_outbox(ws).await {
                         return End::Lost(e);
                     }
                 }
@@ -428,6 +443,36 @@ impl Session<'_> {
             Ok(Err(e)) => Err(self.lost(format!("sending: {e}"))),
             Err(_) => Err(self.lost("a send did not complete in time".into())),
         }
+    }
+
+    /// Sends every pose and light state waiting in the outbox.
+    async fn send_outbox(&mut self, ws: &mut Ws) -> Result<(), ClientError> {
+        self.send_poses(ws).await?;
+        self.send_lights(ws).await
+    }
+
+    /// Sends every light state waiting in the outbox (newest per light).
+    async fn send_lights(&mut self, ws: &mut Ws) -> Result<(), ClientError> {
+        let pending = self.task.shared.take_light_outbox();
+        for (light, (seq, state)) in pending {
+            self.task
+                .shared
+                .latency
+                .record_light_sent(light, seq, Instant::now());
+            let message = ClientMessage::SetLight {
+                light,
+                seq,
+                state,
+                client_time_us: unix_micros(),
+            };
+            self.send(ws, &message).await?;
+            self.task
+                .shared
+                .counters
+                .lights_sent
+                .fetch_add(1, Ordering::Relaxed);
+        }
+        Ok(())
     }
 
     /// Sends every pose waiting in the outbox (newest per object).
@@ -574,9 +619,14 @@ impl Session<'_> {
             }
             ServerMessage::Pong { .. } => {}
             ServerMessage::Poses { poses, .. } => self.task.buffer.set_poses(&poses),
-            // Not asked for (no `HELLO_LIGHTS`); a server that sends them
-            // anyway is not followed.
-            ServerMessage::Lights { .. } => {}
+            ServerMessage::Lights { lights, .. } => {
+                // Only if asked for (`HELLO_LIGHTS`); a server that sends
+                // them anyway is not followed.
+                if self.task.options.lights {
+                    self.task.shared.saw_lights(&lights);
+                    self.task.buffer.set_lights(&lights);
+                }
+            }
             ServerMessage::Welcome { .. } => {
                 return Some(End::Lost(ClientError::Protocol {
                     url: self.url.to_string(),
@@ -616,6 +666,15 @@ impl Session<'_> {
                 latency: shared.latency.latency(r.object, r.seq, delivered_at),
             })
             .collect();
+        let lights_delivered = applied
+            .newly_lit
+            .iter()
+            .map(|l| LightDelivered {
+                light: l.light,
+                seq: l.seq,
+                latency: shared.latency.light_latency(l.light, l.seq, delivered_at),
+            })
+            .collect();
         let version = applied.frame.version();
         if let Some(old) = shared.frames.send_replace(Some(applied.frame)) {
             self.task.buffer.recycle(old);
@@ -626,6 +685,7 @@ impl Session<'_> {
             tiles,
             bytes,
             delivered,
+            lights_delivered,
         }));
     }
 }

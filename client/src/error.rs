@@ -108,11 +108,39 @@ pub enum ClientError {
         /// [`lightwire_protocol::Pose::validate`]'s reason.
         reason: &'static str,
     },
-    /// `send_pose` on a connection whose role may not move objects.
-    #[error("this connection's role ({role:?}) may not move objects; use a driver or admin token")]
+    /// `send_pose` or `send_light` on a connection whose role may not
+    /// drive.
+    #[error(
+        "this connection's role ({role:?}) may not move objects or set lights; use a driver or admin token"
+    )]
     Forbidden {
         /// The role the server granted.
         role: lightwire_protocol::Role,
+    },
+    /// `send_light` for a light the scene does not have.
+    #[error("light {light}: {reason}")]
+    UnknownLight {
+        /// The light index or name asked for.
+        light: String,
+        /// Why, with the scene's light names.
+        reason: String,
+    },
+    /// `send_light` with a state the server would refuse (PROTOCOL.md §4).
+    #[error("the state for light {light} is invalid: {reason}")]
+    InvalidLight {
+        /// The light's name.
+        light: String,
+        /// [`lightwire_protocol::LightState::validate`]'s reason.
+        reason: &'static str,
+    },
+    /// `send_light` to a server that does not follow lights (its `Welcome`
+    /// lacks `CAP_LIGHTS`: a relay, or a server older than protocol 4).
+    #[error(
+        "{url}: the server does not follow lights (its Welcome does not offer CAP_LIGHTS: a relay, which does not forward SetLight, or an older server); connect to the solver's `lightwire serve`"
+    )]
+    NoLights {
+        /// The WebSocket URL.
+        url: String,
     },
     /// The client was closed or its task ended.
     #[error("the client is closed")]

@@ -1,6 +1,6 @@
 //! What the connection task tells the application: the [`Event`]s that
 //! [`Client::next_event`](crate::Client::next_event) returns, and the
-//! transforms a new version delivered.
+//! transforms and light states a new version delivered.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -80,6 +80,11 @@ pub struct VersionEvent {
     /// the send time is known to this client's
     /// [`LatencyBook`](crate::latency::LatencyBook).
     pub delivered: Vec<Delivered>,
+    /// Light states this version is the first to show (from the `Lights`
+    /// before it; only for a client that asked,
+    /// [`Options::lights`](crate::Options::lights)), with the latency of
+    /// the `SetLight`s whose send time the book knows.
+    pub lights_delivered: Vec<LightDelivered>,
 }
 
 /// One transform that reached the light.
@@ -90,5 +95,17 @@ pub struct Delivered {
     /// The transform's seq.
     pub seq: u64,
     /// Send to applied, if the send time is known.
+    pub latency: Option<Duration>,
+}
+
+/// One light state that reached the light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightDelivered {
+    /// Light index.
+    pub light: u32,
+    /// The `SetLight`'s seq (0: the scene file's state).
+    pub seq: u64,
+    /// Send to applied (the first version lit with it), if the send time
+    /// is known.
     pub latency: Option<Duration>,
 }

@@ -9,6 +9,11 @@
 //! the send instant. It is shared (`Arc`) so that the many connections of
 //! a load test measure delivery of any driver's pose to every viewer.
 //!
+//! Light states work alike: `Lights` lists the `SetLight` seq each
+//! light's state came from, and the version it precedes is the first lit
+//! with it; the book keeps their send times apart from the transforms'
+//! ([`LatencyBook::record_light_sent`], [`LatencyBook::light_latency`]).
+//!
 //! The book is bounded: beyond its capacity the oldest entries are
 //! forgotten (their deliveries then report no latency), so a long-running
 //! driver uses constant memory however many frames it sends.
@@ -38,9 +43,17 @@ pub struct LatencyBook {
 
 #[derive(Debug, Default)]
 struct BookInner {
-    sent: HashMap<(u32, u64), Instant>,
+    sent: HashMap<Sent, Instant>,
     /// Insertion order, for evicting the oldest entry first.
-    order: VecDeque<(u32, u64)>,
+    order: VecDeque<Sent>,
+}
+
+/// What was sent: a transform of an object or a state of a light, with
+/// its seq (objects and lights are numbered apart).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Sent {
+    Transform(u32, u64),
+    Light(u32, u64),
 }
 
 impl LatencyBook {
@@ -56,8 +69,40 @@ impl LatencyBook {
     /// forgetting the oldest entry if the book is full. Recording the same
     /// key again keeps the first instant.
     pub fn record_sent(&self, object: u32, seq: u64, at: Instant) {
+        self.record(Sent::Transform(object, seq), at);
+    }
+
+    /// When transform `seq` of `object` was sent, if still remembered.
+    pub fn sent_at(&self, object: u32, seq: u64) -> Option<Instant> {
+        self.lookup(Sent::Transform(object, seq))
+    }
+
+    /// `delivered - sent` for a remembered transform.
+    pub fn latency(&self, object: u32, seq: u64, delivered: Instant) -> Option<Duration> {
+        self.sent_at(object, seq)
+            .map(|sent| delivered.saturating_duration_since(sent))
+    }
+
+    /// Remembers that `SetLight` `seq` of light `light` was sent at `at`
+    /// (as [`LatencyBook::record_sent`], in the same bounded book).
+    pub fn record_light_sent(&self, light: u32, seq: u64, at: Instant) {
+        self.record(Sent::Light(light, seq), at);
+    }
+
+    /// When `SetLight` `seq` of `light` was sent, if still remembered.
+    pub fn light_sent_at(&self, light: u32, seq: u64) -> Option<Instant> {
+        self.lookup(Sent::Light(light, seq))
+    }
+
+    /// `delivered - sent` for a remembered light state.
+    pub fn light_latency(&self, light: u32, seq: u64, delivered: Instant) -> Option<Duration> {
+        self.light_sent_at(light, seq)
+            .map(|sent| delivered.saturating_duration_since(sent))
+    }
+
+    fn record(&self, key: Sent, at: Instant) {
         let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-        if inner.sent.contains_key(&(object, seq)) {
+        if inner.sent.contains_key(&key) {
             return;
         }
         while inner.order.len() >= self.capacity {
@@ -65,20 +110,13 @@ impl LatencyBook {
                 inner.sent.remove(&old);
             }
         }
-        inner.sent.insert((object, seq), at);
-        inner.order.push_back((object, seq));
+        inner.sent.insert(key, at);
+        inner.order.push_back(key);
     }
 
-    /// When transform `seq` of `object` was sent, if still remembered.
-    pub fn sent_at(&self, object: u32, seq: u64) -> Option<Instant> {
+    fn lookup(&self, key: Sent) -> Option<Instant> {
         let inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-        inner.sent.get(&(object, seq)).copied()
-    }
-
-    /// `delivered - sent` for a remembered transform.
-    pub fn latency(&self, object: u32, seq: u64, delivered: Instant) -> Option<Duration> {
-        self.sent_at(object, seq)
-            .map(|sent| delivered.saturating_duration_since(sent))
+        inner.sent.get(&key).copied()
     }
 
     /// Entries currently remembered (at most the capacity).
@@ -168,6 +206,18 @@ mod tests {
             Some(Duration::from_millis(25))
         );
         assert_eq!(book.latency(2, 4, t0), None, "objects are keyed separately");
+        assert_eq!(book.light_sent_at(1, 4), None, "lights apart from objects");
+        book.record_light_sent(1, 4, t0);
+        assert_eq!(
+            book.light_latency(1, 4, t0 + Duration::from_millis(7)),
+            Some(Duration::from_millis(7))
+        );
+        assert_eq!(
+            book.sent_at(1, 3),
+            None,
+            "the light's entry evicted the oldest"
+        );
+        assert_eq!(book.sent_at(1, 4), Some(t0 + Duration::from_millis(40)));
         // A delivery "before" the send (clock quirks) is zero, not a panic.
         assert_eq!(book.latency(1, 5, t0), Some(Duration::ZERO));
         // Re-recording keeps the first send time.

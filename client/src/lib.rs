@@ -34,6 +34,12 @@
 //! - [`Client::send_pose`] queues a pose (newest per object wins) and
 //!   returns its seq; [`Event::Version`] reports, per newly reflected seq,
 //!   the transform-to-light latency ([`latency`]).
+//! - Lights: connect with [`Options::lights`] and every [`Frame`] carries
+//!   the lights' states its version was lit with ([`Frame::lights`]);
+//!   [`Client::send_light`] queues a light's whole new state (newest per
+//!   light wins) under a seq newer than any the client saw for that
+//!   light, and [`Client::wait_for_light`] waits for a version lit with
+//!   it.
 //! - [`Client::next_event`]: a bounded stream of [`Event`]s (versions,
 //!   stats, resyncs, server errors, disconnects, reconnects); events the
 //!   application does not read in time are dropped and counted.
@@ -47,7 +53,8 @@
 //! ```text
 //! socket ─► connection task ─► DoubleBuffer (back) ─swap─► watch<Arc<Frame>> (front) ─► renderer
 //!              │   ▲                                          
-//!              │   └── outbox (newest pose per object) ◄── send_pose
+//!              │   └── outbox (newest pose per object, ◄── send_pose, send_light
+//!              │               newest state per light)
 //!              └──► bounded events ─► next_event          LatencyBook ◄─ send times
 //! ```
 //!
@@ -74,7 +81,10 @@ pub use buffer::Frame;
 pub use client::Client;
 pub use endpoint::Endpoint;
 pub use error::ClientError;
-pub use events::{Delivered, Event, VersionEvent};
-pub use lightwire_protocol::{ErrorCode, PROTOCOL_VERSION, Pose, Role, SceneInfo, Stats};
+pub use events::{Delivered, Event, LightDelivered, VersionEvent};
+pub use lightwire_protocol::{
+    ErrorCode, LightInfo, LightState, LightStatus, LightType, PROTOCOL_VERSION, Pose, Role,
+    SceneInfo, Stats,
+};
 pub use options::Options;
 pub use shared::Counters;

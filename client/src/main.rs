@@ -28,7 +28,8 @@ struct Cli {
 enum Command {
     /// A live line: version, convergence, frames/s, bytes/s, latency.
     Watch(cli::watch::WatchArgs),
-    /// Move a dynamic object along a transform script.
+    /// Move a dynamic object and play light keys along a script, or set a
+    /// light (--light).
     Drive(cli::drive::DriveArgs),
     /// Render the scene with the streamed lightmap to PNG (headless wgpu).
     View(lightwire_client::view::ViewArgs),

@@ -30,6 +30,14 @@ pub struct Options {
     pub latency: Arc<LatencyBook>,
     /// Where seqs come from; share one between drivers of the same object.
     pub seqs: Arc<SeqSource>,
+    /// Ask the server for the lights' states (`Hello` sets `HELLO_LIGHTS`):
+    /// every [`Frame`](crate::Frame) then carries the states its version
+    /// was lit with ([`Frame::lights`](crate::Frame::lights)), and
+    /// [`VersionEvent::lights_delivered`](crate::VersionEvent::lights_delivered)
+    /// the `SetLight`s it newly shows. A client that sets lights wants
+    /// this; one that only watches or moves objects need not (default
+    /// false: the server sends it no `Lights`).
+    pub lights: bool,
 }
 
 impl Default for Options {
@@ -43,6 +51,7 @@ impl Default for Options {
             event_capacity: 256,
             latency: Arc::new(LatencyBook::default()),
             seqs: Arc::new(SeqSource::new()),
+            lights: false,
         }
     }
 }

@@ -4,8 +4,11 @@
 //! - the **front** lightmap, a `watch` of `Arc<Frame>` (newest only), which
 //!   renderers read without locking;
 //! - the scene (a `watch`, replaced only if a reconnect finds a different
-//!   scene) and the role;
+//!   scene), the role and the server's capabilities;
 //! - the **outbox** of poses to send: one slot per object, newest wins;
+//!   and of light states: one slot per light of the scene, newest wins;
+//! - per light, the newest seq seen in a `Lights` or handed out, which
+//!   the next `SetLight`'s seq must be newer than;
 //! - counters and the latest `Stats`;
 //! - the [`LatencyBook`] of send times.
 //!
@@ -13,10 +16,10 @@
 //! ([`crate::Event`]); it is not kept here.
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use lightwire_protocol::{Pose, Role, SceneInfo, Stats};
+use lightwire_protocol::{LightState, LightStatus, Pose, Role, SceneInfo, Stats, seq_is_newer};
 use tokio::sync::{Notify, watch};
 
 use crate::buffer::Frame;
@@ -56,6 +59,11 @@ pub struct Counters {
     pub poses_sent: u64,
     /// Poses replaced in the outbox by a newer one before being sent.
     pub poses_coalesced: u64,
+    /// `SetLight`s written to the socket.
+    pub lights_sent: u64,
+    /// Light states replaced in the outbox by a newer one before being
+    /// sent.
+    pub lights_coalesced: u64,
     /// Events dropped because the event channel was full.
     pub events_dropped: u64,
 }
@@ -78,6 +86,8 @@ pub(crate) struct AtomicCounters {
     pub rate_limited: AtomicU64,
     pub poses_sent: AtomicU64,
     pub poses_coalesced: AtomicU64,
+    pub lights_sent: AtomicU64,
+    pub lights_coalesced: AtomicU64,
     pub events_dropped: AtomicU64,
 }
 
@@ -100,6 +110,8 @@ impl AtomicCounters {
             rate_limited: get(&self.rate_limited),
             poses_sent: get(&self.poses_sent),
             poses_coalesced: get(&self.poses_coalesced),
+            lights_sent: get(&self.lights_sent),
+            lights_coalesced: get(&self.lights_coalesced),
             events_dropped: get(&self.events_dropped),
         }
     }
@@ -110,6 +122,8 @@ pub(crate) struct Shared {
     pub endpoint: Endpoint,
     pub scene: watch::Sender<Arc<SceneInfo>>,
     role: Mutex<Role>,
+    /// The latest `Welcome`'s capabilities.
+    capabilities: AtomicU32,
     pub frames: watch::Sender<Option<Arc<Frame>>>,
     pub stats: watch::Sender<Option<Stats>>,
     pub counters: AtomicCounters,
@@ -117,6 +131,11 @@ pub(crate) struct Shared {
     pub lag_reported: AtomicU64,
     /// Newest pose per object, waiting for the socket: (seq, pose).
     outbox: Mutex<BTreeMap<u32, (u64, Pose)>>,
+    /// Newest state per light, waiting for the socket: (seq, state).
+    light_outbox: Mutex<BTreeMap<u32, (u64, LightState)>>,
+    /// Per light, the newest seq (serial-number order) seen in a `Lights`
+    /// or handed out by `queue_light`.
+    light_seqs: Mutex<BTreeMap<u32, u64>>,
     pub outbox_ready: Notify,
     pub latency: Arc<LatencyBook>,
     seqs: Arc<SeqSource>,
@@ -129,6 +148,7 @@ impl Shared {
         endpoint: Endpoint,
         scene: Arc<SceneInfo>,
         role: Role,
+        capabilities: u32,
         latency: Arc<LatencyBook>,
         seqs: Arc<SeqSource>,
     ) -> Shared {
@@ -136,11 +156,14 @@ impl Shared {
             endpoint,
             scene: watch::Sender::new(scene),
             role: Mutex::new(role),
+            capabilities: AtomicU32::new(capabilities),
             frames: watch::Sender::new(None),
             stats: watch::Sender::new(None),
             counters: AtomicCounters::default(),
             lag_reported: AtomicU64::new(0),
             outbox: Mutex::new(BTreeMap::new()),
+            light_outbox: Mutex::new(BTreeMap::new()),
+            light_seqs: Mutex::new(BTreeMap::new()),
             outbox_ready: Notify::new(),
             latency,
             seqs,
@@ -153,6 +176,14 @@ impl Shared {
 
     pub(crate) fn role(&self) -> Role {
         *self.role.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub(crate) fn set_capabilities(&self, capabilities: u32) {
+        self.capabilities.store(capabilities, Ordering::Relaxed);
+    }
+
+    pub(crate) fn capabilities(&self) -> u32 {
+        self.capabilities.load(Ordering::Relaxed)
     }
 
     /// Puts `pose` in `object`'s outbox slot under a new seq, replacing
@@ -176,5 +207,57 @@ impl Shared {
 
     pub(crate) fn take_outbox(&self) -> BTreeMap<u32, (u64, Pose)> {
         std::mem::take(&mut *self.outbox.lock().unwrap_or_else(|p| p.into_inner()))
+    }
+
+    /// Puts `state` in `light`'s outbox slot under a new seq, replacing
+    /// (and counting in `lights_coalesced`) a state not yet sent, wakes
+    /// the task, and returns the seq.
+    ///
+    /// The seq is the clock's ([`SeqSource`]), unless that is not newer,
+    /// in serial-number order, than the newest seq this client saw for
+    /// the light in a `Lights` or handed out before: then that one plus
+    /// one. So another driver's seq (a counter, or one far ahead) never
+    /// makes this client's states stale.
+    pub(crate) fn queue_light(&self, light: u32, state: LightState) -> u64 {
+        let clock = self.seqs.next();
+        let seq = {
+            let mut seqs = self.light_seqs.lock().unwrap_or_else(|p| p.into_inner());
+            let latest = seqs.get(&light).copied().unwrap_or(0);
+            let seq = if seq_is_newer(clock, latest) {
+                clock
+            } else {
+                latest.wrapping_add(1)
+            };
+            seqs.insert(light, seq);
+            seq
+        };
+        let replaced = self
+            .light_outbox
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(light, (seq, state));
+        if replaced.is_some() {
+            self.counters
+                .lights_coalesced
+                .fetch_add(1, Ordering::Relaxed);
+        }
+        self.outbox_ready.notify_one();
+        seq
+    }
+
+    pub(crate) fn take_light_outbox(&self) -> BTreeMap<u32, (u64, LightState)> {
+        std::mem::take(&mut *self.light_outbox.lock().unwrap_or_else(|p| p.into_inner()))
+    }
+
+    /// Takes in the seqs of a `Lights` message: each light's newest seq
+    /// becomes the floor for the next `SetLight` of it.
+    pub(crate) fn saw_lights(&self, lights: &[LightStatus]) {
+        let mut seqs = self.light_seqs.lock().unwrap_or_else(|p| p.into_inner());
+        for l in lights {
+            let latest = seqs.entry(l.light).or_insert(0);
+            if seq_is_newer(l.seq, *latest) {
+                *latest = l.seq;
+            }
+        }
     }
 }

@@ -2,7 +2,9 @@
 //! sockets): each test plays the server's side of PROTOCOL.md frame by
 //! frame and checks what the client does — resync on a delta that does
 //! not fit, nothing applied from a corrupt frame, reconnect with backoff,
-//! permanent refusals, the pose outbox and transform-to-light latency.
+//! permanent refusals, the pose outbox and transform-to-light latency,
+//! and lights: `HELLO_LIGHTS` when asked, `Lights` onto frames, `SetLight`
+//! seqs newer than any seen, refusals that name the scene's lights.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -11,8 +13,9 @@ use futures_util::SinkExt;
 use lightwire_client::{Client, ClientError, ErrorCode, Event, Frame, Options, Pose, Role};
 use lightwire_protocol::lightmap::Encoder;
 use lightwire_protocol::{
-    ClientMessage, MaterialInfo, ObjectInfo, ObjectSeq, PixelFormat, SceneInfo, ServerMessage,
-    SurfaceInfo,
+    CAP_LIGHTS, CAP_POSES, ClientMessage, HELLO_LIGHTS, HELLO_POSES, LightInfo, LightState,
+    LightStatus, LightType, MaterialInfo, ObjectInfo, ObjectSeq, PROTOCOL_VERSION, PixelFormat,
+    SceneInfo, ServerMessage, SurfaceInfo,
 };
 use lightwire_testkit::fake::{Conn, FakeServer, delta, keyframe, recv, send, welcome};
 use tokio_tungstenite::tungstenite::Message;
@@ -389,5 +392,222 @@ async fn a_refused_token_is_permanent_and_a_viewer_may_not_drive() {
         client.send_pose(1, Pose::IDENTITY),
         Err(ClientError::Forbidden { role: Role::Viewer })
     ));
+    client.close().await;
+}
+
+/// [`scene`] with a bulb and a sun.
+fn lit_scene() -> SceneInfo {
+    let light = |name: &str, kind, state| LightInfo {
+        name: name.into(),
+        kind,
+        range: None,
+        cone: [0.0; 2],
+        angular_radius: 0.0,
+        state,
+    };
+    SceneInfo {
+        lights: vec![
+            light("bulb", LightType::Point, bulb()),
+            light("sun", LightType::Directional, sun()),
+        ],
+        ..scene()
+    }
+}
+
+fn bulb() -> LightState {
+    LightState {
+        on: true,
+        color: [1.0; 3],
+        intensity: 8.0,
+        position: [0.5, 0.9, 0.5],
+        direction: [0.0, -1.0, 0.0],
+    }
+}
+
+fn sun() -> LightState {
+    LightState {
+        on: true,
+        color: [1.0, 0.95, 0.85],
+        intensity: 800.0,
+        position: [0.0; 3],
+        direction: [0.0, -0.6, -0.8],
+    }
+}
+
+/// A client of `fake` that asks for lights (or not), welcomed as a
+/// driver by a server offering `capabilities`; the Hello's capability
+/// bits.
+async fn lit_client(fake: &FakeServer, lights: bool, capabilities: u32) -> (Client, Conn, u32) {
+    let endpoint = lightwire_client::Endpoint::parse(&fake.ws_url("fake"), None).expect("endpoint");
+    let options = Options {
+        lights,
+        ..Options::default()
+    };
+    let accept = async {
+        let (mut ws, _, hello) = fake.accept_hello().await;
+        let welcome = ServerMessage::Welcome {
+            protocol_version: PROTOCOL_VERSION,
+            server: "fake".into(),
+            role: Role::Driver,
+            capabilities,
+            scene: lit_scene(),
+        };
+        send(&mut ws, &welcome).await;
+        (ws, hello)
+    };
+    let (client, (ws, hello)) = tokio::join!(Client::connect_with(endpoint, options), accept);
+    (client.expect("connects"), ws, hello)
+}
+
+#[tokio::test]
+async fn a_client_that_asks_follows_lights_and_sets_them_with_seqs_newer_than_any_seen() {
+    let fake = FakeServer::bind().await;
+    // Without `Options::lights` the Hello asks for poses only, as before.
+    let (client, _ws, hello) = lit_client(&fake, false, CAP_POSES | CAP_LIGHTS).await;
+    assert_eq!(hello, HELLO_POSES);
+    client.close().await;
+
+    let (mut client, mut ws, hello) = lit_client(&fake, true, CAP_POSES | CAP_LIGHTS).await;
+    assert_eq!(hello, HELLO_POSES | HELLO_LIGHTS);
+    assert!(client.follows_lights());
+    assert_eq!(client.light_index("sun"), Some(1));
+    // The first Lights: another driver set the bulb with a seq far ahead
+    // of the clock (a quarter of the way round the circle).
+    let far = 1u64 << 62;
+    let dim = LightState {
+        intensity: 2.0,
+        ..bulb()
+    };
+    let status = |light, seq, state| LightStatus { light, seq, state };
+    send(
+        &mut ws,
+        &ServerMessage::Lights {
+            version: 1,
+            lights: vec![status(0, far, dim), status(1, 0, sun())],
+        },
+    )
+    .await;
+    let mut enc = encoder();
+    enc.publish(&image(1.0), vec![]);
+    keyframe(&mut ws, enc.keyframe()).await;
+    let front = front_is(&client, 1, &enc).await;
+    assert_eq!(front.lights[&0], status(0, far, dim));
+    assert_eq!(client.lights()[&1], status(1, 0, sun()));
+
+    // What the server would refuse is refused here, naming the lights.
+    let err = client
+        .send_light_named("lamp", bulb())
+        .expect_err("no lamp");
+    assert!(matches!(err, ClientError::UnknownLight { .. }), "{err}");
+    let text = err.to_string();
+    assert!(
+        text.contains("\"lamp\"") && text.contains("its lights: \"bulb\", \"sun\""),
+        "{text}"
+    );
+    let err = client
+        .send_light(2, bulb())
+        .expect_err("no light 2")
+        .to_string();
+    assert!(
+        err.contains("has 2 lights") && err.contains("\"bulb\", \"sun\""),
+        "{err}"
+    );
+    let red = LightState {
+        color: [2.0, 0.0, 0.0],
+        ..bulb()
+    };
+    let err = client.send_light(0, red).expect_err("out of range");
+    assert!(
+        matches!(err, ClientError::InvalidLight { reason, .. } if reason.starts_with("color is out of range")),
+        "{err}"
+    );
+
+    // The bulb's seq follows the one seen (the clock is not newer than
+    // it, in serial-number order); the sun's is the clock.
+    let sent = Instant::now();
+    let off = LightState {
+        on: false,
+        ..bulb()
+    };
+    let seq = client.send_light_named("bulb", off).expect("a driver may");
+    assert_eq!(seq, far + 1);
+    match recv(&mut ws).await {
+        ClientMessage::SetLight {
+            light,
+            seq: s,
+            state,
+            ..
+        } => assert_eq!((light, s, state), (0, seq, off)),
+        other => panic!("expected a SetLight, got {other:?}"),
+    }
+    let sun_seq = client.send_light(1, sun()).expect("a driver may");
+    assert!(
+        sun_seq > 1_600_000_000_000_000,
+        "Unix microseconds: {sun_seq}"
+    );
+    match recv(&mut ws).await {
+        ClientMessage::SetLight { light, seq: s, .. } => assert_eq!((light, s), (1, sun_seq)),
+        other => panic!("expected a SetLight, got {other:?}"),
+    }
+    // Its own next seq is newer than its last.
+    let again = client.send_light(0, off).expect("again");
+    assert_eq!(again, far + 2);
+    let _ = recv(&mut ws).await;
+
+    // A version lit with the bulb's first state: delivered, with latency.
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    send(
+        &mut ws,
+        &ServerMessage::Lights {
+            version: 2,
+            lights: vec![status(0, seq, off), status(1, 0, sun())],
+        },
+    )
+    .await;
+    delta(&mut ws, enc.publish(&image(2.0), vec![])).await;
+    let delivered = until(&mut client, |e| match e {
+        Event::Version(v) if v.version == 2 => Some(v.lights_delivered.clone()),
+        _ => None,
+    })
+    .await;
+    assert_eq!(delivered.len(), 1, "{delivered:?}");
+    assert_eq!((delivered[0].light, delivered[0].seq), (0, seq));
+    let latency = delivered[0].latency.expect("the send time is known");
+    assert!(
+        latency >= Duration::from_millis(30) && latency <= sent.elapsed(),
+        "{latency:?}"
+    );
+    let shown = client
+        .wait_for_light(0, seq, WAIT)
+        .await
+        .expect("version 2 shows it");
+    assert_eq!((shown.version(), shown.lights[&0].state), (2, off));
+    // The later seq is not shown yet: waiting for it times out.
+    let err = client
+        .wait_for_light(0, again, Duration::from_millis(200))
+        .await
+        .expect_err("not shown");
+    assert!(matches!(err, ClientError::Timeout { .. }), "{err}");
+    let c = client.counters();
+    assert_eq!((c.lights_sent, c.server_errors), (3, 0));
+    client.close().await;
+}
+
+#[tokio::test]
+async fn lights_are_refused_by_a_server_without_cap_lights_and_to_a_viewer() {
+    let fake = FakeServer::bind().await;
+    let (client, _ws, _) = lit_client(&fake, true, CAP_POSES).await;
+    assert!(!client.follows_lights());
+    let err = client.send_light(0, bulb()).expect_err("no CAP_LIGHTS");
+    assert!(matches!(err, ClientError::NoLights { .. }), "{err}");
+    assert!(err.to_string().contains("CAP_LIGHTS"), "{err}");
+    client.close().await;
+
+    let (client, _ws) = connected(&fake, None, Role::Viewer).await;
+    let err = client.send_light(0, bulb()).expect_err("a viewer");
+    assert!(
+        matches!(err, ClientError::Forbidden { role: Role::Viewer }),
+        "{err}"
+    );
     client.close().await;
 }

@@ -27,9 +27,9 @@
 //! client library, the relay's upstream) follows, so that a fleet does not
 //! reconnect to a restarted server in lockstep.
 //!
-//! [`script`] reads transform scripts (keyframed poses over time), the
-//! streams `lightwire-client drive`/`load` send and the server's benchmarks
-//! replay.
+//! [`script`] reads transform scripts (keyframed poses and light states
+//! over time), the streams `lightwire-client drive`/`load` send and the
+//! server's benchmarks replay.
 //!
 //! [`tone`] is the one tone curve (white point, exposure, curve, sRGB) that
 //! every picture of a lightmap uses: `bake`'s PNGs, the client's renderer

@@ -47,6 +47,12 @@ impl FakeServer {
     /// first and speak this protocol version; returns the connection and
     /// the token it presented.
     pub async fn accept(&self) -> (Conn, Option<String>) {
+        let (conn, token, _) = self.accept_hello().await;
+        (conn, token)
+    }
+
+    /// [`FakeServer::accept`], also returning the `Hello`'s capability bits.
+    pub async fn accept_hello(&self) -> (Conn, Option<String>, u32) {
         let (tcp, _) = tokio::time::timeout(ACCEPT, self.listener.accept())
             .await
             .unwrap_or_else(|_| panic!("nothing connected within {ACCEPT:?}"))
@@ -56,10 +62,11 @@ impl FakeServer {
             ClientMessage::Hello {
                 protocol_version,
                 token,
+                capabilities,
                 ..
             } => {
                 assert_eq!(protocol_version, PROTOCOL_VERSION);
-                (conn, token)
+                (conn, token, capabilities)
             }
             other => panic!("expected Hello first, got {other:?}"),
         }

@@ -17,7 +17,10 @@
 //!    it closes, so a long run shows drift as it happens.
 //! 3. **Settle**: the drivers stop; the run waits until the server's
 //!    version (from `Stats`) has not changed for `--quiet` and every
-//!    viewer holds it, or `--settle-timeout` passes. Each viewer's final
+//!    viewer holds it (and, for a script with light keys, the `Lights`
+//!    of the version it holds shows the last state the drivers sent each
+//!    light: a solver busy with it publishes nothing meanwhile), or
+//!    `--settle-timeout` passes. Each viewer's final
 //!    version and lightmap checksum (FNV-1a of its texels) go into the
 //!    report, so a test can compare them with the server's state.
 //!    `--verify-url` does that comparison itself: a fresh client on that
@@ -43,6 +46,20 @@
 //! only; latency samples include the settle phase (the last poses'
 //! deliveries).
 //!
+//! **Light keys.** A script with `lights` makes the drivers replay them
+//! too: light track `j` (in the script's order) is sent by driver `j mod
+//! K`, at the same `--rate`, each sample as a `SetLight` when it differs
+//! from the last one that driver sent (a held or stepped state is sent
+//! once, not 30 times a second); the fields the keys leave out are the
+//! light's state in the first `Lights` a driver received. Every client
+//! then asks for `Lights`, and each viewer measures the light latency:
+//! `SetLight` sent → the viewer has applied the first version whose
+//! `Lights` shows its seq (the same shared book, the same meaning as for
+//! transforms). The report's `lights_sent` and `light_latency` hold them;
+//! `--max-p99-ms` applies to the transform latency of a script with
+//! keyframes and to the light latency of one with light keys.
+//! A script without keyframes moves no object.
+//!
 //! Where the latency goes: per transform, the first viewer's latency is
 //! the server's part (inbox, wait for the tick, solve, encode) plus one
 //! hop; the spread between the first and the last viewer is the fan-out
@@ -60,7 +77,10 @@ use anyhow::{Context, Result, bail};
 use hdrhistogram::Histogram;
 use lightwire_client::latency::{LatencyBook, SeqSource};
 use lightwire_client::script::Script;
-use lightwire_client::{Client, ClientError, Counters, Endpoint, ErrorCode, Event, Frame, Options};
+use lightwire_client::{
+    Client, ClientError, Counters, Endpoint, ErrorCode, Event, Frame, LightState, Options,
+};
+use lightwire_protocol::seq_is_newer;
 use serde::Serialize;
 use tokio::sync::{Semaphore, watch};
 use tokio::task::JoinSet;
@@ -193,6 +213,8 @@ pub struct IntervalReport {
     /// Poses the drivers handed to their clients (the outbox may still
     /// coalesce some before they are written).
     pub poses_sent: u64,
+    /// Light states the drivers handed to their clients (likewise).
+    pub lights_sent: u64,
 }
 
 /// The end-of-run comparison with a fresh keyframe (`--verify-url`).
@@ -242,9 +264,16 @@ pub struct Report {
     pub bytes_per_s_per_viewer: f64,
     pub poses_sent: u64,
     pub poses_per_s: f64,
+    /// `SetLight`s the drivers wrote during the drive phase (a script's
+    /// light keys; 0 without).
+    pub lights_sent: u64,
+    pub lights_per_s: f64,
     /// Transform (driver send) to delivery (viewer applied), every
     /// (viewer, transform) pair.
     pub latency: LatencyReport,
+    /// `SetLight` (driver send) to the first version whose `Lights` shows
+    /// its seq (viewer applied), every (viewer, light state) pair.
+    pub light_latency: LatencyReport,
     /// Per transform, the latency of the first viewer to apply it: the
     /// server's part (inbox, tick, solve, encode) plus one hop.
     pub first_delivery: LatencyReport,
@@ -274,6 +303,12 @@ pub struct Report {
 /// Runs `load`; `Ok(false)` when a limit was missed.
 pub fn run(args: LoadArgs) -> Result<bool> {
     let script = Script::load(&args.script)?;
+    if !script.has_poses() && args.object.is_some() {
+        bail!(
+            "--object: {} has no keyframes to move an object along",
+            args.script.display()
+        );
+    }
     if args.viewers == 0 && args.drivers == 0 {
         bail!("--viewers and --drivers are both 0: nothing to do");
     }
@@ -330,6 +365,17 @@ pub fn run(args: LoadArgs) -> Result<bool> {
             report.versions_skipped
         );
     }
+    if report.lights_sent > 0 || report.light_latency.samples > 0 {
+        eprintln!(
+            "load: {} light states sent, light latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples)",
+            report.lights_sent,
+            report.light_latency.p50_ms,
+            report.light_latency.p95_ms,
+            report.light_latency.p99_ms,
+            report.light_latency.max_ms,
+            report.light_latency.samples,
+        );
+    }
     for m in &report.error_messages {
         eprintln!("  error: {m}");
     }
@@ -372,6 +418,7 @@ struct Tally {
     reconnects: AtomicU64,
     stale_seqs: AtomicU64,
     poses_sent: AtomicU64,
+    lights_sent: AtomicU64,
 }
 
 impl Tally {
@@ -384,6 +431,7 @@ impl Tally {
             reconnects: get(&self.reconnects),
             stale_seqs: get(&self.stale_seqs),
             poses_sent: get(&self.poses_sent),
+            lights_sent: get(&self.lights_sent),
         }
     }
 }
@@ -397,6 +445,7 @@ struct TallySnapshot {
     reconnects: u64,
     stale_seqs: u64,
     poses_sent: u64,
+    lights_sent: u64,
 }
 
 /// The interval being measured: when it began and the counts then.
@@ -436,6 +485,7 @@ impl Window {
             reconnects: since(|t| t.reconnects),
             stale_seqs: since(|t| t.stale_seqs),
             poses_sent: since(|t| t.poses_sent),
+            lights_sent: since(|t| t.lights_sent),
         };
         latency.reset();
         self.index += 1;
@@ -468,6 +518,8 @@ const MAX_INTERVALS: u64 = 10_000;
 /// What every client task shares.
 struct Shared {
     latency: Mutex<Latencies>,
+    /// `SetLight` to the first version showing it, per (viewer, state).
+    light_latency: Mutex<Histogram<u64>>,
     /// Running counts the intervals are cut from.
     tally: Tally,
     /// The server's tick timings as its `Stats` report them (one client
@@ -479,6 +531,8 @@ struct Shared {
     deliveries: Mutex<HashMap<(u32, u64), Spread>>,
     /// Highest `Stats.version` seen by anyone.
     server_version: AtomicU64,
+    /// Per light, the newest `SetLight` seq a driver handed its client.
+    last_light_seqs: Mutex<BTreeMap<u32, u64>>,
     errors: Mutex<Errors>,
 }
 
@@ -525,7 +579,11 @@ enum Phase {
 
 /// What a driver task needs.
 struct Driving {
-    object: u32,
+    /// The object it moves (`None`: the script has no keyframes).
+    object: Option<u32>,
+    /// The light tracks it plays: (index in the script's tracks, light
+    /// index in the scene, the light's state at the start).
+    lights: Vec<(usize, u32, LightState)>,
     script: Arc<Script>,
     /// The script's time zero.
     clock: Instant,
@@ -560,6 +618,8 @@ async fn client_task(
         i.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         i
     });
+    // The last state sent per light this driver plays.
+    let mut sent_lights: BTreeMap<u32, LightState> = BTreeMap::new();
     loop {
         tokio::select! {
             changed = phase.changed() => {
@@ -577,9 +637,30 @@ async fn client_task(
             } => {
                 if let Some(d) = driving.as_ref().filter(|_| *phase.borrow() == Phase::Driving) {
                     let t = d.clock.elapsed().as_secs_f64();
-                    match client.send_pose(d.object, d.script.pose_at(t)) {
-                        Ok(_) => { shared.tally.poses_sent.fetch_add(1, Ordering::Relaxed); }
-                        Err(e) => shared.error("pose_refused_locally", e.to_string()),
+                    if let Some(object) = d.object {
+                        match client.send_pose(object, d.script.pose_at(t)) {
+                            Ok(_) => { shared.tally.poses_sent.fetch_add(1, Ordering::Relaxed); }
+                            Err(e) => shared.error("pose_refused_locally", e.to_string()),
+                        }
+                    }
+                    for &(track, light, base) in &d.lights {
+                        let state = d.script.light_at(track, t, &base);
+                        if sent_lights.get(&light) == Some(&state) {
+                            continue;
+                        }
+                        match client.send_light(light, state) {
+                            Ok(seq) => {
+                                sent_lights.insert(light, state);
+                                let mut last = shared.last_light_seqs.lock().unwrap_or_else(|p| p.into_inner());
+                                let newest = last.entry(light).or_insert(seq);
+                                if seq_is_newer(seq, *newest) {
+                                    *newest = seq;
+                                }
+                                drop(last);
+                                shared.tally.lights_sent.fetch_add(1, Ordering::Relaxed);
+                            }
+                            Err(e) => shared.error("light_refused_locally", e.to_string()),
+                        }
                     }
                 }
             }
@@ -594,6 +675,12 @@ async fn client_task(
                         h.record(l);
                     }
                     drop(h);
+                    if !v.lights_delivered.is_empty() {
+                        let mut h = shared.light_latency.lock().unwrap_or_else(|p| p.into_inner());
+                        for l in v.lights_delivered.iter().filter_map(|d| d.latency) {
+                            h.saturating_record(l.as_micros() as u64);
+                        }
+                    }
                     let mut per = shared.deliveries.lock().unwrap_or_else(|p| p.into_inner());
                     for d in &v.delivered {
                         let Some(l) = d.latency else { continue };
@@ -782,14 +869,21 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
             ((args.rate * args.drivers as f64 * 120.0) as usize).clamp(4096, 1 << 20),
         )),
         seqs: Arc::new(SeqSource::new()),
+        // Drivers learn the lights' states to play keys onto, viewers
+        // measure when each state shows.
+        lights: !script.lights().is_empty(),
         ..Options::default()
     };
     let shared = Arc::new(Shared {
         latency: Mutex::new(Latencies::new()?),
+        light_latency: Mutex::new(
+            Histogram::new_with_bounds(1, 60_000_000, 3).context("light latency histogram")?,
+        ),
         tally: Tally::default(),
         server: Mutex::new(ServerSamples::default()),
         deliveries: Mutex::new(HashMap::new()),
         server_version: AtomicU64::new(0),
+        last_light_seqs: Mutex::new(BTreeMap::new()),
         errors: Mutex::new(Errors::default()),
     });
     let permits = Arc::new(Semaphore::new(args.connect_concurrency.max(1)));
@@ -838,6 +932,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
     // Which object each driver moves; drivers of one object are staggered
     // evenly over one pose period.
     let objects: Vec<u32> = match args.object.as_deref().or(script.object.as_deref()) {
+        _ if !script.has_poses() => Vec::new(),
         Some(name) => vec![pick_object(&scene, Some(name), None)?],
         None => scene
             .objects
@@ -847,8 +942,37 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
             .map(|(i, _)| i as u32)
             .collect(),
     };
-    if !drivers.is_empty() && objects.is_empty() {
+    if !drivers.is_empty() && script.has_poses() && objects.is_empty() {
         bail!("scene \"{}\" has no dynamic object to drive", scene.id);
+    }
+    // The lights the script plays, with their states at the start (the
+    // first `Lights` a driver got; the Welcome's from a server that sent
+    // none).
+    let mut lights: Vec<(usize, u32, LightState)> = Vec::new();
+    if !script.lights().is_empty() {
+        let indices = script.light_indices(&scene)?;
+        if let Some(first) = drivers.first() {
+            if !first.follows_lights() {
+                bail!(
+                    "{}: {}",
+                    args.script.display(),
+                    ClientError::NoLights {
+                        url: endpoint.ws_url()
+                    }
+                );
+            }
+            let frame = first
+                .wait_for_version(0, Duration::from_secs(60))
+                .await
+                .context("a driver waiting for its first lightmap")?;
+            for (track, light) in indices.into_iter().enumerate() {
+                let base = frame
+                    .lights
+                    .get(&light)
+                    .map_or(scene.lights[light as usize].state, |l| l.state);
+                lights.push((track, light, base));
+            }
+        }
     }
     let period = Duration::from_secs_f64(1.0 / args.rate);
     let script = Arc::new(script);
@@ -860,13 +984,19 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
     let mut tasks = JoinSet::new();
     let n_drivers = drivers.len();
     for (i, client) in drivers.into_iter().enumerate() {
-        let object = objects[i % objects.len()];
+        let n_objects = objects.len().max(1);
+        let object = objects.get(i % n_objects).copied();
         let sharing = (0..n_drivers)
-            .filter(|j| j % objects.len() == i % objects.len())
+            .filter(|j| j % n_objects == i % n_objects)
             .count();
-        let rank = i / objects.len();
+        let rank = i / n_objects;
         let driving = Driving {
             object,
+            lights: lights
+                .iter()
+                .copied()
+                .filter(|(track, _, _)| track % n_drivers == i)
+                .collect(),
             script: script.clone(),
             clock,
             first: start + period.mul_f64(rank as f64 / sharing as f64),
@@ -912,7 +1042,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
                 window.close(&mut l.window, shared.tally.snapshot(), end.as_secs_f64())
             };
             eprintln!(
-                "load: interval {} ({:.0}-{:.0} s): latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples), {} versions applied, {} skipped, {} errors, {} reconnects, {} stale, {} poses",
+                "load: interval {} ({:.0}-{:.0} s): latency p50 {:.1} ms p95 {:.1} ms p99 {:.1} ms max {:.1} ms ({} samples), {} versions applied, {} skipped, {} errors, {} reconnects, {} stale, {} poses, {} light states",
                 report.index,
                 report.start_s,
                 report.end_s,
@@ -927,6 +1057,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
                 report.reconnects,
                 report.stale_seqs,
                 report.poses_sent,
+                report.lights_sent,
             );
             intervals.push(report);
         }
@@ -947,9 +1078,23 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
             last_version = v;
             last_change = Instant::now();
         }
-        let all_there = viewer_frames
-            .iter()
-            .all(|f| f.borrow().as_ref().is_some_and(|f| f.version() == v));
+        let lights_sent = shared
+            .last_light_seqs
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone();
+        let shows_lights = |f: &Frame| {
+            lights_sent.iter().all(|(light, &seq)| {
+                f.lights
+                    .get(light)
+                    .is_some_and(|l| l.seq == seq || seq_is_newer(l.seq, seq))
+            })
+        };
+        let all_there = viewer_frames.iter().all(|f| {
+            f.borrow()
+                .as_ref()
+                .is_some_and(|f| f.version() == v && shows_lights(f))
+        });
         if last_change.elapsed() >= args.quiet && all_there {
             break true;
         }
@@ -1009,6 +1154,7 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
     let bytes = delta(&viewers_done, d, s, |c| c.bytes);
     let versions = delta(&viewers_done, d, s, |c| c.keyframes + c.deltas);
     let poses = delta(&drivers_done, d, s, |c| c.poses_sent);
+    let lights_sent = delta(&drivers_done, d, s, |c| c.lights_sent);
     let total = |f: fn(&Counters) -> u64| delta(&all_done, c, Phase::Stopped, f);
     let (stale_seqs, resyncs, reconnects, rate_limited) = (
         total(|c| c.stale_seqs),
@@ -1030,6 +1176,12 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
     }
     let total_errors: u64 = breakdown.values().sum();
     let latency = percentiles(&shared.latency.lock().unwrap_or_else(|p| p.into_inner()).all);
+    let light_latency = percentiles(
+        &shared
+            .light_latency
+            .lock()
+            .unwrap_or_else(|p| p.into_inner()),
+    );
     let (first_delivery, fanout_spread) = {
         let per = shared.deliveries.lock().unwrap_or_else(|p| p.into_inner());
         let mut first = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).context("histogram")?;
@@ -1061,15 +1213,29 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
     };
     let mut failures = Vec::new();
     if let Some(limit) = args.max_p99_ms {
-        if latency.samples == 0 {
-            failures.push(format!(
-                "--max-p99-ms {limit}: no latency was measured (no driver pose reached a viewer)"
-            ));
-        } else if latency.p99_ms > limit {
-            failures.push(format!(
-                "p99 latency {:.1} ms exceeds --max-p99-ms {limit}",
-                latency.p99_ms
-            ));
+        if script.has_poses() {
+            if latency.samples == 0 {
+                failures.push(format!(
+                    "--max-p99-ms {limit}: no latency was measured (no driver pose reached a viewer)"
+                ));
+            } else if latency.p99_ms > limit {
+                failures.push(format!(
+                    "p99 latency {:.1} ms exceeds --max-p99-ms {limit}",
+                    latency.p99_ms
+                ));
+            }
+        }
+        if !script.lights().is_empty() {
+            if light_latency.samples == 0 {
+                failures.push(format!(
+                    "--max-p99-ms {limit}: no light latency was measured (no driver's light state reached a viewer)"
+                ));
+            } else if light_latency.p99_ms > limit {
+                failures.push(format!(
+                    "p99 light latency {:.1} ms exceeds --max-p99-ms {limit}",
+                    light_latency.p99_ms
+                ));
+            }
         }
     }
     if let Some(limit) = args.max_errors {
@@ -1107,7 +1273,10 @@ async fn load(args: &LoadArgs, script: Script) -> Result<Report> {
         bytes_per_s_per_viewer: per_viewer(bytes as f64 / drive_secs),
         poses_sent: poses,
         poses_per_s: poses as f64 / drive_secs,
+        lights_sent,
+        lights_per_s: lights_sent as f64 / drive_secs,
         latency,
+        light_latency,
         first_delivery,
         fanout_spread,
         server,
