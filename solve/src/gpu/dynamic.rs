@@ -303,6 +303,9 @@ pub struct DynamicSolver<T> {
     /// Each light's light apart, while it holds for the current poses and
     /// light positions ([`super::basis`]).
     basis: Option<Basis>,
+    /// The tag being worked on is of a light change that no completed
+    /// state shows yet.
+    unpublished: bool,
 }
 
 impl<T: Clone> DynamicSolver<T> {
@@ -381,6 +384,7 @@ impl<T: Clone> DynamicSolver<T> {
             residuals: Vec::new(),
             profile: Profiler::disabled(),
             basis: None,
+            unpublished: false,
         })
     }
 
@@ -695,6 +699,7 @@ impl<T: Clone> DynamicSolver<T> {
             // Only lights changed: refinement carries the change, and the
             // state it completes reflects the tag.
             self.working = tag;
+            self.unpublished = true;
             self.basis = None;
             if self.options.corrections > 0 {
                 self.corrected = false;
@@ -789,6 +794,14 @@ impl<T: Clone> DynamicSolver<T> {
         // unshot, and the state the next move publishes carries
         // what was shot so far (any state reflects the poses).
         if self.pending.is_some() {
+            // A light change not yet shown is published as far as it got
+            // first (its direct light whole, its bounces as far as shot):
+            // under a stream of changes (the sun turning a little every
+            // frame) each would otherwise be cut short before any state
+            // showed it.
+            if self.unpublished {
+                self.complete(report)?;
+            }
             return Ok((true, false));
         }
         let batches = self.profile.start();
@@ -985,6 +998,7 @@ impl<T: Clone> DynamicSolver<T> {
                 .adopt(&vec![glam::Vec3::ZERO; self.atlas.elements.len()])?;
         }
         self.reflected = self.working.clone();
+        self.unpublished = false;
         self.versions += 1;
         report.completed = true;
         Ok(())
