@@ -60,6 +60,22 @@
 //!   [`DynamicSolver::is_settled`], a viewer of a still scene for
 //!   [`DynamicSolver::is_idle`].
 //!
+//! - Lights change like poses ([`DynamicSolver::set_lights`], issue 60),
+//!   taken up when the running unit ends. Once the scene holds still and
+//!   is corrected, the session solves each light's light apart
+//!   ([`super::basis`], in the background, `1 + lights` sessions) and its
+//!   state becomes their composition; a light switched, dimmed or
+//!   recoloured in place is then one composition, published in the step
+//!   that takes it up and equal to a fresh session's. Anything else (a
+//!   light that moves, a change while the basis is missing) is followed by
+//!   shooting the signed change of the light's direct light
+//!   ([`ProgressiveSolver::set_light`], thesis §2.2.5); cross then takes
+//!   the moving objects out and back in (they are passive, so they would
+//!   neither receive the change nor pass it on), refinement carries it, a
+//!   change cut short by the next is published as far as it got, and the
+//!   corrections and the basis follow once the scene holds still. With
+//!   every source off a complete state is dark.
+//!
 //! Negative light. Redistribution shoots negative radiosity (thesis
 //! §2.2.5): shadows appear as negative deltas. Intermediate states can hold
 //! negative texels; completed states can only hold the small residue of
