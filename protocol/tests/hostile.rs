@@ -242,6 +242,46 @@ fn frames_without_a_declared_size_are_refused() {
     refuses(&mut client, &d, "does not declare its content size");
 }
 
+/// A keyframe tile is one zstd frame that declares its size, with nothing
+/// after it (PROTOCOL.md §5): a frame without the size, the tile's frame
+/// followed by a second one, or by a stray byte, is refused and the
+/// lightmap left as it was.
+#[test]
+fn a_keyframe_tile_is_one_frame_that_declares_its_size() {
+    let (e, mut client, _) = published();
+    let good = e.keyframe();
+    let len = zstd::bulk::decompress(&good.tiles[0].data, 1 << 20)
+        .unwrap()
+        .len();
+    let mut enc = zstd::stream::Encoder::new(Vec::new(), 3).unwrap();
+    enc.include_contentsize(false).unwrap();
+    std::io::Write::write_all(&mut enc, &vec![0u8; len]).unwrap();
+    let unsized_frame = enc.finish().unwrap();
+    let second = zstd::bulk::compress(&[0u8; 4], 3).unwrap();
+    let two = [good.tiles[0].data.clone(), second].concat();
+    let trailing = [good.tiles[0].data.clone(), vec![0]].concat();
+    for (what, data, says) in [
+        (
+            "no size",
+            unsized_frame,
+            "does not declare its content size",
+        ),
+        ("two frames", two, "after the zstd frame"),
+        ("a byte after", trailing, "after the zstd frame"),
+    ] {
+        let mut k = good.clone();
+        k.tiles[0].data = data;
+        let before = client.clone();
+        let refused = client.apply_keyframe(&k);
+        assert!(
+            matches!(&refused, Err(ApplyError::Decompress { reason, .. }) if reason.contains(says)),
+            "{what}: {refused:?}"
+        );
+        assert_eq!(client, before, "{what}: nothing changed");
+    }
+    client.apply_keyframe(&good).unwrap();
+}
+
 #[test]
 fn incomplete_keyframes_are_rejected() {
     let (e, mut client, _) = published();

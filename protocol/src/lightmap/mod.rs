@@ -495,11 +495,34 @@ pub(crate) fn decompress_tile(
                 got: declared,
             });
         }
-        Ok(_) => {}
+        Ok(Some(_)) => {}
+        Ok(None) => {
+            return Err(ApplyError::Decompress {
+                index,
+                reason: "the zstd frame does not declare its content size".into(),
+            });
+        }
         Err(_) => {
             return Err(ApplyError::Decompress {
                 index,
                 reason: "no zstd frame header".into(),
+            });
+        }
+    }
+    // One frame and nothing after it (PROTOCOL.md §5): a second frame
+    // would otherwise be decompressed into the same buffer.
+    match zstd::zstd_safe::find_frame_compressed_size(&tile.data) {
+        Ok(n) if n == tile.data.len() => {}
+        Ok(n) => {
+            return Err(ApplyError::Decompress {
+                index,
+                reason: format!("{} bytes after the zstd frame", tile.data.len() - n),
+            });
+        }
+        Err(_) => {
+            return Err(ApplyError::Decompress {
+                index,
+                reason: "not a whole zstd frame".into(),
             });
         }
     }
