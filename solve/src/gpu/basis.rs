@@ -10,8 +10,9 @@
 //! or a recolour is one composition, the same arithmetic a fresh session
 //! with the new intensities does, so the two agree to rounding.
 //!
-//! Each group's solution is a session of its own ([`DynamicSolver`], the
-//! same options, no basis of its own) run to its corrected state at the
+//! Each group's solution ([`groups`]) is a session of its own
+//! (`DynamicSolver`, the same options, no basis of its own; its
+//! `Building` runs them) run to its corrected state at the
 //! current poses: `1 + lights` solves, built one after the other in the
 //! background once the session is idle (after the first published state,
 //! which does not wait for it). Memory: `(1 + lights) × elements × 12`
@@ -24,10 +25,7 @@
 
 use glam::Vec3;
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{Light, Pose, Scene};
-
-use super::dynamic::{DynamicOptions, DynamicSolver};
-use super::{Device, GpuError};
+use lightwire_scene::{Light, Scene};
 
 /// The solutions a state is composed of; see the module doc.
 #[derive(Debug, Clone)]
@@ -42,6 +40,17 @@ pub struct Basis {
 }
 
 impl Basis {
+    /// The basis of the solutions `rest` (the emitters' and the sky's)
+    /// and `unit` (each light's at unit white intensity), built for
+    /// `built_for`.
+    pub fn new(rest: Vec<Vec3>, unit: Vec<Vec<Vec3>>, built_for: Vec<Light>) -> Self {
+        Self {
+            rest,
+            unit,
+            built_for,
+        }
+    }
+
     /// The state of the scene lit by `lights` (the basis's lights, each
     /// with any intensity): `rest + Σ_k I_k ⊙ unit_k`, in light order.
     pub fn compose(&self, lights: &[Light]) -> Vec<Vec3> {
@@ -83,7 +92,7 @@ pub fn wanted(scene: &Scene, atlas: &Atlas, limit: usize) -> bool {
 /// The scene of each group: the emitting surfaces and the sky without the
 /// lights, then each light alone, at unit white intensity, with nothing
 /// emitting. `None` for a group that gives no light (its solution is 0).
-fn groups(scene: &Scene) -> Vec<Option<Scene>> {
+pub fn groups(scene: &Scene) -> Vec<Option<Scene>> {
     let mut rest = scene.clone();
     rest.lights.clear();
     let rest_lit = rest.materials.iter().any(|m| m.emission != Vec3::ZERO)
@@ -106,73 +115,4 @@ fn groups(scene: &Scene) -> Vec<Option<Scene>> {
         groups.push(Some(alone));
     }
     groups
-}
-
-/// A basis being built, a group at a time, a slice per call.
-pub struct Building {
-    groups: Vec<Option<Scene>>,
-    done: Vec<Vec<Vec3>>,
-    current: Option<Box<DynamicSolver<()>>>,
-    built_for: Vec<Light>,
-}
-
-impl Building {
-    /// Starts building the basis of `scene` (its lights as they are now).
-    pub fn new(scene: &Scene) -> Self {
-        Self {
-            groups: groups(scene),
-            done: Vec::new(),
-            current: None,
-            built_for: scene.lights.clone(),
-        }
-    }
-
-    /// One slice of the build at `poses`: a step of the running group's
-    /// session, or the start of the next group. Returns the basis once
-    /// every group is solved.
-    pub fn step(
-        &mut self,
-        gpu: &Device,
-        atlas: &Atlas,
-        poses: &[Pose],
-        options: DynamicOptions,
-    ) -> Result<Option<Basis>, GpuError> {
-        if let Some(session) = &mut self.current {
-            if session.is_idle() {
-                self.done.push(session.radiosity()?);
-                self.current = None;
-            } else {
-                session.step(std::time::Duration::ZERO)?;
-                return Ok(None);
-            }
-        }
-        let next = self.done.len();
-        if next == self.groups.len() {
-            let mut solved = std::mem::take(&mut self.done).into_iter();
-            let rest = solved.next().unwrap_or_default();
-            return Ok(Some(Basis {
-                rest,
-                unit: solved.collect(),
-                built_for: self.built_for.clone(),
-            }));
-        }
-        match &self.groups[next] {
-            None => self.done.push(vec![Vec3::ZERO; atlas.elements.len()]),
-            Some(scene) => {
-                let options = DynamicOptions {
-                    light_basis: 0,
-                    ..options
-                };
-                self.current = Some(Box::new(DynamicSolver::new(
-                    gpu,
-                    scene,
-                    atlas,
-                    poses,
-                    (),
-                    options,
-                )?));
-            }
-        }
-        Ok(None)
-    }
 }

@@ -87,7 +87,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
-use super::basis::{Basis, Building};
+use super::basis::Basis;
 use super::correct::Correction;
 use super::gather::GatherOptions;
 use super::profile::{Profiler, Stage, Unit};
@@ -1018,5 +1018,74 @@ impl<T: Clone> DynamicSolver<T> {
         self.versions += 1;
         report.completed = true;
         Ok(())
+    }
+}
+
+/// A basis being built, a group at a time, a slice per call.
+struct Building {
+    groups: Vec<Option<Scene>>,
+    done: Vec<Vec<Vec3>>,
+    current: Option<Box<DynamicSolver<()>>>,
+    built_for: Vec<Light>,
+}
+
+impl Building {
+    /// Starts building the basis of `scene` (its lights as they are now).
+    fn new(scene: &Scene) -> Self {
+        Self {
+            groups: super::basis::groups(scene),
+            done: Vec::new(),
+            current: None,
+            built_for: scene.lights.clone(),
+        }
+    }
+
+    /// One slice of the build at `poses`: a step of the running group's
+    /// session, or the start of the next group. Returns the basis once
+    /// every group is solved.
+    fn step(
+        &mut self,
+        gpu: &Device,
+        atlas: &Atlas,
+        poses: &[Pose],
+        options: DynamicOptions,
+    ) -> Result<Option<Basis>, GpuError> {
+        if let Some(session) = &mut self.current {
+            if session.is_idle() {
+                self.done.push(session.radiosity()?);
+                self.current = None;
+            } else {
+                session.step(std::time::Duration::ZERO)?;
+                return Ok(None);
+            }
+        }
+        let next = self.done.len();
+        if next == self.groups.len() {
+            let mut solved = std::mem::take(&mut self.done).into_iter();
+            let rest = solved.next().unwrap_or_default();
+            return Ok(Some(Basis::new(
+                rest,
+                solved.collect(),
+                self.built_for.clone(),
+            )));
+        }
+        match &self.groups[next] {
+            None => self.done.push(vec![Vec3::ZERO; atlas.elements.len()]),
+            Some(scene) => {
+                let options = DynamicOptions {
+                    light_basis: 0,
+                    ..options
+                };
+                self.current = Some(Box::new(DynamicSolver::new(
+                    gpu,
+                    scene,
+                    atlas,
+                    poses,
+                    (),
+                    options,
+                )?));
+            }
+        }
+        Ok(None)
     }
 }
