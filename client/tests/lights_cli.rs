@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use lightwire_client::{Client, Endpoint, LightState, LightStatus, Options};
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{DRIVER_TOKEN, Lightwire, VIEWER_TOKEN, repo, scene_path, tokens};
+use lightwire_testkit::{DRIVER_TOKEN, Lightwire, VIEWER_TOKEN, repo};
 use serde_json::Value;
 
 const SCENE: &str = "cornell-point";
@@ -21,19 +21,8 @@ const SCENE: &str = "cornell-point";
 /// cornell-point at half its density on the reference solver, with the
 /// kit's three tokens, ready.
 fn serve() -> Proc {
-    let scene = scene_path("cornell-point.json").display().to_string();
-    let args = [
-        "serve",
-        "--listen",
-        "127.0.0.1:0",
-        "--density-scale",
-        "0.5",
-        "--solver",
-        "reference",
-        "--scene",
-        &scene,
-    ];
-    let server = Lightwire::built().spawn(&args, &[("LIGHTWIRE_TOKENS", tokens())]);
+    let server =
+        Lightwire::built().solver_of("cornell-point.json", ("127.0.0.1:0", "reference"), &[]);
     server.wait_ready();
     server
 }

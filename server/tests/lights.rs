@@ -14,24 +14,12 @@ use tokio_tungstenite::tungstenite::Message;
 
 use lightwire_testkit::peer::Peer;
 use lightwire_testkit::process::Proc;
-use lightwire_testkit::{DRIVER_TOKEN, VIEWER_TOKEN, http, lightwire, scene_path, tokens};
+use lightwire_testkit::{DRIVER_TOKEN, VIEWER_TOKEN, http, lightwire};
 
 /// cornell-point (a box lit by one point light, the bulb) at half its
 /// density, served by `solver` with the three tokens.
 fn serve(solver: &str) -> Proc {
-    let scene = scene_path("cornell-point.json").display().to_string();
-    let args = [
-        "serve",
-        "--listen",
-        "127.0.0.1:0",
-        "--density-scale",
-        "0.5",
-        "--solver",
-        solver,
-        "--scene",
-        &scene,
-    ];
-    lightwire!().spawn(&args, &[("LIGHTWIRE_TOKENS", tokens())])
+    lightwire!().solver_of("cornell-point.json", ("127.0.0.1:0", solver), &[])
 }
 
 /// The scene's version as `/api/scenes` reports it.

@@ -154,6 +154,17 @@ impl Lightwire {
 
     /// [`Lightwire::solver`] with another solver and extra environment.
     pub fn solver_with(&self, listen: &str, solver: &str, env: &[(&str, String)]) -> Proc {
+        self.solver_of(&format!("{SCENE}.json"), (listen, solver), env)
+    }
+
+    /// A solver of `scenes/<file>` on `listen` at half its density on
+    /// `solver`, with the three tokens and extra environment `env`.
+    pub fn solver_of(
+        &self,
+        file: &str,
+        (listen, solver): (&str, &str),
+        env: &[(&str, String)],
+    ) -> Proc {
         let args = [
             "serve",
             "--listen",
@@ -166,7 +177,7 @@ impl Lightwire {
         ]
         .map(String::from)
         .into_iter()
-        .chain([scene_path(&format!("{SCENE}.json")).display().to_string()])
+        .chain([scene_path(file).display().to_string()])
         .collect::<Vec<_>>();
         let env: Vec<(&str, String)> = [("LIGHTWIRE_TOKENS", tokens())]
             .into_iter()
