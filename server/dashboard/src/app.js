@@ -15,24 +15,28 @@
 // yet (`posesToApply`).
 //
 // The scene's lights (SceneInfo.lights, protocol version 4) are listed with
-// an on/off toggle, an intensity and a colour control, showing the states
-// of the latest Lights (asked for in Hello). A driver's changes become
-// SetLight frames, at most one per light every TRANSFORM_PERIOD_MS (the
-// server's rate limit counts transforms and SetLights together), each with
-// the next seq of `LightSeqs`: one past the last Lights' seq for the light,
-// or past this page's own newer one. The controls wait for the first
-// Lights (which tells the seqs), and stay disabled for a viewer or on a
-// server without CAP_LIGHTS (a relay).
+// an on/off toggle, an intensity and a colour control, and a sun (a
+// directional light) with a time-of-day slider (its path through the day
+// is gizmos.js's `sunPath`), showing the states of the latest Lights (asked
+// for in Hello). A driver may also drag a point or spot light's gizmo in
+// the 3D view to move the light. A driver's changes become SetLight frames
+// carrying the light's whole state, at most one per light every
+// TRANSFORM_PERIOD_MS (the server's rate limit counts transforms and
+// SetLights together), each with the next seq of `LightSeqs`: one past the
+// last Lights' seq for the light, or past this page's own newer one. The
+// controls wait for the first Lights (which tells the seqs), and stay
+// disabled for a viewer or on a server without CAP_LIGHTS (a relay).
 //
 // The 3D view draws the scene's lights as gizmos (gizmos.js), fetched once
 // per watched scene from `GET /api/scenes/{id}/lights` when the scene list
-// counts any (a solver's; a relay holds none to give).
+// counts any (a solver's; a relay holds none to give), where the states
+// shown in the Lights panel put them.
 //
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
 import { Chart } from './chart.js';
 import { Backoff, DASHBOARD_BACKOFF, LightSeqs, Reconnector, posesToApply, sceneUrl } from './connection.js';
-import { lightsPath } from './gizmos.js';
+import { lightsPath, sunHour, sunPath, timeOfDay } from './gizmos.js';
 import { CAP_LIGHTS, PROTOCOL_VERSION, lightProblem, poseProblem } from './protocol.js';
 import { ToneTable, srgbEncode, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
@@ -111,7 +115,10 @@ const timings = new Chart($('chart-timings'), {
 
 let view = null;
 try {
-  view = new View3D(ui.view, { onDrag: (object, pose) => driver.move(object, pose, 'drag') });
+  view = new View3D(ui.view, {
+    onDrag: (object, pose) => driver.move(object, pose, 'drag'),
+    onLightDrag: (light, position) => lights.change(light, { position }),
+  });
   ui.renderer.textContent = view.renderer;
 } catch (e) {
   ui.view.replaceWith(Object.assign(document.createElement('p'), { className: 'error', textContent: `3D view unavailable: ${e.message}` }));
@@ -382,6 +389,12 @@ const colorHex = (rgb) => `#${rgb.map((c) => Math.round(srgbEncode(clamp01(c)) *
 /** An `<input type="color">` value as a linear RGB colour. */
 const hexColor = (hex) => [1, 3, 5].map((i) => clamp01(srgbDecode(parseInt(hex.slice(i, i + 2), 16) / 255)));
 
+/** An hour (0 to 24) as a clock time, `hh:mm`. */
+function clockText(hour) {
+  const minutes = Math.round(hour * 60) % (24 * 60);
+  return `${String(Math.floor(minutes / 60)).padStart(2, '0')}:${String(minutes % 60).padStart(2, '0')}`;
+}
+
 function intensityText(v, kind) {
   const unit = kind === 'Directional' ? 'W/m²' : 'W/sr';
   return `${v >= 100 ? v.toFixed(0) : v.toPrecision(3)} ${unit}`;
@@ -395,7 +408,9 @@ const lights = {
   follows: false,
   /** A Lights arrived on this connection: the seqs are known. */
   known: false,
-  /** Per light: its row's controls and its Welcome intensity (the slider's 0). */
+  /** Per light: its row's controls, its Welcome intensity (the slider's 0)
+   * and, for a sun, its path through the day (from its Welcome direction,
+   * the scene file's). */
   rows: [],
   /** Per light: the state shown (the latest Lights', or this page's change). */
   states: [],
@@ -418,6 +433,7 @@ const lights = {
     this.rows = scene.lights.map((l, i) => this.row(l, i));
     ui.lightList.replaceChildren(...this.rows.map((r) => r.li));
     this.states.forEach((_, i) => this.draw(i));
+    view?.setLightStates(this.states);
     this.enable();
   },
 
@@ -448,7 +464,25 @@ const lights = {
       this.change(i, { intensity: v });
     });
     color.addEventListener('input', () => this.change(i, { color: hexColor(color.value) }));
-    return { li, on, intensity, value, color, reference, kind: light.kind };
+    const r = { li, on, intensity, value, color, reference, kind: light.kind };
+    if (light.kind === 'Directional') {
+      r.path = sunPath(light.state.direction);
+      r.hour = Object.assign(document.createElement('input'), { type: 'range', min: '0', max: '24', step: '0.25' });
+      r.hour.setAttribute('aria-label', `${light.name} time of day`);
+      r.clock = document.createElement('output');
+      const day = Object.assign(document.createElement('label'), { className: 'day' });
+      day.append(Object.assign(document.createElement('span'), { textContent: 'time of day' }), r.hour, r.clock);
+      li.append(day);
+      r.hour.addEventListener('input', () => {
+        const hour = Number(r.hour.value);
+        r.clock.textContent = clockText(hour);
+        // The whole state at that hour (the sun goes off as it sets, on as it rises).
+        const state = timeOfDay(r.path, hour, this.states[i]);
+        this.change(i, { direction: state.direction, on: state.on });
+        r.on.checked = this.states[i].on;
+      });
+    }
+    return r;
   },
 
   /** Light `i`'s controls from its state. */
@@ -459,12 +493,19 @@ const lights = {
     r.intensity.value = s.intensity > 0 ? String(Math.log2(s.intensity / r.reference)) : String(INTENSITY_STOPS[0]);
     r.value.textContent = intensityText(s.intensity, r.kind);
     r.color.value = colorHex(s.color);
+    if (r.hour) {
+      const hour = sunHour(r.path, s.direction);
+      r.hour.value = String(hour);
+      r.clock.textContent = clockText(hour);
+    }
   },
 
   enable() {
     const scene = this.scene;
     const any = scene.lights.length > 0;
-    ui.lights.disabled = !(any && this.canDrive && this.follows && this.known);
+    const changeable = any && this.canDrive && this.follows && this.known;
+    ui.lights.disabled = !changeable;
+    if (view) view.lightsDraggable = changeable;
     ui.lightsHint.textContent = !any
       ? 'This scene has no lights.'
       : !this.follows
@@ -472,18 +513,21 @@ const lights = {
         : !this.canDrive
           ? `Your role (${this.role}) may watch but not change lights: connect with a driver token.`
           : this.known
-            ? 'Switch, dim or colour a light; the lightmap follows.'
+            ? `Switch, dim or colour a light${this.rows.some((r) => r.path) ? ', set the sun\'s time of day' : ''}${
+                scene.lights.some((l) => l.kind !== 'Directional') ? ', drag a light\'s gizmo in the 3D view to move it' : ''
+              }; the lightmap follows.`
             : 'Waiting for the lights\' states…';
   },
 
   /** A Lights message's states: shown, but for this page's own changes
-   * not reflected yet and those still queued. */
+   * not reflected yet, those still queued and a light being dragged. */
   received(statuses) {
     for (const { light, state } of this.seqs.received(statuses)) {
-      if (!this.rows[light] || this.pending.has(light)) continue;
+      if (!this.rows[light] || this.pending.has(light) || view?.drag?.light === light) continue;
       this.states[light] = structuredClone(state);
       this.draw(light);
     }
+    view?.setLightStates(this.states);
     if (!this.known) {
       this.known = true;
       this.enable();
@@ -502,6 +546,7 @@ const lights = {
       return;
     }
     this.states[i] = state;
+    view?.setLightStates(this.states);
     this.pending.set(i, state);
     this.flush();
   },
@@ -675,6 +720,8 @@ window.lightwire = {
       lights: c?.lights ? structuredClone(c.lights) : null,
       lightControls: lights.rows.length,
       lightControlsEnabled: !ui.lights.disabled,
+      lightStates: structuredClone(lights.states),
+      lightSeqsSent: Object.fromEntries(lights.seqs.sent),
       lastSentSeq: driver.lastSentSeq,
       latencyMs: driver.latencyMs,
       renderer: view?.renderer ?? null,
@@ -687,6 +734,26 @@ window.lightwire = {
   /** Client coordinates of an object's centre in the 3D view. */
   objectScreenPoint(index) {
     return view?.screenPoint(index) ?? null;
+  },
+  /** Client coordinates of a point or spot light in the 3D view. */
+  lightScreenPoint(index) {
+    return view?.lightScreenPoint(index) ?? null;
+  },
+  /** The mean radiosity (W/m², the three channels summed) over the atlas
+   * rectangle of the surface named `name`, or null. */
+  surfaceRadiosity(name) {
+    const c = conn();
+    const s = c?.scene?.surfaces.find((s) => s.name === name);
+    if (!s || !c.map) return null;
+    const [x0, y0, w, h] = s.rect;
+    let sum = 0;
+    for (let y = y0; y < y0 + h; y++) {
+      for (let x = x0; x < x0 + w; x++) {
+        const i = 3 * (y * c.map.width + x);
+        sum += c.map.rgb[i] + c.map.rgb[i + 1] + c.map.rgb[i + 2];
+      }
+    }
+    return sum / (w * h);
   },
 };
 

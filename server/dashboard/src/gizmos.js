@@ -1,10 +1,15 @@
-// Light gizmos for the 3D view: the scene's point, spot and directional
-// lights as line segments. The wire's SceneInfo does not carry lights, so
-// they come from `GET /api/scenes/{id}/lights` (a solver's route: the
-// scene file's `"lights"`, every direction unit, cones in degrees); a
-// relay lists none. Pure geometry, no WebGL, so that node checks it
-// (test/gizmos.test.mjs); view3d.js draws the result with gl.LINES after
-// the surfaces.
+// The geometry of the scene's lights, for the 3D view and the Lights
+// panel. Pure, no WebGL or DOM, so that node checks it
+// (test/gizmos.test.mjs, test/sun.test.mjs).
+//
+// Gizmos: the scene's point, spot and directional lights as line segments,
+// which view3d.js draws with gl.LINES after the surfaces. What kind of
+// light each is, and a spot's cone, come from `GET /api/scenes/{id}/lights`
+// (a solver's route: the scene file's `"lights"`, every direction unit,
+// cones in degrees; a relay lists none); where each light is, which way it
+// points and its colour come from its current state (`placedLights`: the
+// latest `Lights`, or this page's own change), so a gizmo follows a light
+// that is moved, turned or recoloured.
 //
 // - point: a cross of three axis-aligned segments centred on the light;
 // - spot: CONE_SIDES lines from the light along its outer cone, each
@@ -17,6 +22,9 @@
 // `size` is GIZMO_SCALE of the bounds' diagonal, so gizmos read alike in a
 // box and in a level. Each light's lines are in its colour, normalised to
 // its largest channel (white for a black one).
+//
+// The sun through a day (`sunPath`, `sunDirection`, `sunHour`,
+// `timeOfDay`): the Lights panel's time-of-day slider, described below.
 
 import { sceneGlbPath } from './protocol.js';
 
@@ -30,6 +38,13 @@ export const SPOT_LENGTH = 3;
 export const SUN_LENGTH = 4;
 /** Floats per vertex: position, then colour. */
 export const FLOATS_PER_VERTEX = 6;
+
+/** The sun's highest elevation when the scene's sun is not above the
+ * horizon to start with (its state gives no noon to follow), radians. */
+export const SUN_DEFAULT_ELEVATION = Math.PI / 3;
+/** The hours of sunrise and sunset. */
+export const SUNRISE = 6;
+export const SUNSET = 18;
 
 /** `GET /api/scenes/{id}/lights`, the id encoded as `sceneGlbPath` does. */
 export function lightsPath(id) {
@@ -62,6 +77,25 @@ export function gizmoSize(bounds) {
 function basis(d) {
   const u = unit(cross(d, Math.abs(d[1]) < 0.9 ? [0, 1, 0] : [1, 0, 0]));
   return [u, cross(d, u)];
+}
+
+/**
+ * The lights route's `entries` where `states` (LightStates in SceneInfo
+ * order, which is the route's too: both list the scene file's lights in
+ * its order) put them: each entry with its state's colour, and its
+ * state's position and direction where the entry has one (a point light
+ * has no direction to draw, a sun no position). An entry without a state
+ * is left as the route gives it.
+ */
+export function placedLights(entries, states) {
+  return (entries ?? []).map((entry, i) => {
+    const state = states?.[i];
+    if (!entry || !state) return entry;
+    const placed = { ...entry, color: state.color };
+    if (entry.position) placed.position = state.position;
+    if (entry.direction) placed.direction = state.direction;
+    return placed;
+  });
 }
 
 /**
@@ -122,4 +156,78 @@ export function lightGizmos(lights, bounds) {
     }
   }
   return new Float32Array(out);
+}
+
+// --- The sun through a day ---------------------------------------------------
+//
+// A directional light's time-of-day slider moves it along a day's path
+// built around the scene file's sun, which stands where it is at noon:
+//
+// - its azimuth (measured about +y from +x towards +z, clockwise seen from
+//   above) turns 15 degrees an hour through the whole day, the noon sun's
+//   azimuth at 12:00, so the sun rises 90 degrees before it (at 6:00, in
+//   the "east") and sets 90 degrees after it (at 18:00, in the "west"),
+//   as on an equinox; the scene's own axes decide where east is;
+// - its elevation is `peak * sin(pi * (hour - 6) / 12)`: 0 at sunrise and
+//   sunset, `peak` at noon (the scene file's sun's elevation, or
+//   SUN_DEFAULT_ELEVATION when that sun is not above the horizon), below
+//   0 at night, lowest at midnight.
+//
+// Below the horizon the sun has nothing to light from above: its
+// direction is clamped to the horizon (elevation 0, still on the path's
+// azimuth) and `timeOfDay` switches the light off as the sun sets and on
+// again as it rises. Between those, the Lights panel's on box decides.
+
+const RADIANS_PER_HOUR = Math.PI / 12; // 15 degrees an hour
+
+/**
+ * The day's path around a sun that at noon sends its light along the
+ * unit `direction` (the scene file's state): `{ azimuth, peak }`, radians,
+ * the noon sun's azimuth and elevation as seen from the ground (the sun is
+ * at `-direction`). A sun at the zenith has no azimuth; 0 is taken.
+ */
+export function sunPath(direction) {
+  const [x, y, z] = direction.map((v) => -v); // towards the sun
+  const horizontal = Math.hypot(x, z);
+  const elevation = Math.atan2(y, horizontal);
+  return {
+    azimuth: horizontal > 1e-9 ? Math.atan2(z, x) : 0,
+    peak: elevation > 0 ? elevation : SUN_DEFAULT_ELEVATION,
+  };
+}
+
+/** The sun's elevation on `path` at `hour` (0 to 24), radians; below 0 at night. */
+export function sunElevation(path, hour) {
+  return path.peak * Math.sin((Math.PI * (hour - SUNRISE)) / (SUNSET - SUNRISE));
+}
+
+/** The unit direction the light of the sun on `path` travels at `hour`,
+ * its elevation clamped to the horizon at night. */
+export function sunDirection(path, hour) {
+  const elevation = Math.max(sunElevation(path, hour), 0);
+  const azimuth = path.azimuth + (hour - 12) * RADIANS_PER_HOUR;
+  const c = Math.cos(elevation);
+  return [-c * Math.cos(azimuth), -Math.sin(elevation), -c * Math.sin(azimuth)];
+}
+
+/** The hour in [0, 24) at which the sun on `path` has the azimuth of unit
+ * `direction` (the inverse of `sunDirection`; 12 for a light straight down). */
+export function sunHour(path, direction) {
+  const [x, , z] = direction.map((v) => -v);
+  const azimuth = Math.hypot(x, z) > 1e-9 ? Math.atan2(z, x) : path.azimuth;
+  const hour = 12 + (azimuth - path.azimuth) / RADIANS_PER_HOUR;
+  return ((hour % 24) + 24) % 24;
+}
+
+/**
+ * A sun's whole `state` (a LightState) at `hour` on `path`: its direction
+ * there, switched off if the sun has just set (it was above the horizon
+ * in `state`, it is not at `hour`), on if it has just risen, and `on` left
+ * as it was otherwise.
+ */
+export function timeOfDay(path, hour, state) {
+  const direction = sunDirection(path, hour);
+  const wasUp = state.direction[1] < 0;
+  const up = direction[1] < 0;
+  return { ...state, direction, on: up === wasUp ? state.on : up };
 }

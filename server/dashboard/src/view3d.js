@@ -15,14 +15,15 @@
 //
 // Mouse: drag the background to orbit, wheel to zoom; drag a dynamic object
 // (outlined) to slide it on its horizontal plane, shift-drag or right-drag it
-// to turn it about the vertical axis.
+// to turn it about the vertical axis; drag a point or spot light's gizmo to
+// slide the light on its horizontal plane likewise.
 //
 // The scene's point, spot and directional lights (`setLights`, from the
-// lights route; the Welcome does not carry them) are drawn as gizmos in
-// their colours after the surfaces, depth-tested (gizmos.js has their
-// geometry); `setShowLights(false)` hides them.
+// lights route) are drawn as gizmos in their colours after the surfaces,
+// depth-tested, where their current states put them (`setLightStates`;
+// gizmos.js has their geometry); `setShowLights(false)` hides them.
 
-import { FLOATS_PER_VERTEX, lightGizmos } from './gizmos.js';
+import { FLOATS_PER_VERTEX, gizmoSize, lightGizmos, placedLights } from './gizmos.js';
 
 const VERTEX = `#version 300 es
 layout(location = 0) in vec3 aPos;
@@ -155,6 +156,14 @@ function lookAt(eye, target, up) {
   return new Float32Array([x[0], y[0], z[0], 0, x[1], y[1], z[1], 0, x[2], y[2], z[2], 0, -dot(x, eye), -dot(y, eye), -dot(z, eye), 1]);
 }
 
+/** The distance along a ray (unit `dir`) to the point nearest `p`, and
+ * how far `p` is from the ray there; null if `p` is behind the origin. */
+function rayPoint(origin, dir, p) {
+  const t = dot(sub(p, origin), dir);
+  if (t <= 0) return null;
+  return { t, distance: Math.hypot(...sub(p, add(origin, scale3(dir, t)))) };
+}
+
 /** Slab test of a ray against an axis-aligned box; the entry distance or null. */
 function rayBox(origin, dir, lo, hi) {
   let t0 = -Infinity;
@@ -239,8 +248,11 @@ export function cornerUvs(s, W, H) {
 export class View3D {
   /**
    * @param {HTMLCanvasElement} canvas
-   * @param {{onDrag?: (object: number, pose: object) => void}} callbacks
-   *   `onDrag` is called with every pose the user gives a dynamic object.
+   * @param {{onDrag?: (object: number, pose: object) => void,
+   *   onLightDrag?: (light: number, position: number[]) => void}} callbacks
+   *   `onDrag` is called with every pose the user gives a dynamic object,
+   *   `onLightDrag` with every position the user drags a light to (the
+   *   view draws the light there once `setLightStates` says so).
    * Throws if WebGL2 is unavailable.
    */
   constructor(canvas, callbacks = {}) {
@@ -251,6 +263,7 @@ export class View3D {
     if (!gl) throw new Error('this browser has no WebGL2');
     this.gl = gl;
     this.onDrag = callbacks.onDrag ?? (() => {});
+    this.onLightDrag = callbacks.onLightDrag ?? (() => {});
     this.program = compile(gl, VERTEX, FRAGMENT);
     this.lineProgram = compile(gl, LINE_VERTEX, LINE_FRAGMENT);
     this.gizmoProgram = compile(gl, GIZMO_VERTEX, GIZMO_FRAGMENT);
@@ -276,14 +289,22 @@ export class View3D {
       gl.texParameteri(gl.TEXTURE_2D, k, v);
     }
     this.objects = [];
-    /** The scene's lights (entries of the lights route) and their gizmos. */
+    /** The scene's lights (entries of the lights route), their states
+     * (SceneInfo order), the entries where the states put them, and their
+     * gizmos. */
     this.lights = [];
+    this.lightStates = [];
+    this.placed = [];
     this.gizmos = null;
     this.showLights = true;
+    /** Whether the user may drag dynamic objects (`draggable`) and lights. */
+    this.draggable = false;
+    this.lightsDraggable = false;
     this.exposure = 1;
     this.camera = { yaw: 0, pitch: 0.12, distance: 10, target: [0, 0, 0] };
     this.drag = null;
-    this.hover = -1;
+    /** What the pointer is over (`pick`), or null. */
+    this.hover = null;
     this.framesDrawn = 0;
     this.needsDraw = true;
     this.installInput();
@@ -379,6 +400,14 @@ export class View3D {
     this.needsDraw = true;
   }
 
+  /** Sets the lights' states (LightStates in SceneInfo order): where the
+   * gizmos are drawn, which way they point and their colours. */
+  setLightStates(states) {
+    this.lightStates = states;
+    this.buildGizmos();
+    this.needsDraw = true;
+  }
+
   /** Shows or hides the light gizmos. */
   setShowLights(show) {
     this.showLights = !!show;
@@ -398,7 +427,8 @@ export class View3D {
       gl.deleteBuffer(this.gizmos.buffer);
       this.gizmos = null;
     }
-    const data = lightGizmos(this.lights, this.bounds);
+    this.placed = placedLights(this.lights, this.lightStates);
+    const data = lightGizmos(this.placed, this.bounds);
     if (!data.length) return;
     const [vao, buffer] = vertexArray(gl, data, [3, 3]);
     gl.bindVertexArray(null);
@@ -508,7 +538,7 @@ export class View3D {
     gl.depthFunc(gl.LEQUAL);
     this.objects.forEach((o, i) => {
       if (!o.info.dynamic || !o.lineCount) return;
-      const active = this.drag?.object === i || this.hover === i;
+      const active = this.drag?.object === i || this.hover?.object === i;
       gl.uniform4fv(this.uniforms.lineColor, active ? [1, 0.8, 0.2, 1] : [0.95, 0.65, 0.15, 0.6]);
       gl.uniformMatrix4fv(this.uniforms.lineModel, false, poseMatrix(o.pose));
       gl.bindVertexArray(o.lineVao);
@@ -540,38 +570,65 @@ export class View3D {
     return { origin: eye, dir };
   }
 
-  /** The nearest dynamic object under client coordinates, or -1. */
+  /**
+   * What a drag at client coordinates would take, the nearest first: a
+   * dynamic object (`{ object }`, if `draggable`) or a point or spot
+   * light (`{ light }`, if `lightsDraggable` and the gizmos are shown;
+   * the pointer within a gizmo's size of the light), or null.
+   */
   pick(clientX, clientY) {
     const { origin, dir } = this.ray(clientX, clientY);
-    let best = -1;
+    let best = null;
     let bestT = Infinity;
-    this.objects.forEach((o, i) => {
-      if (!o.info.dynamic || !o.count) return;
-      // Into object space: p_local = R^-1 (p - t) / s.
-      const inv = [-o.pose.rotation[0], -o.pose.rotation[1], -o.pose.rotation[2], o.pose.rotation[3]];
-      const lo = scale3(rotate(inv, sub(origin, o.pose.translation)), 1 / o.pose.scale);
-      const ld = scale3(rotate(inv, dir), 1 / o.pose.scale);
-      const hit = rayBox(lo, ld, o.lo, o.hi);
-      if (hit !== null && hit < bestT) {
-        bestT = hit;
-        best = i;
-      }
-    });
+    if (this.draggable) {
+      this.objects.forEach((o, i) => {
+        if (!o.info.dynamic || !o.count) return;
+        // Into object space: p_local = R^-1 (p - t) / s.
+        const inv = [-o.pose.rotation[0], -o.pose.rotation[1], -o.pose.rotation[2], o.pose.rotation[3]];
+        const lo = scale3(rotate(inv, sub(origin, o.pose.translation)), 1 / o.pose.scale);
+        const ld = scale3(rotate(inv, dir), 1 / o.pose.scale);
+        const hit = rayBox(lo, ld, o.lo, o.hi);
+        if (hit !== null && hit < bestT) {
+          bestT = hit;
+          best = { object: i };
+        }
+      });
+    }
+    if (this.lightsDraggable && this.showLights) {
+      const reach = gizmoSize(this.bounds);
+      this.placed.forEach((l, i) => {
+        if (!l?.position || !(l.type === 'point' || l.type === 'spot')) return;
+        const near = rayPoint(origin, dir, l.position);
+        if (near && near.distance <= reach && near.t < bestT) {
+          bestT = near.t;
+          best = { light: i };
+        }
+      });
+    }
     return best;
   }
 
-  /** Client coordinates of a dynamic object's centre (for tests and tools). */
-  screenPoint(index) {
-    const o = this.objects[index];
-    if (!o) return null;
-    const c = transformPoint(o.pose, scale3(add(o.lo, o.hi), 0.5));
+  /** Client coordinates of world point `p` in the view. */
+  project(p) {
     const { viewProj } = this.matrices();
-    const v = [0, 1, 2, 3].map((r) => viewProj[r] * c[0] + viewProj[4 + r] * c[1] + viewProj[8 + r] * c[2] + viewProj[12 + r]);
+    const v = [0, 1, 2, 3].map((r) => viewProj[r] * p[0] + viewProj[4 + r] * p[1] + viewProj[8 + r] * p[2] + viewProj[12 + r]);
     const rect = this.canvas.getBoundingClientRect();
     return {
       x: rect.left + ((v[0] / v[3] + 1) / 2) * rect.width,
       y: rect.top + ((1 - v[1] / v[3]) / 2) * rect.height,
     };
+  }
+
+  /** Client coordinates of a dynamic object's centre (for tests and tools). */
+  screenPoint(index) {
+    const o = this.objects[index];
+    return o ? this.project(transformPoint(o.pose, scale3(add(o.lo, o.hi), 0.5))) : null;
+  }
+
+  /** Client coordinates of a point or spot light (for tests and tools). */
+  lightScreenPoint(index) {
+    const p = this.placed[index]?.position;
+    return p ? this.project(p) : null;
   }
 
   /** Where a ray meets the horizontal plane y = height, or null. */
@@ -587,9 +644,13 @@ export class View3D {
     canvas.addEventListener('contextmenu', (e) => e.preventDefault());
     canvas.addEventListener('pointerdown', (e) => {
       canvas.setPointerCapture(e.pointerId);
-      const object = this.pick(e.clientX, e.clientY);
+      const picked = this.pick(e.clientX, e.clientY);
       const start = { x: e.clientX, y: e.clientY };
-      if (object >= 0 && this.draggable) {
+      if (picked?.light !== undefined) {
+        const position = [...this.placed[picked.light].position];
+        this.drag = { mode: 'light', light: picked.light, start, position, hit: this.planeHit(e.clientX, e.clientY, position[1]) };
+      } else if (picked?.object !== undefined) {
+        const object = picked.object;
         const pose = structuredClone(this.objects[object].pose);
         const rotateMode = e.shiftKey || e.button === 2;
         this.drag = {
@@ -607,10 +668,10 @@ export class View3D {
     canvas.addEventListener('pointermove', (e) => {
       const d = this.drag;
       if (!d) {
-        const hover = this.draggable ? this.pick(e.clientX, e.clientY) : -1;
-        if (hover !== this.hover) {
+        const hover = this.pick(e.clientX, e.clientY);
+        if (hover?.object !== this.hover?.object || hover?.light !== this.hover?.light) {
           this.hover = hover;
-          canvas.style.cursor = hover >= 0 ? 'grab' : '';
+          canvas.style.cursor = hover ? 'grab' : '';
           this.needsDraw = true;
         }
         return;
@@ -628,6 +689,20 @@ export class View3D {
         t[0] = Math.max(range.x[0], Math.min(range.x[1], t[0]));
         t[2] = Math.max(range.z[0], Math.min(range.z[1], t[2]));
         this.setDragged(d.object, { ...d.pose, translation: t });
+      } else if (d.mode === 'light') {
+        const hit = this.planeHit(e.clientX, e.clientY, d.position[1]);
+        if (!hit || !d.hit) return;
+        // Kept a gizmo's size inside the static geometry's bounds (off the
+        // walls of a room), or as far out as the drag started.
+        const margin = gizmoSize(this.bounds);
+        const p = add(d.position, sub(hit, d.hit));
+        p[1] = d.position[1];
+        for (const a of [0, 2]) {
+          const lo = Math.min(this.bounds.lo[a] + margin, d.position[a]);
+          const hi = Math.max(this.bounds.hi[a] - margin, d.position[a]);
+          p[a] = Math.max(lo, Math.min(hi, p[a]));
+        }
+        this.onLightDrag(d.light, p);
       } else {
         const rotation = quatMul(quatYaw(dx * 0.01), d.pose.rotation);
         this.setDragged(d.object, { ...d.pose, rotation });

@@ -1,5 +1,5 @@
 // The 3D view's light gizmos (src/gizmos.js): pure geometry, checked
-// without a browser.
+// without a browser, and where the lights' states put them.
 
 import assert from 'node:assert/strict';
 import test from 'node:test';
@@ -13,6 +13,7 @@ import {
   gizmoSize,
   lightGizmos,
   lightsPath,
+  placedLights,
 } from '../src/gizmos.js';
 
 /** A 10 x 4 x 6 room from the origin: diagonal sqrt(152). */
@@ -114,4 +115,29 @@ test('lights that cannot be placed are left out; colours are normalised', () => 
 test('the lights route encodes the scene id as scene.glb does', () => {
   assert.equal(lightsPath('cornell-point'), '/api/scenes/cornell-point/lights');
   assert.equal(lightsPath('a b/é'), '/api/scenes/a%20b%2F%C3%A9/lights');
+});
+
+test('placedLights puts each entry where its state has it, in its colour', () => {
+  const entries = [
+    { name: 'bulb', type: 'point', position: [1, 2, 3], color: [1, 1, 1], intensity: 8 },
+    { name: 'spot', type: 'spot', position: [0, 1, 0], direction: [0, -1, 0], color: [1, 1, 1], intensity: 5, outer_cone_deg: 30 },
+    { name: 'sun', type: 'directional', direction: [0, -1, 0], color: [1, 1, 1], intensity: 700 },
+    { name: 'unknown', type: 'point', position: [4, 4, 4], color: [1, 0, 0], intensity: 1 },
+  ];
+  const state = (position, direction) => ({ on: true, color: [0.5, 0.25, 0], intensity: 1, position, direction });
+  const states = [state([2, 2, 2], [0, 0, 1]), state([3, 1, 0], [1, 0, 0]), state([9, 9, 9], [0.6, -0.8, 0])];
+  const placed = placedLights(entries, states);
+  assert.deepEqual(placed[0], { ...entries[0], position: [2, 2, 2], color: [0.5, 0.25, 0] });
+  assert.equal(placed[0].direction, undefined, 'a point light gets no direction');
+  assert.deepEqual(placed[1].position, [3, 1, 0]);
+  assert.deepEqual(placed[1].direction, [1, 0, 0]);
+  assert.deepEqual(placed[2].direction, [0.6, -0.8, 0]);
+  assert.equal(placed[2].position, undefined, 'a sun gets no position');
+  assert.equal(placed[3], entries[3], 'no state: as the route gives it');
+  assert.equal(entries[0].position[0], 1, 'the entries are not changed');
+  // The gizmos follow: the bulb's cross is centred on its new position.
+  const cross = lightGizmos([placed[0]], bounds);
+  assert.deepEqual(Array.from(cross.slice(0, 3)).map((x, i) => x + cross[FLOATS_PER_VERTEX + i]), [4, 4, 4]);
+  assert.deepEqual(placedLights(undefined, states), []);
+  assert.deepEqual(placedLights(entries, undefined), entries);
 });
