@@ -3,7 +3,8 @@
 //! `server/dashboard/e2e/dashboard.e2e.mjs` driving Debian's headless
 //! Chromium through Playwright against it. The script checks the page's
 //! contracts (no console errors, WebSocket, chart, atlas, 3D view, the
-//! scene's lights as gizmos, dragging the box changes the light) and saves
+//! scene's lights as gizmos, dragging the box changes the light, and on
+//! cornell-point switching and dragging the bulb does too) and saves
 //! screenshots to `target/dashboard-artifacts/`. It runs four times: on a
 //! development server, on a development server of a triangle-mesh scene (a
 //! `.glb`), on one of a scene lit by a point light (`cornell-point`, whose
@@ -128,7 +129,9 @@ fn the_dashboard_works_on_a_mesh_scene() {
 
 /// A scene lit by a point light (`cornell-point`): the page fetches the
 /// scene's lights (`GET /api/scenes/{id}/lights`) and draws them as
-/// gizmos, which its `lights` box hides, besides everything above.
+/// gizmos, which its `lights` box hides; it switches the bulb off and on
+/// in the Lights panel, and drags the bulb's gizmo towards the red wall,
+/// which then brightens against the green one; besides everything above.
 #[test]
 fn the_dashboard_draws_the_scenes_lights() {
     let server = dev_server_on("cornell-point.json", &["--density-scale", "0.5"]);

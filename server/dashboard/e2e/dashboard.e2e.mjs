@@ -24,9 +24,16 @@
 //  7. with `--expect-lights` (a scene lit by its first light alone, such as
 //     cornell-point), unticking that light's box in the Lights panel sends
 //     `SetLight`, a `Lights` message reflects it and the atlas goes dark;
-//     ticking it again brings the atlas back to what it showed.
+//     ticking it again brings the atlas back to what it showed;
+//  8. with `--expect-lights` (that light a point light above the middle of
+//     a room with a `left` and a `right` wall, as cornell-point's), dragging
+//     its gizmo towards the left wall with the mouse moves the light there
+//     (`SetLight`s, then a `Lights` with the page's last position, the
+//     gizmo drawn there) and the lightmap follows: once it settles, the
+//     left wall's radiosity has grown against the right wall's.
 //
-// Screenshots go to the artifacts directory (before and after the move).
+// Screenshots go to the artifacts directory (before and after the move,
+// and before and after the light's drag).
 // Exits 0 if every check passed, 1 otherwise, printing what failed.
 
 import fs from 'node:fs';
@@ -133,21 +140,25 @@ try {
   snap = await snapshot();
   check('the convergence chart gets at least three points', points, `${snap.chartPoints} points`);
 
-  // Let the first solve converge, so that later changes are the move's: the
-  // version must stand still for 2 s (the solver publishes while it shoots).
-  const settled = await waitFor(
-    'the lightmap to settle',
-    () => {
+  // Waits until the lightmap version stands still for 2 s (the solver
+  // publishes while it shoots and while it corrects).
+  const settle = async () => {
+    await page.evaluate(() => {
+      window.__settle = { version: -1, since: 0 };
+    });
+    return waitFor('the lightmap to settle', () => {
       const s = window.lightwire.snapshot();
-      const w = (window.__settle ??= { version: -1, since: 0 });
+      const w = window.__settle;
       if (s.version !== w.version || !s.hasLightmap) {
         w.version = s.version;
         w.since = performance.now();
         return false;
       }
       return performance.now() - w.since > 2000;
-    },
-  );
+    });
+  };
+  // Let the first solve converge, so that later changes are the move's.
+  const settled = await settle();
   snap = await snapshot();
   check('a first lightmap arrives and settles', settled && snap.version > 0, `version ${snap.version}`);
   await page.waitForTimeout(300); // a couple of animation frames
@@ -345,6 +356,55 @@ try {
       `mean atlas brightness ${lit.toFixed(1)} -> off ${dark.toFixed(1)} -> on ${back.toFixed(1)}`,
     );
     await page.locator('#atlas').screenshot({ path: path.join(args.artifacts, 'atlas-light-on-again.png') });
+
+    // 8. Drag the light's gizmo towards the left wall, as a person would.
+    await settle();
+    const walls = () => page.evaluate(() => ({
+      left: window.lightwire.surfaceRadiosity('left'),
+      right: window.lightwire.surfaceRadiosity('right'),
+    }));
+    const before = await walls();
+    await page.locator('#view').screenshot({ path: path.join(args.artifacts, 'view-light-before-drag.png') });
+    snap = await snapshot();
+    const startPosition = snap.lightStates[0].position;
+    const grab = await page.evaluate(() => window.lightwire.lightScreenPoint(0));
+    await page.mouse.move(grab.x, grab.y);
+    await page.mouse.down();
+    for (let k = 1; k <= 12; k++) {
+      await page.mouse.move(grab.x - (80 * k) / 12, grab.y);
+      await page.waitForTimeout(40);
+    }
+    await page.mouse.up();
+    await page.waitForTimeout(100); // the last SetLight leaves after the throttle period
+    snap = await snapshot();
+    const sentSeq = snap.lightSeqsSent[0];
+    const dropped = snap.lightStates[0].position;
+    const movedBy = dropped.map((v, a) => v - startPosition[a]);
+    const gizmo = await page.evaluate(() => window.lightwire.lightScreenPoint(0));
+    check(
+      'dragging the light\'s gizmo moves the light towards the left wall, on its plane',
+      sentSeq !== undefined && movedBy[0] < -0.5 && movedBy[1] === 0 && Math.hypot(gizmo.x - grab.x, gizmo.y - grab.y) > 40,
+      `seq ${sentSeq}, light moved by (${movedBy.map((v) => v.toFixed(2)).join(', ')}) m, gizmo now at (${gizmo.x.toFixed(0)}, ${gizmo.y.toFixed(0)}), was (${grab.x.toFixed(0)}, ${grab.y.toFixed(0)})`,
+    );
+    const followed = await waitFor(
+      'a Lights message with the dragged position',
+      ([seq, position]) => {
+        const l = window.lightwire.snapshot().lights?.lights?.[0];
+        return l !== undefined && Number(l.seq) >= Number(seq) && l.state.position.every((v, a) => Math.abs(v - position[a]) < 1e-4);
+      },
+      [sentSeq, dropped],
+    );
+    const relit = followed && (await settle());
+    await page.waitForTimeout(300); // a redraw
+    const after = await walls();
+    const gain = after.left / after.right / (before.left / before.right);
+    check(
+      'the lightmap follows the dragged light: the left wall brightens against the right',
+      relit && gain > 1.5,
+      `left/right radiosity ${before.left.toFixed(2)}/${before.right.toFixed(2)} -> ${after.left.toFixed(2)}/${after.right.toFixed(2)} (x${gain.toFixed(2)})`,
+    );
+    await page.locator('#view').screenshot({ path: path.join(args.artifacts, 'view-light-dragged.png') });
+    await page.locator('#atlas').screenshot({ path: path.join(args.artifacts, 'atlas-light-dragged.png') });
   }
 
   await page.screenshot({ path: path.join(args.artifacts, 'dashboard-after.png'), fullPage: true });
