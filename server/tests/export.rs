@@ -648,7 +648,8 @@ fn want_name(kind: LightKind) -> &'static str {
 /// channel) comes back from a re-import at its position with its
 /// intensity (through 683 lm/W both ways), and the Khronos validator
 /// accepts the file. `GET /api/scenes` counts the lights, `GET
-/// /api/scenes/{id}/lights` lists them as the scene file gives them, and
+/// /api/scenes/{id}/lights` lists them as the scene file gives them (no
+/// `SetLight` yet: on, seq 0), and
 /// an unknown scene's lights are a 404 that says so.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_served_scene_glb_keeps_the_scenes_lights() {
@@ -695,7 +696,9 @@ async fn the_served_scene_glb_keeps_the_scenes_lights() {
                 "type": "point",
                 "position": [2.78, 4.488, 2.796],
                 "color": [1.0, 1.0, 1.0],
-                "intensity": 8.0
+                "intensity": 8.0,
+                "on": true,
+                "seq": 0
             }],
             "sky": null
         })

@@ -325,3 +325,219 @@ async fn hostile_light_messages_get_their_errors_and_disturb_no_one() {
     watcher.pump(Duration::from_secs(1)).await;
     assert!(watcher.errors.is_empty(), "{:?}", watcher.errors);
 }
+
+/// The brightest channel of any texel.
+fn brightest(rgb: &[[f32; 3]]) -> f32 {
+    rgb.iter()
+        .map(|c| c[0].max(c[1]).max(c[2]))
+        .fold(0.0, f32::max)
+}
+
+/// The JSON chunk of a GLB file (`scene.glb`).
+fn glb_json(glb: &[u8]) -> serde_json::Value {
+    let word = |at: usize| {
+        let bytes: [u8; 4] = glb
+            .get(at..at + 4)
+            .and_then(|b| b.try_into().ok())
+            .expect("a GLB header");
+        u32::from_le_bytes(bytes) as usize
+    };
+    assert_eq!(&glb[..4], b"glTF", "a GLB file");
+    let length = word(12);
+    serde_json::from_slice(&glb[20..20 + length]).expect("the GLB's JSON chunk")
+}
+
+/// What a newcomer is told is the lights as they are now (issue 60): after
+/// a driver switched the bulb off, a viewer that connects later, without
+/// asking for `Lights`, is welcomed with the bulb off, and the first
+/// lightmap it gets is dark; one that asks is told seq 1 too. `GET
+/// /api/scenes/{id}` (what `Welcome` carries), `GET .../lights` (off,
+/// seq 1, its colour and intensity as when on) and `scene.glb` (the bulb's
+/// `KHR_lights_punctual` intensity 0) say the same; switched on again, the
+/// next newcomer is welcomed with it on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_newcomer_is_told_the_lights_as_they_are_now() {
+    let server = serve("reference");
+    server.ready().await;
+    let url = server
+        .url("/ws/scenes/cornell-point")
+        .replacen("http", "ws", 1);
+    let mut watcher = Peer::connect_asking_lights(&url, VIEWER_TOKEN).await;
+    let bulb = watcher.scene.clone().expect("welcomed").lights[0].clone();
+    assert!(bulb.state.on, "the scene file's bulb is on: {bulb:?}");
+    settle(&server, &mut [&mut watcher], 0).await;
+    let lit = brightest(&rgb(&watcher));
+    assert!(lit > 0.1, "the bulb lights the room: {lit}");
+
+    let mut driver = Peer::connect(&url, DRIVER_TOKEN).await;
+    let off = LightState {
+        on: false,
+        ..bulb.state
+    };
+    driver.set_light(0, 1, off).await;
+    settle(&server, &mut [&mut watcher], 1).await;
+    assert!(driver.errors.is_empty(), "{:?}", driver.errors);
+
+    // A newcomer that does not ask for Lights: told off, and its first
+    // lightmap is dark.
+    let mut late = Peer::connect(&url, VIEWER_TOKEN).await;
+    let told = late.scene.clone().expect("welcomed").lights[0].state;
+    assert_eq!(told, off, "the Welcome tells the bulb as it is now");
+    late.read_until(Duration::from_secs(30), "a keyframe", |p| p.keyframes > 0)
+        .await;
+    assert_eq!(late.applied.first().map(|a| a.1), Some(true));
+    let first = brightest(&rgb(&late));
+    assert!(
+        first < 0.01 * lit,
+        "the first lightmap of a newcomer told \"off\" holds {first} of {lit}"
+    );
+    // One that asks is told the seq as well, before that lightmap.
+    let mut asking = Peer::connect_asking_lights(&url, VIEWER_TOKEN).await;
+    assert_eq!(asking.scene.clone().expect("welcomed").lights[0].state, off);
+    asking
+        .read_until(Duration::from_secs(30), "a keyframe", |p| p.keyframes > 0)
+        .await;
+    let (_, shown) = asking.lights.first().cloned().expect("Lights first");
+    assert_eq!((shown[0].seq, shown[0].state), (1, off));
+
+    // REST says the same.
+    let info = http::get(
+        &server.addr,
+        "/api/scenes/cornell-point",
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(info.status, 200, "{}", info.text());
+    assert_eq!(
+        info.json()["lights"][0]["state"]["on"],
+        false,
+        "{}",
+        info.text()
+    );
+    let listed = http::get(
+        &server.addr,
+        "/api/scenes/cornell-point/lights",
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(listed.status, 200, "{}", listed.text());
+    let entry = &listed.json()["lights"][0];
+    assert_eq!(
+        (
+            &entry["name"],
+            &entry["on"],
+            &entry["seq"],
+            &entry["intensity"]
+        ),
+        (&"bulb".into(), &false.into(), &1.into(), &8.0.into()),
+        "{entry}"
+    );
+    let glb = http::get(
+        &server.addr,
+        "/api/scenes/cornell-point/scene.glb",
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(glb.status, 200, "{}", glb.text());
+    let doc = glb_json(&glb.body);
+    let punctual = &doc["extensions"]["KHR_lights_punctual"]["lights"];
+    assert_eq!(punctual[0]["name"], "bulb", "{punctual}");
+    assert_eq!(punctual[0]["intensity"].as_f64(), Some(0.0), "{punctual}");
+
+    // On again: the next newcomer is told so.
+    driver.set_light(0, 2, bulb.state).await;
+    settle(&server, &mut [&mut watcher], 2).await;
+    let again = Peer::connect(&url, VIEWER_TOKEN).await;
+    assert_eq!(
+        again.scene.clone().expect("welcomed").lights[0].state,
+        bulb.state
+    );
+    let listed = http::get(
+        &server.addr,
+        "/api/scenes/cornell-point/lights",
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    assert_eq!(listed.json()["lights"][0]["on"], true, "{}", listed.text());
+}
+
+/// A relay forwards lights (issue 60): it announces `CAP_LIGHTS` as its
+/// upstream does; a driver on the relay switches the bulb off, and a
+/// viewer on the solver and one on the relay are both told (`Lights`,
+/// seq 1) and both see the room go dark; a newcomer on the relay is
+/// welcomed with the bulb off; a viewer on the relay may still not set
+/// lights.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driver_on_a_relay_switches_a_light_for_viewers_on_both() {
+    let server = serve("reference");
+    server.ready().await;
+    let relay = lightwire!().relay_of(&server.addr, "cornell-point", &[]);
+    relay.ready().await;
+    let ws = |p: &Proc| p.url("/ws/scenes/cornell-point").replacen("http", "ws", 1);
+    let mut direct = Peer::connect_asking_lights(&ws(&server), VIEWER_TOKEN).await;
+    let mut relayed = Peer::connect_asking_lights(&ws(&relay), VIEWER_TOKEN).await;
+    assert_ne!(
+        relayed.capabilities & CAP_LIGHTS,
+        0,
+        "a relay of a solver follows lights"
+    );
+    let bulb = relayed.scene.clone().expect("welcomed").lights[0].clone();
+    assert!(bulb.state.on, "{bulb:?}");
+    for peer in [&mut direct, &mut relayed] {
+        peer.read_until(Duration::from_secs(60), "a lit room", |p| {
+            p.keyframes > 0 && brightest(&rgb(p)) > 0.1
+        })
+        .await;
+    }
+    let lit = brightest(&rgb(&relayed));
+    let (_, shown) = relayed
+        .lights
+        .first()
+        .cloned()
+        .expect("Lights via the relay");
+    assert_eq!((shown[0].seq, shown[0].state), (0, bulb.state));
+
+    let mut driver = Peer::connect(&ws(&relay), DRIVER_TOKEN).await;
+    let off = LightState {
+        on: false,
+        ..bulb.state
+    };
+    driver.set_light(0, 1, off).await;
+    for (peer, name) in [
+        (&mut direct, "on the solver"),
+        (&mut relayed, "on the relay"),
+    ] {
+        peer.read_until(Duration::from_secs(60), "the bulb off", |p| {
+            p.lights.last().is_some_and(|(_, l)| l[0].seq == 1)
+                && p.map
+                    .as_ref()
+                    .is_some_and(|m| m.version >= p.lights.last().map_or(0, |l| l.0))
+                && brightest(&rgb(p)) < 0.01 * lit
+        })
+        .await;
+        let (_, shown) = peer.lights.last().cloned().expect("Lights");
+        assert_eq!((shown[0].seq, shown[0].state), (1, off), "{name}");
+    }
+    assert!(driver.errors.is_empty(), "{:?}", driver.errors);
+
+    let late = Peer::connect(&ws(&relay), VIEWER_TOKEN).await;
+    assert_eq!(
+        late.scene.clone().expect("welcomed").lights[0].state,
+        off,
+        "a newcomer on the relay is told the bulb is off"
+    );
+    let mut viewer = Peer::connect(&ws(&relay), VIEWER_TOKEN).await;
+    viewer.set_light(0, 2, bulb.state).await;
+    viewer
+        .read_until(Duration::from_secs(10), "Forbidden", |p| {
+            !p.errors.is_empty()
+        })
+        .await;
+    assert_eq!(
+        viewer.errors[0].0,
+        ErrorCode::Forbidden,
+        "{:?}",
+        viewer.errors
+    );
+    assert!(relayed.errors.is_empty() && direct.errors.is_empty());
+}

@@ -194,12 +194,19 @@ impl Lightwire {
 
     /// [`Lightwire::relay`] with extra environment.
     pub fn relay_with(&self, upstream: &str, env: &[(&str, String)]) -> Proc {
+        self.relay_of(upstream, SCENE, env)
+    }
+
+    /// A relay of scene `scene` of the solver at `upstream` (`HOST:PORT`),
+    /// presenting the driver token, with the three tokens of its own and
+    /// extra environment `env`.
+    pub fn relay_of(&self, upstream: &str, scene: &str, env: &[(&str, String)]) -> Proc {
         let args = [
             "relay",
             "--listen",
             "127.0.0.1:0",
             "--upstream",
-            &format!("ws://{upstream}/ws/scenes/{SCENE}"),
+            &format!("ws://{upstream}/ws/scenes/{scene}"),
         ];
         let env: Vec<(&str, String)> = [
             ("LIGHTWIRE_TOKENS", tokens()),

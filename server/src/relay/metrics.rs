@@ -21,6 +21,7 @@ pub struct RelayMetrics {
     pub upstream_resyncs: Counter,
     pub upstream_errors: Counter,
     pub transforms_forwarded: Counter,
+    pub lights_forwarded: Counter,
 }
 
 impl RelayMetrics {
@@ -38,6 +39,7 @@ impl RelayMetrics {
             upstream_resyncs: "Resyncs the relay asked of its upstreams",
             upstream_errors: "Error frames received from upstreams (answers to forwarded transforms)",
             transforms_forwarded: "Driver transforms forwarded upstream (after coalescing)",
+            lights_forwarded: "Driver light states (SetLight) forwarded upstream (after coalescing)",
         }
     }
 }

@@ -28,7 +28,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use lightwire_protocol::lightmap::{ApplyError, Lightmap};
-use lightwire_protocol::{Delta, Keyframe, ObjectPose, ObjectSeq, SceneInfo};
+use lightwire_protocol::{Delta, Keyframe, LightStatus, ObjectPose, ObjectSeq, SceneInfo};
 
 /// Why an upstream frame was not taken.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -74,6 +74,9 @@ pub struct Mirror {
     /// `Poses` gave them (empty until it sends any), published with the
     /// next relay version.
     pub poses: Arc<[ObjectPose]>,
+    /// The same for the lights' states, as the upstream's `Lights` gave
+    /// them (empty until it sends any: an upstream without `CAP_LIGHTS`).
+    pub lights: Arc<[LightStatus]>,
 }
 
 impl Mirror {
@@ -91,7 +94,31 @@ impl Mirror {
             upstream: None,
             fresh: true,
             poses: Arc::default(),
+            lights: Arc::default(),
         })
+    }
+
+    /// Takes the upstream's `Lights`: every entry must name a light of the
+    /// description, once, with a valid state (else nothing changes).
+    pub fn on_lights(&mut self, lights: Vec<LightStatus>) -> Result<(), String> {
+        let mut seen = vec![false; self.info.lights.len()];
+        for l in &lights {
+            match seen.get_mut(l.light as usize) {
+                Some(s) if !*s => *s = true,
+                Some(_) => return Err(format!("Lights names light {} twice", l.light)),
+                None => {
+                    return Err(format!(
+                        "Lights names light {}, not a light of the description",
+                        l.light
+                    ));
+                }
+            }
+            l.state
+                .validate()
+                .map_err(|why| format!("Lights: light {}: {why}", l.light))?;
+        }
+        self.lights = lights.into();
+        Ok(())
     }
 
     /// Takes the upstream's `Poses`: every entry must name a dynamic object

@@ -24,9 +24,12 @@
 //!    [`crate::service::feed::Feed`]: handshake, tokens and roles, limits,
 //!    and "delta onto the exact base, merged delta a few versions behind,
 //!    else keyframe" are the solver's rules, not a copy of them.
-//! 4. Drivers' transforms are checked by the session (role, object, pose,
-//!    seq, rate), wait in the feed's inbox and are forwarded upstream by the
-//!    upstream task, paced and coalesced per object.
+//! 4. Drivers' transforms and light states are checked by the session
+//!    (role, object or light, pose or state, seq, rate), wait in the feed's
+//!    inbox and are forwarded upstream by the upstream task, paced and
+//!    coalesced per object and per light; the upstream's `Poses` and
+//!    `Lights` go to the viewers that ask, and the relay announces
+//!    `CAP_LIGHTS` while its upstream does.
 //!
 //! When an upstream goes away the feed keeps its newest publication: the
 //! relay keeps serving the last version (and stays ready), reconnects with

@@ -4,10 +4,13 @@
 //! One task per upstream runs [`run`]: connect, `Hello` with the relay's
 //! upstream token, `Welcome`, then read frames for as long as the
 //! connection lives, turning each into relay versions through the
-//! [`Mirror`] and publishing them to the relay's sessions. Transforms the
-//! relay's drivers sent wait in the feed's inbox (one slot per object,
-//! latest seq wins) and are forwarded, paced to
-//! [`UPSTREAM_TRANSFORMS_PER_SECOND`].
+//! [`Mirror`] and publishing them to the relay's sessions, with the
+//! upstream's `Poses` and `Lights` (it asks for both). Transforms and light
+//! states the relay's drivers sent wait in the feed's inbox (one slot per
+//! object and per light, latest seq wins) and are forwarded, paced to
+//! [`UPSTREAM_TRANSFORMS_PER_SECOND`] messages together. The relay follows
+//! lights (announces `CAP_LIGHTS`, takes `SetLight`) while its upstream
+//! does.
 //!
 //! When the connection ends (closed, an error, or silence longer than
 //! [`SILENCE`]: a solver sends `Stats` every 250 ms) the feed keeps its
@@ -30,8 +33,8 @@ use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::backoff::{Backoff, BackoffPolicy};
 use lightwire_protocol::unix_micros;
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, HELLO_POSES, MAX_FRAME_BYTES, PROTOCOL_VERSION, SceneInfo,
-    ServerMessage, Stats, decode_server, encode_client,
+    CAP_LIGHTS, ClientMessage, ErrorCode, HELLO_LIGHTS, HELLO_POSES, MAX_FRAME_BYTES,
+    PROTOCOL_VERSION, SceneInfo, ServerMessage, Stats, decode_server, encode_client,
 };
 use tokio::net::TcpStream;
 use tokio::sync::watch;
@@ -45,11 +48,13 @@ use crate::service::auth::may_drive;
 use crate::service::feed::Feed;
 use crate::service::metrics::Metrics;
 use crate::service::publication::Publisher;
+use crate::service::wire::same_description;
 
-/// Transforms forwarded per second and upstream, at most. Below the
-/// solver's default per-connection limit (120/s, bursts of 240), so a
-/// relay never trips it however many drivers it has: poses that arrive
-/// faster are coalesced per object (latest seq wins).
+/// Transforms and light states forwarded per second and upstream, at
+/// most, together. Below the solver's default per-connection limit (120/s,
+/// bursts of 240, counting both), so a relay never trips it however many
+/// drivers it has: poses and states that arrive faster are coalesced per
+/// object and per light (latest seq wins).
 pub const UPSTREAM_TRANSFORMS_PER_SECOND: f64 = 100.0;
 /// A connection that delivers nothing for this long is presumed dead.
 pub const SILENCE: Duration = Duration::from_secs(5);
@@ -198,10 +203,12 @@ impl Upstream {
         let mirror = mirror
             .as_mut()
             .ok_or_else(|| anyhow!("no mirror for the upstream scene"))?;
-        // Poses are per connection: this upstream sends its own before its
-        // first lightmap, or none (one without CAP_POSES); never publish
-        // the previous connection's with its versions.
+        // Poses and light states are per connection: this upstream sends
+        // its own before its first lightmap, or none (one without CAP_POSES
+        // or CAP_LIGHTS); never publish the previous connection's with its
+        // versions.
         mirror.poses = Arc::default();
+        mirror.lights = Arc::default();
         self.status.connected.store(true, Ordering::Relaxed);
         self.relay_metrics.upstreams_connected.inc();
         self.status.connects.fetch_add(1, Ordering::Relaxed);
@@ -245,10 +252,13 @@ impl Upstream {
                 }
                 _ = sleep_until(due) , if due.is_some() => {
                     forward_due = None;
-                    if let Err(why) = self.forward(&mut ws).await {
-                        return lost(why, link.synced);
-                    }
-                    next_forward = Instant::now() + pace;
+                    let sent = match self.forward(&mut ws).await {
+                        Ok(sent) => sent,
+                        Err(why) => return lost(why, link.synced),
+                    };
+                    // The pace counts messages: a batch of several (objects
+                    // and lights) waits for all of them.
+                    next_forward = Instant::now() + pace * sent.max(1);
                 }
             }
         }
@@ -276,13 +286,14 @@ impl Upstream {
             protocol_version: PROTOCOL_VERSION,
             client: concat!("lightwire-relay/", env!("CARGO_PKG_VERSION")).to_string(),
             token: self.token.clone(),
-            // The dynamic objects' poses, for the relay's viewers that ask.
-            capabilities: HELLO_POSES,
+            // The dynamic objects' poses and the lights' states, for the
+            // relay's viewers that ask.
+            capabilities: HELLO_POSES | HELLO_LIGHTS,
         };
         ws.send(Message::Binary(encode_client(&hello).into()))
             .await
             .context("sending Hello")?;
-        let (role, scene) = tokio::time::timeout(HANDSHAKE_TIMEOUT, welcome(&mut ws))
+        let (role, capabilities, scene) = tokio::time::timeout(HANDSHAKE_TIMEOUT, welcome(&mut ws))
             .await
             .map_err(|_| anyhow!("no Welcome within {HANDSHAKE_TIMEOUT:?}"))??;
         if scene.id != self.url.scene {
@@ -299,10 +310,21 @@ impl Upstream {
             .lock()
             .unwrap_or_else(|p| p.into_inner()) = (!may_drive(role)).then(|| {
             format!(
-                "this relay's upstream token grants the {role:?} role: it cannot forward transforms"
+                "this relay's upstream token grants the {role:?} role: it cannot forward transforms or light states"
             )
         });
-        if !mirror.as_ref().is_some_and(|m| *m.info == scene) {
+        // The relay follows lights while its upstream does: it forwards
+        // `SetLight`s and passes the upstream's `Lights` on.
+        self.feed
+            .follows_lights
+            .store(capabilities & CAP_LIGHTS != 0, Ordering::Relaxed);
+        // The lights' states in a `Welcome` are the upstream's now, which
+        // drivers change without changing the scene: a reconnect to a
+        // scene whose lights only changed state keeps the mirror.
+        if !mirror
+            .as_ref()
+            .is_some_and(|m| same_description(&m.info, &scene))
+        {
             // A new description (or the first): start a new mirror; relay
             // versions continue after the newest published one. The feed
             // switches description with the first publication.
@@ -433,17 +455,23 @@ impl Upstream {
                 }
                 None
             }
-            // The relay does not ask for lights (no `HELLO_LIGHTS`): an
-            // upstream that sends them anyway is ignored, not fatal.
-            ServerMessage::Lights { .. } => None,
+            ServerMessage::Lights { lights, .. } => {
+                if let Err(e) = mirror.on_lights(lights) {
+                    tracing::warn!(upstream = %self.url.url, "upstream Lights refused: {e}");
+                    link.bad_frame(&self.relay_metrics, Some(&e))?;
+                }
+                None
+            }
             ServerMessage::Welcome { .. } => {
                 return Err("a second Welcome from upstream".into());
             }
         })
     }
 
-    /// Forwards the drivers' latest transforms upstream.
-    async fn forward(&mut self, ws: &mut Ws) -> Result<(), String> {
+    /// Forwards the drivers' latest transforms and light states upstream;
+    /// how many messages went.
+    async fn forward(&mut self, ws: &mut Ws) -> Result<u32, String> {
+        let mut sent = 0;
         for (object, pending) in self.feed.inbox.drain() {
             let transform = ClientMessage::Transform {
                 object: object as u32,
@@ -455,8 +483,22 @@ impl Upstream {
                 .await
                 .map_err(|e| format!("forwarding a transform: {e}"))?;
             self.relay_metrics.transforms_forwarded.inc();
+            sent += 1;
         }
-        Ok(())
+        for (light, pending) in self.feed.inbox.drain_lights() {
+            let set = ClientMessage::SetLight {
+                light: light as u32,
+                seq: pending.seq,
+                state: pending.state,
+                client_time_us: unix_micros(),
+            };
+            ws.send(Message::Binary(encode_client(&set).into()))
+                .await
+                .map_err(|e| format!("forwarding a light state: {e}"))?;
+            self.relay_metrics.lights_forwarded.inc();
+            sent += 1;
+        }
+        Ok(sent)
     }
 
     fn status_version(&self) -> Option<u64> {
@@ -473,14 +515,16 @@ impl Upstream {
             // First version of a (new) description: welcome new clients
             // with it; sessions welcomed with the old one close on this
             // publication and their clients reconnect.
-            self.feed.inbox.reset(mirror.info.objects.len());
+            self.feed
+                .inbox
+                .reset(mirror.info.objects.len(), mirror.info.lights.len());
             self.feed.info.send_replace(Some(mirror.info.clone()));
         }
-        self.publisher.publish(
+        self.publisher.publish_lit(
             mirror.info.clone(),
             p.keyframe,
             p.delta,
-            mirror.poses.clone(),
+            (mirror.poses.clone(), mirror.lights.clone()),
         );
         self.metrics.versions_published.inc();
         self.feed.ready.store(true, Ordering::Release);
@@ -524,8 +568,8 @@ impl Link {
     }
 }
 
-/// Reads the upstream's answer to `Hello`.
-async fn welcome(ws: &mut Ws) -> Result<(lightwire_protocol::Role, SceneInfo)> {
+/// Reads the upstream's answer to `Hello`: role, capabilities, scene.
+async fn welcome(ws: &mut Ws) -> Result<(lightwire_protocol::Role, u32, SceneInfo)> {
     loop {
         match ws.next().await {
             Some(Ok(Message::Binary(bytes))) => {
@@ -533,9 +577,10 @@ async fn welcome(ws: &mut Ws) -> Result<(lightwire_protocol::Role, SceneInfo)> {
                     ServerMessage::Welcome {
                         protocol_version,
                         role,
+                        capabilities,
                         scene,
                         ..
-                    } if protocol_version == PROTOCOL_VERSION => Ok((role, scene)),
+                    } if protocol_version == PROTOCOL_VERSION => Ok((role, capabilities, scene)),
                     ServerMessage::Welcome {
                         protocol_version, ..
                     } => bail!(

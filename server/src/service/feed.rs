@@ -73,9 +73,11 @@ pub struct Feed {
     /// upstream token grants only the viewer role cannot forward them, and
     /// says so to its drivers instead of accepting poses that go nowhere.
     pub transforms_refused: Mutex<Option<String>>,
-    /// Whether drivers' `SetLight`s are followed (a solver's scene) and
-    /// the lights' states published (`Lights`); a relay does not forward
-    /// lights, so it refuses them and does not announce `CAP_LIGHTS`.
+    /// Whether drivers' `SetLight`s are followed and the lights' states
+    /// published (`Lights`, `CAP_LIGHTS`): always on a solver's scene; on
+    /// a relay while its upstream announces `CAP_LIGHTS` (it forwards them
+    /// and passes the upstream's `Lights` on). Without it `SetLight` is
+    /// refused with `Forbidden`.
     pub follows_lights: AtomicBool,
 }
 

@@ -329,8 +329,13 @@ async fn scene_info<S: Scenes>(State(scenes): State<Arc<S>>, Path(id): Path<Stri
         Ok(feed) => feed,
         Err(r) => return *r,
     };
+    // What a `Welcome` would carry now: the lights in the states the
+    // newest version was lit with.
     match feed.info() {
-        Some(info) => axum::Json(&*info).into_response(),
+        Some(info) => match feed.latest().filter(|p| Arc::ptr_eq(&p.scene, &info)) {
+            Some(p) => axum::Json(super::wire::lit_info(&info, &p.lights)).into_response(),
+            None => axum::Json(&*info).into_response(),
+        },
         None => not_available(&id),
     }
 }
@@ -342,6 +347,9 @@ struct Snapshot {
     /// The dynamic objects' poses the version was lit for (empty when
     /// unknown: a relay whose upstream sends none).
     poses: Arc<[lightwire_protocol::ObjectPose]>,
+    /// The lights' states the version was lit with (empty when unknown:
+    /// a relay whose upstream sends none).
+    lights: Arc<[lightwire_protocol::LightStatus]>,
     width: u32,
     height: u32,
     version: u64,
@@ -367,6 +375,7 @@ fn current_rgb(feed: &Feed) -> Result<Snapshot, String> {
     Ok(Snapshot {
         info,
         poses: p.poses.clone(),
+        lights: p.lights.clone(),
         width: map.width,
         height: map.height,
         version: p.version,
@@ -408,6 +417,7 @@ async fn lightmap_file<S: Scenes>(
         let Snapshot {
             info,
             poses,
+            lights,
             width: w,
             height: h,
             version,
@@ -422,11 +432,16 @@ async fn lightmap_file<S: Scenes>(
                     o.pose = p.pose;
                 }
             }
-            let lit = match &runtime {
-                Some(r) => (r.scene.lights.as_slice(), r.scene.sky.as_ref()),
-                None => (&[][..], None),
+            // The lights as this version was lit with them (the states
+            // `SetLight`s gave them), not as the scene file has them.
+            let (now, sky) = match &runtime {
+                Some(r) => (
+                    super::wire::lights_now(&r.scene.lights, &lights),
+                    r.scene.sky.as_ref(),
+                ),
+                None => (Vec::new(), None),
             };
-            let glb = crate::bake::scene_glb_lit(&posed, &rgb, Some(version), lit)
+            let glb = crate::bake::scene_glb_lit(&posed, &rgb, Some(version), (&now, sky))
                 .map_err(|e| format!("{e:#}"))?;
             return Ok((version, glb));
         };
@@ -590,14 +605,21 @@ async fn uv_lightmap_file<S: Scenes>(
 pub const LIGHTS: &str = "lights";
 
 /// `GET /api/scenes/{id}/lights`: the scene's point, spot and directional
-/// lights and its sky as a scene file gives them (`super::lights`); 404 on
-/// a relay, which holds only the description clients get.
+/// lights, in the states the newest version was lit with, and its sky, as
+/// a scene file gives them (`super::lights`); 404 on a relay, which holds
+/// only the description clients get.
 fn light_list<S: Scenes>(scenes: &S, id: &str) -> Response {
     if let Err(r) = feed_of(scenes, id) {
         return *r;
     }
     match scenes.geometry(id) {
-        Some(runtime) => axum::Json(super::lights::scene_lights(&runtime.scene)).into_response(),
+        Some(runtime) => {
+            let lit = runtime
+                .latest()
+                .map(|p| p.lights.clone())
+                .unwrap_or_default();
+            axum::Json(super::lights::lights_as_lit(&runtime.scene, &lit)).into_response()
+        }
         None => not_found(format!(
             "this server holds no lights of \"{id}\" (a relay): ask the solver for them"
         )),

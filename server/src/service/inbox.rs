@@ -1,7 +1,6 @@
 //! Transforms and light states accepted from drivers, waiting for whoever
-//! consumes them: the tick thread of `lightwire serve`, or (transforms
-//! only) the upstream connection of `lightwire relay`, which forwards them
-//! to its solver.
+//! consumes them: the tick thread of `lightwire serve`, or the upstream
+//! connection of `lightwire relay`, which forwards them to its solver.
 
 use std::sync::{Condvar, Mutex};
 use std::time::Instant;
@@ -32,7 +31,8 @@ pub struct PendingLight {
 /// one state per light however fast drivers send.
 pub struct Inbox {
     slots: Mutex<Slots>,
-    /// Wakes an async consumer (the relay) when a pose arrives.
+    /// Wakes an async consumer (the relay) when a pose or light state
+    /// arrives.
     arrived: Notify,
     /// Wakes the tick thread waiting between ticks
     /// ([`Inbox::wait_until`]) when a pose arrives.
@@ -86,14 +86,15 @@ impl Inbox {
         }
     }
 
-    /// Forgets everything and sizes the inbox for `objects` objects (a
-    /// relay whose upstream now serves a different scene description).
-    pub fn reset(&self, objects: usize) {
+    /// Forgets everything and sizes the inbox for `objects` objects and
+    /// `lights` lights (a relay whose upstream now serves a different
+    /// scene description).
+    pub fn reset(&self, objects: usize, lights: usize) {
         let mut slots = self.slots.lock().unwrap_or_else(|p| p.into_inner());
         slots.pending = vec![None; objects];
         slots.accepted = vec![0; objects];
-        slots.lights.clear();
-        slots.lights_accepted.clear();
+        slots.lights = vec![None; lights];
+        slots.lights_accepted = vec![0; lights];
         slots.fresh = false;
     }
 
@@ -129,6 +130,7 @@ impl Inbox {
         slots.fresh = true;
         drop(slots);
         self.offered.notify_all();
+        self.arrived.notify_one();
         Offer::Accepted
     }
 
@@ -175,7 +177,7 @@ impl Inbox {
         true
     }
 
-    /// Resolves when a pose was offered since the last call (a permit is
+    /// Resolves when a pose or light state was offered since the last call (a permit is
     /// stored if none was waiting, so no arrival is missed).
     pub async fn arrived(&self) {
         self.arrived.notified().await;
@@ -274,7 +276,19 @@ mod tests {
     fn an_index_beyond_the_objects_is_refused_not_a_panic() {
         let inbox = Inbox::new(1);
         assert_eq!(inbox.offer(3, 1, pose()), Offer::UnknownObject);
-        inbox.reset(4);
+        let state = LightState {
+            on: true,
+            color: [1.0; 3],
+            intensity: 1.0,
+            position: [0.0; 3],
+            direction: [0.0, -1.0, 0.0],
+        };
+        assert_eq!(inbox.offer_light(0, 1, state), Offer::UnknownObject);
+        // A relay's inbox is sized by its upstream's description, lights
+        // too (it forwards them).
+        inbox.reset(4, 1);
         assert_eq!(inbox.offer(3, 1, pose()), Offer::Accepted);
+        assert_eq!(inbox.offer_light(0, 1, state), Offer::Accepted);
+        assert_eq!(inbox.offer_light(1, 1, state), Offer::UnknownObject);
     }
 }

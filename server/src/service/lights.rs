@@ -1,8 +1,14 @@
 //! `GET /api/scenes/{id}/lights`: a scene's point, spot and directional
 //! lights and its sky, as a scene file writes them (`scenes/README.md`,
 //! `"lights"` and `"sky"`), for what draws them (the dashboard's gizmos,
-//! `gizmos.js`). The wire's `SceneInfo` does not carry them; a relay, which
-//! holds only that, has none to give.
+//! `gizmos.js`). The wire's `SceneInfo` does not carry the sky; a relay,
+//! which holds only that, has none to give.
+//!
+//! The route lists the lights as the newest published version was lit
+//! with them ([`lights_as_lit`]: the states drivers' `SetLight`s gave
+//! them, as `Lights` tells), each with `on` and the `seq` of the
+//! `SetLight` that set it (0: the scene file's state); an off light keeps
+//! the colour and intensity it has when switched on.
 //!
 //! Each light has only the keys of its type, in the scene file's units:
 //! its colour is the channels over the largest and its intensity the
@@ -11,6 +17,7 @@
 //! unit; cones and a sun's disc are in degrees. Pasted into a scene file,
 //! the list gives the same lights again.
 
+use lightwire_protocol::{LightState, LightStatus};
 use lightwire_scene::{Light, LightKind, Scene, Sky};
 use serde::Serialize;
 
@@ -51,6 +58,14 @@ pub struct LightEntry {
     /// A directional light's disc, degrees across.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub angular_diameter_deg: Option<f32>,
+    /// Whether the light is on ([`lights_as_lit`] only; a scene file has
+    /// no such key, its black lights are off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub on: Option<bool>,
+    /// The seq of the `SetLight` that set this state, 0 for the scene
+    /// file's ([`lights_as_lit`] only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seq: Option<u64>,
 }
 
 /// The sky: radiance (W/(m² sr) per channel) at the zenith and the
@@ -67,6 +82,42 @@ pub struct SkyEntry {
 pub fn scene_lights(scene: &Scene) -> SceneLights {
     SceneLights {
         lights: scene.lights.iter().map(light_entry).collect(),
+        sky: scene.sky.as_ref().map(sky_entry),
+    }
+}
+
+/// `scene`'s lights in the states `lit` gives them (a publication's
+/// `Lights`; a light it does not list is as the scene file has it, seq 0),
+/// and its sky.
+pub fn lights_as_lit(scene: &Scene, lit: &[LightStatus]) -> SceneLights {
+    let lights = scene
+        .lights
+        .iter()
+        .enumerate()
+        .map(
+            |(k, base)| match lit.iter().find(|s| s.light as usize == k) {
+                Some(s) => {
+                    // Its colour and intensity as when on, and whether it is.
+                    let shining = LightState {
+                        on: true,
+                        ..s.state
+                    };
+                    let mut entry = light_entry(&super::wire::light_from_wire(base, &shining));
+                    entry.on = Some(s.state.on);
+                    entry.seq = Some(s.seq);
+                    entry
+                }
+                None => {
+                    let mut entry = light_entry(base);
+                    entry.on = Some(base.intensity.max_element() > 0.0);
+                    entry.seq = Some(0);
+                    entry
+                }
+            },
+        )
+        .collect();
+    SceneLights {
+        lights,
         sky: scene.sky.as_ref().map(sky_entry),
     }
 }
@@ -90,6 +141,8 @@ pub fn light_entry(light: &Light) -> LightEntry {
         inner_cone_deg: None,
         outer_cone_deg: None,
         angular_diameter_deg: None,
+        on: None,
+        seq: None,
     };
     match light.kind {
         LightKind::Point => {}
@@ -211,6 +264,54 @@ mod tests {
         }
         let (sky, want) = (again.sky.expect("a sky"), scene.sky.expect("a sky"));
         assert!(close(sky.zenith, want.zenith) && close(sky.horizon, want.horizon));
+    }
+
+    /// A light switched off and moved by a `SetLight` is listed where it
+    /// is now, off, with its seq; one no status names is the file's.
+    #[test]
+    fn the_lights_are_listed_as_the_newest_version_was_lit() {
+        let scene = plate(
+            r#"[
+              { "name": "bulb", "type": "point", "position": [0.4, 0.9, 1.1], "color": [1, 0.8, 0.6], "intensity": 5 },
+              { "name": "sun", "type": "directional", "direction": [0, -1, 0], "intensity": 700 }
+            ]"#,
+            "null",
+        );
+        let described = crate::bake::light_info(&scene.lights[0]).state;
+        let moved = LightState {
+            on: false,
+            position: [0.1, 0.5, 0.2],
+            intensity: 2.0,
+            ..described
+        };
+        let lit = [LightStatus {
+            light: 0,
+            seq: 9,
+            state: moved,
+        }];
+        let served = serde_json::to_value(lights_as_lit(&scene, &lit)).expect("JSON");
+        let bulb = &served["lights"][0];
+        assert_eq!(bulb["on"], false, "{bulb}");
+        assert_eq!(bulb["seq"], 9);
+        assert_eq!(bulb["intensity"], 2.0, "as when on: {bulb}");
+        let at: Vec<f64> = (0..3)
+            .map(|i| bulb["position"][i].as_f64().expect("a number"))
+            .collect();
+        assert!(
+            (at[0] - 0.1).abs() < 1e-6 && (at[1] - 0.5).abs() < 1e-6,
+            "{bulb}"
+        );
+        let sun = &served["lights"][1];
+        assert_eq!(
+            (&sun["on"], &sun["seq"]),
+            (&true.into(), &0.into()),
+            "{sun}"
+        );
+        let file = serde_json::to_value(scene_lights(&scene)).expect("JSON");
+        assert!(
+            file["lights"][0].get("on").is_none(),
+            "a scene file has no on"
+        );
     }
 
     #[test]

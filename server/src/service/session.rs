@@ -3,6 +3,9 @@
 //! Order on the wire: the client sends `Hello` (within the hello timeout);
 //! the server answers `Welcome`, then a `Keyframe` as soon as a version
 //! exists, then a `Delta` per version for as long as the client keeps up.
+//! The `Welcome` tells the lights' states of the newest publication, and
+//! that publication's lightmap is the first the client gets, so what a
+//! newcomer is told is what its first lightmap shows (PROTOCOL.md §3).
 //!
 //! Two halves run concurrently:
 //!
@@ -39,9 +42,9 @@ use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use lightwire_protocol::{
-    ClientMessage, ErrorCode, HELLO_LIGHTS, HELLO_POSES, LightStatus, MIN_PROTOCOL_VERSION,
-    ObjectPose, PROTOCOL_VERSION, Role, SceneInfo, ServerMessage, decode_client, encode_server,
-    encode_welcome_for,
+    ClientMessage, ErrorCode, HELLO_LIGHTS, HELLO_POSES, LightState, LightStatus,
+    MIN_PROTOCOL_VERSION, ObjectPose, PROTOCOL_VERSION, Role, SceneInfo, ServerMessage,
+    decode_client, encode_server, encode_welcome_for,
 };
 use tokio::sync::{mpsc, watch};
 
@@ -50,7 +53,7 @@ use super::auth::may_drive;
 use super::feed::Feed;
 use super::inbox::Offer;
 use super::publication::Publication;
-use super::wire::{Refusal, check_light, check_transform, unknown_object};
+use super::wire::{Refusal, check_light, check_transform, lit_info, unknown_object};
 
 /// Close code for policy violations (RFC 6455 §7.4.1).
 const CLOSE_POLICY: u16 = 1008;
@@ -251,16 +254,27 @@ async fn hello(
     }
 }
 
+/// Whom a session welcomed: its role, the scene description it was
+/// welcomed to, the publication whose lightmap it gets first (the newest
+/// when it was welcomed, if any), and the lights' states its `Welcome`
+/// told (for a version 4 client; a version 2 or 3 one was told none).
+struct Welcomed {
+    role: Role,
+    info: Arc<SceneInfo>,
+    first: Option<Arc<Publication>>,
+    told: Option<Vec<LightState>>,
+}
+
 /// The handshake's second half: the token's role, and the `Welcome` in
 /// the client's protocol version. `None` when the client is refused or
-/// gone; else its role and the scene it was welcomed to.
+/// gone.
 async fn welcome(
     sink: &mut Sink,
     state: &Shared,
     feed: &Feed,
     hello: Hello,
     header_token: Option<String>,
-) -> Option<(Role, Arc<SceneInfo>)> {
+) -> Option<Welcomed> {
     let token = hello.token.or(header_token);
     let Some(role) = state.auth.role(token.as_deref()) else {
         let error = (ErrorCode::Unauthorized, "missing or unknown token".into());
@@ -280,6 +294,16 @@ async fn welcome(
         close(sink, CLOSE_TRY_AGAIN, "scene not available yet").await;
         return None;
     };
+    // The lights as the lightmap this client gets first was lit with
+    // (PROTOCOL.md §3): the newest publication's `Lights`, which the
+    // writer then sends first. Without one yet, the description's.
+    let first = feed.latest().filter(|p| Arc::ptr_eq(&p.scene, &info));
+    let scene = match &first {
+        Some(p) => lit_info(&info, &p.lights),
+        None => (*info).clone(),
+    };
+    let told =
+        (hello.version >= 4).then(|| scene.lights.iter().map(|l| l.state).collect::<Vec<_>>());
     let welcome = ServerMessage::Welcome {
         protocol_version: PROTOCOL_VERSION,
         server: if state.auth.dev_mode() {
@@ -291,8 +315,8 @@ async fn welcome(
         // `http.rs` serves `scene.glb` on every router, solver and relay;
         // the writer sends `Poses` to a client that asked (a relay's as
         // its upstream gives them).
-        // A solver's scene follows `SetLight` and sends `Lights`; a relay
-        // does neither.
+        // A solver's scene follows `SetLight` and sends `Lights`; so does
+        // a relay whose upstream does (it forwards them).
         capabilities: lightwire_protocol::CAP_SCENE_GLB
             | lightwire_protocol::CAP_POSES
             | if feed.follows_lights.load(Ordering::Relaxed) {
@@ -300,7 +324,7 @@ async fn welcome(
             } else {
                 0
             },
-        scene: (*info).clone(),
+        scene,
     };
     // In the client's version: a version 2 client gets version 2's
     // `Welcome`, unless a surface needs what only version 3 describes.
@@ -312,7 +336,12 @@ async fn welcome(
         return None;
     };
     let sent = sink.send(Message::Binary(Bytes::from(welcome))).await;
-    sent.is_ok().then_some((role, info))
+    sent.is_ok().then_some(Welcomed {
+        role,
+        info,
+        first,
+        told,
+    })
 }
 
 /// Runs one connection to completion. `header_token` is a token presented
@@ -331,9 +360,10 @@ pub async fn run(
     let client_name = hello.client.clone();
     let wants = (hello.wants_poses, hello.wants_lights);
     let version = hello.version;
-    let Some((role, info)) = welcome(&mut sink, &state, &feed, hello, header_token).await else {
+    let Some(welcomed) = welcome(&mut sink, &state, &feed, hello, header_token).await else {
         return;
     };
+    let (role, info) = (welcomed.role, welcomed.info.clone());
     tracing::debug!(scene = %feed.id, client = %client_name, ?role, "client joined");
     feed.clients.fetch_add(1, Ordering::Relaxed);
     metrics.clients.inc();
@@ -354,7 +384,7 @@ pub async fn run(
         sink,
         state.clone(),
         feed.clone(),
-        info,
+        welcomed,
         wants,
         control_rx,
         close_rx,
@@ -550,8 +580,13 @@ async fn handle(
                 return Err((
                     ErrorCode::Forbidden,
                     "forbidden",
-                    "this server does not follow lights (a relay does not forward SetLight); connect to the solver's server".into(),
+                    "this server does not follow lights (a relay whose upstream does not offer CAP_LIGHTS); connect to the solver's server".into(),
                 ));
+            }
+            // A relay whose upstream token grants only the viewer role
+            // cannot forward light states either.
+            if let Some(why) = feed.transforms_refused() {
+                return Err((ErrorCode::Forbidden, "forbidden", why));
             }
             let index = check_light(info, light, &setting)?;
             if !rate.allow() {
@@ -630,29 +665,97 @@ fn frame_for(state: &Shared, held: Option<u64>, p: &Publication) -> Option<Bytes
     Some(p.keyframe_frame())
 }
 
+/// What a connection's writer has sent so far.
+struct Sent {
+    /// The version the client holds, as far as we sent it. Versions only
+    /// ever increase on one connection (a relay renumbers across upstream
+    /// restarts to keep it so), so "holds v" identifies one exact state.
+    held: Option<u64>,
+    /// The poses last sent to a client that asked for them
+    /// (`HELLO_POSES`): a `Poses` frame goes before a version's lightmap
+    /// only when they differ.
+    poses: Option<Arc<[ObjectPose]>>,
+    /// The same for the lights' states (`HELLO_LIGHTS`, `Lights`).
+    lights: Option<Arc<[LightStatus]>>,
+}
+
+/// Sends the client what brings it to publication `p` (nothing if it
+/// holds it), preceded by `p`'s `Poses` and `Lights` when it asked for
+/// them and they changed; `false` if the connection is gone.
+async fn send_publication(
+    sink: &mut Sink,
+    state: &Shared,
+    p: &Publication,
+    (wants_poses, wants_lights): (bool, bool),
+    sent: &mut Sent,
+) -> bool {
+    let Some(frame) = frame_for(state, sent.held, p) else {
+        return true;
+    };
+    if wants_poses && !p.poses.is_empty() && sent.poses.as_deref() != Some(&*p.poses) {
+        if !send(sink, state, p.poses_frame()).await {
+            return false;
+        }
+        sent.poses = Some(p.poses.clone());
+    }
+    if wants_lights && !p.lights.is_empty() && sent.lights.as_deref() != Some(&*p.lights) {
+        if !send(sink, state, p.lights_frame()).await {
+            return false;
+        }
+        sent.lights = Some(p.lights.clone());
+    }
+    if !send(sink, state, frame).await {
+        return false;
+    }
+    sent.held = Some(p.version);
+    true
+}
+
+/// Whether publication `p` was lit with lights in other states than
+/// `told` (a `Welcome`'s).
+fn lit_otherwise(p: &Publication, told: &[LightState]) -> bool {
+    p.lights
+        .iter()
+        .any(|s| told.get(s.light as usize).is_some_and(|t| *t != s.state))
+}
+
 async fn write_loop(
     mut sink: Sink,
     state: Arc<Shared>,
     feed: Arc<Feed>,
-    info: Arc<SceneInfo>,
-    (wants_poses, wants_lights): (bool, bool),
+    welcomed: Welcomed,
+    wants: (bool, bool),
     mut control: mpsc::Receiver<Control>,
     mut close_rx: watch::Receiver<Option<(u16, String)>>,
 ) {
+    let Welcomed {
+        info, first, told, ..
+    } = welcomed;
     let mut publications = feed.publications.clone();
     let mut stats = feed.stats.clone();
     let mut shutdown = state.shutdown.clone();
-    // The version the client holds, as far as we sent it. Versions only
-    // ever increase on one connection (a relay renumbers across upstream
-    // restarts to keep it so), so "holds v" identifies one exact state.
-    let mut held: Option<u64> = None;
-    // The poses last sent to a client that asked for them
-    // (`HELLO_POSES`): a `Poses` frame goes before a version's lightmap
-    // only when they differ.
-    let mut sent_poses: Option<Arc<[ObjectPose]>> = None;
-    // The same for the lights' states (`HELLO_LIGHTS`, `Lights`).
-    let mut sent_lights: Option<Arc<[LightStatus]>> = None;
-    // Start from whatever is already published.
+    let mut sent = Sent {
+        held: None,
+        poses: None,
+        lights: None,
+    };
+    // The `Welcome` told the lights' states of `first`: its lightmap goes
+    // first, whatever was published since (the next one follows at once).
+    // Welcomed before any version, a version 4 client that did not ask
+    // for `Lights` was told the description's states; if the first
+    // version was lit otherwise (a `SetLight` before it), it could not
+    // learn so, and is asked to reconnect for a `Welcome` that tells.
+    let mut unchecked = match &first {
+        Some(p) => {
+            if !send_publication(&mut sink, &state, p, wants, &mut sent).await {
+                return;
+            }
+            None
+        }
+        None if !wants.1 => told,
+        None => None,
+    };
+    // Then whatever is published now or later.
     publications.mark_changed();
     let mut stats_timer = tokio::time::interval(STATS_PERIOD);
     stats_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -693,7 +796,7 @@ async fn write_loop(
                 let ok = match c {
                     Control::Frame(frame) => send(&mut sink, &state, frame).await,
                     Control::Resync => {
-                        held = None;
+                        sent.held = None;
                         publications.mark_changed();
                         true
                     }
@@ -714,23 +817,11 @@ async fn write_loop(
                     close(&mut sink, CLOSE_RESTART, "the scene changed; reconnect").await;
                     return;
                 }
-                let Some(frame) = frame_for(&state, held, &p) else { continue };
-                if wants_poses
-                    && !p.poses.is_empty()
-                    && sent_poses.as_deref() != Some(&*p.poses)
-                {
-                    if !send(&mut sink, &state, p.poses_frame()).await { return; }
-                    sent_poses = Some(p.poses.clone());
+                if unchecked.take().is_some_and(|told| lit_otherwise(&p, &told)) {
+                    close(&mut sink, CLOSE_RESTART, "the lights changed before the first lightmap; reconnect").await;
+                    return;
                 }
-                if wants_lights
-                    && !p.lights.is_empty()
-                    && sent_lights.as_deref() != Some(&*p.lights)
-                {
-                    if !send(&mut sink, &state, p.lights_frame()).await { return; }
-                    sent_lights = Some(p.lights.clone());
-                }
-                if !send(&mut sink, &state, frame).await { return; }
-                held = Some(p.version);
+                if !send_publication(&mut sink, &state, &p, wants, &mut sent).await { return; }
             }
             _ = stats_timer.tick() => {
                 let s = *stats.borrow_and_update();

@@ -10,7 +10,9 @@
 //! Nothing past this module (the solvers, `gpu/`) sees a wire type.
 
 use glam::{Quat, Vec3};
-use lightwire_protocol::{ErrorCode, LightState, ObjectSeq, Pose as WirePose, SceneInfo};
+use lightwire_protocol::{
+    ErrorCode, LightState, LightStatus, ObjectSeq, Pose as WirePose, SceneInfo,
+};
 
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Light, LightKind, Pose, Scene};
@@ -150,6 +152,49 @@ pub fn light_from_wire(base: &Light, state: &LightState) -> Light {
     }
 }
 
+/// The scene's lights `base` in the states `statuses` give them (a
+/// publication's `Lights`: the states a version was lit with), each as
+/// [`light_from_wire`] makes it; a light without a status keeps its own.
+pub fn lights_now(base: &[Light], statuses: &[LightStatus]) -> Vec<Light> {
+    base.iter()
+        .enumerate()
+        .map(
+            |(k, light)| match statuses.iter().find(|s| s.light as usize == k) {
+                Some(s) => light_from_wire(light, &s.state),
+                None => light.clone(),
+            },
+        )
+        .collect()
+}
+
+/// `info` with its lights in the states `statuses` give them (PROTOCOL.md
+/// §3: a `Welcome`'s `LightInfo.state` is the state the first lightmap it
+/// sends was lit with). Statuses naming no light of `info` are ignored.
+pub fn lit_info(info: &SceneInfo, statuses: &[LightStatus]) -> SceneInfo {
+    let mut lit = info.clone();
+    for s in statuses {
+        if let Some(light) = lit.lights.get_mut(s.light as usize) {
+            light.state = s.state;
+        }
+    }
+    lit
+}
+
+/// Whether `a` and `b` describe the same scene, whatever states their
+/// lights are in: a solver's `Welcome` tells the lights as they are now,
+/// which a driver's `SetLight` changes without changing the scene (a
+/// relay that reconnects keeps its copy and its clients then).
+pub fn same_description(a: &SceneInfo, b: &SceneInfo) -> bool {
+    if a.lights.len() != b.lights.len() {
+        return false;
+    }
+    let mut b = b.clone();
+    for (theirs, mine) in b.lights.iter_mut().zip(&a.lights) {
+        theirs.state = mine.state;
+    }
+    *a == b
+}
+
 /// Converts a scene pose to a wire pose.
 pub fn to_wire(p: &Pose) -> WirePose {
     WirePose {
@@ -244,6 +289,53 @@ mod tests {
             panic!("still a directional light")
         };
         assert_eq!(direction, Vec3::NEG_Y, "normalized");
+    }
+
+    /// A description whose lights only changed state is the same scene;
+    /// one whose light moved kind, or whose geometry changed, is not. The
+    /// states a publication lists replace the described ones.
+    #[test]
+    fn light_states_are_not_part_of_a_scene_s_description() {
+        let lamp = crate::bake::light_info(&Light {
+            name: "lamp".into(),
+            kind: LightKind::Point,
+            position: Vec3::new(0.0, 1.0, 0.0),
+            intensity: Vec3::splat(4.0),
+            range: None,
+        });
+        let mut a = info();
+        a.lights = vec![lamp.clone()];
+        let off = LightState {
+            on: false,
+            ..lamp.state
+        };
+        let b = lit_info(
+            &a,
+            &[
+                LightStatus {
+                    light: 0,
+                    seq: 3,
+                    state: off,
+                },
+                LightStatus {
+                    light: 7,
+                    seq: 1,
+                    state: off,
+                },
+            ],
+        );
+        assert_eq!(b.lights[0].state, off);
+        assert_ne!(a, b);
+        assert!(same_description(&a, &b) && same_description(&b, &a));
+        let mut c = b.clone();
+        c.lights[0].kind = lightwire_protocol::LightType::Spot;
+        assert!(!same_description(&a, &c));
+        let mut d = b.clone();
+        d.atlas_width = 2;
+        assert!(!same_description(&a, &d));
+        let mut e = b;
+        e.lights.clear();
+        assert!(!same_description(&a, &e));
     }
 
     #[test]
