@@ -115,7 +115,9 @@ pub const CAP_POSES: u32 = 2;
 /// `Welcome.capabilities` bit: the server sends [`ServerMessage::Lights`]
 /// to a version 4 client whose `Hello` set [`HELLO_LIGHTS`], and follows
 /// drivers' [`ClientMessage::SetLight`] (PROTOCOL.md §3,
-/// "Capabilities"). A relay does not set it.
+/// "Capabilities"). `lightwire serve` sets it, and a relay while its
+/// upstream does (it forwards `SetLight` upstream and passes the
+/// upstream's `Lights` on).
 pub const CAP_LIGHTS: u32 = 4;
 
 /// `Hello.capabilities` bit: send me [`ServerMessage::Poses`], the poses of

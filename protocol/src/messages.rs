@@ -294,6 +294,27 @@ pub struct SceneInfo {
     pub lights: Vec<LightInfo>,
 }
 
+impl SceneInfo {
+    /// Whether `self` and `other` describe the same scene, whatever states
+    /// their lights are in (PROTOCOL.md §3, "The lights' states a
+    /// `Welcome` tells"): a `Welcome` tells the lights as they are now,
+    /// which a driver's `SetLight` changes without changing the scene.
+    /// Everything else counts, the lights' names, kinds, ranges, cones and
+    /// angular radii included. A peer that reconnects (a relay to its
+    /// upstream, a client to its server) keeps what it holds when the new
+    /// `Welcome`'s description is the same.
+    pub fn same_description(&self, other: &SceneInfo) -> bool {
+        if self.lights.len() != other.lights.len() {
+            return false;
+        }
+        let mut other = other.clone();
+        for (theirs, mine) in other.lights.iter_mut().zip(&self.lights) {
+            theirs.state = mine.state;
+        }
+        *self == other
+    }
+}
+
 /// What kind of light (wire values: Point 0, Spot 1, Directional 2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode, Serialize, Deserialize)]
 pub enum LightType {
@@ -590,5 +611,75 @@ impl Stats {
             clients: 0,
             server_time_us: crate::unix_micros(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lamp(state: LightState) -> LightInfo {
+        LightInfo {
+            name: "lamp".into(),
+            kind: LightType::Point,
+            range: None,
+            cone: [0.0; 2],
+            angular_radius: 0.0,
+            state,
+        }
+    }
+
+    fn room(lights: Vec<LightInfo>) -> SceneInfo {
+        SceneInfo {
+            id: "room".into(),
+            atlas_width: 1,
+            atlas_height: 1,
+            tile_size: crate::DEFAULT_TILE_SIZE,
+            format: PixelFormat::Rgb9e5,
+            objects: Vec::new(),
+            materials: Vec::new(),
+            surfaces: Vec::new(),
+            lights,
+        }
+    }
+
+    /// Two descriptions whose lights differ only in state are the same
+    /// scene; any other difference, of a light or of the rest, is not.
+    #[test]
+    fn light_states_are_not_part_of_a_scene_s_description() {
+        let on = LightState {
+            on: true,
+            color: [1.0; 3],
+            intensity: 4.0,
+            position: [0.0, 1.0, 0.0],
+            direction: [0.0, -1.0, 0.0],
+        };
+        let moved_and_off = LightState {
+            on: false,
+            color: [1.0, 0.5, 0.25],
+            intensity: 2.0,
+            position: [0.5, 1.0, 0.0],
+            direction: [1.0, 0.0, 0.0],
+        };
+        let a = room(vec![lamp(on)]);
+        let b = room(vec![lamp(moved_and_off)]);
+        assert_ne!(a, b);
+        assert!(a.same_description(&b) && b.same_description(&a));
+        assert!(a.same_description(&a));
+
+        let differs = |change: fn(&mut SceneInfo)| {
+            let mut c = b.clone();
+            change(&mut c);
+            assert!(!a.same_description(&c) && !c.same_description(&a), "{c:?}");
+        };
+        differs(|c| c.lights[0].name = "bulb".into());
+        differs(|c| c.lights[0].kind = LightType::Spot);
+        differs(|c| c.lights[0].range = Some(5.0));
+        differs(|c| c.lights[0].cone = [0.1, 0.2]);
+        differs(|c| c.lights[0].angular_radius = 0.0046);
+        differs(|c| c.lights.clear());
+        differs(|c| c.lights.push(c.lights[0].clone()));
+        differs(|c| c.atlas_width = 2);
+        differs(|c| c.id = "hall".into());
     }
 }

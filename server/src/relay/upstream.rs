@@ -48,7 +48,6 @@ use crate::service::auth::may_drive;
 use crate::service::feed::Feed;
 use crate::service::metrics::Metrics;
 use crate::service::publication::Publisher;
-use crate::service::wire::same_description;
 
 /// Transforms and light states forwarded per second and upstream, at
 /// most, together. Below the solver's default per-connection limit (120/s,
@@ -323,7 +322,7 @@ impl Upstream {
         // scene whose lights only changed state keeps the mirror.
         if !mirror
             .as_ref()
-            .is_some_and(|m| same_description(&m.info, &scene))
+            .is_some_and(|m| m.info.same_description(&scene))
         {
             // A new description (or the first): start a new mirror; relay
             // versions continue after the newest published one. The feed

@@ -180,21 +180,6 @@ pub fn lit_info(info: &SceneInfo, statuses: &[LightStatus]) -> SceneInfo {
     lit
 }
 
-/// Whether `a` and `b` describe the same scene, whatever states their
-/// lights are in: a solver's `Welcome` tells the lights as they are now,
-/// which a driver's `SetLight` changes without changing the scene (a
-/// relay that reconnects keeps its copy and its clients then).
-pub fn same_description(a: &SceneInfo, b: &SceneInfo) -> bool {
-    if a.lights.len() != b.lights.len() {
-        return false;
-    }
-    let mut b = b.clone();
-    for (theirs, mine) in b.lights.iter_mut().zip(&a.lights) {
-        theirs.state = mine.state;
-    }
-    *a == b
-}
-
 /// Converts a scene pose to a wire pose.
 pub fn to_wire(p: &Pose) -> WirePose {
     WirePose {
@@ -326,16 +311,16 @@ mod tests {
         );
         assert_eq!(b.lights[0].state, off);
         assert_ne!(a, b);
-        assert!(same_description(&a, &b) && same_description(&b, &a));
+        assert!(a.same_description(&b) && b.same_description(&a));
         let mut c = b.clone();
         c.lights[0].kind = lightwire_protocol::LightType::Spot;
-        assert!(!same_description(&a, &c));
+        assert!(!a.same_description(&c));
         let mut d = b.clone();
         d.atlas_width = 2;
-        assert!(!same_description(&a, &d));
+        assert!(!a.same_description(&d));
         let mut e = b;
         e.lights.clear();
-        assert!(!same_description(&a, &e));
+        assert!(!a.same_description(&e));
     }
 
     #[test]
