@@ -127,6 +127,21 @@ impl DoubleBuffer {
         &self.scene
     }
 
+    /// Takes `scene`, a description of the same scene as
+    /// [`DoubleBuffer::scene`] whose lights may be in other states
+    /// ([`SceneInfo::same_description`]: a reconnect's `Welcome` after a
+    /// driver changed a light), and keeps the lightmap: the versions
+    /// completed from now on carry `scene` (the front keeps the one it
+    /// was lit with). Returns false, changing nothing, for a different
+    /// scene, which needs new buffers ([`DoubleBuffer::new`]).
+    pub fn relit(&mut self, scene: Arc<SceneInfo>) -> bool {
+        if !self.scene.same_description(&scene) {
+            return false;
+        }
+        self.scene = scene;
+        true
+    }
+
     /// The newest complete version, once a keyframe arrived.
     pub fn front(&self) -> Option<&Arc<Frame>> {
         self.front.as_ref()

@@ -23,7 +23,10 @@
 //! When a session ends for a reason that retrying can fix, [`run`] waits
 //! a [`Backoff`](lightwire_protocol::backoff::Backoff) delay and opens a new one; the front keeps showing the
 //! last complete version meanwhile, and the new session's first keyframe
-//! brings it up to date.
+//! brings it up to date. A new session whose `Welcome` describes the same
+//! scene ([`SceneInfo::same_description`]: the lights' states may differ,
+//! a driver changed them meanwhile) keeps the buffers and takes the
+//! `Welcome`'s states; only another scene gets new ones.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -334,16 +337,23 @@ impl Task {
     }
 
     /// Takes in a (re)connection's Welcome: role, and the scene if it
-    /// changed (new buffers for a new layout).
+    /// changed. A Welcome whose lights only changed state (a driver
+    /// switched, dimmed or moved one meanwhile; PROTOCOL.md §3) describes
+    /// the same scene: the buffers and the lightmap are kept, and the
+    /// Welcome's states are the lights' states from its first keyframe
+    /// on. Any other change is a new scene: new buffers for its layout.
     fn welcome(&mut self, opened: &Opened) -> Result<(), ClientError> {
         self.shared.set_role(opened.role);
         self.shared.set_capabilities(opened.capabilities);
         if **self.buffer.scene() != opened.scene {
             let scene = Arc::new(opened.scene.clone());
-            self.buffer = DoubleBuffer::new(scene.clone()).map_err(|e| ClientError::Protocol {
-                url: self.shared.endpoint.ws_url(),
-                reason: format!("the Welcome's atlas is unusable: {e}"),
-            })?;
+            if !self.buffer.relit(scene.clone()) {
+                self.buffer =
+                    DoubleBuffer::new(scene.clone()).map_err(|e| ClientError::Protocol {
+                        url: self.shared.endpoint.ws_url(),
+                        reason: format!("the Welcome's atlas is unusable: {e}"),
+                    })?;
+            }
             self.shared.scene.send_replace(scene);
         }
         // Poses and light states are per connection: the new server sends

@@ -19,7 +19,10 @@ pub enum Event {
         role: Role,
         /// The server's name.
         server: String,
-        /// The scene (a new `Arc` if it changed).
+        /// The scene (a new `Arc` if the `Welcome` differs; compare with
+        /// [`SceneInfo::same_description`] to tell another scene from the
+        /// same one whose lights changed state meanwhile, which keeps the
+        /// lightmap).
         scene: Arc<SceneInfo>,
         /// Always true: the first connection is `connect` itself.
         reconnect: bool,

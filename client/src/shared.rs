@@ -3,8 +3,9 @@
 //!
 //! - the **front** lightmap, a `watch` of `Arc<Frame>` (newest only), which
 //!   renderers read without locking;
-//! - the scene (a `watch`, replaced only if a reconnect finds a different
-//!   scene), the role and the server's capabilities;
+//! - the scene (a `watch`, replaced only when a reconnect's `Welcome`
+//!   differs: another scene, or the same one with its lights in other
+//!   states), the role and the server's capabilities;
 //! - the **outbox** of poses to send: one slot per object, newest wins;
 //!   and of light states: one slot per light of the scene, newest wins;
 //! - per light, the newest seq seen in a `Lights` or handed out, which

@@ -335,7 +335,8 @@ fn render_frames(
             runtime.block_on(async { tokio::time::sleep_until(due.into()).await });
         }
         let frame = client.frame().unwrap_or_else(|| first.clone());
-        if frame.scene.as_ref() != scene.as_ref() {
+        // Lights a driver changed meanwhile are the same scene.
+        if !frame.scene.same_description(&scene) {
             bail!(
                 "scene \"{}\" changed on the server (it was reloaded); run view again",
                 scene.id

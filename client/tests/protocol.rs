@@ -611,3 +611,121 @@ async fn lights_are_refused_by_a_server_without_cap_lights_and_to_a_viewer() {
     );
     client.close().await;
 }
+
+/// The `Welcome` of the fake server, offering poses and lights, on `scene`.
+fn lit_welcome(scene: SceneInfo) -> ServerMessage {
+    ServerMessage::Welcome {
+        protocol_version: PROTOCOL_VERSION,
+        server: "fake".into(),
+        role: Role::Driver,
+        capabilities: CAP_POSES | CAP_LIGHTS,
+        scene,
+    }
+}
+
+/// The client's next `Connected` (a reconnect's Welcome taken), failing if
+/// it stops instead.
+async fn reconnected(client: &mut Client) -> Arc<SceneInfo> {
+    until(client, |e| match e {
+        Event::Connected { scene, .. } => Some(scene.clone()),
+        Event::Closed(why) => panic!("the client stopped: {why:?}"),
+        _ => None,
+    })
+    .await
+}
+
+/// A reconnect whose `Welcome` differs from the last one only in the
+/// lights' states (a driver switched the bulb off meanwhile; PROTOCOL.md
+/// §3) is the same scene: the client keeps its lightmap, carries on from
+/// it and takes the new states. A description that differs otherwise (the
+/// bulb became a spot) is a new scene: new buffers, whose first keyframe
+/// is a catch-up that delivers nothing.
+#[tokio::test]
+async fn a_reconnect_after_a_light_changed_keeps_the_lightmap_and_takes_the_new_states() {
+    let fake = FakeServer::bind().await;
+    let (mut client, mut ws, _) = lit_client(&fake, true, CAP_POSES | CAP_LIGHTS).await;
+    let status = |light, seq, state| LightStatus { light, seq, state };
+    let lights = |version, bulb: LightStatus| ServerMessage::Lights {
+        version,
+        lights: vec![bulb, status(1, 0, sun())],
+    };
+    send(&mut ws, &lights(1, status(0, 0, bulb()))).await;
+    let mut enc = encoder();
+    enc.publish(&image(1.0), vec![]);
+    keyframe(&mut ws, enc.keyframe()).await;
+    front_is(&client, 1, &enc).await;
+    let described = client.scene();
+    assert!(described.lights[0].state.on);
+
+    // The driver switches the bulb off; the server takes it and goes away
+    // before any version shows it.
+    let off = LightState {
+        on: false,
+        ..bulb()
+    };
+    let seq = client.send_light_named("bulb", off).expect("a driver may");
+    match recv(&mut ws).await {
+        ClientMessage::SetLight { light, seq: s, .. } => assert_eq!((light, s), (0, seq)),
+        other => panic!("expected the SetLight, got {other:?}"),
+    }
+    drop(ws);
+    until(&mut client, |e| {
+        matches!(e, Event::Disconnected(_)).then_some(())
+    })
+    .await;
+
+    // It comes back: the Welcome tells the bulb off, the rest as before.
+    let (mut ws, _, _) = fake.accept_hello().await;
+    let mut switched_off = lit_scene();
+    switched_off.lights[0].state = off;
+    send(&mut ws, &lit_welcome(switched_off.clone())).await;
+    let scene = reconnected(&mut client).await;
+    assert_eq!(*scene, switched_off);
+    assert!(scene.same_description(&described));
+    assert!(!client.scene().lights[0].state.on, "the bulb is off now");
+    // Its first lightmap, lit with the bulb off, is delivered as the
+    // driver's switch reaching the light: the client went on from the
+    // version it held.
+    send(&mut ws, &lights(2, status(0, seq, off))).await;
+    enc.publish(&image(0.5), vec![]);
+    keyframe(&mut ws, enc.keyframe()).await;
+    let delivered = until(&mut client, |e| match e {
+        Event::Version(v) if v.version == 2 => Some(v.lights_delivered.clone()),
+        _ => None,
+    })
+    .await;
+    let delivered: Vec<(u32, u64)> = delivered.iter().map(|d| (d.light, d.seq)).collect();
+    assert_eq!(delivered, vec![(0, seq)], "a continuation, not a new scene");
+    let front = front_is(&client, 2, &enc).await;
+    assert_eq!(front.lights[&0], status(0, seq, off));
+    assert!(!front.scene.lights[0].state.on);
+    assert_eq!(client.lights()[&0].state, off);
+    delta(&mut ws, enc.publish(&image(0.6), vec![])).await;
+    front_is(&client, 3, &enc).await;
+    let c = client.counters();
+    assert_eq!(
+        (c.reconnects, c.resyncs, c.apply_errors, c.server_errors),
+        (1, 0, 0, 0)
+    );
+
+    // Another description: the bulb is a spot now. New buffers; their
+    // first keyframe delivers nothing, though the bulb's seq moved on.
+    drop(ws);
+    let (mut ws, _, _) = fake.accept_hello().await;
+    let mut spot = switched_off;
+    spot.lights[0].kind = LightType::Spot;
+    send(&mut ws, &lit_welcome(spot.clone())).await;
+    let scene = reconnected(&mut client).await;
+    assert!(!scene.same_description(&described));
+    send(&mut ws, &lights(4, status(0, seq + 1, bulb()))).await;
+    enc.publish(&image(0.7), vec![]);
+    keyframe(&mut ws, enc.keyframe()).await;
+    let delivered = until(&mut client, |e| match e {
+        Event::Version(v) if v.version == 4 => Some(v.lights_delivered.clone()),
+        _ => None,
+    })
+    .await;
+    assert!(delivered.is_empty(), "{delivered:?}");
+    assert_eq!(client.scene().lights[0].kind, LightType::Spot);
+    client.close().await;
+}

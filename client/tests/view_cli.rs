@@ -416,3 +416,124 @@ fn bad_view_input_is_refused_with_a_reason() {
         ],
     );
 }
+
+/// A floor lit by a bulb, for [`view_goes_on_when_a_reconnect_finds_a_light_switched_off`].
+fn lit_floor(on: bool) -> SceneInfo {
+    use lightwire_protocol::{
+        LightInfo, LightState, LightType, MaterialInfo, ObjectInfo, PixelFormat, SurfaceInfo,
+    };
+    SceneInfo {
+        id: "floor".into(),
+        atlas_width: 8,
+        atlas_height: 8,
+        tile_size: 4,
+        format: PixelFormat::Rgb9e5,
+        objects: vec![ObjectInfo {
+            name: "room".into(),
+            dynamic: false,
+            pose: Pose::IDENTITY,
+        }],
+        materials: vec![MaterialInfo {
+            name: "white".into(),
+            albedo: [0.5; 3],
+            emission: [0.0; 3],
+        }],
+        surfaces: vec![SurfaceInfo {
+            name: "floor".into(),
+            object: 0,
+            material: 0,
+            corners: [
+                [-1.0, 0.0, 1.0],
+                [1.0, 0.0, 1.0],
+                [1.0, 0.0, -1.0],
+                [-1.0, 0.0, -1.0],
+            ],
+            rect: [0, 0, 8, 8],
+            uvs: Vec::new(),
+        }],
+        lights: vec![LightInfo {
+            name: "bulb".into(),
+            kind: LightType::Point,
+            range: None,
+            cone: [0.0; 2],
+            angular_radius: 0.0,
+            state: LightState {
+                on,
+                color: [1.0; 3],
+                intensity: 8.0,
+                position: [0.0, 1.0, 0.0],
+                direction: [0.0, -1.0, 0.0],
+            },
+        }],
+    }
+}
+
+/// A driver switched the bulb off while `view`'s connection was down: the
+/// reconnect's `Welcome` tells the bulb off (PROTOCOL.md §3), the rest of
+/// the scene as before. That is the same scene, so `view` goes on drawing
+/// the new versions instead of stopping because the scene changed. The
+/// server is the testkit's scripted fake.
+#[tokio::test(flavor = "multi_thread")]
+async fn view_goes_on_when_a_reconnect_finds_a_light_switched_off() {
+    use lightwire_protocol::lightmap::Encoder;
+    use lightwire_protocol::{
+        CAP_LIGHTS, CAP_POSES, PROTOCOL_VERSION, PixelFormat, Role, ServerMessage,
+    };
+    use lightwire_testkit::fake::{FakeServer, keyframe, send};
+
+    let fake = FakeServer::bind().await;
+    let url = fake.ws_url("floor");
+    let dir = out_dir("relit");
+    let shot = dir.join("shot.png");
+    let args = [
+        url.clone(),
+        "--camera".into(),
+        "eye=0,2,3;target=0,0,0".into(),
+        "--width".into(),
+        "32".into(),
+        "--height".into(),
+        "24".into(),
+        "--exposure".into(),
+        "0.5".into(),
+        "--frames".into(),
+        "4".into(),
+        "--every".into(),
+        "500".into(),
+        "--out".into(),
+        shot.to_str().expect("utf-8 path").into(),
+    ];
+    let viewing = tokio::task::spawn_blocking(move || {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        view(&args)
+    });
+    let welcome = |scene| ServerMessage::Welcome {
+        protocol_version: PROTOCOL_VERSION,
+        server: "fake".into(),
+        role: Role::Viewer,
+        capabilities: CAP_POSES | CAP_LIGHTS,
+        scene,
+    };
+    let lit = |value: f32| vec![[value, value, value]; 64];
+    let mut enc = Encoder::new(8, 8, 4, PixelFormat::Rgb9e5, 0.0);
+    enc.publish(&lit(1.0), vec![]);
+    let (mut ws, _) = fake.accept().await;
+    send(&mut ws, &welcome(lit_floor(true))).await;
+    keyframe(&mut ws, enc.keyframe()).await;
+    // The first frame is drawn; then the connection drops.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    drop(ws);
+    let (mut ws, _) = fake.accept().await;
+    send(&mut ws, &welcome(lit_floor(false))).await;
+    enc.publish(&lit(0.0), vec![]);
+    keyframe(&mut ws, enc.keyframe()).await;
+    let output = viewing.await.expect("view ran");
+    drop(ws);
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "view failed:\n{stdout}\n{stderr}");
+    assert!(!stderr.contains("changed"), "{stderr}");
+    let last = dir.join("shot-0003.png");
+    assert!(
+        stdout.contains(&format!("wrote {}: version 2", last.display())),
+        "the last frame draws the version lit with the bulb off:\n{stdout}"
+    );
+}

@@ -363,7 +363,13 @@ impl Renderer {
     }
 
     fn upload_scene(&mut self, scene: &SceneInfo) -> Result<(), RenderError> {
-        if self.scene.as_ref().is_some_and(|s| s.info == *scene) {
+        // The lights' states are not drawn: only another scene needs new
+        // geometry.
+        if self
+            .scene
+            .as_ref()
+            .is_some_and(|s| s.info.same_description(scene))
+        {
             return Ok(());
         }
         let mesh = geometry::mesh(scene)?;
