@@ -116,7 +116,8 @@ impl Client {
     }
 
     /// Whether the server follows `SetLight` (its `Welcome` offers
-    /// `CAP_LIGHTS`: a `lightwire serve`, not a relay).
+    /// `CAP_LIGHTS`: a `lightwire serve`, or a relay while its upstream
+    /// does, which forwards `SetLight` upstream).
     pub fn follows_lights(&self) -> bool {
         self.capabilities() & CAP_LIGHTS != 0
     }

@@ -133,10 +133,12 @@ pub enum ClientError {
         /// [`lightwire_protocol::LightState::validate`]'s reason.
         reason: &'static str,
     },
-    /// `send_light` to a server that does not follow lights (its `Welcome`
-    /// lacks `CAP_LIGHTS`: a relay, or a server older than protocol 4).
+    /// `send_light` to a server that does not follow lights: its `Welcome`
+    /// lacks `CAP_LIGHTS` (a server older than protocol 4, or a relay whose
+    /// upstream does not announce it; a relay forwards `SetLight` while its
+    /// upstream announces `CAP_LIGHTS`).
     #[error(
-        "{url}: the server does not follow lights (its Welcome does not offer CAP_LIGHTS: a relay, which does not forward SetLight, or an older server); connect to the solver's `lightwire serve`"
+        "{url}: the server does not follow lights (its Welcome does not offer CAP_LIGHTS: a server older than protocol 4, or a relay whose upstream does not offer it; a relay forwards SetLight while its upstream does); connect to a `lightwire serve` that offers CAP_LIGHTS, or to a relay of one"
     )]
     NoLights {
         /// The WebSocket URL.

@@ -318,7 +318,7 @@ async fn set_light(args: &DriveArgs, name: &str) -> Result<()> {
             event = client.next_event() => match event {
                 Some(Event::ServerError { code, message }) => {
                     let hint = match code {
-                        ErrorCode::Forbidden => " (a driver or admin token on the solver's server is needed)",
+                        ErrorCode::Forbidden => " (a driver or admin token is needed; on a relay, its upstream token must grant the driver role too)",
                         ErrorCode::StaleSeq => " (another driver set the light with a newer seq; try again)",
                         _ => "",
                     };
@@ -404,8 +404,9 @@ async fn drive(args: DriveArgs, path: PathBuf, script: Script) -> Result<()> {
         }
         let frame = first_frame(&client, Duration::from_secs(60)).await?;
         for light in indices {
-            // The first `Lights`; the Welcome's (the scene file's) state
-            // only from a server that sent none.
+            // The first `Lights`; the Welcome's state (the lights as the
+            // first lightmap was lit, without seqs) only from a server
+            // that sent none.
             let base = frame
                 .lights
                 .get(&light)

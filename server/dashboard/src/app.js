@@ -25,7 +25,9 @@
 // SetLights together), each with the next seq of `LightSeqs`: one past the
 // last Lights' seq for the light, or past this page's own newer one. The
 // controls wait for the first Lights (which tells the seqs), and stay
-// disabled for a viewer or on a server without CAP_LIGHTS (a relay).
+// disabled for a viewer or on a server without CAP_LIGHTS (an older
+// server, or a relay whose upstream lacks it; a relay of a solver that
+// follows lights announces CAP_LIGHTS and forwards SetLight upstream).
 //
 // The 3D view draws the scene's lights as gizmos (gizmos.js), fetched once
 // per watched scene from `GET /api/scenes/{id}/lights` when the scene list
@@ -409,8 +411,9 @@ const lights = {
   /** A Lights arrived on this connection: the seqs are known. */
   known: false,
   /** Per light: its row's controls, its Welcome intensity (the slider's 0)
-   * and, for a sun, its path through the day (from its Welcome direction,
-   * the scene file's). */
+   * and, for a sun, its path through the day (from its Welcome direction:
+   * the scene file's, unless a driver changed the light before this
+   * connection's Welcome, which tells the lights as they are then). */
   rows: [],
   /** Per light: the state shown (the latest Lights', or this page's change). */
   states: [],
@@ -509,7 +512,7 @@ const lights = {
     ui.lightsHint.textContent = !any
       ? 'This scene has no lights.'
       : !this.follows
-        ? 'This server does not take light changes (no CAP_LIGHTS: a relay); connect to the solver to change them.'
+        ? 'This server does not take light changes (no CAP_LIGHTS: an older server, or a relay whose upstream does not offer it); connect to a server that does, or to a relay of one, to change them.'
         : !this.canDrive
           ? `Your role (${this.role}) may watch but not change lights: connect with a driver token.`
           : this.known

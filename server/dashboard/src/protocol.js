@@ -42,8 +42,9 @@ export const CAP_POSES = 2;
 /**
  * `Welcome.capabilities` bit: the server sends `Lights` to a client whose
  * Hello set `HELLO_LIGHTS` and follows drivers' `SetLight` (PROTOCOL.md
- * §3, "Capabilities"); `lightwire serve` sets it, a relay does not. Twin
- * of `lightwire_protocol::CAP_LIGHTS`.
+ * §3, "Capabilities"); `lightwire serve` sets it, and `lightwire relay`
+ * while its upstream does (it forwards SetLight upstream and passes the
+ * upstream's Lights on). Twin of `lightwire_protocol::CAP_LIGHTS`.
  */
 export const CAP_LIGHTS = 4;
 
