@@ -30,9 +30,17 @@
 //! the brightest before the change. What a change claims to beat is
 //! starting over: the time a fresh session of the same options takes to
 //! its first and its corrected state is measured on the same scene in the
-//! same run. A shot change's first state is its first bounce plus the
-//! refinement the running unit does before it completes; there is no
-//! instant-radiosity first answer yet (issue 60 item 3).
+//! same run. A shot change (a move, or any change without the basis) is
+//! first published as the state so far plus one bounce of the change by
+//! virtual point lights and imperfect shadow maps (`gpu::vpl`, ism §4.1,
+//! §4.11); a third run per scene keeps the basis but turns that first
+//! answer off, to show what it buys.
+//!
+//! [`sweep`] then varies the first answer's virtual lights and shadow-map
+//! points on the move (the ism seed's Fig. 9.8 and 9.9 as a table): per
+//! setting, the first state's NRMSE against the reference and the time of
+//! each stage (its Table 9.4's columns VPLS, ISM and II, as far as a
+//! lightmap has them).
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -44,7 +52,7 @@ use serde::Serialize;
 use lightwire_scene::atlas::Atlas;
 use lightwire_scene::{Charts, Light, LightKind, LoadOptions};
 use lightwire_solve::accuracy::accuracy_where;
-use lightwire_solve::gpu::{Device, DynamicOptions, DynamicSolver};
+use lightwire_solve::gpu::{BounceOptions, Device, DynamicOptions, DynamicSolver};
 use lightwire_solve::load::load_scene;
 use lightwire_solve::reference::{MAX_ELEMENTS, ReferenceSolver, Silent, SolveOptions};
 use lightwire_solve::validity::Validity;
@@ -57,6 +65,10 @@ pub struct Settings {
     /// [`DynamicOptions::light_basis`] of the session (0: every change
     /// is shot).
     pub light_basis: usize,
+    /// [`DynamicOptions::first_bounce`] of the session.
+    pub first_bounce: Option<BounceOptions>,
+    /// Where [`sweep`] writes its atlas PNGs (none: no images).
+    pub images: Option<PathBuf>,
 }
 
 /// One change of the light and what following it took.
@@ -90,6 +102,9 @@ pub struct LightsResult {
     /// kept apart, `gpu::basis`; a move is shot) or `shooting` (every
     /// change shot as signed unshot light).
     pub method: &'static str,
+    /// Whether a shot change was first published as one bounce of
+    /// virtual point lights (`gpu::vpl`).
+    pub first_answer: bool,
     /// Bytes of the basis once built (0 without one).
     pub basis_bytes: usize,
     /// The light changed, and its kind.
@@ -145,6 +160,7 @@ pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResul
     eprintln!("{}: a fresh session", scene.name);
     let options = DynamicOptions {
         light_basis: settings.light_basis,
+        first_bounce: settings.first_bounce,
         ..DynamicOptions::default()
     };
     let started = Instant::now();
@@ -218,6 +234,7 @@ pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResul
         scene: scene.name.clone(),
         elements: atlas.elements.len(),
         method: if basis_bytes > 0 { "basis" } else { "shooting" },
+        first_answer: settings.first_bounce.is_some(),
         basis_bytes,
         light: first.name.clone(),
         kind: match first.kind {
@@ -240,6 +257,18 @@ fn moved(light: &mut Light) {
             *direction = Quat::from_rotation_y(5f32.to_radians()) * *direction;
         }
         _ => light.position += Vec3::X * 0.5,
+    }
+}
+
+/// The sweep's move of `light`, one that changes most of a room's light:
+/// a point or spot light 1.5 m along -x, 1 m down and 0.5 m along +z, a
+/// directional light turned 30° about the vertical.
+fn far(light: &mut Light) {
+    match &mut light.kind {
+        LightKind::Directional { direction, .. } => {
+            *direction = Quat::from_rotation_y(30f32.to_radians()) * *direction;
+        }
+        _ => light.position += Vec3::new(-1.5, -1.0, 0.5),
     }
 }
 
@@ -271,12 +300,17 @@ pub fn print(r: &LightsResult) {
         "no basis".into()
     };
     println!(
-        "\n{} ({} elements), light \"{}\" ({}), {} ({basis}): a fresh session's first state {:.0} ms, idle {:.0} ms, NRMSE {:.2}%",
+        "\n{} ({} elements), light \"{}\" ({}), {} ({basis}), {}: a fresh session's first state {:.0} ms, idle {:.0} ms, NRMSE {:.2}%",
         r.scene,
         r.elements,
         r.light,
         r.kind,
         r.method,
+        if r.first_answer {
+            "first answer by virtual lights"
+        } else {
+            "no first answer"
+        },
         r.fresh_ms_first,
         r.fresh_ms_corrected,
         r.fresh_nrmse * 100.0
@@ -311,4 +345,247 @@ pub fn default_scenes(scenes: &Path) -> Vec<PathBuf> {
         .iter()
         .map(|f| scenes.join(f))
         .collect()
+}
+
+/// One setting of the first answer on the sweep's move.
+#[derive(Debug, Clone, Serialize)]
+pub struct SweepRow {
+    pub scene: String,
+    /// Bounces gathered, and whether the rest was added as a series.
+    pub bounces: u32,
+    pub tail: bool,
+    /// Virtual point lights asked for per bounce, and placed in all.
+    pub vpls: u32,
+    pub vpls_placed: usize,
+    /// Points splatted into each light's shadow map.
+    pub points: u32,
+    /// Milliseconds from `set_lights` to the first state.
+    pub ms_first: f64,
+    /// The first bounce's stages (ms): placing the lights and uploading,
+    /// the shadow maps (splat and pull-push), the gather and read-back.
+    pub ms_vpls: f64,
+    pub ms_maps: f64,
+    pub ms_gather: f64,
+    /// The first state against the reference lit by the moved light.
+    pub nrmse_first: f64,
+    pub p95_first: f64,
+    /// The first state's light over the reference's, less one
+    /// (area-weighted over the visible non-emitting texels): below zero
+    /// where bounces are missing.
+    pub bias_first: f64,
+}
+
+/// A larger move than the changes' ([`far`]) and back, once per setting
+/// of `bounces`, on one session without the basis (every setting starts
+/// from the same corrected state at the first light): the first state's
+/// error and the time of each stage.
+pub fn sweep(
+    gpu: &Device,
+    path: &Path,
+    settings: &Settings,
+    bounces: &[BounceOptions],
+) -> Result<Vec<SweepRow>> {
+    let (scene, atlas) = load_scene(
+        path,
+        LoadOptions {
+            density_scale: settings.density_scale,
+            charts: settings.charts,
+        },
+    )?;
+    if scene.lights.is_empty() || atlas.elements.len() > MAX_ELEMENTS {
+        bail!(
+            "{}: the sweep needs a light and at most {MAX_ELEMENTS} elements",
+            path.display()
+        );
+    }
+    let poses = scene.initial_poses();
+    let validity = Validity::compute(&scene, &atlas, &poses);
+    let start = scene.lights.clone();
+    let mut there = start.clone();
+    far(&mut there[0]);
+    let mut lit = scene.clone();
+    lit.lights = there.clone();
+    let expected = ReferenceSolver::new(&lit, &atlas, &poses, &Silent)?
+        .solve(SolveOptions::default(), &Silent)
+        .radiosity;
+    let options = DynamicOptions {
+        light_basis: 0,
+        ..DynamicOptions::default()
+    };
+    let mut session = Session::new(gpu, &scene, &atlas, &poses, 0, options)?;
+    while !session.is_idle() {
+        session.step(SLICE)?;
+    }
+    let mut rows = Vec::new();
+    let mut tag = 0;
+    for bounce in bounces {
+        eprintln!(
+            "{}: first answer with {} virtual lights, {} points each",
+            scene.name, bounce.vpls, bounce.points
+        );
+        session.set_first_bounce(Some(*bounce));
+        tag += 1;
+        let started = Instant::now();
+        session.set_lights(&there, tag);
+        let first = loop {
+            let step = session.step(SLICE)?;
+            if step.completed && session.reflected() == &tag {
+                break (ms(started), published(&session, &atlas)?);
+            }
+        };
+        let times = session.bounce_report().unwrap_or_default();
+        if let Some(dir) = &settings.images {
+            let name = format!(
+                "{}-b{}{}-v{}-p{}",
+                scene.name,
+                bounce.bounces,
+                if bounce.tail { "t" } else { "" },
+                bounce.vpls,
+                bounce.points
+            );
+            write_images(dir, &atlas, &name, &first.1, &expected)?;
+        }
+        let a = accuracy_where(&atlas, &first.1, &expected, validity.keep())
+            .context("no visible texel to compare")?;
+        rows.push(SweepRow {
+            scene: scene.name.clone(),
+            bounces: bounce.bounces,
+            tail: bounce.tail,
+            vpls: bounce.vpls,
+            vpls_placed: times.placed,
+            points: bounce.points,
+            ms_first: first.0,
+            ms_vpls: times.vpls.as_secs_f64() * 1e3,
+            ms_maps: times.maps.as_secs_f64() * 1e3,
+            ms_gather: times.gather.as_secs_f64() * 1e3,
+            nrmse_first: a.nrmse,
+            p95_first: a.p95_rel,
+            bias_first: bias(&atlas, &validity, &first.1, &expected),
+        });
+        // Back to the start, corrected, for the next setting.
+        while !session.is_idle() {
+            session.step(SLICE)?;
+        }
+        tag += 1;
+        session.set_lights(&start, tag);
+        while !session.is_idle() {
+            session.step(SLICE)?;
+        }
+    }
+    Ok(rows)
+}
+
+/// `values`' light over `expected`'s, less one: area-weighted sums over
+/// the valid non-emitting texels, channels summed.
+fn bias(atlas: &Atlas, validity: &Validity, values: &[Vec3], expected: &[Vec3]) -> f64 {
+    let (mut got, mut want) = (0.0f64, 0.0f64);
+    for (i, e) in atlas.elements.iter().enumerate() {
+        if validity.is_invalid(i) || !e.covers_surface() || e.emission != Vec3::ZERO {
+            continue;
+        }
+        got += f64::from(e.area * values[i].element_sum());
+        want += f64::from(e.area * expected[i].element_sum());
+    }
+    if want > 0.0 {
+        got / want - 1.0
+    } else {
+        f64::NAN
+    }
+}
+
+/// `NAME.png` (the state) and `NAME-diff5.png` (five times its difference
+/// from `expected`) in `dir`, at the white point of `expected`; and
+/// `reference.png` once.
+fn write_images(
+    dir: &Path,
+    atlas: &Atlas,
+    name: &str,
+    values: &[Vec3],
+    expected: &[Vec3],
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let reference = atlas.to_image(expected);
+    let white = crate::bake::white_point(&reference);
+    let (w, h) = (atlas.width, atlas.height);
+    let path = dir.join("reference.png");
+    if !path.exists() {
+        crate::bake::write_png_with(&path, w, h, &reference, white)?;
+    }
+    crate::bake::write_png_with(
+        &dir.join(format!("{name}.png")),
+        w,
+        h,
+        &atlas.to_image(values),
+        white,
+    )?;
+    let diff: Vec<Vec3> = values
+        .iter()
+        .zip(expected)
+        .map(|(a, b)| (*a - *b).abs() * 5.0)
+        .collect();
+    crate::bake::write_png_with(
+        &dir.join(format!("{name}-diff5.png")),
+        w,
+        h,
+        &atlas.to_image(&diff),
+        white,
+    )
+}
+
+/// The settings [`sweep`] tries by default: no bounce; one to three
+/// bounces with and without the tail; virtual lights from 16 to 1,024 at
+/// the service's points; points per map from 128 to 8,192 at its lights.
+pub fn sweep_settings() -> Vec<BounceOptions> {
+    let base = BounceOptions::default();
+    let mut list = vec![BounceOptions { bounces: 0, ..base }];
+    for (bounces, tail) in [(1, false), (1, true), (2, false), (3, true)] {
+        list.push(BounceOptions {
+            bounces,
+            tail,
+            ..base
+        });
+    }
+    for vpls in [16, 64, 256, 1024] {
+        list.push(BounceOptions { vpls, ..base });
+    }
+    for points in [128, 512, 8192] {
+        list.push(BounceOptions { points, ..base });
+    }
+    list
+}
+
+/// Prints a sweep as a Markdown table.
+pub fn print_sweep(rows: &[SweepRow]) {
+    let Some(first) = rows.first() else {
+        return;
+    };
+    println!(
+        "\n{}: the far move's first answer by virtual point lights and imperfect shadow maps",
+        first.scene
+    );
+    println!(
+        "| bounces | virtual lights (placed) | points per map | NRMSE | p95 rel | light / reference | ms to first state | lights ms | maps ms | gather ms |"
+    );
+    println!("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+    for r in rows {
+        println!(
+            "| {}{} | {} ({}) | {} | {:.2}% | {:.2}% | {:+.1}% | {:.0} | {:.1} | {:.1} | {:.1} |",
+            r.bounces,
+            if r.tail && r.bounces > 0 {
+                " + tail"
+            } else {
+                ""
+            },
+            r.vpls,
+            r.vpls_placed,
+            r.points,
+            r.nrmse_first * 100.0,
+            r.p95_first * 100.0,
+            r.bias_first * 100.0,
+            r.ms_first,
+            r.ms_vpls,
+            r.ms_maps,
+            r.ms_gather
+        );
+    }
 }

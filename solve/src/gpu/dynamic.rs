@@ -69,10 +69,15 @@
 //!   that takes it up and equal to a fresh session's. Anything else (a
 //!   light that moves, a change while the basis is missing) is followed by
 //!   shooting the signed change of the light's direct light
-//!   ([`ProgressiveSolver::set_light`], thesis §2.2.5); cross then takes
-//!   the moving objects out and back in (they are passive, so they would
-//!   neither receive the change nor pass it on), refinement carries it, a
-//!   change cut short by the next is published as far as it got, and the
+//!   ([`ProgressiveSolver::set_light`], thesis §2.2.5). The step that
+//!   takes such a change up publishes a first answer at once: the state
+//!   so far, which holds the change's direct light whole, plus the
+//!   bounces of that change by virtual point lights and imperfect shadow
+//!   maps ([`super::vpl`], ism §4.1, §4.11; issue 60 item 3). Cross then
+//!   takes the moving objects out and back in (they are passive, so they
+//!   would neither receive the change nor pass it on), refinement carries
+//!   the change and its state replaces the first answer, a change cut
+//!   short by the next is published as far as it got, and the
 //!   corrections and the basis follow once the scene holds still. With
 //!   every source off a complete state is dark.
 //!
@@ -92,6 +97,7 @@ use super::correct::Correction;
 use super::gather::GatherOptions;
 use super::profile::{Profiler, Stage, Unit};
 use super::progressive::{Move, ProgressiveOptions, ProgressiveSolver, Redistribution};
+use super::vpl::{self, BounceOptions, BounceReport, FirstBounce};
 use super::{Device, GpuError};
 use crate::rays::{self, RaySolver};
 use lightwire_scene::atlas::Atlas;
@@ -148,6 +154,13 @@ pub struct DynamicOptions {
     /// exact at once, for `1 + lights` solves in the background once the
     /// scene holds still, and `12 (1 + lights) elements` bytes.
     pub light_basis: usize,
+    /// A light change followed by shooting (a light that moves, or any
+    /// change without the basis) is first published as the state so far
+    /// plus one bounce of its unshot light by virtual point lights and
+    /// imperfect shadow maps ([`super::vpl`], ism §4.1, §4.11), in the
+    /// step that takes it up; the refined state follows. None: the first
+    /// state published is the refined one.
+    pub first_bounce: Option<BounceOptions>,
     /// The progressive solver underneath.
     pub progressive: ProgressiveOptions,
 }
@@ -187,6 +200,7 @@ impl Default for DynamicOptions {
             // 48 MB of basis at most; every scene of `scenes/` with
             // lights but the pandora level's 56 lamps.
             light_basis: 4_000_000,
+            first_bounce: Some(BounceOptions::default()),
             progressive: ProgressiveOptions::default(),
         }
     }
@@ -322,6 +336,14 @@ pub struct DynamicSolver<T> {
     /// The tag being worked on is of a light change that no completed
     /// state shows yet.
     unpublished: bool,
+    /// The first bounce of a light change's unshot light, for a scene
+    /// with lights ([`DynamicOptions::first_bounce`]).
+    bounce: Option<FirstBounce>,
+    /// The last state published, while it is a first answer (the light
+    /// so far and one bounce of the change) rather than the solver's.
+    preview: Option<Vec<Vec3>>,
+    /// What the last first answer placed and where its time went.
+    bounce_report: Option<BounceReport>,
 }
 
 impl<T: Clone> DynamicSolver<T> {
@@ -401,7 +423,35 @@ impl<T: Clone> DynamicSolver<T> {
             profile: Profiler::disabled(),
             basis: None,
             unpublished: false,
+            bounce: options
+                .first_bounce
+                .filter(|_| !scene.lights.is_empty())
+                .map(|o| FirstBounce::new(gpu, atlas.elements.len(), o)),
+            preview: None,
+            bounce_report: None,
         })
+    }
+
+    /// What the last first answer placed and where its time went (none
+    /// before the first).
+    pub fn bounce_report(&self) -> Option<BounceReport> {
+        self.bounce_report
+    }
+
+    /// Makes later light changes' first answers with `options` (none: no
+    /// first answer), as [`DynamicOptions::first_bounce`] does; for
+    /// benchmarks that compare settings on one session.
+    pub fn set_first_bounce(&mut self, options: Option<BounceOptions>) {
+        self.options.first_bounce = options;
+        self.bounce = options
+            .filter(|_| !self.scene.lights.is_empty())
+            .map(|o| FirstBounce::new(&self.gpu, self.atlas.elements.len(), o));
+    }
+
+    /// Whether the last state published is a first answer (the light so
+    /// far and one bounce of a light's change), not yet the solver's.
+    pub fn is_first_answer(&self) -> bool {
+        self.preview.is_some()
     }
 
     /// Times the session's units and stages into `profile` from now on
@@ -454,17 +504,22 @@ impl<T: Clone> DynamicSolver<T> {
     }
 
     /// Changes at the solver every light that differs from `lights`;
-    /// returns whether any did.
-    fn change_lights(&mut self, lights: &[Light]) -> Result<bool, GpuError> {
-        let mut changed = false;
+    /// returns the change of reflected direct light per element if any
+    /// did.
+    fn change_lights(&mut self, lights: &[Light]) -> Result<Option<Vec<Vec3>>, GpuError> {
+        let mut changed: Option<Vec<Vec3>> = None;
         for (k, light) in lights.iter().enumerate().take(self.scene.lights.len()) {
             if self.scene.lights[k] != *light {
-                self.solver.set_light(k, light.clone())?;
+                if let Some(delta) = self.solver.set_light(k, light.clone())? {
+                    match &mut changed {
+                        Some(sum) => sum.iter_mut().zip(&delta).for_each(|(s, d)| *s += *d),
+                        None => changed = Some(delta),
+                    }
+                }
                 self.scene.lights[k] = light.clone();
-                changed = true;
             }
         }
-        if changed && gives_no_light(&self.scene) {
+        if changed.is_some() && gives_no_light(&self.scene) {
             // Every source is off: the solution is no light at all, at
             // once (a move waiting too then starts from it). Shooting the
             // change takes the light back only as well as its hemicubes
@@ -548,6 +603,9 @@ impl<T: Clone> DynamicSolver<T> {
     /// at zero (see the module doc on negative light). Read it after a step
     /// that reported `completed`.
     pub fn radiosity(&self) -> Result<Vec<Vec3>, GpuError> {
+        if let Some(preview) = &self.preview {
+            return Ok(preview.clone());
+        }
         Ok(self
             .solver
             .radiosity()?
@@ -704,18 +762,20 @@ impl<T: Clone> DynamicSolver<T> {
                     return Ok((true, true));
                 }
             }
-            let relit = match lights {
+            let change = match lights {
                 Some(lights) => self.change_lights(&lights)?,
-                None => false,
+                None => None,
             };
-            if !relit || poses.as_slice() != self.solver.poses() {
+            let Some(change) = change.filter(|_| poses.as_slice() == self.solver.poses()) else {
                 self.start_move(poses, tag)?;
                 return Ok((true, true));
-            }
+            };
             // Only lights changed: refinement carries the change, and the
-            // state it completes reflects the tag.
+            // state it completes reflects the tag; the first answer is
+            // published at once.
             self.working = tag;
-            self.unpublished = true;
+            self.first_answer(&change, report)?;
+            self.unpublished = self.preview.is_none();
             self.basis = None;
             if self.options.corrections > 0 {
                 self.corrected = false;
@@ -1013,10 +1073,52 @@ impl<T: Clone> DynamicSolver<T> {
             self.solver
                 .adopt(&vec![glam::Vec3::ZERO; self.atlas.elements.len()])?;
         }
+        self.preview = None;
         self.reflected = self.working.clone();
         self.unpublished = false;
         self.versions += 1;
         report.completed = true;
+        Ok(())
+    }
+
+    /// Publishes the first answer to a light change that refinement will
+    /// carry ([`DynamicOptions::first_bounce`]): the solver's state so far
+    /// (the change's direct light whole) plus one bounce of its unshot
+    /// light, [`super::vpl`]. `change` is the change of reflected direct
+    /// light per element, which the passive objects of a cross session
+    /// send (refinement does not shoot their unshot light). Nothing
+    /// without lights giving light, or with the first bounce off.
+    fn first_answer(&mut self, change: &[Vec3], report: &mut DynamicStep) -> Result<(), GpuError> {
+        let Some(bounce) = &self.bounce else {
+            return Ok(());
+        };
+        if gives_no_light(&self.scene) {
+            return Ok(());
+        }
+        let solver = &self.solver;
+        let mut source = solver.unshot_light()?;
+        let (validity, absent) = (solver.validity(), solver.absent());
+        let receives = |i: usize| {
+            let object = self.atlas.elements[i].object as usize;
+            !validity.is_invalid(i) && !absent.get(object).copied().unwrap_or(false)
+        };
+        for (i, s) in source.iter_mut().enumerate() {
+            if solver.is_passive_element(i) && receives(i) {
+                *s = change[i];
+            }
+        }
+        let (areas, albedo) = solver.areas_and_albedo();
+        let receivers = vpl::receivers(&self.atlas, solver.poses(), albedo, receives);
+        let (light, times) = bounce.run(&self.gpu, &receivers, &source, areas)?;
+        let state: Vec<Vec3> = solver
+            .radiosity()?
+            .iter()
+            .zip(&light)
+            .map(|(b, l)| (*b + *l).max(Vec3::ZERO))
+            .collect();
+        self.complete(report)?;
+        self.preview = Some(state);
+        self.bounce_report = Some(times);
         Ok(())
     }
 }
@@ -1074,6 +1176,7 @@ impl Building {
             Some(scene) => {
                 let options = DynamicOptions {
                     light_basis: 0,
+                    first_bounce: None,
                     ..options
                 };
                 self.current = Some(Box::new(DynamicSolver::new(

@@ -52,6 +52,8 @@
 //! - `gather/`: gather radiosity;
 //! - `correct.rs`: gather sweeps that correct a progressive solution;
 //! - `dynamic.rs`: the solver session that follows moves;
+//! - `vpl.rs`: a first bounce by virtual point lights and imperfect
+//!   shadow maps, the fast first answer for a light that moves;
 //! - `profile.rs`: where that session's time goes, per stage (profiling
 //!   only).
 
@@ -67,6 +69,7 @@ mod placement;
 pub mod profile;
 mod progressive;
 mod shaders;
+mod vpl;
 
 pub use correct::{
     Correction, CorrectionReport, MAX_DEFAULT_SWEEP, RAY_GRID, RAY_SIDE, corrections_affordable,
@@ -77,3 +80,4 @@ pub use gather::{GatherBalance, GatherOptions, GatherReport, GatherSolver};
 pub use progressive::{
     EnergyBalance, Move, ProgressiveOptions, ProgressiveSolver, Redistribution, StepReport,
 };
+pub use vpl::{BounceOptions, BounceReport, FirstBounce, ISM_SIDE};

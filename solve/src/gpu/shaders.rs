@@ -51,7 +51,7 @@
 //! pipeline binds what its entry points use.
 
 /// Every `.wgsl` file under `gpu/`, by name.
-const FILES: [(&str, &str); 10] = [
+const FILES: [(&str, &str); 11] = [
     ("common.wgsl", include_str!("common.wgsl")),
     ("elements.wgsl", include_str!("elements.wgsl")),
     ("receive.wgsl", include_str!("receive.wgsl")),
@@ -71,6 +71,7 @@ const FILES: [(&str, &str); 10] = [
         include_str!("progressive/redistribute/redistribute.wgsl"),
     ),
     ("gather.wgsl", include_str!("gather/gather.wgsl")),
+    ("vpl.wgsl", include_str!("vpl.wgsl")),
 ];
 
 /// The first line of a file that lists what it requires.
@@ -149,6 +150,11 @@ pub(super) fn gather() -> String {
     assemble("gather.wgsl")
 }
 
+/// One bounce of instant radiosity with imperfect shadow maps (vpl.wgsl).
+pub(super) fn vpl() -> String {
+    assemble("vpl.wgsl")
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::binding::{Pass, check};
@@ -156,16 +162,18 @@ mod tests {
     use super::super::hemicube::{self, GpuVertex};
     use super::super::placement::{ELEMENT_BYTES, LocalElement, PatchFrame, PatchRange};
     use super::super::progressive::{self, BatchUniform, GpuShooter, Selection};
+    use super::super::vpl;
     use super::*;
 
     /// Every module the solvers build, by the label they give it.
-    fn modules() -> [(&'static str, String); 5] {
+    fn modules() -> [(&'static str, String); 6] {
         [
             ("progressive", progressive()),
             ("redistribute", redistribute()),
             ("hemicube (faces)", hemicube(false)),
             ("hemicube (rows)", hemicube(true)),
             ("gather", gather()),
+            ("vpl", vpl()),
         ]
     }
 
@@ -261,7 +269,7 @@ mod tests {
     #[test]
     fn structs_shared_with_rust_have_the_same_size_on_both_sides() {
         use std::mem::size_of;
-        let shared: [(&str, usize); 11] = [
+        let shared: [(&str, usize); 14] = [
             ("Shooter", size_of::<GpuShooter>()),
             ("Batch", size_of::<BatchUniform>()),
             ("PatchRange", size_of::<PatchRange>()),
@@ -273,6 +281,9 @@ mod tests {
             ("GatherVertex", size_of::<GatherVertex>()),
             ("GatherParams", size_of::<GatherParams>()),
             ("GatherElement", size_of::<GatherElement>()),
+            ("BounceParams", size_of::<vpl::BounceParams>()),
+            ("BounceReceiver", size_of::<vpl::BounceReceiver>()),
+            ("GpuVpl", size_of::<vpl::GpuVpl>()),
         ];
         let mut found = vec![0; shared.len()];
         for (label, source) in modules() {
@@ -346,7 +357,7 @@ mod tests {
             hemicube::CLEAR_ITEMS,
             hemicube::CLEAR_BACK,
         ];
-        let passes: [(&str, String, Vec<Pass>); 5] = [
+        let passes: [(&str, String, Vec<Pass>); 6] = [
             (
                 "progressive",
                 progressive(),
@@ -360,6 +371,7 @@ mod tests {
             ("hemicube (faces)", hemicube(false), hemicube_passes.clone()),
             ("hemicube (rows)", hemicube(true), hemicube_passes),
             ("gather", gather(), gather::ALL_PASSES.to_vec()),
+            ("vpl", vpl(), vpl::ALL_PASSES.to_vec()),
         ];
         for (label, source, list) in passes {
             let (module, info) = parse(label, &source);

@@ -67,6 +67,17 @@ pub(crate) struct LightsArgs {
     /// Use the adapter whose name contains this.
     #[arg(long)]
     adapter: Option<String>,
+    /// Skip the table of first answers by virtual lights and shadow-map
+    /// points on the move.
+    #[arg(long)]
+    no_sweep: bool,
+    /// Write each first answer of the sweep here as an atlas PNG with a
+    /// x5 difference image from the reference.
+    #[arg(long)]
+    images: Option<PathBuf>,
+    /// Only the sweep (skip the changes' table).
+    #[arg(long, conflicts_with = "no_sweep")]
+    sweep_only: bool,
 }
 
 impl LightsArgs {
@@ -79,18 +90,43 @@ impl LightsArgs {
         let gpu = gpu::Device::new(self.adapter.as_deref())?;
         eprintln!("adapter: {}", gpu.describe());
         let mut results = Vec::new();
+        let mut sweeps = Vec::new();
+        let defaults = gpu::DynamicOptions::default();
         for path in &scenes {
-            // With the service's basis, then shooting alone.
-            for light_basis in [gpu::DynamicOptions::default().light_basis, 0] {
+            // With the service's basis and first answer, with the basis
+            // and no first answer, and shooting alone with the first
+            // answer.
+            let variants = [
+                (defaults.light_basis, defaults.first_bounce),
+                (defaults.light_basis, None),
+                (0, defaults.first_bounce),
+            ];
+            for (light_basis, first_bounce) in variants.into_iter().filter(|_| !self.sweep_only) {
                 let settings = bench::lights::Settings {
                     density_scale: self.density_scale,
                     charts: self.charts.charts,
                     light_basis,
+                    first_bounce,
+                    images: None,
                 };
                 let result = bench::lights::run(&gpu, path, &settings)
                     .with_context(|| format!("bench lights on {}", path.display()))?;
                 bench::lights::print(&result);
                 results.push(result);
+            }
+            if !self.no_sweep {
+                let settings = bench::lights::Settings {
+                    density_scale: self.density_scale,
+                    charts: self.charts.charts,
+                    light_basis: 0,
+                    first_bounce: defaults.first_bounce,
+                    images: self.images.clone(),
+                };
+                let rows =
+                    bench::lights::sweep(&gpu, path, &settings, &bench::lights::sweep_settings())
+                        .with_context(|| format!("bench lights' sweep on {}", path.display()))?;
+                bench::lights::print_sweep(&rows);
+                sweeps.extend(rows);
             }
         }
         if let Some(json) = &self.json {
@@ -98,7 +134,9 @@ impl LightsArgs {
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("creating {}", dir.display()))?;
             }
-            bench::write_json(json, &results)?;
+            let all = serde_json::json!({ "changes": results, "first_answer": sweeps });
+            std::fs::write(json, serde_json::to_string_pretty(&all)? + "\n")
+                .with_context(|| format!("writing {}", json.display()))?;
         }
         Ok(())
     }

@@ -142,14 +142,15 @@ impl ProgressiveSolver {
     /// off, position or direction): the change of its direct light at
     /// every valid element, reflected, is added to the radiosity and the
     /// unshot radiosity (see the module documentation), and refinement
-    /// carries it on. Returns whether anything changed (false for `k`
-    /// beyond the scene's lights or the same light).
-    pub fn set_light(&mut self, k: usize, light: Light) -> Result<bool, GpuError> {
+    /// carries it on. Returns the change added per element (`ρ ΔD`, atlas
+    /// order), or none when nothing changed (`k` beyond the scene's lights
+    /// or the same light).
+    pub fn set_light(&mut self, k: usize, light: Light) -> Result<Option<Vec<Vec3>>, GpuError> {
         let Some(old) = self.scene.lights.get(k).cloned() else {
-            return Ok(false);
+            return Ok(None);
         };
         if old == light {
-            return Ok(false);
+            return Ok(None);
         }
         let caster = Raycaster::with_absent(&self.scene, &self.poses, &self.absent);
         let (scene, atlas, poses) = (&self.scene, &self.atlas, self.poses.as_slice());
@@ -189,6 +190,38 @@ impl ProgressiveSolver {
         }
         self.scene.lights[k] = light;
         self.add_unshot(&delta)?;
-        Ok(true)
+        Ok(Some(delta))
+    }
+
+    /// What a first bounce of the unshot light starts from (`gpu::vpl`):
+    /// per element, its unshot radiosity where refinement would shoot it,
+    /// zero on invalid elements and those of absent or passive objects.
+    pub(in crate::gpu) fn unshot_light(&self) -> Result<Vec<Vec3>, GpuError> {
+        let u = self.read_vec4(&self.buffers.unshot)?;
+        Ok(u.iter()
+            .enumerate()
+            .map(|(i, v)| {
+                let o = self.element_objects[i] as usize;
+                let out = self.absent.get(o).copied().unwrap_or(false)
+                    || self.passive.get(o).copied().unwrap_or(false);
+                if out || self.validity.is_invalid(i) {
+                    Vec3::ZERO
+                } else {
+                    Vec3::new(v[0], v[1], v[2])
+                }
+            })
+            .collect())
+    }
+
+    /// Whether element `i`'s object is passive (its unshot light is not
+    /// refinement's, [`ProgressiveSolver::set_passive`]).
+    pub(in crate::gpu) fn is_passive_element(&self, i: usize) -> bool {
+        let o = self.element_objects.get(i).copied().unwrap_or(0) as usize;
+        self.passive.get(o).copied().unwrap_or(false)
+    }
+
+    /// The elements' world areas and albedos at the current poses.
+    pub(in crate::gpu) fn areas_and_albedo(&self) -> (&[f32], &[Vec3]) {
+        (&self.areas, &self.albedo)
     }
 }
