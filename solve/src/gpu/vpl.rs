@@ -497,6 +497,85 @@ impl FirstBounce {
 mod tests {
     use super::*;
 
+    /// An element at `at` facing `normal`, of albedo 0.5, receiving.
+    fn element(at: Vec3, normal: Vec3) -> BounceReceiver {
+        BounceReceiver {
+            position: v4(at, 1.0),
+            normal: v4(normal, 0.0),
+            albedo: [0.5; 4],
+        }
+    }
+
+    /// One bounce from a 1 m² source sending 1 W per channel up from the
+    /// origin: what a receiver 2 m above it gets (facing down) is the disc
+    /// form factor's `ρ Φ cos cos / (π r² + A)`, and nothing with a
+    /// 2 x 2 m plate of elements between them, which the imperfect shadow
+    /// maps see; a receiver off to the side, past the plate's edge, is lit
+    /// either way.
+    #[test]
+    fn imperfect_shadow_maps_hide_what_a_plate_hides() {
+        let gpu = Device::new(None).unwrap_or_else(|e| panic!("{e}"));
+        let up = Vec3::Y;
+        let above = Vec3::new(0.0, 2.0, 0.0);
+        let aside = Vec3::new(3.0, 2.0, 0.0);
+        let expected = |at: Vec3| {
+            let d = at.length();
+            let cos = at.y / d;
+            0.5 * cos * cos / (std::f32::consts::PI * d * d + 1.0)
+        };
+        for plate in [false, true] {
+            let mut elements = vec![
+                element(Vec3::ZERO, up),
+                element(above, -up),
+                element(aside, -up),
+            ];
+            if plate {
+                for a in 0..41 {
+                    for b in 0..41 {
+                        let (x, z) = (a as f32 / 20.0 - 1.0, b as f32 / 20.0 - 1.0);
+                        elements.push(element(Vec3::new(x, 1.0, z), -up));
+                    }
+                }
+            }
+            let n = elements.len();
+            let mut source = vec![Vec3::ZERO; n];
+            source[0] = Vec3::ONE;
+            let areas = vec![1.0; n];
+            let options = BounceOptions {
+                vpls: 4,
+                points: n as u32,
+                bounces: 1,
+                tail: false,
+                ..BounceOptions::default()
+            };
+            let bounce = FirstBounce::new(&gpu, n, options);
+            let (light, report) = bounce
+                .run(&gpu, &elements, &source, &areas)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(report.placed, 1, "one light on the one source");
+            let got_above = light[1].x;
+            let got_aside = light[2].x;
+            let rel = |got: f32, want: f32| (got - want).abs() / want;
+            assert!(
+                rel(got_aside, expected(aside)) < 1e-3,
+                "plate {plate}: aside {got_aside}, expected {}",
+                expected(aside)
+            );
+            if plate {
+                assert!(
+                    got_above < 0.01 * expected(above),
+                    "the plate must hide the source: {got_above}"
+                );
+            } else {
+                assert!(
+                    rel(got_above, expected(above)) < 1e-3,
+                    "above {got_above}, expected {}",
+                    expected(above)
+                );
+            }
+        }
+    }
+
     fn receiver(x: f32, on: bool) -> BounceReceiver {
         BounceReceiver {
             position: [x, 0.0, 0.0, if on { 1.0 } else { 0.0 }],
