@@ -649,7 +649,7 @@ fn want_name(kind: LightKind) -> &'static str {
 /// intensity (through 683 lm/W both ways), and the Khronos validator
 /// accepts the file. `GET /api/scenes` counts the lights, `GET
 /// /api/scenes/{id}/lights` lists them as the scene file gives them (no
-/// `SetLight` yet: on, seq 0), and
+/// `SetLight` yet: on, seq 0, and the same state under `file`), and
 /// an unknown scene's lights are a 404 that says so.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_served_scene_glb_keeps_the_scenes_lights() {
@@ -698,7 +698,13 @@ async fn the_served_scene_glb_keeps_the_scenes_lights() {
                 "color": [1.0, 1.0, 1.0],
                 "intensity": 8.0,
                 "on": true,
-                "seq": 0
+                "seq": 0,
+                "file": {
+                    "on": true,
+                    "color": [1.0, 1.0, 1.0],
+                    "intensity": 8.0,
+                    "position": [2.78, 4.488, 2.796]
+                }
             }],
             "sky": null
         })

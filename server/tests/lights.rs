@@ -352,9 +352,11 @@ fn glb_json(glb: &[u8]) -> serde_json::Value {
 /// asking for `Lights`, is welcomed with the bulb off, and the first
 /// lightmap it gets is dark; one that asks is told seq 1 too. `GET
 /// /api/scenes/{id}` (what `Welcome` carries), `GET .../lights` (off,
-/// seq 1, its colour and intensity as when on) and `scene.glb` (the bulb's
-/// `KHR_lights_punctual` intensity 0) say the same; switched on again, the
-/// next newcomer is welcomed with it on.
+/// seq 1, its colour and intensity as when on, the scene file's state
+/// under `file`) and `scene.glb` (the bulb's `KHR_lights_punctual`
+/// intensity 0) say the same; switched on again, the next newcomer is
+/// welcomed with it on; moved and dimmed, the route lists it so and still
+/// gives the scene file's state under `file`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_newcomer_is_told_the_lights_as_they_are_now() {
     let server = serve("reference");
@@ -432,6 +434,14 @@ async fn a_newcomer_is_told_the_lights_as_they_are_now() {
         (&"bulb".into(), &false.into(), &1.into(), &8.0.into()),
         "{entry}"
     );
+    // The scene file's state stays under `file`: what pages anchor on.
+    let file = serde_json::json!({
+        "on": true,
+        "color": [1.0, 1.0, 1.0],
+        "intensity": 8.0,
+        "position": [2.78, 4.488, 2.796]
+    });
+    assert_eq!(entry["file"], file, "{entry}");
     let glb = http::get(
         &server.addr,
         "/api/scenes/cornell-point/scene.glb",
@@ -459,6 +469,35 @@ async fn a_newcomer_is_told_the_lights_as_they_are_now() {
     )
     .await;
     assert_eq!(listed.json()["lights"][0]["on"], true, "{}", listed.text());
+
+    // Moved and dimmed: the route lists it where it is now, and the scene
+    // file's state under `file` still.
+    let [x, y, z] = bulb.state.position;
+    let moved = LightState {
+        intensity: 2.0,
+        position: [x - 0.5, y - 0.5, z + 0.25],
+        ..bulb.state
+    };
+    driver.set_light(0, 3, moved).await;
+    settle(&server, &mut [&mut watcher], 3).await;
+    assert!(driver.errors.is_empty(), "{:?}", driver.errors);
+    let listed = http::get(
+        &server.addr,
+        "/api/scenes/cornell-point/lights",
+        Some(VIEWER_TOKEN),
+    )
+    .await;
+    let entry = &listed.json()["lights"][0];
+    assert_eq!(
+        (&entry["seq"], &entry["intensity"], &entry["on"]),
+        (&3.into(), &2.0.into(), &true.into()),
+        "{entry}"
+    );
+    let at: Vec<f32> = (0..3)
+        .map(|i| entry["position"][i].as_f64().expect("a number") as f32)
+        .collect();
+    assert_eq!(at, moved.position, "{entry}");
+    assert_eq!(entry["file"], file, "{entry}");
 }
 
 /// A relay forwards lights (issue 60): it announces `CAP_LIGHTS` as its

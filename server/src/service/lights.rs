@@ -8,7 +8,10 @@
 //! with them ([`lights_as_lit`]: the states drivers' `SetLight`s gave
 //! them, as `Lights` tells), each with `on` and the `seq` of the
 //! `SetLight` that set it (0: the scene file's state); an off light keeps
-//! the colour and intensity it has when switched on.
+//! the colour and intensity it has when switched on. Each also carries
+//! under `file` its state as the scene file gives it, which no `SetLight`
+//! changes: what the dashboard anchors a sun's day path and the intensity
+//! slider's scale on, so that pages agree whenever they connected.
 //!
 //! Each light has only the keys of its type, in the scene file's units:
 //! its colour is the channels over the largest and its intensity the
@@ -66,6 +69,38 @@ pub struct LightEntry {
     /// file's ([`lights_as_lit`] only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub seq: Option<u64>,
+    /// The light's state as the scene file gives it, whatever `SetLight`s
+    /// did since ([`lights_as_lit`] only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub file: Option<FileState>,
+}
+
+/// A light's state in the scene file, in its entry's keys and units (what
+/// a `Welcome` tells before any `SetLight`): a black light is off, white
+/// and of intensity 0; `position` only for a point or spot light,
+/// `direction` only for a spot or directional one.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FileState {
+    pub on: bool,
+    pub color: [f32; 3],
+    pub intensity: f32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f32; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub direction: Option<[f32; 3]>,
+}
+
+impl FileState {
+    /// `light`'s state as `entry` (its [`light_entry`]) gives it.
+    fn of(light: &Light, entry: &LightEntry) -> FileState {
+        FileState {
+            on: light.intensity.max_element() > 0.0,
+            color: entry.color,
+            intensity: entry.intensity,
+            position: entry.position,
+            direction: entry.direction,
+        }
+    }
 }
 
 /// The sky: radiance (W/(m² sr) per channel) at the zenith and the
@@ -88,14 +123,14 @@ pub fn scene_lights(scene: &Scene) -> SceneLights {
 
 /// `scene`'s lights in the states `lit` gives them (a publication's
 /// `Lights`; a light it does not list is as the scene file has it, seq 0),
-/// and its sky.
+/// each with its scene file's state under `file`, and its sky.
 pub fn lights_as_lit(scene: &Scene, lit: &[LightStatus]) -> SceneLights {
     let lights = scene
         .lights
         .iter()
         .enumerate()
-        .map(
-            |(k, base)| match lit.iter().find(|s| s.light as usize == k) {
+        .map(|(k, base)| {
+            let mut entry = match lit.iter().find(|s| s.light as usize == k) {
                 Some(s) => {
                     // Its colour and intensity as when on, and whether it is.
                     let shining = LightState {
@@ -113,8 +148,10 @@ pub fn lights_as_lit(scene: &Scene, lit: &[LightStatus]) -> SceneLights {
                     entry.seq = Some(0);
                     entry
                 }
-            },
-        )
+            };
+            entry.file = Some(FileState::of(base, &light_entry(base)));
+            entry
+        })
         .collect();
     SceneLights {
         lights,
@@ -143,6 +180,7 @@ pub fn light_entry(light: &Light) -> LightEntry {
         angular_diameter_deg: None,
         on: None,
         seq: None,
+        file: None,
     };
     match light.kind {
         LightKind::Point => {}
@@ -266,8 +304,9 @@ mod tests {
         assert!(close(sky.zenith, want.zenith) && close(sky.horizon, want.horizon));
     }
 
-    /// A light switched off and moved by a `SetLight` is listed where it
-    /// is now, off, with its seq; one no status names is the file's.
+    /// A light switched off, dimmed and moved by a `SetLight` is listed
+    /// where it is now, off, with its seq, and its scene file's state
+    /// under `file`; one no status names is the file's.
     #[test]
     fn the_lights_are_listed_as_the_newest_version_was_lit() {
         let scene = plate(
@@ -307,10 +346,29 @@ mod tests {
             (&true.into(), &0.into()),
             "{sun}"
         );
+        // The scene file's states stay under `file`, in the entries' keys.
+        assert_eq!(
+            bulb["file"],
+            serde_json::to_value(FileState {
+                on: true,
+                color: [1.0, 0.8, 0.6],
+                intensity: 5.0,
+                position: Some([0.4, 0.9, 1.1]),
+                direction: None,
+            })
+            .expect("JSON"),
+            "{bulb}"
+        );
+        assert_eq!(
+            sun["file"],
+            serde_json::json!({ "on": true, "color": [1.0, 1.0, 1.0], "intensity": 700.0,
+                                "direction": [0.0, -1.0, 0.0] }),
+            "{sun}"
+        );
         let file = serde_json::to_value(scene_lights(&scene)).expect("JSON");
         assert!(
-            file["lights"][0].get("on").is_none(),
-            "a scene file has no on"
+            file["lights"][0].get("on").is_none() && file["lights"][0].get("file").is_none(),
+            "a scene file has no on or file"
         );
     }
 
