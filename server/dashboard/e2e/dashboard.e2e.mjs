@@ -233,6 +233,15 @@ try {
       listedLights > 0 && gizmos && hidden > 0 && shown > 0,
       `${listedLights} listed, ${snap.lightGizmoSegments} segments, ${hidden} pixels hidden, ${shown} shown again`,
     );
+    // The same reply gives the scene file's states, which the Lights
+    // panel's sliders are anchored on (gizmos.js's lightAnchor).
+    if (snap.lightControls > 0) {
+      check(
+        'the Lights panel\'s sliders are anchored on the scene file\'s states',
+        snap.lightAnchorsFromFile.length === snap.lightControls && snap.lightAnchorsFromFile.every(Boolean),
+        JSON.stringify(snap.lightAnchorsFromFile),
+      );
+    }
   }
 
   await page.screenshot({ path: path.join(args.artifacts, 'dashboard-before.png'), fullPage: true });

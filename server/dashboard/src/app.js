@@ -32,13 +32,18 @@
 // The 3D view draws the scene's lights as gizmos (gizmos.js), fetched once
 // per watched scene from `GET /api/scenes/{id}/lights` when the scene list
 // counts any (a solver's; a relay holds none to give), where the states
-// shown in the Lights panel put them.
+// shown in the Lights panel put them. The same reply gives each light's
+// scene file state (`file`), which the intensity slider's scale and a
+// sun's day path are anchored on (gizmos.js's `lightAnchor`), so that every
+// page agrees whenever it connected; where there is none (a relay), they
+// are anchored on the Welcome's states, which are the scene file's only
+// until a driver changes a light.
 //
 // `window.lightwire` exposes a read-only snapshot for tests and the console.
 
 import { Chart } from './chart.js';
 import { Backoff, DASHBOARD_BACKOFF, LightSeqs, Reconnector, posesToApply, sceneUrl } from './connection.js';
-import { lightsPath, sunHour, sunPath, timeOfDay } from './gizmos.js';
+import { lightAnchor, lightsPath, sunHour, timeOfDay } from './gizmos.js';
 import { CAP_LIGHTS, PROTOCOL_VERSION, lightProblem, poseProblem } from './protocol.js';
 import { ToneTable, srgbEncode, whitePoint } from './tone.js';
 import { View3D, quatMul, quatYaw } from './view3d.js';
@@ -47,7 +52,7 @@ import { View3D, quatMul, quatYaw } from './view3d.js';
  * SetLights for one light). */
 const TRANSFORM_PERIOD_MS = 33;
 /** The intensity slider's range, in stops from the light's intensity in
- * the Welcome. */
+ * the scene file (`lightAnchor`). */
 const INTENSITY_STOPS = [-10, 6];
 /** The largest intensity a SetLight may carry (PROTOCOL.md §4). */
 const MAX_INTENSITY = 1e6;
@@ -410,11 +415,15 @@ const lights = {
   follows: false,
   /** A Lights arrived on this connection: the seqs are known. */
   known: false,
-  /** Per light: its row's controls, its Welcome intensity (the slider's 0)
-   * and, for a sun, its path through the day (from its Welcome direction:
-   * the scene file's, unless a driver changed the light before this
-   * connection's Welcome, which tells the lights as they are then). */
+  /** Per light: its row's controls, the intensity of the slider's 0 stop
+   * and, for a sun, its path through the day (`lightAnchor`: from the
+   * scene file's state in `entries`, else from this connection's Welcome,
+   * which tells the lights as they are then). */
   rows: [],
+  /** The lights route's reply for scene `id` (`list`: its entries, with
+   * each light's scene file state, `file`), or null: not fetched (yet), or
+   * a relay, which has no such route. */
+  entries: null,
   /** Per light: the state shown (the latest Lights', or this page's change). */
   states: [],
   seqs: new LightSeqs(),
@@ -459,17 +468,15 @@ const lights = {
     const color = Object.assign(document.createElement('input'), { type: 'color' });
     color.setAttribute('aria-label', `${light.name} colour`);
     li.append(name, kind, intensity, value, color);
-    const reference = light.state.intensity > 0 ? light.state.intensity : 1;
     on.addEventListener('change', () => this.change(i, { on: on.checked }));
     intensity.addEventListener('input', () => {
-      const v = Math.min(reference * 2 ** Number(intensity.value), MAX_INTENSITY);
+      const v = Math.min(r.reference * 2 ** Number(intensity.value), MAX_INTENSITY);
       value.textContent = intensityText(v, light.kind);
       this.change(i, { intensity: v });
     });
     color.addEventListener('input', () => this.change(i, { color: hexColor(color.value) }));
-    const r = { li, on, intensity, value, color, reference, kind: light.kind };
-    if (light.kind === 'Directional') {
-      r.path = sunPath(light.state.direction);
+    const r = { li, on, intensity, value, color, kind: light.kind, ...lightAnchor(light, this.entry(i)) };
+    if (r.path) {
       r.hour = Object.assign(document.createElement('input'), { type: 'range', min: '0', max: '24', step: '0.25' });
       r.hour.setAttribute('aria-label', `${light.name} time of day`);
       r.clock = document.createElement('output');
@@ -486,6 +493,24 @@ const lights = {
       });
     }
     return r;
+  },
+
+  /** The lights route's entry of light `i` of the scene shown, if the
+   * route has answered for that scene. */
+  entry(i) {
+    return this.scene && this.entries?.id === this.scene.id ? this.entries.list[i] : undefined;
+  },
+
+  /** The lights route's entries `list` of scene `id` (null: none): the
+   * sliders are anchored on the scene file's states from now on, on the
+   * Welcome's where there are none. */
+  setEntries(id, list) {
+    this.entries = list ? { id, list } : null;
+    if (!this.scene) return;
+    this.scene.lights.forEach((light, i) => {
+      Object.assign(this.rows[i], lightAnchor(light, this.entry(i)));
+      this.draw(i);
+    });
   },
 
   /** Light `i`'s controls from its state. */
@@ -633,20 +658,26 @@ function connect() {
 /** The scene list's entries by id (`GET /api/scenes`). */
 let listed = new Map();
 
-/** Fetches scene `id`'s lights for the 3D view's gizmos, if the scene
- * list counts any; a reply for a scene no longer watched is dropped. */
+/** Fetches scene `id`'s lights for the 3D view's gizmos and the Lights
+ * panel's anchors (their scene file states), if the scene list counts any
+ * (a solver's; a relay has no lights route, and the panel is anchored on
+ * its Welcome's states); a reply for a scene no longer watched is
+ * dropped. */
 async function loadLights(id) {
   view?.setLights([]);
-  if (!view || !(listed.get(id)?.lights > 0)) return;
+  lights.setEntries(id, null);
+  if (!(listed.get(id)?.lights > 0)) return;
   const response = await fetch(lightsPath(id), { headers: authHeaders() });
   if (!response.ok) {
     const body = await response.json().catch(() => null);
     throw new Error(`HTTP ${response.status}${body?.error ? `: ${body.error}` : ''}`);
   }
-  const { lights } = await response.json();
+  const { lights: entries } = await response.json();
   if (ui.scene.value !== id) return;
-  view.setLights(lights);
-  logEvent(`${lights.length} light${lights.length === 1 ? '' : 's'} drawn as gizmos`);
+  lights.setEntries(id, entries);
+  if (!view) return;
+  view.setLights(entries);
+  logEvent(`${entries.length} light${entries.length === 1 ? '' : 's'} drawn as gizmos`);
 }
 
 /** Headers that present the token field's token to the REST API, which
@@ -724,6 +755,7 @@ window.lightwire = {
       lightControls: lights.rows.length,
       lightControlsEnabled: !ui.lights.disabled,
       lightStates: structuredClone(lights.states),
+      lightAnchorsFromFile: lights.rows.map((r) => r.fromFile),
       lightSeqsSent: Object.fromEntries(lights.seqs.sent),
       lastSentSeq: driver.lastSentSeq,
       latencyMs: driver.latencyMs,

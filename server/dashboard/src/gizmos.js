@@ -24,7 +24,8 @@
 // its largest channel (white for a black one).
 //
 // The sun through a day (`sunPath`, `sunDirection`, `sunHour`,
-// `timeOfDay`): the Lights panel's time-of-day slider, described below.
+// `timeOfDay`): the Lights panel's time-of-day slider, described below;
+// `lightAnchor`: what that slider and the intensity slider are anchored on.
 
 import { sceneGlbPath } from './protocol.js';
 
@@ -161,7 +162,8 @@ export function lightGizmos(lights, bounds) {
 // --- The sun through a day ---------------------------------------------------
 //
 // A directional light's time-of-day slider moves it along a day's path
-// built around the scene file's sun, which stands where it is at noon:
+// built around the scene file's sun (`lightAnchor`), which stands where it
+// is at noon:
 //
 // - its azimuth (measured about +y from +x towards +z, clockwise seen from
 //   above) turns 15 degrees an hour through the whole day, the noon sun's
@@ -230,4 +232,43 @@ export function timeOfDay(path, hour, state) {
   const wasUp = state.direction[1] < 0;
   const up = direction[1] < 0;
   return { ...state, direction, on: up === wasUp ? state.on : up };
+}
+
+// --- What the Lights panel's sliders are anchored on -------------------------
+//
+// A light's intensity slider counts stops from a reference intensity, and
+// a sun's time-of-day slider follows the day's path around a noon
+// direction. Both are the scene file's, so that every page gives the same
+// hour the same direction and the same stop the same intensity however
+// the lights were changed before it connected: the lights route's `file`
+// (`GET /api/scenes/{id}/lights`, a solver's; PROTOCOL.md §7). A Welcome
+// tells the lights as they are when it is written, which is the scene
+// file's state only until a driver changes them; it is the fallback where
+// the route has no `file` for the light: on a relay (which holds no scene
+// file and has no lights route), on an older solver, or until the route
+// has answered.
+
+/**
+ * What light `light`'s sliders (a Welcome's LightInfo: `name`, `kind`,
+ * `state`) are anchored on, given `entry`, the lights route's entry at the
+ * same index (or undefined): `{ reference, path, fromFile }`: the
+ * intensity of the slider's 0 stop (1 for a black light), a sun's day path
+ * (`sunPath`; null for a point or spot light) and whether they come from
+ * the scene file's state (`entry.file`, used when the entry names the same
+ * light and gives what is needed) or from `light.state`.
+ */
+export function lightAnchor(light, entry) {
+  const file = entry?.name === light.name ? entry.file : undefined;
+  const sun = light.kind === 'Directional';
+  const usable =
+    file &&
+    Number.isFinite(file.intensity) &&
+    file.intensity >= 0 &&
+    (!sun || (finite3(file.direction) && unit(file.direction) !== null));
+  const state = usable ? file : light.state;
+  return {
+    reference: state.intensity > 0 ? state.intensity : 1,
+    path: sun ? sunPath(unit(state.direction) ?? [0, -1, 0]) : null,
+    fromFile: Boolean(usable),
+  };
 }
