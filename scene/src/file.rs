@@ -101,6 +101,11 @@ pub struct LightJson {
     /// A spot's cut-off, degrees from the axis (default 45, at most 90).
     #[serde(default)]
     pub outer_cone_deg: Option<f64>,
+    /// The dynamic object the light rides with (its name); absent: the
+    /// static world. Its position and direction are given with the
+    /// object at its initial pose.
+    #[serde(default)]
+    pub object: Option<String>,
 }
 
 fn white() -> Vec3Json {

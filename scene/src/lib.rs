@@ -669,6 +669,30 @@ impl Scene {
         self.objects.iter().map(|o| o.initial_pose).collect()
     }
 
+    /// `lights` (in this scene's frame: each with its object at its
+    /// initial pose) placed with their objects at `poses`
+    /// ([`Light::placed`]); a light of the static world, or of an object
+    /// `poses` has no pose for, stays where it is.
+    pub fn lights_at(&self, lights: &[Light], poses: &[Pose]) -> Vec<Light> {
+        lights
+            .iter()
+            .map(|light| {
+                let o = light.object as usize;
+                match (self.objects.get(o), poses.get(o)) {
+                    (Some(object), Some(pose)) if light.object != STATIC_OBJECT => {
+                        light.placed(&object.initial_pose, pose)
+                    }
+                    _ => light.clone(),
+                }
+            })
+            .collect()
+    }
+
+    /// Whether any light rides with a dynamic object.
+    pub fn has_riding_lights(&self) -> bool {
+        self.lights.iter().any(|l| l.object != STATIC_OBJECT)
+    }
+
     /// The same scene with every quad cut into two triangles along its
     /// diagonal from `origin` to `origin + u + v`: patch `name` becomes
     /// `name/0` (frame `origin`, `u`, `v`: the quad's own, so that `(s, t)`

@@ -34,12 +34,14 @@ pub enum LightKind {
     },
 }
 
-/// A point, spot or directional light of the static world.
+/// A point, spot or directional light, of the static world or riding
+/// with a dynamic object.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Light {
     pub name: String,
     pub kind: LightKind,
-    /// Where the light is (world space).
+    /// Where the light is (world space, with its object at its initial
+    /// pose).
     pub position: Vec3,
     /// Radiant intensity per channel on its axis, W/sr (a directional
     /// light's irradiance at normal incidence, W/m²): its colour times its
@@ -49,9 +51,34 @@ pub struct Light {
     /// towards it by glTF's recommended window; `None`: no cut-off (the
     /// inverse square alone).
     pub range: Option<f32>,
+    /// The object the light rides with ([`crate::STATIC_OBJECT`]: the
+    /// static world): its position and direction are those above carried
+    /// from the object's initial pose to its pose ([`Light::placed`]), a
+    /// lamp on a moving box.
+    pub object: u32,
 }
 
 impl Light {
+    /// The light carried along with its object from the object's pose
+    /// `from` to `to`: its position and a spot's or sun's direction move
+    /// as the object's points and directions do (`to ∘ from⁻¹`).
+    pub fn placed(&self, from: &crate::Pose, to: &crate::Pose) -> Light {
+        let inverse = from.rotation.inverse();
+        let point = |p: Vec3| {
+            to.transform_point(inverse * (p - from.translation) / from.scale.max(f32::MIN_POSITIVE))
+        };
+        let turn = |d: Vec3| (to.rotation * (inverse * d)).normalize_or(d);
+        let mut light = self.clone();
+        light.position = point(self.position);
+        match &mut light.kind {
+            LightKind::Point => {}
+            LightKind::Spot { direction, .. } | LightKind::Directional { direction, .. } => {
+                *direction = turn(*direction);
+            }
+        }
+        light
+    }
+
     /// Radiant intensity (W/sr per channel) the light sends in the unit
     /// direction `towards` (from the light), at distance `distance`, with
     /// the range window folded in: what, divided by `distance²` and times
@@ -173,7 +200,45 @@ mod tests {
             position: Vec3::ZERO,
             intensity: Vec3::splat(2.0),
             range: None,
+            object: crate::STATIC_OBJECT,
         }
+    }
+
+    /// A lamp riding with its object keeps its place on it: carried from
+    /// one pose to another, its position and direction move as the
+    /// object's own points and directions do, and back again.
+    #[test]
+    fn a_light_placed_with_its_object_moves_as_the_object_does() {
+        use crate::Pose;
+        use glam::Quat;
+        let from = Pose {
+            translation: Vec3::new(1.0, 0.5, 2.0),
+            rotation: Quat::from_rotation_y(0.3),
+            scale: 1.0,
+        };
+        let to = Pose {
+            translation: Vec3::new(-2.0, 1.0, 0.0),
+            rotation: Quat::from_rotation_z(1.1) * Quat::from_rotation_y(-0.4),
+            scale: 1.0,
+        };
+        let local = Vec3::new(0.2, 0.9, -0.1);
+        let mut lamp = spot(10.0, 30.0);
+        lamp.position = from.transform_point(local);
+        let down = from.transform_normal(Vec3::NEG_Y);
+        lamp.kind = LightKind::Spot {
+            direction: down,
+            inner: 0.1,
+            outer: 0.5,
+        };
+        let there = lamp.placed(&from, &to);
+        assert!(there.position.distance(to.transform_point(local)) < 1e-5);
+        let LightKind::Spot { direction, .. } = there.kind else {
+            panic!("still a spot");
+        };
+        assert!(direction.distance(to.transform_normal(Vec3::NEG_Y)) < 1e-5);
+        let back = there.placed(&to, &from);
+        assert!(back.position.distance(lamp.position) < 1e-5);
+        assert_eq!(lamp.placed(&from, &from).intensity, lamp.intensity);
     }
 
     #[test]
@@ -227,6 +292,7 @@ mod tests {
             position: Vec3::ZERO,
             intensity: Vec3::splat(800.0),
             range: None,
+            object: crate::STATIC_OBJECT,
         };
         let sky = Sky::new(Vec3::splat(2.0), Vec3::splat(2.0));
         assert!((sky.irradiance_up().x - 2.0 * std::f32::consts::PI).abs() < 1e-5);

@@ -389,6 +389,7 @@ mod tests {
             position,
             intensity: Vec3::ONE,
             range: None,
+            object: crate::STATIC_OBJECT,
         }
     }
 
@@ -451,6 +452,7 @@ mod tests {
         // Nor does a light whose range ends short of them, nor detail 0.
         let short = [Light {
             range: Some(0.4),
+            object: crate::STATIC_OBJECT,
             ..point(Vec3::new(0.2, 0.2, 0.5))
         }];
         assert_eq!(levels(&triangles, 1.0, (&short, &[]), 4.0), vec![0, 0, 0]);
@@ -490,6 +492,7 @@ mod tests {
             position: Vec3::ZERO,
             intensity: Vec3::splat(800.0),
             range: None,
+            object: crate::STATIC_OBJECT,
         };
         let edges = sun_edges(&triangles, &[sun(Vec3::NEG_Y)]);
         // Cell (i, j) holds triangles 8 i + 2 j and 8 i + 2 j + 1.

@@ -163,7 +163,7 @@ pub fn validate(
     let solver = solver_hints(&mut c, &raw.solver, options.density_scale);
     let mut materials = check_materials(&mut c, &raw.materials);
     let mut objects = check_objects(&mut c, &raw.objects);
-    let mut lights = lights::check_lights(&mut c, &raw.lights);
+    let mut lights = lights::check_lights(&mut c, &raw.lights, &objects);
     let detail = check_light_detail(&mut c, &raw);
     let (mut patches, mut uv_meshes) =
         check_surfaces(&mut c, &raw, options, texel_density, (&lights, detail));

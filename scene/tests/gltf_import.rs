@@ -1156,3 +1156,53 @@ fn khr_lights_punctual_lights_import_at_their_nodes_in_radiometric_units() {
     assert!(near(direction, glam::Vec3::NEG_Y), "{direction}");
     assert!(near(lights[2].intensity, glam::Vec3::splat(2.0)));
 }
+
+/// Issue 59: a light under a dynamic node rides with that node's object,
+/// at its world transform where the object starts; no warning.
+#[test]
+fn a_light_under_a_dynamic_node_rides_with_its_object() {
+    let gltf = r#"{
+      "asset": { "version": "2.0" },
+      "extensionsUsed": ["KHR_lights_punctual"],
+      "extensions": { "KHR_lights_punctual": { "lights": [
+        { "type": "point", "intensity": 683 }
+      ] } },
+      "buffers": [{ "byteLength": 60, "uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAACAPwAAAAAAAIC/AAAAAAAAAAAAAIC/AAABAAIAAAACAAMA" }],
+      "bufferViews": [
+        { "buffer": 0, "byteOffset": 0, "byteLength": 48 },
+        { "buffer": 0, "byteOffset": 48, "byteLength": 12 }
+      ],
+      "accessors": [
+        { "bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0] },
+        { "bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR" }
+      ],
+      "meshes": [{ "name": "plate", "primitives": [{ "attributes": { "POSITION": 0 }, "indices": 1 }] }],
+      "nodes": [
+        { "name": "floor", "mesh": 0 },
+        { "name": "cart", "translation": [2, 0, 0], "mesh": 0, "children": [2],
+          "extras": { "lightwire": { "dynamic": true } } },
+        { "name": "lamp", "translation": [0, 1, 0], "extensions": { "KHR_lights_punctual": { "light": 0 } } }
+      ],
+      "scenes": [{ "nodes": [0, 1] }]
+    }"#;
+    let imported = import_slice(
+        gltf.as_bytes(),
+        None,
+        "cart.gltf",
+        &ImportOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let lamp = &imported.lights[0];
+    let object = lamp.object as usize;
+    assert_ne!(object, 0, "the lamp rides with the cart: {lamp:?}");
+    assert_eq!(imported.objects[object].name, "cart");
+    assert!((lamp.position - glam::Vec3::new(2.0, 1.0, 0.0)).length() < 1e-5);
+    assert!(
+        imported
+            .warnings
+            .iter()
+            .all(|w| !w.problem.contains("light")),
+        "{:?}",
+        imported.warnings
+    );
+}

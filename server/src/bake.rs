@@ -390,7 +390,7 @@ pub fn write_outputs(
         &describe(scene, atlas, poses),
         &image,
         None,
-        (&scene.lights, scene.sky.as_ref()),
+        (&scene.lights_at(&scene.lights, poses), scene.sky.as_ref()),
     )?;
     let path = dir.join(SCENE_GLB);
     std::fs::write(&path, glb).with_context(|| format!("writing {}", path.display()))?;
@@ -537,8 +537,10 @@ pub fn scene_glb(info: &SceneInfo, rgb: &[[f32; 3]], version: Option<u64>) -> Re
     scene_glb_lit(info, rgb, version, (&[], None))
 }
 
-/// [`scene_glb`] with the scene's point, spot and directional lights as
-/// `KHR_lights_punctual` nodes after the objects' (683 lm/W, a sun's
+/// [`scene_glb`] with the scene's point, spot and directional lights
+/// (placed where the objects' poses in `info` put them) as
+/// `KHR_lights_punctual` nodes after the objects' (a light riding with a
+/// dynamic object as a child of its node; 683 lm/W, a sun's
 /// angular radius in the light's `extras`,
 /// `lightwire_scene::gltf::write::light_node`) and its sky in the asset's
 /// `extras` (`{"lightwire": {"sky": {"zenith", "horizon"}}}`), so that
@@ -663,14 +665,44 @@ pub fn scene_glb_lit(
         }
         nodes.push(node);
     }
+    let mut roots: Vec<usize> = (0..nodes.len()).collect();
     for light in lights {
-        nodes.push(lightwire_scene::gltf::write::light_node(light));
+        // A light riding with a dynamic object goes under its node, where
+        // the object's pose puts it: reimported, it rides with it again.
+        let parent = (light.object != lightwire_scene::STATIC_OBJECT)
+            .then_some(light.object as usize)
+            .filter(|&o| o < info.objects.len());
+        let node = match parent {
+            Some(o) => {
+                let p = &info.objects[o].pose;
+                let (t, r) = (
+                    Vec3::from_array(p.translation),
+                    Quat::from_array(p.rotation).normalize(),
+                );
+                let inverse = r.inverse();
+                let mut local = light.clone();
+                local.position = inverse * (light.position - t) / p.scale;
+                if let lightwire_scene::LightKind::Spot { direction, .. }
+                | lightwire_scene::LightKind::Directional { direction, .. } = &mut local.kind
+                {
+                    *direction = (inverse * *direction).normalize_or(*direction);
+                }
+                local
+            }
+            None => light.clone(),
+        };
+        nodes.push(lightwire_scene::gltf::write::light_node(&node));
+        let index = nodes.len() - 1;
+        match parent {
+            Some(o) => nodes[o].children.push(index),
+            None => roots.push(index),
+        }
     }
     let doc = GlbScene {
         materials,
         images: Vec::new(),
         meshes,
-        roots: (0..nodes.len()).collect(),
+        roots,
         nodes,
     };
     let mut png = Vec::new();

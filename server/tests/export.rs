@@ -717,3 +717,59 @@ async fn the_served_scene_glb_keeps_the_scenes_lights() {
         .to_string();
     assert!(error.contains("no scene \"nope\""), "{error:?}");
 }
+
+/// Issues 59 and 60: a light riding with a dynamic object is exported
+/// under that object's node, where the object's pose puts it: with the
+/// crate moved and turned, the reimported lamp rides with the crate's
+/// object, at the placed position and direction (1e-5), and goes where the
+/// crate goes from there.
+#[test]
+fn a_light_riding_with_an_object_is_exported_under_its_node() {
+    let lit = ROOM.replacen(
+        r#""surfaces": ["#,
+        r#""lights": [
+    { "name": "lamp", "type": "spot", "object": "crate", "position": [1, 0.9, 1], "direction": [0, -1, 0.2],
+      "intensity": 3 }
+  ],
+  "surfaces": ["#,
+        1,
+    );
+    let (scene, atlas) =
+        parse_scene(&lit, "lamp-room.json", LoadOptions::unpaired(1.0)).expect("the room loads");
+    let crate_ = scene.object_by_name("crate").expect("a crate");
+    assert_eq!(scene.lights[0].object, crate_);
+    let mut poses = scene.initial_poses();
+    poses[crate_ as usize].translation += Vec3::new(0.4, 0.0, -0.3);
+    poses[crate_ as usize].rotation = glam::Quat::from_rotation_y(0.7);
+    let placed = scene.lights_at(&scene.lights, &poses);
+    let glb = bake::scene_glb_lit(
+        &describe(&scene, &atlas, &poses),
+        &gradient(&atlas),
+        None,
+        (&placed, None),
+    )
+    .expect("scene.glb");
+    let imported = reimport(&glb);
+    let lamp = &imported.lights[0];
+    assert_eq!(
+        imported.objects[lamp.object as usize].name, "crate",
+        "the lamp rides with the crate: {lamp:?}"
+    );
+    let close = |a: Vec3, b: Vec3| (a - b).length() <= 1e-5;
+    assert!(
+        close(lamp.position, placed[0].position),
+        "{} vs {}",
+        lamp.position,
+        placed[0].position
+    );
+    let (
+        LightKind::Spot { direction: got, .. },
+        LightKind::Spot {
+            direction: want, ..
+        },
+    ) = (lamp.kind, placed[0].kind)
+    else {
+        panic!("a spot: {lamp:?}");
+    };
+    assert!(close(got, want), "{got} vs {want}");
+}

@@ -156,7 +156,8 @@ pub struct ImportedScene {
     /// One per (node, mesh primitive), in depth-first node order.
     pub instances: Vec<MeshInstance>,
     /// The nodes' `KHR_lights_punctual` lights, in world space and
-    /// radiometric units, named after their nodes.
+    /// radiometric units, named after their nodes; `object` is the
+    /// index into `objects` of the dynamic node a light sits under.
     pub lights: Vec<crate::Light>,
     /// The sky a file Lightwire exported keeps in its asset's `extras`.
     pub sky: Option<crate::Sky>,
@@ -338,7 +339,6 @@ pub fn import_slice(
         uv_checked: HashMap::new(),
         dropped: BTreeMap::new(),
         clamped: Vec::new(),
-        light_warnings: Vec::new(),
     };
     importer.load_buffers(&gltf, base);
     let mut scene = importer.convert(&gltf.document);
@@ -410,9 +410,6 @@ struct Importer<'o> {
     dropped: BTreeMap<String, Dropped>,
     /// Materials whose base colour was clamped to [`ALBEDO_MAX`].
     clamped: Vec<String>,
-    /// Nodes whose light sits under a dynamic object (left where it
-    /// starts).
-    light_warnings: Vec<String>,
 }
 
 /// Triangles one primitive lost at import.
@@ -679,9 +676,9 @@ impl Importer<'_> {
 
     /// A node's `KHR_lights_punctual` light at its world transform `world`
     /// (a glTF light shines along its node's `-z`), in radiometric units
-    /// times the import's `light_scale`. A light under a dynamic object
-    /// stays where the object starts, with a warning (lights do not move
-    /// yet); one whose numbers are not finite or negative is reported.
+    /// times the import's `light_scale`, riding with `object` (a light
+    /// under a dynamic node moves with it); one whose numbers are not
+    /// finite or negative is reported.
     fn light(
         &mut self,
         node: &::gltf::Node,
@@ -750,9 +747,6 @@ impl Importer<'_> {
                 }
             }
         };
-        if object != 0 {
-            self.light_warnings.push(location.to_string());
-        }
         gathered.lights.push(crate::Light {
             name: node
                 .name()
@@ -769,6 +763,7 @@ impl Importer<'_> {
             } else {
                 range
             },
+            object,
         });
     }
 
@@ -1437,16 +1432,6 @@ impl Importer<'_> {
                     } else {
                         String::new()
                     }
-                ),
-            });
-        }
-        if !self.light_warnings.is_empty() {
-            out.push(SceneIssue {
-                location: "lights".to_string(),
-                problem: format!(
-                    "{} light(s) under a dynamic object stay where the object starts (lights do not move yet): {}",
-                    self.light_warnings.len(),
-                    self.light_warnings.join(", ")
                 ),
             });
         }

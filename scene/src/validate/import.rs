@@ -160,9 +160,18 @@ pub(super) fn merge_import(
     for w in &imported.warnings {
         c.warn(&format!("{loc}: {}", w.location), w.problem.clone());
     }
-    into.lights.extend(imported.lights.iter().cloned());
     let material_ids = merge_materials(c, loc, imported, into.materials);
     let object_ids = merge_objects(c, loc, imported, into.objects);
+    // A light under a dynamic node rides with that node's object.
+    into.lights.extend(imported.lights.iter().map(|l| {
+        crate::Light {
+            object: object_ids
+                .get(l.object as usize)
+                .copied()
+                .unwrap_or(crate::STATIC_OBJECT),
+            ..l.clone()
+        }
+    }));
     let mut uv_mesh_of: HashMap<(usize, usize), usize> = HashMap::new();
     // Per own-UV mesh, its triangles' vertex normals (for its smooth edges).
     let mut own_normals: BTreeMap<usize, Vec<Option<[Vec3; 3]>>> = BTreeMap::new();

@@ -11,7 +11,11 @@ use crate::light::{Light, LightKind, Sky};
 /// or directional light's direction of non-zero length; a spot's cones
 /// with `0 <= inner < outer <= 90` degrees, a directional light's angular
 /// diameter from 0 to 20 degrees; and no key of another type.
-pub(super) fn check_lights(c: &mut Checker, raw: &[LightJson]) -> Vec<Light> {
+pub(super) fn check_lights(
+    c: &mut Checker,
+    raw: &[LightJson],
+    objects: &[crate::Object],
+) -> Vec<Light> {
     c.unique("light", raw.iter().map(|l| l.name.as_str()));
     let mut out = Vec::new();
     for (i, l) in raw.iter().enumerate() {
@@ -88,8 +92,35 @@ pub(super) fn check_lights(c: &mut Checker, raw: &[LightJson]) -> Vec<Light> {
                 None
             }
         };
-        if let (Some(position), Some(color), Some(intensity), Some(range), Some(kind)) =
-            (position, color, intensity, range, kind)
+        let object = match &l.object {
+            None => Some(crate::STATIC_OBJECT),
+            Some(name) => {
+                let found = objects.iter().position(|o| o.dynamic && o.name == *name);
+                if found.is_none() {
+                    let dynamic: Vec<&str> = objects
+                        .iter()
+                        .filter(|o| o.dynamic)
+                        .map(|o| o.name.as_str())
+                        .collect();
+                    c.report(
+                        &loc,
+                        format!(
+                            "object \"{name}\" is not a dynamic object of the scene (its dynamic objects: {})",
+                            if dynamic.is_empty() { "none".to_string() } else { dynamic.join(", ") }
+                        ),
+                    );
+                }
+                found.map(|o| o as u32)
+            }
+        };
+        if let (
+            Some(position),
+            Some(color),
+            Some(intensity),
+            Some(range),
+            Some(kind),
+            Some(object),
+        ) = (position, color, intensity, range, kind, object)
         {
             out.push(Light {
                 name: l.name.clone(),
@@ -97,6 +128,7 @@ pub(super) fn check_lights(c: &mut Checker, raw: &[LightJson]) -> Vec<Light> {
                 position,
                 intensity: color * intensity,
                 range,
+                object,
             });
         }
     }
@@ -370,6 +402,41 @@ mod tests {
             err.contains("emission > 0")
                 && err.contains("directional light")
                 && err.contains("sky"),
+            "{err}"
+        );
+    }
+
+    /// A light with `"object"` rides with that dynamic object (placed with
+    /// it by `Scene::lights_at`); one naming no dynamic object is refused
+    /// with the object's name and the scene's dynamic objects.
+    #[test]
+    fn a_light_rides_with_the_dynamic_object_it_names() {
+        let text = |object: &str| {
+            format!(
+                r#"{{ "name": "t", "lightmap": {{ "texel_density": 4 }},
+                "materials": [{{ "name": "m", "albedo": [0.5, 0.5, 0.5] }}],
+                "objects": [{{ "name": "cart", "pose": {{ "translation": [0, 0, 0] }} }}],
+                "surfaces": [
+                    {{ "name": "floor", "material": "m",
+                       "quad": {{ "origin": [0, 0, 0], "u": [0, 0, 1], "v": [1, 0, 0] }} }},
+                    {{ "name": "cart", "material": "m", "object": "cart",
+                       "box": {{ "center": [0, 0.2, 0], "size": [0.2, 0.2, 0.2] }} }}],
+                "lights": [{{ "name": "lamp", "type": "point", "position": [0, 0.5, 0],
+                    "intensity": 1, "object": "{object}" }}] }}"#
+            )
+        };
+        let scene = Scene::parse(&text("cart"), "t.json").unwrap_or_else(|e| panic!("{e}"));
+        let cart = scene.object_by_name("cart").expect("cart");
+        assert_eq!(scene.lights[0].object, cart);
+        let mut poses = scene.initial_poses();
+        poses[cart as usize].translation = glam::Vec3::new(1.0, 0.0, 2.0);
+        let placed = scene.lights_at(&scene.lights, &poses);
+        assert!((placed[0].position - glam::Vec3::new(1.0, 0.5, 2.0)).length() < 1e-6);
+        let err = Scene::parse(&text("wagon"), "t.json")
+            .expect_err("no such object")
+            .to_string();
+        assert!(
+            err.contains("lamp") && err.contains("\"wagon\"") && err.contains("cart"),
             "{err}"
         );
     }

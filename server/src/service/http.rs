@@ -434,11 +434,19 @@ async fn lightmap_file<S: Scenes>(
             }
             // The lights as this version was lit with them (the states
             // `SetLight`s gave them), not as the scene file has them.
+            // A light riding with a dynamic object where this version's
+            // pose of the object puts it.
             let (now, sky) = match &runtime {
-                Some(r) => (
-                    super::wire::lights_now(&r.scene.lights, &lights),
-                    r.scene.sky.as_ref(),
-                ),
+                Some(r) => {
+                    let mut at = r.scene.initial_poses();
+                    for p in poses.iter() {
+                        if let Some(pose) = at.get_mut(p.object as usize) {
+                            *pose = super::wire::from_wire(&p.pose);
+                        }
+                    }
+                    let states = super::wire::lights_now(&r.scene.lights, &lights);
+                    (r.scene.lights_at(&states, &at), r.scene.sky.as_ref())
+                }
                 None => (Vec::new(), None),
             };
             let glb = crate::bake::scene_glb_lit(&posed, &rgb, Some(version), (&now, sky))

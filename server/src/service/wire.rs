@@ -111,8 +111,23 @@ pub fn check_light(info: &SceneInfo, light: u32, state: &LightState) -> Result<u
 /// The scene's light `base` in the wire state `state` (already checked by
 /// [`check_light`]): its kind, cone, disc and range as they are, its
 /// intensity `color × intensity` when on (black when off), its position,
-/// and for a spot or directional light its direction (normalized).
+/// and for a spot or directional light its direction (normalized). A light
+/// that rides with a dynamic object keeps its own position and direction:
+/// it goes where its object goes (PROTOCOL.md §4).
 pub fn light_from_wire(base: &Light, state: &LightState) -> Light {
+    if base.object != lightwire_scene::STATIC_OBJECT {
+        let mut riding = light_from_wire(
+            &Light {
+                object: lightwire_scene::STATIC_OBJECT,
+                ..base.clone()
+            },
+            state,
+        );
+        riding.position = base.position;
+        riding.kind = base.kind;
+        riding.object = base.object;
+        return riding;
+    }
     let sent = Vec3::from_array(state.direction);
     // The scene's own direction as `SceneInfo` gave it is kept to the bit
     // (normalizing a unit vector again may change its last bit, and a
@@ -149,6 +164,7 @@ pub fn light_from_wire(base: &Light, state: &LightState) -> Light {
         position: Vec3::from_array(state.position),
         intensity,
         range: base.range,
+        object: base.object,
     }
 }
 
@@ -254,6 +270,7 @@ mod tests {
             position: Vec3::ZERO,
             intensity: Vec3::new(800.0, 760.0, 680.0),
             range: None,
+            object: lightwire_scene::STATIC_OBJECT,
         };
         let described = crate::bake::light_info(&sun).state;
         assert_eq!(light_from_wire(&sun, &described), sun);
@@ -276,6 +293,37 @@ mod tests {
         assert_eq!(direction, Vec3::NEG_Y, "normalized");
     }
 
+    /// A light riding with a dynamic object takes its state's on/off,
+    /// colour and intensity from a `SetLight`, not its position or
+    /// direction: it goes where its object goes.
+    #[test]
+    fn a_riding_light_keeps_its_place_whatever_a_set_light_says() {
+        let lamp = Light {
+            name: "lamp".into(),
+            kind: LightKind::Spot {
+                direction: Vec3::NEG_Y,
+                inner: 0.1,
+                outer: 0.4,
+            },
+            position: Vec3::new(1.0, 2.0, 3.0),
+            intensity: Vec3::splat(4.0),
+            range: None,
+            object: 1,
+        };
+        let moved = LightState {
+            position: [9.0, 9.0, 9.0],
+            direction: [1.0, 0.0, 0.0],
+            intensity: 2.0,
+            color: [1.0, 0.5, 0.25],
+            ..crate::bake::light_info(&lamp).state
+        };
+        let got = light_from_wire(&lamp, &moved);
+        assert_eq!(got.position, lamp.position);
+        assert_eq!(got.kind, lamp.kind);
+        assert_eq!(got.object, 1);
+        assert_eq!(got.intensity, Vec3::new(2.0, 1.0, 0.5));
+    }
+
     /// A description whose lights only changed state is the same scene;
     /// one whose light moved kind, or whose geometry changed, is not. The
     /// states a publication lists replace the described ones.
@@ -287,6 +335,7 @@ mod tests {
             position: Vec3::new(0.0, 1.0, 0.0),
             intensity: Vec3::splat(4.0),
             range: None,
+            object: lightwire_scene::STATIC_OBJECT,
         });
         let mut a = info();
         a.lights = vec![lamp.clone()];

@@ -344,6 +344,10 @@ pub struct DynamicSolver<T> {
     preview: Option<Vec<Vec3>>,
     /// What the last first answer placed and where its time went.
     bounce_report: Option<BounceReport>,
+    /// The lights as last set, each where its object's initial pose puts
+    /// it; `scene.lights` holds them placed at the solver's poses
+    /// (`Scene::lights_at`: a lamp riding with a moving box).
+    lights: Vec<Light>,
 }
 
 impl<T: Clone> DynamicSolver<T> {
@@ -359,6 +363,10 @@ impl<T: Clone> DynamicSolver<T> {
         options: DynamicOptions,
     ) -> Result<Self, GpuError> {
         let dynamic: Vec<bool> = scene.objects.iter().map(|o| o.dynamic).collect();
+        let lights = scene.lights.clone();
+        let mut placed = scene.clone();
+        placed.lights = scene.lights_at(&lights, poses);
+        let scene = &placed;
         let (mut solver, phase) = match options.method {
             Redistribution::Cross => (
                 ProgressiveSolver::with_absent(
@@ -429,6 +437,7 @@ impl<T: Clone> DynamicSolver<T> {
                 .map(|o| FirstBounce::new(gpu, atlas.elements.len(), o)),
             preview: None,
             bounce_report: None,
+            lights,
         })
     }
 
@@ -485,7 +494,10 @@ impl<T: Clone> DynamicSolver<T> {
     /// direct light, reflected, becomes unshot radiosity), then the
     /// waiting poses are moved to, if any; refinement carries the change
     /// and, once the scene holds still, the gathered corrections run as
-    /// after a move. The state that completes then reflects `tag`.
+    /// after a move. The state that completes then reflects `tag`. A
+    /// light that rides with a dynamic object (`Light::object`) is given
+    /// with its object at its initial pose, as the scene has it, and is
+    /// placed at the poses; a move of its object alone moves it too.
     pub fn set_lights(&mut self, lights: &[Light], tag: T) {
         let poses = match self.pending.take() {
             Some(p) => p.poses,
@@ -498,9 +510,24 @@ impl<T: Clone> DynamicSolver<T> {
         });
     }
 
-    /// The lights of the state being worked on (or last completed).
+    /// The lights of the state being worked on (or last completed),
+    /// placed: a light riding with a dynamic object where the object's
+    /// pose puts it.
     pub fn lights(&self) -> &[Light] {
         &self.scene.lights
+    }
+
+    /// The lights to follow for `poses`: `set` (as set, with their objects
+    /// at their initial poses) or the lights as last set, placed at
+    /// `poses`; none when no lights were set and none rides with an object.
+    fn placed_lights(&mut self, set: Option<Vec<Light>>, poses: &[Pose]) -> Option<Vec<Light>> {
+        if set.is_none() && !self.scene.has_riding_lights() {
+            return None;
+        }
+        if let Some(lights) = set {
+            self.lights = lights;
+        }
+        Some(self.scene.lights_at(&self.lights, poses))
     }
 
     /// Changes at the solver every light that differs from `lights`;
@@ -742,6 +769,7 @@ impl<T: Clone> DynamicSolver<T> {
     /// waiting, refinement, or gathered corrections), in that order.
     fn start_unit(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
         if let Some(Pending { poses, lights, tag }) = self.pending.take() {
+            let lights = self.placed_lights(lights, &poses);
             if let (true, Some(lights)) = (poses.as_slice() == self.solver.poses(), &lights) {
                 if let Some(composed) = self
                     .basis
@@ -819,7 +847,7 @@ impl<T: Clone> DynamicSolver<T> {
             return Ok((true, false));
         }
         if self.wants_basis() && !self.solver.absent().contains(&true) {
-            self.phase = Phase::Basis(Box::new(Building::new(&self.scene)));
+            self.phase = Phase::Basis(Box::new(Building::new(&self.scene, &self.lights)));
             return Ok((true, false));
         }
         Ok((false, false))
@@ -1132,10 +1160,14 @@ struct Building {
 }
 
 impl Building {
-    /// Starts building the basis of `scene` (its lights as they are now).
-    fn new(scene: &Scene) -> Self {
+    /// Starts building the basis of `scene` (its lights as they are now,
+    /// placed; `lights` are the same as set, each where its object's
+    /// initial pose puts it, which the groups' sessions place again).
+    fn new(scene: &Scene, lights: &[Light]) -> Self {
+        let mut set = scene.clone();
+        set.lights = lights.to_vec();
         Self {
-            groups: super::basis::groups(scene),
+            groups: super::basis::groups(&set),
             done: Vec::new(),
             current: None,
             built_for: scene.lights.clone(),
