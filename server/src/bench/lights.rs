@@ -443,7 +443,7 @@ pub fn sweep(
                 bounce.vpls,
                 bounce.points
             );
-            write_images(dir, &atlas, &name, &first.1, &expected)?;
+            write_images(dir, &atlas, (&scene.name, &name), &first.1, &expected)?;
         }
         let a = accuracy_where(&atlas, &first.1, &expected, validity.keep())
             .context("no visible texel to compare")?;
@@ -495,11 +495,11 @@ fn bias(atlas: &Atlas, validity: &Validity, values: &[Vec3], expected: &[Vec3]) 
 
 /// `NAME.png` (the state) and `NAME-diff5.png` (five times its difference
 /// from `expected`) in `dir`, at the white point of `expected`; and
-/// `reference.png` once.
+/// `SCENE-reference.png` once.
 fn write_images(
     dir: &Path,
     atlas: &Atlas,
-    name: &str,
+    (scene, name): (&str, &str),
     values: &[Vec3],
     expected: &[Vec3],
 ) -> Result<()> {
@@ -507,7 +507,7 @@ fn write_images(
     let reference = atlas.to_image(expected);
     let white = crate::bake::white_point(&reference);
     let (w, h) = (atlas.width, atlas.height);
-    let path = dir.join("reference.png");
+    let path = dir.join(format!("{scene}-reference.png"));
     if !path.exists() {
         crate::bake::write_png_with(&path, w, h, &reference, white)?;
     }

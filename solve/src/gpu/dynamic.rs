@@ -769,6 +769,13 @@ impl<T: Clone> DynamicSolver<T> {
     /// waiting, refinement, or gathered corrections), in that order.
     fn start_unit(&mut self, report: &mut DynamicStep) -> Result<(bool, bool), GpuError> {
         if let Some(Pending { poses, lights, tag }) = self.pending.take() {
+            // Whether the light the change starts from is refined: a
+            // change that cuts the last one's refinement short (a stream,
+            // the sun turning every frame) is published as far as it got
+            // instead of a first answer each (on window-sun's day, first
+            // answers every frame took the light latency's median from 47
+            // to 76 ms and the stream from 243 to 789 kbit/s per viewer).
+            let refined = !self.wants_refinement();
             let lights = self.placed_lights(lights, &poses);
             if let (true, Some(lights)) = (poses.as_slice() == self.solver.poses(), &lights) {
                 if let Some(composed) = self
@@ -799,11 +806,11 @@ impl<T: Clone> DynamicSolver<T> {
                 return Ok((true, true));
             };
             // Only lights changed: refinement carries the change, and the
-            // state it completes reflects the tag; the first answer is
-            // published at once.
+            // state it completes reflects the tag; from a refined state,
+            // the first answer is published at once.
             self.working = tag;
-            self.first_answer(&change, report)?;
-            self.unpublished = self.preview.is_none();
+            let answered = refined && self.first_answer(&change, report)?;
+            self.unpublished = !answered;
             self.basis = None;
             if self.options.corrections > 0 {
                 self.corrected = false;
@@ -1115,13 +1122,18 @@ impl<T: Clone> DynamicSolver<T> {
     /// light, [`super::vpl`]. `change` is the change of reflected direct
     /// light per element, which the passive objects of a cross session
     /// send (refinement does not shoot their unshot light). Nothing
-    /// without lights giving light, or with the first bounce off.
-    fn first_answer(&mut self, change: &[Vec3], report: &mut DynamicStep) -> Result<(), GpuError> {
+    /// without lights giving light, or with the first bounce off. Returns
+    /// whether it published.
+    fn first_answer(
+        &mut self,
+        change: &[Vec3],
+        report: &mut DynamicStep,
+    ) -> Result<bool, GpuError> {
         let Some(bounce) = &self.bounce else {
-            return Ok(());
+            return Ok(false);
         };
         if gives_no_light(&self.scene) {
-            return Ok(());
+            return Ok(false);
         }
         let solver = &self.solver;
         let mut source = solver.unshot_light()?;
@@ -1147,7 +1159,7 @@ impl<T: Clone> DynamicSolver<T> {
         self.complete(report)?;
         self.preview = Some(state);
         self.bounce_report = Some(times);
-        Ok(())
+        Ok(true)
     }
 }
 
