@@ -156,7 +156,7 @@ pub struct DynamicOptions {
     pub light_basis: usize,
     /// A light change followed by shooting (a light that moves, or any
     /// change without the basis) is first published as the state so far
-    /// plus one bounce of its unshot light by virtual point lights and
+    /// plus the bounces of its unshot light by virtual point lights and
     /// imperfect shadow maps ([`super::vpl`], ism §4.1, §4.11), in the
     /// step that takes it up; the refined state follows. None: the first
     /// state published is the refined one.
@@ -336,11 +336,11 @@ pub struct DynamicSolver<T> {
     /// The tag being worked on is of a light change that no completed
     /// state shows yet.
     unpublished: bool,
-    /// The first bounce of a light change's unshot light, for a scene
-    /// with lights ([`DynamicOptions::first_bounce`]).
+    /// The bounces of a light change's unshot light, for a scene with
+    /// lights ([`DynamicOptions::first_bounce`]).
     bounce: Option<FirstBounce>,
     /// The last state published, while it is a first answer (the light
-    /// so far and one bounce of the change) rather than the solver's.
+    /// so far and the bounces of the change) rather than the solver's.
     preview: Option<Vec<Vec3>>,
     /// What the last first answer placed and where its time went.
     bounce_report: Option<BounceReport>,
@@ -458,7 +458,7 @@ impl<T: Clone> DynamicSolver<T> {
     }
 
     /// Whether the last state published is a first answer (the light so
-    /// far and one bounce of a light's change), not yet the solver's.
+    /// far and the bounces of a light's change), not yet the solver's.
     pub fn is_first_answer(&self) -> bool {
         self.preview.is_some()
     }
@@ -1118,7 +1118,7 @@ impl<T: Clone> DynamicSolver<T> {
 
     /// Publishes the first answer to a light change that refinement will
     /// carry ([`DynamicOptions::first_bounce`]): the solver's state so far
-    /// (the change's direct light whole) plus one bounce of its unshot
+    /// (the change's direct light whole) plus the bounces of its unshot
     /// light, [`super::vpl`]. `change` is the change of reflected direct
     /// light per element, which the passive objects of a cross session
     /// send (refinement does not shoot their unshot light). Nothing

@@ -52,7 +52,7 @@
 //! - `gather/`: gather radiosity;
 //! - `correct.rs`: gather sweeps that correct a progressive solution;
 //! - `dynamic.rs`: the solver session that follows moves;
-//! - `vpl.rs`: a first bounce by virtual point lights and imperfect
+//! - `vpl.rs`: bounces by virtual point lights and imperfect
 //!   shadow maps, the fast first answer for a light that moves;
 //! - `profile.rs`: where that session's time goes, per stage (profiling
 //!   only).

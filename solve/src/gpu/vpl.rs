@@ -1,4 +1,4 @@
-//! A fast first answer for a light that moves: one bounce of instant
+//! A fast first answer for a light that moves: bounces of instant
 //! radiosity with imperfect shadow maps, on the GPU (issue 60 item 3).
 //!
 //! When a light moves, the session adds the change of its direct light,
@@ -6,8 +6,9 @@
 //! ([`super::ProgressiveSolver::set_light`]); refinement then shoots `U`
 //! until converged, which takes a few hundred milliseconds and more. What
 //! `B` lacks meanwhile is every bounce of `U`. [`FirstBounce`] estimates
-//! the first of them in one GPU pass, so that a state `B + bounce(U)` can
-//! be published at once:
+//! them in a few GPU passes, so that a state `B + bounces(U)` can be
+//! published at once. Each bounce (two by default,
+//! [`BounceOptions::bounces`]) is:
 //!
 //! 1. **Virtual point lights** (ism §4.1): Keller's instant radiosity
 //!    places lights where light lands; here they are placed on the
@@ -28,9 +29,13 @@
 //!    2.2.7-2.2.8, which keeps a light's reach bounded near its own
 //!    surface) and reflects it.
 //!
-//! What the first answer misses is the second and later bounces of the
-//! change, and what the coarse maps get wrong; it is replaced by the
-//! refined state as soon as that is complete (`DynamicSolver`).
+//! The next bounce's lights sit on the light the one before left (Keller's
+//! walk, ism §4.1, eq. 4.2), and the bounces after the last are added as a
+//! geometric series measured on the last two ([`BounceOptions::tail`]).
+//! What the first answer misses is what that series gets wrong and what
+//! the coarse maps get wrong; it is replaced by the refined state as soon
+//! as that is complete (`DynamicSolver`). (The type keeps the name of its
+//! first pass.)
 
 use std::time::{Duration, Instant};
 
@@ -49,7 +54,8 @@ pub const ISM_SIDE: u32 = 32;
 /// Texels of one map.
 const MAP: u64 = (ISM_SIDE * ISM_SIDE) as u64;
 
-/// How many virtual lights and shadow-map points a first bounce uses.
+/// How many bounces, virtual lights and shadow-map points a first answer
+/// uses.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BounceOptions {
     /// Virtual point lights (the seed's Fig. 9.8 varies them from 4 to
@@ -89,7 +95,7 @@ impl Default for BounceOptions {
     }
 }
 
-/// What a first bounce placed, and where its time went.
+/// What a first answer's bounces placed, and where their time went.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct BounceReport {
     /// Virtual lights placed (at most [`BounceOptions::vpls`]: an element
@@ -256,7 +262,7 @@ pub(super) fn place_vpls(
     lights
 }
 
-/// The GPU side of one bounce: pipelines and buffers for a scene of a
+/// The GPU side of the bounces: pipelines and buffers for a scene of a
 /// given element count and [`BounceOptions`].
 pub struct FirstBounce {
     options: BounceOptions,
