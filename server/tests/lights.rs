@@ -224,17 +224,7 @@ async fn hostile_light_messages_get_their_errors_and_disturb_no_one() {
         driver.set_light(0, seq, s).await;
     }
     let stale = seqs.iter().filter(|s| !s.2).count();
-    viewer
-        .read_until(Duration::from_secs(10), "Forbidden", |p| {
-            !p.errors.is_empty()
-        })
-        .await;
-    assert_eq!(
-        viewer.errors[0].0,
-        ErrorCode::Forbidden,
-        "{:?}",
-        viewer.errors
-    );
+    refused_as_forbidden(&mut viewer).await;
     driver
         .read_until(Duration::from_secs(10), "the errors", |p| {
             p.errors.len() >= cases.len() + stale
@@ -567,16 +557,15 @@ async fn a_driver_on_a_relay_switches_a_light_for_viewers_on_both() {
     );
     let mut viewer = Peer::connect(&ws(&relay), VIEWER_TOKEN).await;
     viewer.set_light(0, 2, bulb.state).await;
-    viewer
-        .read_until(Duration::from_secs(10), "Forbidden", |p| {
-            !p.errors.is_empty()
-        })
-        .await;
-    assert_eq!(
-        viewer.errors[0].0,
-        ErrorCode::Forbidden,
-        "{:?}",
-        viewer.errors
-    );
+    refused_as_forbidden(&mut viewer).await;
     assert!(relayed.errors.is_empty() && direct.errors.is_empty());
+}
+
+/// Waits for `peer`'s first error and asserts it is `Forbidden`.
+async fn refused_as_forbidden(peer: &mut Peer) {
+    peer.read_until(Duration::from_secs(10), "Forbidden", |p| {
+        !p.errors.is_empty()
+    })
+    .await;
+    assert_eq!(peer.errors[0].0, ErrorCode::Forbidden, "{:?}", peer.errors);
 }

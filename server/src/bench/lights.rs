@@ -50,7 +50,7 @@ use glam::{Quat, Vec3};
 use serde::Serialize;
 
 use lightwire_scene::atlas::Atlas;
-use lightwire_scene::{Charts, Light, LightKind, LoadOptions};
+use lightwire_scene::{Charts, Light, LightKind, LoadOptions, Scene};
 use lightwire_solve::accuracy::accuracy_where;
 use lightwire_solve::gpu::{BounceOptions, Device, DynamicOptions, DynamicSolver};
 use lightwire_solve::load::load_scene;
@@ -122,15 +122,20 @@ type Session = DynamicSolver<u32>;
 
 const SLICE: Duration = Duration::from_millis(10);
 
-/// Runs the benchmark on the scene file at `path`.
-pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResult> {
-    let (scene, atlas) = load_scene(
+/// The scene file at `path` at the settings' density and charts.
+fn load(path: &Path, settings: &Settings) -> Result<(Scene, Atlas)> {
+    Ok(load_scene(
         path,
         LoadOptions {
             density_scale: settings.density_scale,
             charts: settings.charts,
         },
-    )?;
+    )?)
+}
+
+/// Runs the benchmark on the scene file at `path`.
+pub fn run(gpu: &Device, path: &Path, settings: &Settings) -> Result<LightsResult> {
+    let (scene, atlas) = load(path, settings)?;
     let Some(first) = scene.lights.first().cloned() else {
         bail!(
             "{} has no point, spot or directional light to change (add one under \"lights\")",
@@ -385,13 +390,7 @@ pub fn sweep(
     settings: &Settings,
     bounces: &[BounceOptions],
 ) -> Result<Vec<SweepRow>> {
-    let (scene, atlas) = load_scene(
-        path,
-        LoadOptions {
-            density_scale: settings.density_scale,
-            charts: settings.charts,
-        },
-    )?;
+    let (scene, atlas) = load(path, settings)?;
     if scene.lights.is_empty() || atlas.elements.len() > MAX_ELEMENTS {
         bail!(
             "{}: the sweep needs a light and at most {MAX_ELEMENTS} elements",
